@@ -1,0 +1,1 @@
+"""Planning with Attitude: Wahba problem and rigid-body benchmarks."""

@@ -1,0 +1,55 @@
+"""Roll-pitch-yaw Euler angles, as in the comparative study (eqs. 5-6).
+
+``rpy = (phi, theta, psi)`` are roll, pitch and yaw in radians, with
+``R(rpy) = Rz(psi) Ry(theta) Rx(phi)`` the body-to-world rotation. The chart is singular at
+``theta = +-pi/2`` (gimbal lock), where `rate_matrix` is undefined.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+__all__ = ["rotation_matrix", "from_rotation_matrix", "rate_matrix"]
+
+
+def _rx(a: jax.Array) -> jax.Array:
+    c, s = jnp.cos(a), jnp.sin(a)
+    return jnp.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def _ry(a: jax.Array) -> jax.Array:
+    c, s = jnp.cos(a), jnp.sin(a)
+    return jnp.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def _rz(a: jax.Array) -> jax.Array:
+    c, s = jnp.cos(a), jnp.sin(a)
+    return jnp.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def rotation_matrix(rpy: jax.Array) -> jax.Array:
+    """``Rz(psi) Ry(theta) Rx(phi)`` (eq. 5); (3,) -> (3, 3)."""
+    return _rz(rpy[2]) @ _ry(rpy[1]) @ _rx(rpy[0])
+
+
+def from_rotation_matrix(Rm: jax.Array) -> jax.Array:
+    """Inverse of `rotation_matrix` with pitch in [-pi/2, pi/2]; (3, 3) -> (3,)."""
+    roll = jnp.arctan2(Rm[2, 1], Rm[2, 2])
+    pitch = jnp.arctan2(-Rm[2, 0], jnp.sqrt(Rm[2, 1] ** 2 + Rm[2, 2] ** 2))
+    yaw = jnp.arctan2(Rm[1, 0], Rm[0, 0])
+    return jnp.stack([roll, pitch, yaw])
+
+
+def rate_matrix(rpy: jax.Array) -> jax.Array:
+    """``W(theta)`` of eq. 6, mapping the body angular velocity to ``d rpy / dt``; (3,) -> (3, 3)."""
+    phi, theta = rpy[0], rpy[1]
+    sp, cp = jnp.sin(phi), jnp.cos(phi)
+    tt, ct = jnp.tan(theta), jnp.cos(theta)
+    return jnp.array(
+        [
+            [1.0, sp * tt, cp * tt],
+            [0.0, cp, -sp],
+            [0.0, sp / ct, cp / ct],
+        ]
+    )

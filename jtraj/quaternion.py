@@ -1,0 +1,180 @@
+"""Quaternion calculus of "Planning with Attitude" (Jackson, Tracy and Manchester, RA-L 2021).
+
+Quaternions are plain arrays ``q = [q_s, q_v]`` (scalar first, "wxyz", Hamilton product),
+the convention of the paper, of MuJoCo and of jaxlie's ``SO3.wxyz``. Equation numbers refer
+to the paper (`shared/seeds/004_*`). Functions take one quaternion (shape (4,)) unless a
+docstring says otherwise; use `jax.vmap` for batches.
+
+Two printed equations of the paper carry sign slips that this module does not copy; the
+functions here equal the autodiff expressions stated in their docstrings, and the tests
+check exactly those expressions:
+
+- eq. 15: the second-order term of the Cayley map is ``-|phi|^2 / 2 q``, so the Hessian
+  correction is ``G^T (d2h/dq2) G - (dh/dq q) I3`` (printed with ``+``);
+- eq. 41: the gradient of ``1 - |q_g^T q|`` is ``-sign(q_g^T q) q_g^T G(q)`` (printed
+  without the minus). Eq. 42 as printed is right.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from jtraj.lie import skew
+
+__all__ = [
+    "H",
+    "T",
+    "L",
+    "R",
+    "multiply",
+    "conjugate",
+    "rotation_matrix",
+    "rotate",
+    "attitude_jacobian",
+    "cayley",
+    "cayley_inv",
+    "cayley_inv_jacobian",
+    "multiplicative_update",
+    "jacobian_correction",
+    "hessian_correction",
+    "quaternion_jacobian_correction",
+    "error_state_jacobian",
+    "geodesic_cost",
+    "geodesic_cost_gradient",
+    "geodesic_cost_hessian",
+]
+
+#: ``H = [0; I3]`` (eq. 8): embeds a 3-vector as a pure quaternion, ``r^ = H r``.
+H = jnp.vstack([jnp.zeros((1, 3)), jnp.eye(3)])
+
+#: ``T = diag(1, -1, -1, -1)`` (eq. 5): conjugation, ``q* = T q``.
+T = jnp.diag(jnp.array([1.0, -1.0, -1.0, -1.0]))
+
+
+def L(q: jax.Array) -> jax.Array:
+    """Left-multiplication matrix (eq. 2): ``q (x) p = L(q) p``; (4,) -> (4, 4)."""
+    s, v = q[0], q[1:]
+    top = jnp.concatenate([s[None], -v])[None, :]
+    bottom = jnp.concatenate([v[:, None], s * jnp.eye(3) + skew(v)], axis=1)
+    return jnp.concatenate([top, bottom], axis=0)
+
+
+def R(q: jax.Array) -> jax.Array:
+    """Right-multiplication matrix (eq. 3): ``p (x) q = R(q) p``; (4,) -> (4, 4)."""
+    s, v = q[0], q[1:]
+    top = jnp.concatenate([s[None], -v])[None, :]
+    bottom = jnp.concatenate([v[:, None], s * jnp.eye(3) - skew(v)], axis=1)
+    return jnp.concatenate([top, bottom], axis=0)
+
+
+def multiply(q1: jax.Array, q2: jax.Array) -> jax.Array:
+    """Hamilton product ``q1 (x) q2 = L(q1) q2`` (eq. 1)."""
+    return L(q1) @ q2
+
+
+def conjugate(q: jax.Array) -> jax.Array:
+    """``q* = T q``, the inverse of a unit quaternion (eq. 5)."""
+    return T @ q
+
+
+def rotation_matrix(q: jax.Array) -> jax.Array:
+    """``A(q) = H^T L(q) R(q)^T H`` (eq. 9): body-to-world rotation of a unit quaternion."""
+    return H.T @ L(q) @ R(q).T @ H
+
+
+def rotate(q: jax.Array, r: jax.Array) -> jax.Array:
+    """``A(q) r``, the rotation of the 3-vector r."""
+    return rotation_matrix(q) @ r
+
+
+def attitude_jacobian(q: jax.Array) -> jax.Array:
+    """Attitude Jacobian ``G(q) = L(q) H`` (eq. 14); (4,) -> (4, 3).
+
+    Equals ``jax.jacfwd(lambda phi: L(q) @ cayley(phi))(zeros(3))``.
+    """
+    return L(q) @ H
+
+
+def cayley(phi: jax.Array) -> jax.Array:
+    """Cayley map (eq. 11): Rodrigues parameters to a unit quaternion, ``[1; phi] / sqrt(1+|phi|^2)``."""
+    return jnp.concatenate([jnp.ones(1, phi.dtype), phi]) / jnp.sqrt(1.0 + phi @ phi)
+
+
+def cayley_inv(q: jax.Array) -> jax.Array:
+    """Inverse Cayley map (eq. 12): ``q_v / q_s``; singular at rotation angle pi (q_s = 0)."""
+    return q[1:] / q[0]
+
+
+def cayley_inv_jacobian(q: jax.Array) -> jax.Array:
+    """``D(q) = d cayley_inv / dq`` (eq. 38) ``= [-q_v / q_s^2, I3 / q_s]``; (4,) -> (3, 4)."""
+    s = q[0]
+    return jnp.concatenate([-q[1:, None] / s**2, jnp.eye(3) / s], axis=1)
+
+
+def multiplicative_update(q: jax.Array, phi: jax.Array) -> jax.Array:
+    """The multiplicative step ``q (x) cayley(phi) = L(q) cayley(phi)`` (Algorithm 2, line 5)."""
+    return L(q) @ cayley(phi)
+
+
+def jacobian_correction(dh_dq: jax.Array, q: jax.Array) -> jax.Array:
+    """Jacobian of ``h(q)`` with respect to a rotation, ``dh/dq G(q)`` (eq. 14).
+
+    ``dh_dq`` has shape (p, 4) (or (4,) for scalar h). Equals
+    ``jax.jacfwd(lambda phi: h(L(q) @ cayley(phi)))(zeros(3))``.
+    """
+    return dh_dq @ attitude_jacobian(q)
+
+
+def hessian_correction(d2h_dq2: jax.Array, dh_dq: jax.Array, q: jax.Array) -> jax.Array:
+    """Hessian of scalar ``h(q)`` with respect to a rotation (eq. 15, sign corrected).
+
+    ``G^T (d2h/dq2) G - (dh/dq . q) I3``; equals
+    ``jax.hessian(lambda phi: h(L(q) @ cayley(phi)))(zeros(3))``.
+    """
+    G = attitude_jacobian(q)
+    return G.T @ d2h_dq2 @ G - (dh_dq @ q) * jnp.eye(3)
+
+
+def quaternion_jacobian_correction(df_dq: jax.Array, q: jax.Array, q_out: jax.Array) -> jax.Array:
+    """Jacobian of a quaternion-valued ``q' = f(q)`` in error coordinates (eq. 18).
+
+    ``G(q')^T (df/dq) G(q)``, with ``q' = f(q)``; equals
+    ``jax.jacfwd(lambda phi: cayley_inv(L(q').T @ f(L(q) @ cayley(phi))))(zeros(3))``.
+    """
+    return attitude_jacobian(q_out).T @ df_dq @ attitude_jacobian(q)
+
+
+def error_state_jacobian(x: jax.Array) -> jax.Array:
+    """Error-state Jacobian ``E(x)`` (eq. 25) of a rigid-body state ``x = [r, q, v, omega]``.
+
+    Shape (13,) -> (13, 12): ``blockdiag(I3, G(q), I3, I3)``, so that ``E^T (df/dx) E``
+    is a Jacobian in the 12-dimensional error state ``[dr, phi, dv, domega]``.
+    """
+    q = x[3:7]
+    E = jnp.zeros((13, 12), x.dtype)
+    E = E.at[0:3, 0:3].set(jnp.eye(3))
+    E = E.at[3:7, 3:6].set(attitude_jacobian(q))
+    E = E.at[7:13, 6:12].set(jnp.eye(6))
+    return E
+
+
+def geodesic_cost(q: jax.Array, q_goal: jax.Array) -> jax.Array:
+    """Geodesic attitude cost ``1 - |q_g^T q|`` (eq. 40), invariant under ``q -> -q``."""
+    return 1.0 - jnp.abs(q_goal @ q)
+
+
+def geodesic_cost_gradient(q: jax.Array, q_goal: jax.Array) -> jax.Array:
+    """Gradient of eq. 40 with respect to a rotation: ``-sign(q_g^T q) q_g^T G(q)`` (eq. 41).
+
+    Equals ``jax.grad(lambda phi: geodesic_cost(L(q) @ cayley(phi), q_goal))(zeros(3))``.
+    """
+    return -jnp.sign(q_goal @ q) * (q_goal @ attitude_jacobian(q))
+
+
+def geodesic_cost_hessian(q: jax.Array, q_goal: jax.Array) -> jax.Array:
+    """Hessian of eq. 40 with respect to a rotation: ``sign(q_g^T q) (q_g^T q) I3`` (eq. 42).
+
+    Equals ``jax.hessian(lambda phi: geodesic_cost(L(q) @ cayley(phi), q_goal))(zeros(3))``.
+    """
+    return jnp.abs(q_goal @ q) * jnp.eye(3)
