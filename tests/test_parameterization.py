@@ -1,0 +1,178 @@
+"""The five floating-base parameterizations behind one contract (Table I)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jtraj import euler, lie
+from jtraj import quaternion as quat
+from jtraj.lie import SE3, SO3
+from jtraj.parameterization import (
+    PARAMETERIZATIONS,
+    Quaternion1,
+    Quaternion3,
+    body_twist_to_qvel,
+    get,
+    qvel_to_body_twist,
+)
+
+PARAMS = list(PARAMETERIZATIONS.values())
+IDS = list(PARAMETERIZATIONS)
+
+
+def random_pose(rng, max_angle=2.5):
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    angle = rng.uniform(0.0, max_angle)
+    # Euler's chart needs |pitch| < pi/2: draw rpy directly instead for everyone
+    rpy = rng.uniform([-3.0, -1.4, -3.0], [3.0, 1.4, 3.0])
+    R = SO3.from_rpy_radians(*rpy) if rng.uniform() < 0.5 else SO3.exp(jnp.asarray(axis * angle))
+    return SE3.from_rotation_and_translation(R, jnp.asarray(rng.normal(size=3)))
+
+
+def random_twist(rng):
+    return jnp.asarray(rng.normal(size=6))
+
+
+def assert_same_pose(T1, T2, atol=1e-12):
+    np.testing.assert_allclose(T1.as_matrix(), T2.as_matrix(), atol=atol)
+
+
+@pytest.mark.parametrize("param", PARAMS, ids=IDS)
+def test_contract_sizes(param, rng):
+    q = param.from_pose(random_pose(rng))
+    assert q.shape == (param.nq,)
+    assert param.difference(q, q).shape == (param.ndiff,)
+    np.testing.assert_allclose(param.difference(q, q), 0.0, atol=1e-14)
+    assert param.constraint(q).shape == (param.ncon,)
+    assert param.integrate(q, random_twist(rng), 0.05).shape == (param.nq,)
+
+
+@pytest.mark.parametrize("param", PARAMS, ids=IDS)
+def test_pose_round_trips(param, rng):
+    for _ in range(10):
+        T = random_pose(rng)
+        q = param.from_pose(T)
+        assert_same_pose(param.to_pose(q), T)
+        np.testing.assert_allclose(param.from_pose(param.to_pose(q)), q, atol=1e-11)
+        qpos = param.to_qpos(q)
+        assert qpos.shape == (7,)
+        np.testing.assert_allclose(jnp.linalg.norm(qpos[3:]), 1.0, atol=1e-14)
+        assert_same_pose(param.to_pose(param.from_qpos(qpos)), T)
+
+
+@pytest.mark.parametrize("param", PARAMS, ids=IDS)
+def test_integration_is_first_order_exact_on_the_manifold(param, rng):
+    """Every row of Table I integrates the body twist: to_pose(integrate(q, V, h)) equals
+    to_pose(q) Exp(V h) up to O(h^2)."""
+    T = random_pose(rng)
+    q = param.from_pose(T)
+    V = random_twist(rng)
+    errors = []
+    for h in (1e-2, 5e-3):
+        stepped = param.to_pose(param.integrate(q, V, h))
+        errors.append(np.linalg.norm(lie.minus(stepped, lie.plus(T, V * h))))
+    assert errors[0] < 1e-2
+    # second order: halving h divides the error by ~4 (or it is exact)
+    assert errors[1] <= errors[0] / 3.0 or errors[0] < 1e-12
+
+
+def _documented_difference(param, q, V, h):
+    """difference(q, integrate(q, V, h)) as documented for each row of Table I."""
+    T = param.to_pose(q)
+    Rm = T.rotation().as_matrix()
+    if param.name in ("se3", "quat3"):  # inverse maps
+        return V * h
+    if param.name == "quat1":
+        rho = q[3:] / jnp.linalg.norm(q[3:])
+        return jnp.concatenate([Rm @ V[:3] * h, 0.5 * quat.L(rho) @ quat.H @ V[3:] * h])
+    if param.name == "quat2":  # manifold step, vector difference
+        return param.from_pose(lie.plus(T, V * h)) - q
+    if param.name == "euler":
+        return jnp.concatenate([Rm @ V[:3] * h, euler.rate_matrix(q[3:]) @ V[3:] * h])
+    raise AssertionError(param.name)
+
+
+@pytest.mark.parametrize("param", PARAMS, ids=IDS)
+def test_integrate_and_difference_follow_table_1(param, rng):
+    for _ in range(5):
+        q = param.from_pose(random_pose(rng))
+        V = random_twist(rng)
+        h = 0.05
+        q_next = param.integrate(q, V, h)
+        np.testing.assert_allclose(param.difference(q, q_next), _documented_difference(param, q, V, h), atol=1e-12)
+
+
+@pytest.mark.parametrize("param", PARAMS, ids=IDS)
+def test_jit_compiles_once_and_vmap_equals_loop(param, rng):
+    traces = []
+
+    def step(q, V):
+        traces.append(1)
+        q_next = param.integrate(q, V, 0.05)
+        return q_next, param.difference(q, q_next), param.to_qpos(q_next)
+
+    jitted = jax.jit(step)
+    qs = jnp.stack([param.from_pose(random_pose(rng)) for _ in range(4)])
+    Vs = jnp.stack([random_twist(rng) for _ in range(4)])
+    loop = [jitted(qs[i], Vs[i]) for i in range(4)]
+    assert len(traces) == 1
+    batched = jax.vmap(step)(qs, Vs)
+    for i in range(4):
+        for got, want in zip(batched, loop[i]):
+            np.testing.assert_allclose(got[i], want, atol=1e-13)
+
+
+@pytest.mark.parametrize("param", PARAMS, ids=IDS)
+def test_derivatives_finite_at_identity(param):
+    q = param.from_pose(SE3.identity())
+    V = jnp.array([0.1, -0.2, 0.3, 0.0, 0.0, 0.0])
+
+    def f(q, V):
+        return jnp.concatenate([param.difference(q, param.integrate(q, V, 0.05)), param.to_qpos(q)])
+
+    for J in jax.jacfwd(f, argnums=(0, 1))(q, V):
+        assert np.all(np.isfinite(J))
+
+
+def test_se3_tangent_difference_is_blind_to_full_turns(rng):
+    """A warm start may wind xi past pi (flips); the difference must not see the 2 pi."""
+    se3 = get("se3")
+    xi = jnp.array([0.1, 0.2, 0.3, 0.0, 0.5, 0.0])
+    # the same pose one turn further: theta' = theta (1 + 2 pi / |theta|), rho' keeps
+    # the translation J_l(theta) rho
+    theta_wound = xi[3:] * (1 + 2 * np.pi / 0.5)
+    rho_wound = lie.left_jacobian_inv(SO3, theta_wound) @ lie.left_jacobian(SO3, xi[3:]) @ xi[:3]
+    wound = jnp.concatenate([rho_wound, theta_wound])
+    assert_same_pose(se3.to_pose(wound), se3.to_pose(xi))
+    np.testing.assert_allclose(se3.difference(xi, wound), 0.0, atol=1e-12)
+    np.testing.assert_allclose(se3.integrate(wound, jnp.zeros(6), 0.1), xi, atol=1e-12)
+
+
+def test_quaternion_sign_and_norm_are_ignored_by_the_pose():
+    q = jnp.array([0.1, 0.2, 0.3, 0.6, 0.0, 0.8, 0.0])
+    for p in (Quaternion1(), Quaternion3()):
+        assert_same_pose(p.to_pose(q), p.to_pose(q.at[3:].multiply(-2.5)))
+
+
+def test_unit_norm_option():
+    q = jnp.array([0.0, 0.0, 0.0, 2.0, 0.0, 0.0, 0.0])
+    assert Quaternion3().ncon == 0
+    p = Quaternion3(unit_norm=True)
+    assert p.ncon == 1
+    np.testing.assert_allclose(p.constraint(q), [3.0])
+
+
+def test_unknown_name_lists_choices():
+    with pytest.raises(ValueError, match="se3, quat1, quat2, quat3, euler"):
+        get("quaternion")
+
+
+def test_velocity_conversion_to_mjx(rng):
+    T = random_pose(rng)
+    V = random_twist(rng)
+    qvel = body_twist_to_qvel(T, V)
+    np.testing.assert_allclose(qvel[:3], T.rotation().as_matrix() @ V[:3], atol=1e-14)
+    np.testing.assert_allclose(qvel[3:], V[3:])
+    np.testing.assert_allclose(qvel_to_body_twist(T, qvel), V, atol=1e-14)
