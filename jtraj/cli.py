@@ -32,6 +32,44 @@ def _cmd_params(args: argparse.Namespace) -> int:
     return 0 if ok else 1
 
 
+def _cmd_solve(args: argparse.Namespace) -> int:
+    from jtraj import task as tasks
+    from jtraj.solve import solve
+
+    options = {}
+    for item in args.ipopt or []:
+        if "=" not in item:
+            raise SystemExit(f"--ipopt expects NAME=VALUE, got {item!r}")
+        key, value = item.split("=", 1)
+        options[key] = _parse_value(value)
+    try:
+        task = tasks.load(args.task)
+    except tasks.TaskError as e:
+        raise SystemExit(f"jtraj solve: {e}") from None
+    out = args.out or f"runs/{task.name}_{args.param}"
+    result = solve(
+        task,
+        args.param,
+        exact_hessian=args.exact_hessian,
+        ipopt_options=options,
+        noise=args.noise,
+        seed=args.seed,
+        out=out,
+        progress_every=args.every,
+    )
+    print(f"wrote {out}/result.json and {out}/trajectory.npz")
+    return 0 if result.converged else 2
+
+
+def _parse_value(text: str):
+    for cast in (int, float):
+        try:
+            return cast(text)
+        except ValueError:
+            pass
+    return text
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="jtraj", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -39,6 +77,17 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("params", help="list the floating-base parameterizations and check them on a random pose")
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(func=_cmd_params)
+
+    p = sub.add_parser("solve", help="solve a task with Ipopt and write DIR/result.json and DIR/trajectory.npz")
+    p.add_argument("task", help="a built-in task (walk, hopscotch, big_jump, handstand, backflip, sideflip) or a .toml file")
+    p.add_argument("--param", default="se3", choices=["se3", "quat1", "quat2", "quat3", "euler"], help="floating-base parameterization (default se3)")
+    p.add_argument("--out", help="output directory (default runs/TASK_PARAM)")
+    p.add_argument("--exact-hessian", action="store_true", help="exact Hessian of the Lagrangian instead of L-BFGS")
+    p.add_argument("--ipopt", action="append", metavar="NAME=VALUE", help="any Ipopt option, repeatable (e.g. --ipopt max_iter=50)")
+    p.add_argument("--noise", type=float, default=0.0, help="std of Gaussian noise added to the warm start")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--every", type=int, default=1, help="print Ipopt progress every N iterations")
+    p.set_defaults(func=_cmd_solve)
     return parser
 
 

@@ -1,0 +1,156 @@
+"""``jtraj.solve(task, parameterization, **options) -> Result``."""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import Any, TextIO
+
+import jax.numpy as jnp
+import numpy as np
+
+from jtraj import config
+from jtraj import parameterization as params
+from jtraj import robot as robots
+from jtraj import task as tasks
+from jtraj.ipopt import DEFAULT_OPTIONS, solve_nlp
+from jtraj.result import Result, Status, count_turns
+from jtraj.transcription import Transcription
+
+__all__ = ["solve", "prepare", "Prepared"]
+
+
+class Prepared:
+    """A transcription with its compiled NLP, reusable across solves (noise replicates...)."""
+
+    def __init__(self, transcription: Transcription, time_compile: float):
+        self.transcription = transcription
+        self.nlp = None
+        self.time_compile = time_compile
+
+
+_CACHE: dict[tuple, Prepared] = {}
+
+
+def prepare(task: tasks.Task | str, parameterization: str | params.AbstractParameterization = "se3") -> Prepared:
+    """Build (once per task and parameterization) the transcription and compile its NLP."""
+    task = tasks.load(task)
+    param = params.get(parameterization)
+    key = (task, param)
+    if key in _CACHE:
+        return _CACHE[key]
+    config.enable_compilation_cache()
+    t0 = time.perf_counter()
+    robot = robots.load(task.robot)
+    tr = Transcription(robot, task, param)
+    nlp = tr.build_nlp()
+    # compile every callback once, on the warm start, before Ipopt runs
+    x = jnp.asarray(tr.warm_start().reshape(-1))
+    for fn in (nlp.objective, nlp.gradient, nlp.constraints, nlp.jacobian):
+        np.asarray(fn(x))
+    prep = Prepared(tr, time.perf_counter() - t0)
+    prep.nlp = nlp
+    _CACHE[key] = prep
+    return prep
+
+
+def solve(
+    task: tasks.Task | str,
+    parameterization: str | params.AbstractParameterization = "se3",
+    *,
+    exact_hessian: bool = False,
+    ipopt_options: dict[str, Any] | None = None,
+    warm_start: np.ndarray | None = None,
+    noise: float = 0.0,
+    seed: int = 0,
+    progress: TextIO | None = sys.stdout,
+    progress_every: int = 1,
+    out: str | None = None,
+    keep_trajectory: bool = True,
+) -> Result:
+    """Solve a task with Ipopt.
+
+    Args:
+        task: a built-in task name (``"big_jump"``), a ``.toml`` path or a `jtraj.task.Task`.
+        parameterization: ``"se3"`` (default), ``"quat1"``, ``"quat2"``, ``"quat3"``, ``"euler"``
+            or a parameterization object.
+        exact_hessian: use the exact Hessian of the Lagrangian from JAX instead of L-BFGS.
+        ipopt_options: any Ipopt options, over `jtraj.ipopt.DEFAULT_OPTIONS` (the task's
+            ``max_iter`` is the default iteration limit).
+        warm_start: (n_knots, nz) initial guess; default the task's warm start.
+        noise: standard deviation of zero-mean Gaussian noise added to the warm start.
+        seed: seed of that noise.
+        progress: stream for the live Ipopt progress (None: quiet).
+        out: directory to write ``result.json`` and ``trajectory.npz`` into.
+    """
+    prep = prepare(task, parameterization)
+    tr, nlp = prep.transcription, prep.nlp
+    compile_time = prep.time_compile
+    prep.time_compile = 0.0  # counted once per process
+    x0 = tr.warm_start() if warm_start is None else np.asarray(warm_start, float)
+    if noise:
+        x0 = x0 + noise * np.random.default_rng(seed).standard_normal(x0.shape)
+    options = {"max_iter": tr.task.max_iter}
+    options.update(ipopt_options or {})
+    if progress is not None:
+        print(
+            f"jtraj: {tr.task.name} on {tr.robot.name} with {tr.param.label}: {nlp.n} variables, "
+            f"{nlp.m} constraints, {nlp.nnz_jac} Jacobian nonzeros, {tr.N + 1} knots"
+            + (f" (compiled in {compile_time:.1f} s)" if compile_time else ""),
+            file=progress,
+            flush=True,
+        )
+    outcome = solve_nlp(nlp, x0.reshape(-1), options, exact_hessian=exact_hessian, progress=progress, progress_every=progress_every)
+    traj = tr.decode(outcome.x)
+    result = evaluate(tr, outcome, traj, compile_time, {**DEFAULT_OPTIONS, **options, "exact_hessian": exact_hessian}, nlp.nnz_jac)
+    if not keep_trajectory:
+        result.trajectory = None
+    if progress is not None:
+        print(result.summary(), file=progress, flush=True)
+    if out is not None:
+        result.save(out)
+    return result
+
+
+def evaluate(tr: Transcription, outcome, traj, compile_time: float, options: dict[str, Any], nnz_jacobian: int = 0) -> Result:
+    """Task-success check: converged, at the target, and for flips one full turn."""
+    task = tr.task
+    target = np.asarray(tr.target_pose.translation())
+    final_error = float(np.linalg.norm(traj.base_xyz_wxyz[-1, :3] - target))
+    feasible = outcome.converged and outcome.constraint_violation < 1e-2
+    turns = None
+    success = feasible and final_error < 0.05
+    if task.flip_axis is not None:
+        turns = count_turns(traj.base_xyz_wxyz, np.asarray(task.flip_axis))
+        success = success and abs(turns) > 0.75
+    status = Status.SOLVED if success else (Status.SOLVED_WRONG_MOTION if feasible else Status.NOT_CONVERGED)
+    return Result(
+        task=task.name,
+        robot=tr.robot.name,
+        parameterization=tr.param.name,
+        status=status,
+        status_msg=outcome.status_msg,
+        converged=outcome.converged,
+        success=success,
+        turns=turns,
+        iterations=outcome.iterations,
+        obj_evals=outcome.obj_evals,
+        grad_evals=outcome.grad_evals,
+        con_evals=outcome.con_evals,
+        jac_evals=outcome.jac_evals,
+        hess_evals=outcome.hess_evals,
+        cost=outcome.objective,
+        constraint_violation=outcome.constraint_violation,
+        final_position_error=final_error,
+        time_s=outcome.time_total,
+        time_compile=compile_time,
+        time_derivatives=outcome.time_callbacks,
+        time_ipopt=outcome.time_ipopt,
+        n_variables=tr.layout.nz * (tr.N + 1),
+        n_constraints=outcome.mult_g.size,
+        nnz_jacobian=nnz_jacobian,
+        options={k: v for k, v in options.items()},
+        history=outcome.history,
+        trajectory=traj,
+    )
+

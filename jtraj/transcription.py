@@ -1,0 +1,332 @@
+"""Inverse-dynamics direct transcription (paper eqs. 11-18) for any floating-base parameterization.
+
+Variables of knot k (one `Layout` for all knots; the NLP fixes by bounds what a knot does not
+use, and Ipopt removes fixed variables):
+
+    q  (param.nq + nj)   base coordinates in the parameterization's chart, joint positions
+    v  (nv)              body twist of the base and joint rates
+    a  (nv)              its time derivative
+    f  (3 P)             world-frame forces at the task's P contact points (0 when not touching)
+    c  (3 P)             contact positions (0 when not touching)
+
+Constraint groups, each written for ONE knot and vmapped (rows of inactive contacts dropped):
+
+    dynamics      tau(q, v, a, f): base rows = 0, joint rows within the effort limits
+    integration   v' = v + a h;  param.difference(param.integrate(q_b, V_b', h), q_b') = 0;
+                  q_j' = q_j + qd_j' h                    (semi-implicit Euler, Table I)
+    contact       FK_j(q) = c_j for touching points; c_z is the terrain height (a bound)
+    stationary    (c_j')_xy = (c_j)_xy while a point keeps touching
+    clearance     FK_j(q)_z >= terrain height for points in the air
+    friction      4-facet pyramid |f_x|, |f_y| <= mu f_z (f_z >= 0 and |f_i| <= 1.5 m g are bounds)
+    force_rate    |f_j' - f_j| <= max_delta_force per component (tasks that set it)
+    chart         the parameterization's own constraint (e.g. unit quaternion norm), if any
+
+Costs: 1/2 w_q |q_j - q_j,standing|^2 and 1/2 w_a |a_j|^2 per knot. Boundary conditions are
+bounds: knot 0 at the standing pose at rest, the last knot at the target pose at rest, a = 0.
+
+Nothing here imports cyipopt; `build_nlp` returns a `jtraj.nlp.KnotNLP`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from functools import cached_property
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxlie import SE3, SO3
+
+from jtraj import dynamics, lie
+from jtraj.nlp import ConstraintGroup, CostGroup, Dep, KnotNLP, Layout
+from jtraj.parameterization import AbstractParameterization
+from jtraj.task import Task
+
+__all__ = ["Transcription", "Trajectory"]
+
+GRAVITY = 9.81
+
+
+@dataclasses.dataclass
+class Trajectory:
+    """A decoded trajectory; arrays have the knot axis first."""
+
+    t: np.ndarray  # (K,) s
+    base_xyz_wxyz: np.ndarray  # (K, 7) base pose, MJX free-joint convention
+    q_base: np.ndarray  # (K, param.nq) base coordinates in the parameterization's chart
+    q_joints: np.ndarray  # (K, nj) rad
+    v: np.ndarray  # (K, nv) body twist + joint rates
+    a: np.ndarray  # (K, nv)
+    tau: np.ndarray  # (K, nv) generalized forces from inverse dynamics (base rows ~ 0)
+    forces: np.ndarray  # (K, P, 3) N, world frame
+    contact_positions: np.ndarray  # (K, P, 3) m, forward kinematics of the contact points
+    in_contact: np.ndarray  # (K, P) bool
+    contact_names: tuple[str, ...]
+
+
+class Transcription:
+    """The transcription of ``task`` for ``robot`` in parameterization ``param``."""
+
+    def __init__(self, robot, task: Task, param: AbstractParameterization):
+        task.validate(robot)
+        self.robot = robot
+        self.task = task
+        self.param = param
+        self.schedule = task.schedule(robot)
+        self.points = np.asarray(self.schedule.points, int)
+        self.P = len(self.points)
+        self.nj = robot.nj
+        self.nv = robot.nv
+        self.nq = param.nq + robot.nj
+        self.N = self.schedule.n_knots - 1
+        self.h = float(task.timestep)
+        self.layout = Layout(
+            (("q", self.nq), ("v", self.nv), ("a", self.nv), ("f", 3 * self.P), ("c", 3 * self.P))
+        )
+        self.contact_names = tuple(robot.contact_names[i] for i in self.points)
+
+    # -------------------------------------------------------------------- poses
+    @cached_property
+    def initial_pose(self) -> SE3:
+        """Standing pose, lowered/raised so the first phase's contact points touch the terrain."""
+        robot = self.robot
+        T = robot.base_pose_standing
+        qj = jnp.asarray(robot.q_joints_standing)
+        q = jnp.concatenate([self.param.from_pose(T), qj])
+        p = np.asarray(dynamics.contact_positions(robot, self.param, q))[self.points]
+        touching = self.schedule.in_contact[0]
+        dz = float(np.mean(p[touching, 2])) - self.task.terrain_height
+        spread = float(np.ptp(p[touching, 2]))
+        if spread > 5e-3:
+            raise ValueError(
+                f"the standing pose of {robot.name!r} does not put the contact points of phase 0 on flat "
+                f"ground (heights differ by {spread * 1000:.1f} mm)"
+            )
+        return SE3.from_rotation_and_translation(T.rotation(), T.translation() - jnp.array([0.0, 0.0, dz]))
+
+    @cached_property
+    def target_pose(self) -> SE3:
+        T0 = self.initial_pose
+        rot = SO3.from_rpy_radians(*self.task.target_rotation_rpy)
+        return SE3.from_rotation_and_translation(rot @ T0.rotation(), T0.translation() + jnp.asarray(self.task.target_translation))
+
+    @cached_property
+    def q_joints_target(self) -> np.ndarray:
+        if self.task.target_joints is not None:
+            return np.asarray(self.task.target_joints, float)
+        return np.asarray(self.robot.q_joints_standing, float)
+
+    # -------------------------------------------------------------------- functions of one knot
+    def _forces_all(self, f: jax.Array) -> jax.Array:
+        F = jnp.zeros((len(self.robot.contact_names), 3), f.dtype)
+        return F.at[self.points].set(f.reshape(self.P, 3))
+
+    def _tau(self, q, v, a, f):
+        return dynamics.inverse_dynamics(self.robot, self.param, q, v, a, self._forces_all(f))
+
+    def _fk(self, q):
+        return dynamics.contact_positions(self.robot, self.param, q)[self.points]
+
+    # -------------------------------------------------------------------- the NLP
+    def build_nlp(self) -> KnotNLP:
+        robot, task, param = self.robot, self.task, self.param
+        n_knots, N, P, nj, nv = self.N + 1, self.N, self.P, self.nj, self.nv
+        nqb = param.nq
+        h = self.h
+        contact = self.schedule.in_contact  # (K, P)
+        knots = np.arange(n_knots)
+        pairs = np.arange(N)
+        groups: list[ConstraintGroup] = []
+
+        # dynamics ------------------------------------------------------------
+        effort = np.asarray(robot.effort_limit, float)
+        lo = np.concatenate([np.zeros(6), -effort])
+        hi = np.concatenate([np.zeros(6), effort])
+
+        def dyn(data, q, v, a, f):
+            return self._tau(q, v, a, f)
+
+        dyn_jac = None
+        if hasattr(dynamics, "inverse_dynamics_jacobians"):
+            points = self.points
+
+            def dyn_jac(data, Q, V, A, Fv):
+                K = Q.shape[0]
+                F = jnp.zeros((K, len(robot.contact_names), 3), Q.dtype).at[:, points].set(Fv.reshape(K, P, 3))
+                dq, dv, da, df = dynamics.inverse_dynamics_jacobians(robot, param, Q, V, A, F)
+                df = df.reshape(K, nv, -1, 3)[:, :, points, :].reshape(K, nv, 3 * P)
+                return jnp.concatenate([dq, dv, da, df], axis=-1)
+
+        groups.append(
+            ConstraintGroup(
+                "dynamics", (Dep("q"), Dep("v"), Dep("a"), Dep("f")), dyn, knots,
+                np.tile(lo, (n_knots, 1)), np.tile(hi, (n_knots, 1)), np.ones((n_knots, nv), bool),
+                batched_jacobian=dyn_jac,
+            )
+        )
+
+        # integration -----------------------------------------------------------
+        def integ(hk, q, v, a, q1, v1):
+            r_v = v1 - v - a * hk
+            r_base = param.difference(param.integrate(q[:nqb], v1[:6], hk), q1[:nqb])
+            r_j = q1[nqb:] - q[nqb:] - v1[6:] * hk
+            return jnp.concatenate([r_v, r_base, r_j])
+
+        n_int = nv + param.ndiff + nj
+        groups.append(
+            ConstraintGroup(
+                "integration", (Dep("q"), Dep("v"), Dep("a"), Dep("q", 1), Dep("v", 1)), integ, pairs,
+                np.zeros((N, n_int)), np.zeros((N, n_int)), np.ones((N, n_int), bool),
+                data=jnp.full((N,), h),
+            )
+        )
+
+        if P:
+            # contact kinematics -------------------------------------------------
+            groups.append(
+                ConstraintGroup(
+                    "contact", (Dep("q"), Dep("c")), lambda data, q, c: (self._fk(q) - c.reshape(P, 3)).reshape(-1), knots,
+                    np.zeros((n_knots, 3 * P)), np.zeros((n_knots, 3 * P)), np.repeat(contact, 3, axis=1),
+                )
+            )
+            # stationarity: x, y of a touching point stay put (z is a bound) --------
+            both = contact[:-1] & contact[1:]
+            groups.append(
+                ConstraintGroup(
+                    "stationary", (Dep("c"), Dep("c", 1)),
+                    lambda data, c, c1: (c1.reshape(P, 3)[:, :2] - c.reshape(P, 3)[:, :2]).reshape(-1), pairs,
+                    np.zeros((N, 2 * P)), np.zeros((N, 2 * P)), np.repeat(both, 2, axis=1),
+                )
+            )
+            # swing points above the terrain ----------------------------------------
+            groups.append(
+                ConstraintGroup(
+                    "clearance", (Dep("q"),), lambda data, q: self._fk(q)[:, 2], knots,
+                    np.full((n_knots, P), task.terrain_height), np.full((n_knots, P), np.inf), ~contact,
+                )
+            )
+            # friction pyramid -------------------------------------------------------
+            mu = task.friction
+
+            def friction(data, f):
+                f = f.reshape(P, 3)
+                fx, fy, fz = f[:, 0], f[:, 1], f[:, 2]
+                return jnp.stack([mu * fz - fx, mu * fz + fx, mu * fz - fy, mu * fz + fy], axis=1).reshape(-1)
+
+            groups.append(
+                ConstraintGroup(
+                    "friction", (Dep("f"),), friction, knots,
+                    np.zeros((n_knots, 4 * P)), np.full((n_knots, 4 * P), np.inf), np.repeat(contact, 4, axis=1),
+                )
+            )
+            if task.max_delta_force is not None:
+                d = float(task.max_delta_force)
+                groups.append(
+                    ConstraintGroup(
+                        "force_rate", (Dep("f"), Dep("f", 1)), lambda data, f, f1: f1 - f, pairs,
+                        np.full((N, 3 * P), -d), np.full((N, 3 * P), d), np.repeat(both, 3, axis=1),
+                    )
+                )
+        if param.ncon:
+            groups.append(
+                ConstraintGroup(
+                    "chart", (Dep("q"),), lambda data, q: param.constraint(q[:nqb]), knots,
+                    np.zeros((n_knots, param.ncon)), np.zeros((n_knots, param.ncon)), np.ones((n_knots, param.ncon), bool),
+                )
+            )
+
+        # costs ---------------------------------------------------------------------
+        costs = []
+        q_ref = jnp.asarray(robot.q_joints_standing, float)
+        if task.configuration_weight > 0:
+            w = task.configuration_weight
+            costs.append(CostGroup("configuration", (Dep("q"),), lambda data, q: 0.5 * w * jnp.sum((q[nqb:] - q_ref) ** 2), knots))
+        if task.acceleration_weight > 0:
+            w = task.acceleration_weight
+            costs.append(CostGroup("acceleration", (Dep("a"),), lambda data, a: 0.5 * w * jnp.sum(a[6:] ** 2), knots))
+
+        lower, upper = self.bounds()
+        return KnotNLP(self.layout, n_knots, costs, groups, lower, upper)
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Variable bounds (n_knots, nz): limits, contacts, boundary conditions."""
+        robot, task, param, L = self.robot, self.task, self.param, self.layout
+        n_knots, P, nqb = self.N + 1, self.P, param.nq
+        lower = np.full((n_knots, L.nz), -np.inf)
+        upper = np.full((n_knots, L.nz), np.inf)
+        sq, sv, sf, sc, sa = L.slice("q"), L.slice("v"), L.slice("f"), L.slice("c"), L.slice("a")
+        # joint position and velocity limits
+        lower[:, sq.start + nqb : sq.stop] = robot.joint_lower
+        upper[:, sq.start + nqb : sq.stop] = robot.joint_upper
+        lower[:, sv.start + 6 : sv.stop] = -np.asarray(robot.velocity_limit)
+        upper[:, sv.start + 6 : sv.stop] = np.asarray(robot.velocity_limit)
+        # forces: touching points f_z in [0, F], |f_x|, |f_y| <= F; others 0
+        F = task.force_limit_factor * robot.total_mass * GRAVITY
+        contact = self.schedule.in_contact
+        fl = np.where(contact[:, :, None], np.array([-F, -F, 0.0]), 0.0).reshape(n_knots, 3 * P)
+        fu = np.where(contact[:, :, None], np.array([F, F, F]), 0.0).reshape(n_knots, 3 * P)
+        lower[:, sf], upper[:, sf] = fl, fu
+        # contact positions: touching points on the terrain (z fixed), others unused (0)
+        cz = task.terrain_height
+        cl = np.where(contact[:, :, None], np.array([-np.inf, -np.inf, cz]), 0.0).reshape(n_knots, 3 * P)
+        cu = np.where(contact[:, :, None], np.array([np.inf, np.inf, cz]), 0.0).reshape(n_knots, 3 * P)
+        lower[:, sc], upper[:, sc] = cl, cu
+        # boundary conditions
+        q0 = np.concatenate([np.asarray(param.from_pose(self.initial_pose)), robot.q_joints_standing])
+        qN = np.concatenate([np.asarray(param.from_pose(self.target_pose)), self.q_joints_target])
+        for k, q in ((0, q0), (n_knots - 1, qN)):
+            lower[k, sq] = upper[k, sq] = q
+            lower[k, sv] = upper[k, sv] = 0.0
+        lower[-1, sa] = upper[-1, sa] = 0.0
+        return lower, upper
+
+    # -------------------------------------------------------------------- warm start
+    def warm_start(self) -> np.ndarray:
+        """The paper's non-informative warm start (plus the task's rotation rules): every knot
+        at the standing pose at rest, the weight shared among the touching points."""
+        robot, param, L = self.robot, self.param, self.layout
+        n_knots, P = self.N + 1, self.P
+        T0 = self.initial_pose
+        rotations = [T0.rotation() for _ in range(n_knots)]
+        for axis, angles in self.task.warm_start_angles():
+            rotations = [lie.exp(SO3, jnp.asarray(axis * ang)) @ R for R, ang in zip(rotations, angles)]
+        Z = np.zeros((n_knots, L.nz))
+        qj = np.asarray(robot.q_joints_standing)
+        contact = self.schedule.in_contact
+        weight = robot.total_mass * GRAVITY
+        for k in range(n_knots):
+            Tk = SE3.from_rotation_and_translation(rotations[k], T0.translation())
+            q = np.concatenate([np.asarray(param.from_pose(Tk)), qj])
+            Z[k, L.slice("q")] = q
+            n_touch = int(contact[k].sum())
+            if n_touch:
+                f = np.zeros((P, 3))
+                f[contact[k], 2] = weight / n_touch
+                Z[k, L.slice("f")] = f.reshape(-1)
+                c = np.array(self._fk(jnp.asarray(q)))
+                c[:, 2] = self.task.terrain_height
+                Z[k, L.slice("c")] = np.where(contact[k][:, None], c, 0.0).reshape(-1)
+        return Z
+
+    # -------------------------------------------------------------------- decoding
+    def decode(self, x: np.ndarray) -> Trajectory:
+        L, param = self.layout, self.param
+        Z = jnp.asarray(np.asarray(x).reshape(self.N + 1, L.nz))
+        s = L.split(Z)
+        q, v, a, f = s["q"], s["v"], s["a"], s["f"]
+        tau = jax.vmap(self._tau)(q, v, a, f)
+        fk = jax.vmap(self._fk)(q)
+        qpos = jax.vmap(param.to_qpos)(q[:, : param.nq])
+        return Trajectory(
+            t=np.arange(self.N + 1) * self.h,
+            base_xyz_wxyz=np.asarray(qpos),
+            q_base=np.asarray(q[:, : param.nq]),
+            q_joints=np.asarray(q[:, param.nq :]),
+            v=np.asarray(v),
+            a=np.asarray(a),
+            tau=np.asarray(tau),
+            forces=np.asarray(f).reshape(-1, self.P, 3),
+            contact_positions=np.asarray(fk),
+            in_contact=self.schedule.in_contact.copy(),
+            contact_names=self.contact_names,
+        )
