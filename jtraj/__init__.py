@@ -18,6 +18,18 @@ from jtraj.parameterization import (  # noqa: E402
 
 __version__ = "0.1.0"
 
+_LAZY = {"solve": ("jtraj.solver", "solve"), "Result": ("jtraj.result", "Result"), "load_task": ("jtraj.task", "load"), "load_robot": ("jtraj.robot", "load")}
+
+
+def __getattr__(name: str):
+    # solve() pulls in MuJoCo and the robots; keep `import jtraj` light until it is used.
+    if name in _LAZY:
+        import importlib
+
+        module, attr = _LAZY[name]
+        return getattr(importlib.import_module(module), attr)
+    raise AttributeError(f"module 'jtraj' has no attribute {name!r}")
+
 __all__ = [
     "euler",
     "lie",
@@ -30,4 +42,8 @@ __all__ = [
     "Quaternion2",
     "Quaternion3",
     "SE3Tangent",
+    "solve",
+    "Result",
+    "load_task",
+    "load_robot",
 ]

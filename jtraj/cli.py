@@ -34,7 +34,7 @@ def _cmd_params(args: argparse.Namespace) -> int:
 
 def _cmd_solve(args: argparse.Namespace) -> int:
     from jtraj import task as tasks
-    from jtraj.solve import solve
+    from jtraj.solver import solve
 
     options = {}
     for item in args.ipopt or []:

@@ -197,7 +197,7 @@ class Task:
             tj = np.asarray(self.target_joints, float)
             if tj.shape != (robot.nj,):
                 raise TaskError(f"task {self.name!r}: field 'target_joints' has {tj.size} values; expected {robot.nj} (one per joint of {robot.name!r})")
-            lo, hi = robot.joint_lower, robot.joint_upper
+            lo, hi = robot.q_lower, robot.q_upper
             outside = np.flatnonzero((tj < lo) | (tj > hi))
             if outside.size:
                 j = outside[0]

@@ -139,23 +139,22 @@ class Transcription:
         groups: list[ConstraintGroup] = []
 
         # dynamics ------------------------------------------------------------
-        effort = np.asarray(robot.effort_limit, float)
+        effort = np.asarray(robot.tau_max, float)
         lo = np.concatenate([np.zeros(6), -effort])
         hi = np.concatenate([np.zeros(6), effort])
 
         def dyn(data, q, v, a, f):
             return self._tau(q, v, a, f)
 
-        dyn_jac = None
-        if hasattr(dynamics, "inverse_dynamics_jacobians"):
-            points = self.points
+        points = self.points
 
-            def dyn_jac(data, Q, V, A, Fv):
-                K = Q.shape[0]
-                F = jnp.zeros((K, len(robot.contact_names), 3), Q.dtype).at[:, points].set(Fv.reshape(K, P, 3))
-                dq, dv, da, df = dynamics.inverse_dynamics_jacobians(robot, param, Q, V, A, F)
-                df = df.reshape(K, nv, -1, 3)[:, :, points, :].reshape(K, nv, 3 * P)
-                return jnp.concatenate([dq, dv, da, df], axis=-1)
+        def dyn_jac(data, Q, V, A, Fv):
+            # analytical RNEA derivatives; d tau / d a = M and d tau / d f = -J^T need no autodiff
+            K = Q.shape[0]
+            F = jnp.zeros((K, len(robot.contact_names), 3), Q.dtype).at[:, points].set(Fv.reshape(K, P, 3))
+            d = dynamics.inverse_dynamics_jacobians(robot, param, Q, V, A, F)
+            df = d.df.reshape(K, nv, -1, 3)[:, :, points, :].reshape(K, nv, 3 * P)
+            return jnp.concatenate([d.dq, d.dv, d.da, df], axis=-1)
 
         groups.append(
             ConstraintGroup(
@@ -256,10 +255,10 @@ class Transcription:
         upper = np.full((n_knots, L.nz), np.inf)
         sq, sv, sf, sc, sa = L.slice("q"), L.slice("v"), L.slice("f"), L.slice("c"), L.slice("a")
         # joint position and velocity limits
-        lower[:, sq.start + nqb : sq.stop] = robot.joint_lower
-        upper[:, sq.start + nqb : sq.stop] = robot.joint_upper
-        lower[:, sv.start + 6 : sv.stop] = -np.asarray(robot.velocity_limit)
-        upper[:, sv.start + 6 : sv.stop] = np.asarray(robot.velocity_limit)
+        lower[:, sq.start + nqb : sq.stop] = robot.q_lower
+        upper[:, sq.start + nqb : sq.stop] = robot.q_upper
+        lower[:, sv.start + 6 : sv.stop] = -np.asarray(robot.v_max)
+        upper[:, sv.start + 6 : sv.stop] = np.asarray(robot.v_max)
         # forces: touching points f_z in [0, F], |f_x|, |f_y| <= F; others 0
         F = task.force_limit_factor * robot.total_mass * GRAVITY
         contact = self.schedule.in_contact

@@ -1,0 +1,199 @@
+"""The comparative study's experiments: Table IV (every task with every parameterization) and the
+noise-robustness study (Table III, Fig. 2).
+
+Warm starts of the robustness study are drawn for all replicates and noise levels at once with
+`jax.vmap` over PRNG keys; each replicate is then an independent Ipopt solve of the same
+compiled NLP (one compile per task and parameterization). Results are written as JSON and
+Markdown tables and a figure.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TextIO
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jtraj.parameterization import PARAMETERIZATIONS
+from jtraj.solver import prepare, solve
+
+__all__ = ["compare", "robustness", "noisy_warm_starts", "TABLE_IV_PAPER_SE3"]
+
+#: Iterations of the SE(3) tangent parameterization in the paper's Table IV.
+TABLE_IV_PAPER_SE3 = {"walk": 14, "hopscotch": 10, "big_jump": 11, "handstand": 88, "backflip": 28, "sideflip": 29}
+ALL_TASKS = ("walk", "hopscotch", "big_jump", "handstand", "backflip", "sideflip")
+ROBUSTNESS_TASKS = ("walk", "big_jump", "backflip", "sideflip")
+ROBUSTNESS_PARAMS = ("euler", "quat1", "quat2", "se3")
+SIGMAS = (1e-6, 1e-3, 0.1, 0.5)
+
+_ROW_KEYS = ("task", "parameterization", "status", "converged", "success", "turns", "iterations", "obj_evals", "grad_evals", "con_evals", "jac_evals", "cost", "constraint_violation", "time_s", "time_compile")
+
+
+def _row(result) -> dict:
+    row = {k: getattr(result, k) for k in _ROW_KEYS}
+    row["status"] = result.status.value
+    return row
+
+
+def compare(
+    tasks: Sequence[str] = ALL_TASKS,
+    params: Sequence[str] = tuple(PARAMETERIZATIONS),
+    out: str | Path = "runs/table_iv",
+    exact_hessian: bool = False,
+    progress: TextIO | None = sys.stdout,
+    save_trajectories: bool = True,
+) -> list[dict]:
+    """Table IV: solve every task with every parameterization; write table_iv.{json,md}."""
+    out = Path(out)
+    rows = []
+    for task in tasks:
+        for p in params:
+            r = solve(task, p, exact_hessian=exact_hessian, progress=progress, progress_every=10, out=out / f"{task}_{p}" if save_trajectories else None)
+            rows.append(_row(r))
+            _write_table_iv(rows, out)
+    return rows
+
+
+def _write_table_iv(rows: list[dict], out: Path) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "table_iv.json").write_text(json.dumps(rows, indent=2))
+    lines = [
+        "| task | parameterization | status | iterations (paper, SE(3)) | obj evals | jac evals | cost | violation | turns | time (s) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        paper = TABLE_IV_PAPER_SE3.get(r["task"]) if r["parameterization"] == "se3" else None
+        turns = "" if r["turns"] is None else f"{r['turns']:+.2f}"
+        lines.append(
+            f"| {r['task']} | {r['parameterization']} | {r['status']} | {r['iterations']}"
+            + (f" ({paper})" if paper else "")
+            + f" | {r['obj_evals']} | {r['jac_evals']} | {r['cost']:.3g} | {r['constraint_violation']:.1e} | {turns} | {r['time_s']:.1f} |"
+        )
+    (out / "table_iv.md").write_text("\n".join(lines) + "\n")
+
+
+def noisy_warm_starts(x0: np.ndarray, sigmas: Sequence[float], replicates: int, seed: int = 0) -> np.ndarray:
+    """Warm starts plus zero-mean Gaussian noise, (len(sigmas), replicates, *x0.shape), drawn
+    with one vmapped call over PRNG keys."""
+    keys = jax.random.split(jax.random.PRNGKey(seed), len(sigmas) * replicates).reshape(len(sigmas), replicates, -1)
+    base = jnp.asarray(x0)
+
+    def one(key, sigma):
+        return base + sigma * jax.random.normal(key, base.shape, base.dtype)
+
+    draw = jax.vmap(jax.vmap(one, in_axes=(0, None)), in_axes=(0, 0))
+    return np.asarray(draw(keys, jnp.asarray(sigmas, base.dtype)))
+
+
+def robustness(
+    tasks: Sequence[str] = ROBUSTNESS_TASKS,
+    params: Sequence[str] = ROBUSTNESS_PARAMS,
+    sigmas: Sequence[float] = SIGMAS,
+    replicates: int = 10,
+    seed: int = 0,
+    out: str | Path = "runs/robustness",
+    exact_hessian: bool = False,
+    progress: TextIO | None = sys.stdout,
+) -> list[dict]:
+    """Table III and Fig. 2: success rate and iterations under warm-start noise.
+
+    Success follows the paper's Table III: the solve converged to a feasible point; rows
+    also count how many of those converged without doing the task (e.g. no flip: the
+    paper's asterisk).
+    """
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    runs: list[dict] = []
+    for task in tasks:
+        for p in params:
+            prep = prepare(task, p)
+            starts = noisy_warm_starts(prep.transcription.warm_start(), sigmas, replicates, seed)
+            for si, sigma in enumerate(sigmas):
+                for r in range(replicates):
+                    res = solve(task, p, warm_start=starts[si, r], exact_hessian=exact_hessian, progress=None, keep_trajectory=False)
+                    run = _row(res) | {"sigma": float(sigma), "replicate": r}
+                    runs.append(run)
+                    if progress is not None:
+                        print(f"{task:10s} {p:6s} sigma={sigma:<7g} #{r}: {res.status.value:26s} {res.iterations:4d} it  {res.time_s:6.1f} s", file=progress, flush=True)
+                (out / "runs.json").write_text(json.dumps(runs, indent=2))
+    summary = summarize_robustness(runs)
+    (out / "table_iii.json").write_text(json.dumps(summary, indent=2))
+    (out / "table_iii.md").write_text(_table_iii_markdown(summary, sigmas))
+    plot_iterations(runs, out / "fig2.png")
+    return runs
+
+
+def summarize_robustness(runs: list[dict]) -> list[dict]:
+    keys = sorted({(r["task"], r["parameterization"], r["sigma"]) for r in runs}, key=lambda k: (k[0], k[1], k[2]))
+    rows = []
+    for task, p, sigma in keys:
+        sel = [r for r in runs if (r["task"], r["parameterization"], r["sigma"]) == (task, p, sigma)]
+        conv = [r for r in sel if r["converged"]]
+        its = np.array([r["iterations"] for r in conv]) if conv else np.array([])
+        rows.append(
+            dict(
+                task=task,
+                parameterization=p,
+                sigma=sigma,
+                runs=len(sel),
+                success_rate=len(conv) / len(sel),
+                task_success_rate=sum(r["success"] for r in sel) / len(sel),
+                converged_without_task=sum(1 for r in conv if not r["success"]),
+                iterations_median=float(np.median(its)) if its.size else None,
+                iterations_p25=float(np.percentile(its, 25)) if its.size else None,
+                iterations_p75=float(np.percentile(its, 75)) if its.size else None,
+            )
+        )
+    return rows
+
+
+def _table_iii_markdown(summary: list[dict], sigmas: Sequence[float]) -> str:
+    lines = ["| task | parameterization | " + " | ".join(f"sigma={s:g}" for s in sigmas) + " |", "|---|---|" + "---|" * len(sigmas)]
+    for task in dict.fromkeys(r["task"] for r in summary):
+        for p in dict.fromkeys(r["parameterization"] for r in summary if r["task"] == task):
+            cells = []
+            for s in sigmas:
+                match = [r for r in summary if r["task"] == task and r["parameterization"] == p and r["sigma"] == s]
+                if not match:
+                    cells.append("")
+                    continue
+                r = match[0]
+                star = "*" if r["converged_without_task"] else ""
+                cells.append(f"{100 * r['success_rate']:.0f}%{star}")
+            lines.append(f"| {task} | {p} | " + " | ".join(cells) + " |")
+    lines.append("\n\\* some runs converged without doing the task (e.g. a jump instead of a flip).")
+    return "\n".join(lines) + "\n"
+
+
+def plot_iterations(runs: list[dict], path: str | Path) -> None:
+    """Fig. 2: iterations to convergence against noise (median, 25-75th percentiles)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    summary = summarize_robustness(runs)
+    tasks = list(dict.fromkeys(r["task"] for r in summary))
+    fig, axes = plt.subplots(1, len(tasks), figsize=(4 * len(tasks), 3.4), squeeze=False)
+    for ax, task in zip(axes[0], tasks):
+        for p in dict.fromkeys(r["parameterization"] for r in summary if r["task"] == task):
+            rows = [r for r in summary if r["task"] == task and r["parameterization"] == p and r["iterations_median"] is not None]
+            if not rows:
+                continue
+            s = np.array([r["sigma"] for r in rows])
+            med = np.array([r["iterations_median"] for r in rows])
+            ax.plot(s, med, marker="o", label=PARAMETERIZATIONS[p].label)
+            ax.fill_between(s, [r["iterations_p25"] for r in rows], [r["iterations_p75"] for r in rows], alpha=0.2)
+        ax.set_xscale("log")
+        ax.set_title(task)
+        ax.set_xlabel("warm-start noise sigma")
+        ax.set_ylabel("iterations to convergence")
+    axes[0][0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
