@@ -1,0 +1,178 @@
+"""Inverse dynamics and its Jacobians over one Talos trajectory: jtraj versus Pinocchio.
+
+Run: ``python bench/dynamics.py [--knots 66] [--repeats 30] [--robot talos]``
+
+For K knots with random states (q, v, a, contact forces) it times, median over repeats:
+  - tau at all knots: jtraj (jit + vmap) vs Pinocchio (rnea with external forces, Python loop);
+  - the full Jacobian of tau w.r.t. every knot variable (q, v, a, forces): jtraj's batched
+    analytical derivatives vs Pinocchio's rnea + computeRNEADerivatives + contact frame
+    Jacobians (Python loop over knots, same states);
+  - for comparison, jax.jacfwd through MJX's pipeline and through jtraj's own RNEA.
+Compile times are the first call's wall time. Pinocchio's external forces are built in the
+joint frames before timing (which only favours Pinocchio).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pinocchio as pin
+
+import jtraj  # noqa: F401  (float64)
+from jtraj import dynamics, robot as robot_lib
+from jtraj.parameterization import PARAMETERIZATIONS
+
+
+def timed(fn, repeats):
+    """(first-call seconds, median seconds over repeats) of fn(), blocking on the result."""
+    t0 = time.perf_counter()
+    jax.block_until_ready(fn())
+    first = time.perf_counter() - t0
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn())
+        times.append(time.perf_counter() - t0)
+    return first, float(np.median(times))
+
+
+def batched(fn):
+    """jit(vmap(fn)) over knots for fn(robot, param, q, v, a, forces)."""
+    return jax.jit(jax.vmap(fn, in_axes=(None, None, 0, 0, 0, 0)), static_argnums=(0, 1))
+
+
+def row(label, ours, theirs=None, note=""):
+    line = f"{label:44s}{ours * 1e3:10.3f}ms"
+    if theirs is not None:
+        line += f"{theirs * 1e3:10.3f}ms{ours / theirs:8.2f}"
+    print(line + note)
+
+
+def pinocchio_model(robot):
+    full = pin.buildModelFromUrdf(str(robot.urdf_path), pin.JointModelFreeFlyer())
+    locked = [full.getJointId(n) for n in robot.locked_joints]
+    model = pin.buildReducedModel(full, locked, pin.neutral(full)) if locked else full
+    frames = []
+    for c in robot.contacts:
+        link_frame = model.getFrameId(c.link)
+        placement = model.frames[link_frame].placement * pin.SE3(np.eye(3), np.array(c.offset_link))
+        parent_joint = model.frames[link_frame].parentJoint
+        frame = pin.Frame(f"contact_{c.name}", parent_joint, link_frame, placement, pin.FrameType.OP_FRAME)
+        frames.append(model.addFrame(frame))
+    joint_ids = [model.getJointId(n) for n in robot.joint_names]
+    q_index = np.array([model.joints[j].idx_q for j in joint_ids])
+    v_index = np.array([model.joints[j].idx_v for j in joint_ids])
+    return model, frames, q_index, v_index
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--robot", default="talos")
+    parser.add_argument("--knots", type=int, default=66)
+    parser.add_argument("--repeats", type=int, default=30)
+    parser.add_argument("--param", default="quat1", choices=list(PARAMETERIZATIONS))
+    parser.add_argument("--skip-mjx", action="store_true", help="skip the slow jacfwd-through-MJX baseline")
+    args = parser.parse_args()
+
+    robot = robot_lib.load(args.robot)
+    param = PARAMETERIZATIONS[args.param]
+    K, nv, nc = args.knots, robot.nv, robot.ncontact
+    rng = np.random.default_rng(0)
+
+    # Random states around the standing pose.
+    T0 = robot.base_pose_standing
+    xi = rng.normal(scale=0.3, size=(K, 6))
+    poses = [T0 @ jtraj.lie.exp(jtraj.lie.SE3, jnp.asarray(x)) for x in xi]
+    Qb = np.stack([np.asarray(param.from_pose(T)) for T in poses])
+    Qj = robot.q_joints_standing + rng.uniform(-0.5, 0.5, size=(K, robot.nj))
+    Q = jnp.asarray(np.concatenate([Qb, Qj], axis=1))
+    V = jnp.asarray(rng.normal(size=(K, nv)))
+    A = jnp.asarray(rng.normal(size=(K, nv)))
+    F = jnp.asarray(rng.normal(scale=100.0, size=(K, nc, 3)))
+
+    print(f"robot {robot.name}: nq = {param.nq}+{robot.nj}, nv = {nv}, {nc} contact points, {K} knots, "
+          f"parameterization {param.name}, jax {jax.__version__} on {jax.devices()[0].platform}, "
+          f"median of {args.repeats}")
+
+    # --- jtraj
+    tau_batch = batched(dynamics.inverse_dynamics)
+    c_tau, t_tau = timed(lambda: tau_batch(robot, param, Q, V, A, F), args.repeats)
+    c_jac, t_jac = timed(lambda: dynamics.inverse_dynamics_jacobians(robot, param, Q, V, A, F), args.repeats)
+    ours = dynamics.inverse_dynamics_jacobians(robot, param, Q, V, A, F)
+
+    # --- Pinocchio, same states
+    model, frames, q_index, v_index = pinocchio_model(robot)
+    data = model.createData()
+    perm = np.concatenate([np.arange(6), v_index])
+    qs, vs, as_, fexts, fs = [], [], [], [], []
+    for k in range(K):
+        T = param.to_pose(Q[k, : param.nq])
+        qp = np.zeros(model.nq)
+        qp[:3] = np.asarray(T.translation())
+        w, x, y, z = np.asarray(T.rotation().wxyz)
+        qp[3:7] = [x, y, z, w]
+        qp[q_index] = np.asarray(Q[k, param.nq :])
+        vp, ap = np.zeros(nv), np.zeros(nv)
+        vp[perm], ap[perm] = np.asarray(V[k]), np.asarray(A[k])
+        pin.framesForwardKinematics(model, data, qp)
+        fext = [pin.Force.Zero() for _ in range(model.njoints)]
+        for c, fid in enumerate(frames):
+            joint = model.frames[fid].parentJoint
+            p = data.oMf[fid].translation
+            f_world = np.asarray(F[k, c])
+            fext[joint] += data.oMi[joint].actInv(pin.Force(f_world, np.cross(p, f_world)))
+        qs.append(qp), vs.append(vp), as_.append(ap), fexts.append(fext)
+
+    def pin_tau():
+        return [pin.rnea(model, data, qs[k], vs[k], as_[k], fexts[k]).copy() for k in range(K)]
+
+    def pin_jac():
+        out = []
+        for k in range(K):
+            pin.rnea(model, data, qs[k], vs[k], as_[k], fexts[k])
+            dq, dv, da = pin.computeRNEADerivatives(model, data, qs[k], vs[k], as_[k], fexts[k])
+            Jc = [pin.getFrameJacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)[:3] for fid in frames]
+            out.append((dq, dv, da, Jc))
+        return out
+
+    _, p_tau = timed(pin_tau, args.repeats)
+    _, p_jac = timed(pin_jac, args.repeats)
+
+    # Cross-check on the last knot: tau, dv, da, df agree with Pinocchio.
+    taus = pin_tau()
+    _, dv_p, da_p, Jc_p = pin_jac()[-1]
+    da_p = np.triu(da_p) + np.triu(da_p, 1).T
+    err = max(
+        np.abs(np.asarray(ours.tau[-1]) - taus[-1][perm]).max() / np.abs(taus[-1]).max(),
+        np.abs(np.asarray(ours.dv[-1]) - dv_p[np.ix_(perm, perm)]).max() / np.abs(dv_p).max(),
+        np.abs(np.asarray(ours.da[-1]) - da_p[np.ix_(perm, perm)]).max() / np.abs(da_p).max(),
+        np.abs(np.asarray(ours.df[-1]) + np.concatenate(Jc_p)[:, perm].T).max(),
+    )
+    print(f"agreement with Pinocchio (tau, dtau/dv, M, J_c), max relative error: {err:.1e}")
+
+    print()
+    print(f"{'':44s}{'jtraj':>12s}{'Pinocchio':>12s}{'ratio':>8s}")
+    row("tau at all knots", t_tau, p_tau)
+    row("Jacobian of tau w.r.t. (q, v, a, f)", t_jac, p_jac)
+    print(f"jtraj compile: tau {c_tau:.2f} s, Jacobians {c_jac:.2f} s")
+
+    # --- autodiff baselines
+    print()
+    own_fwd = batched(jax.jacfwd(dynamics.inverse_dynamics, argnums=(2, 3, 4, 5)))
+    c_own, t_own = timed(lambda: own_fwd(robot, param, Q, V, A, F), max(3, args.repeats // 3))
+    row("jax.jacfwd through jtraj RNEA", t_own, note=f"  (compile {c_own:.2f} s)")
+    if not args.skip_mjx:
+        mjx_tau = batched(dynamics.inverse_dynamics_mjx)
+        c_mt, t_mt = timed(lambda: mjx_tau(robot, param, Q, V, A, F), max(3, args.repeats // 3))
+        mjx_fwd = batched(jax.jacfwd(dynamics.inverse_dynamics_mjx, argnums=(2, 3, 4, 5)))
+        c_mj, t_mj = timed(lambda: mjx_fwd(robot, param, Q, V, A, F), 3)
+        row("tau through MJX (vmap)", t_mt, note=f"  (compile {c_mt:.2f} s)")
+        row("jax.jacfwd through MJX (vmap)", t_mj, note=f"  (compile {c_mj:.2f} s)")
+
+
+if __name__ == "__main__":
+    main()

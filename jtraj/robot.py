@@ -1,0 +1,589 @@
+"""Robot models: a URDF from example-robot-data, loaded into MuJoCo and MJX, plus the data a
+task needs (contact points and groups, standing pose, limits), declared in ``robots/*.toml``.
+
+`load` reads ``robots/<name>.toml`` (installed as package data ``jtraj.robots``), finds the URDF
+inside the installed ``example-robot-data`` distribution, and builds a frozen `Robot`:
+
+- the URDF is parsed with ``xml.etree``; ``<visual>``/``<collision>`` are stripped (dynamics
+  never depends on meshes), the locked joints become ``fixed``, and MuJoCo's compiler is told to
+  fuse static bodies and keep the inertias as written (``balanceinertia="false"``);
+- a free joint is added to the root body; damping, armature and friction loss are zeroed, so
+  the model is pure rigid-body dynamics;
+- contact points are declared on URDF links; a link that MuJoCo fused into its parent is
+  resolved to the surviving ancestor body by composing the URDF fixed-joint origins, so every
+  contact point is expressed in a body MuJoCo keeps.
+
+Joint order everywhere is MuJoCo's ``qpos`` order (`Robot.joint_names`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import importlib.metadata
+import importlib.resources
+import math
+import pathlib
+import tomllib
+import xml.etree.ElementTree as ET
+from collections.abc import Mapping
+from types import MappingProxyType
+from typing import Any
+
+import mujoco
+import numpy as np
+from jaxlie import SE3, SO3
+from mujoco import mjx
+
+__all__ = [
+    "Robot",
+    "ContactPoint",
+    "RobotLoadError",
+    "available",
+    "load",
+    "load_file",
+    "load_render_model",
+    "robots_data_dir",
+    "GRAVITY",
+]
+
+#: Magnitude of gravity (m/s^2); MuJoCo's default gravity vector is (0, 0, -GRAVITY).
+GRAVITY = 9.81
+
+_FREE_JOINT_NAME = "floating_base"
+# Mesh formats MuJoCo can read; others (e.g. Collada .dae) are skipped for rendering.
+_MUJOCO_MESH_SUFFIXES = (".stl", ".obj", ".msh")
+
+
+class RobotLoadError(ValueError):
+    """A robot definition or model that cannot be loaded; the message names the file."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ContactPoint:
+    """One contact point.
+
+    Attributes:
+        name: unique name within the robot.
+        link: URDF link the point was declared on.
+        offset_link: position of the point in the link frame (m).
+        body: MuJoCo body that carries the point (``link`` or its surviving ancestor).
+        body_id: MuJoCo body id.
+        offset_body: position of the point in the body frame (m).
+    """
+
+    name: str
+    link: str
+    offset_link: tuple[float, float, float]
+    body: str
+    body_id: int
+    offset_body: tuple[float, float, float]
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Robot:
+    """A floating-base robot: MuJoCo/MJX models and the task-facing data.
+
+    Instances are immutable and hashed by identity, so they can be static arguments of
+    `jax.jit`. Arrays are read-only numpy arrays. Joint-indexed arrays have length `nj` in
+    MuJoCo ``qpos`` order (`joint_names`).
+
+    Attributes:
+        name: robot name (the TOML file's stem).
+        source: the TOML file it was built from.
+        urdf_path: the URDF inside example-robot-data.
+        mj_model: MuJoCo model (free joint first, then the `nj` hinge joints).
+        mjx_model: the same model on device (`mujoco.mjx.put_model`).
+        joint_names: actuated joint names.
+        locked_joints: URDF joints turned fixed (at 0).
+        contacts: the contact points, in declaration order.
+        contact_groups: group name -> tuple of indices into `contacts`.
+        q_joints_standing: standing joint positions (rad), shape (nj,).
+        base_xyz_wxyz_standing: standing base pose, position (m) then unit quaternion.
+        q_lower, q_upper: joint position limits (rad) from the URDF (+-inf if unlimited).
+        v_max: joint velocity limits (rad/s) from the URDF (inf if absent).
+        tau_max: joint effort limits (N m) from the URDF (inf if absent).
+        total_mass: sum of the body masses (kg).
+        gravity: magnitude of gravity (m/s^2), along -z.
+    """
+
+    name: str
+    source: pathlib.Path
+    urdf_path: pathlib.Path
+    mj_model: mujoco.MjModel
+    mjx_model: Any
+    joint_names: tuple[str, ...]
+    locked_joints: tuple[str, ...]
+    contacts: tuple[ContactPoint, ...]
+    contact_groups: Mapping[str, tuple[int, ...]]
+    q_joints_standing: np.ndarray
+    base_xyz_wxyz_standing: np.ndarray
+    q_lower: np.ndarray
+    q_upper: np.ndarray
+    v_max: np.ndarray
+    tau_max: np.ndarray
+    total_mass: float
+    gravity: float = GRAVITY
+
+    @property
+    def nj(self) -> int:
+        """Number of actuated joints."""
+        return len(self.joint_names)
+
+    @property
+    def nq_joints(self) -> int:
+        """Alias of `nj`: joint coordinates in ``q`` after the base coordinates."""
+        return self.nj
+
+    @property
+    def nv(self) -> int:
+        """Generalized velocity size, ``6 + nj`` (body twist then joint rates)."""
+        return 6 + self.nj
+
+    @property
+    def ncontact(self) -> int:
+        return len(self.contacts)
+
+    @property
+    def contact_names(self) -> tuple[str, ...]:
+        return tuple(c.name for c in self.contacts)
+
+    @property
+    def contact_body_ids(self) -> np.ndarray:
+        """MuJoCo body id of each contact point, shape (ncontact,)."""
+        return _readonly(np.array([c.body_id for c in self.contacts], dtype=np.int64))
+
+    @property
+    def contact_offsets(self) -> np.ndarray:
+        """Contact point positions in their body frames (m), shape (ncontact, 3)."""
+        return _readonly(np.array([c.offset_body for c in self.contacts], dtype=np.float64))
+
+    @property
+    def base_pose_standing(self) -> SE3:
+        """Standing base pose ``T_world_base``."""
+        xyz_wxyz = self.base_xyz_wxyz_standing
+        return SE3.from_rotation_and_translation(SO3(xyz_wxyz[3:]), xyz_wxyz[:3])
+
+    @property
+    def qpos_standing(self) -> np.ndarray:
+        """MuJoCo ``qpos`` of the standing pose, shape (7 + nj,)."""
+        return _readonly(np.concatenate([self.base_xyz_wxyz_standing, self.q_joints_standing]))
+
+    def contact_index(self, name: str) -> int:
+        """Index of the contact point ``name`` in `contacts`."""
+        names = self.contact_names
+        if name not in names:
+            choices = ", ".join(names)
+            raise KeyError(f"robot {self.name!r} has no contact point {name!r}; expected one of: {choices}")
+        return names.index(name)
+
+    def group(self, name: str) -> tuple[int, ...]:
+        """Contact point indices of the group ``name``."""
+        if name not in self.contact_groups:
+            choices = ", ".join(self.contact_groups)
+            raise KeyError(f"robot {self.name!r} has no contact group {name!r}; expected one of: {choices}")
+        return self.contact_groups[name]
+
+    def __repr__(self) -> str:
+        return (
+            f"Robot({self.name!r}, nj={self.nj}, nv={self.nv}, ncontact={self.ncontact}, "
+            f"groups={list(self.contact_groups)}, mass={self.total_mass:.3f} kg)"
+        )
+
+
+# ----------------------------------------------------------------------------------------
+# Locating files
+
+
+def robots_data_dir() -> pathlib.Path:
+    """The ``robots`` folder of the installed example-robot-data distribution."""
+    try:
+        files = importlib.metadata.files("example-robot-data")
+    except importlib.metadata.PackageNotFoundError:
+        raise RobotLoadError(
+            "the example-robot-data distribution is not installed; install it with "
+            "`pip install example-robot-data`"
+        ) from None
+    marker = ("share", "example-robot-data", "robots")
+    for f in files or ():
+        parts = f.parts
+        for i in range(len(parts) - len(marker)):
+            if parts[i : i + len(marker)] == marker:
+                return pathlib.Path(f.locate()).parents[len(parts) - i - len(marker) - 1]
+    raise RobotLoadError(
+        "example-robot-data is installed but holds no share/example-robot-data/robots folder"
+    )
+
+
+def available() -> tuple[str, ...]:
+    """Names of the robots defined in the package data ``jtraj.robots``."""
+    folder = importlib.resources.files("jtraj.robots")
+    return tuple(sorted(p.name[: -len(".toml")] for p in folder.iterdir() if p.name.endswith(".toml")))
+
+
+@functools.lru_cache(maxsize=None)
+def load(name: str) -> Robot:
+    """The robot ``name`` (``talos``, ``g1``, ``go2``), from ``robots/<name>.toml``.
+
+    Cached: a second call returns the same object (so jitted functions do not recompile).
+    """
+    resource = importlib.resources.files("jtraj.robots") / f"{name}.toml"
+    if not resource.is_file():
+        raise RobotLoadError(f"unknown robot {name!r}; expected one of: {', '.join(available())}")
+    with importlib.resources.as_file(resource) as path:
+        return load_file(path)
+
+
+def load_file(path: str | pathlib.Path) -> Robot:
+    """A robot from a TOML definition file (see ``robots/talos.toml`` for the format).
+
+    Keys: ``name``; ``urdf`` (relative to example-robot-data's robots folder, or absolute);
+    ``locked_joints`` (fixed at 0); ``expected_joints`` (a check); ``[standing]`` with
+    ``base_xyz``, ``base_wxyz`` and a ``[standing.joints]`` table (others 0); ``[[contact]]``
+    entries with ``name``, ``link`` and ``offset`` (m, link frame); ``[groups]`` mapping a
+    group name to contact names.
+    """
+    path = pathlib.Path(path)
+    try:
+        with open(path, "rb") as f:
+            config = tomllib.load(f)
+    except (OSError, tomllib.TOMLDecodeError) as err:
+        raise RobotLoadError(f"{path}: cannot read robot definition: {err}") from err
+    return _build(config, path)
+
+
+# ----------------------------------------------------------------------------------------
+# URDF handling
+
+
+def _floats(text: str | None, n: int, default: float = 0.0) -> np.ndarray:
+    if text is None:
+        return np.full(n, default)
+    values = np.array([float(x) for x in text.split()])
+    if values.shape != (n,):
+        raise ValueError(f"expected {n} numbers, got {text!r}")
+    return values
+
+
+def _rpy_matrix(rpy: np.ndarray) -> np.ndarray:
+    """URDF ``rpy``: ``R = Rz(yaw) Ry(pitch) Rx(roll)``."""
+    r, p, y = rpy
+    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
+    return np.array(
+        [
+            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+            [-sp, cp * sr, cp * cr],
+        ]
+    )
+
+
+def _origin(element: ET.Element) -> tuple[np.ndarray, np.ndarray]:
+    """(R, p) of an element's ``<origin>``, identity when absent."""
+    origin = element.find("origin")
+    if origin is None:
+        return np.eye(3), np.zeros(3)
+    return _rpy_matrix(_floats(origin.get("rpy"), 3)), _floats(origin.get("xyz"), 3)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Urdf:
+    path: pathlib.Path
+    root: ET.Element
+    links: tuple[str, ...]
+    joints: Mapping[str, ET.Element]  # by name
+    parent_joint: Mapping[str, ET.Element]  # child link -> joint
+
+
+def _parse_urdf(path: pathlib.Path, source: pathlib.Path) -> _Urdf:
+    try:
+        root = ET.parse(path).getroot()
+    except (OSError, ET.ParseError) as err:
+        raise RobotLoadError(f"{source}: cannot parse URDF {path}: {err}") from err
+    if root.tag != "robot":
+        raise RobotLoadError(f"{source}: {path} is not a URDF (root element <{root.tag}>, expected <robot>)")
+    links = tuple(link.get("name") for link in root.findall("link"))
+    joints = {j.get("name"): j for j in root.findall("joint")}
+    parent_joint = {j.find("child").get("link"): j for j in joints.values()}
+    return _Urdf(path, root, links, joints, parent_joint)
+
+
+def _mujoco_urdf_string(
+    urdf: _Urdf,
+    locked: tuple[str, ...],
+    *,
+    keep_geometry: bool,
+    mesh_root: pathlib.Path | None = None,
+) -> str:
+    """The URDF text handed to MuJoCo: locked joints fixed, geometry stripped or resolved."""
+    root = ET.fromstring(ET.tostring(urdf.root))  # a copy
+    for joint in root.findall("joint"):
+        if joint.get("name") in locked:
+            joint.set("type", "fixed")
+            for tag in ("limit", "mimic", "dynamics", "calibration", "safety_controller"):
+                for child in joint.findall(tag):
+                    joint.remove(child)
+        elif joint.find("mimic") is not None:
+            # MuJoCo ignores <mimic>; the joint stays independent.
+            joint.remove(joint.find("mimic"))
+    for link in root.findall("link"):
+        for tag in ("visual", "collision"):
+            for geom in link.findall(tag):
+                if not keep_geometry or not _resolve_meshes(geom, mesh_root):
+                    link.remove(geom)
+    # Gazebo/transmission extras are noise to MuJoCo.
+    for child in list(root):
+        if child.tag not in ("link", "joint", "material"):
+            root.remove(child)
+    compiler = ET.SubElement(ET.SubElement(root, "mujoco"), "compiler")
+    compiler.set("discardvisual", "false" if keep_geometry else "true")
+    compiler.set("fusestatic", "true")
+    compiler.set("balanceinertia", "false")
+    compiler.set("strippath", "false")
+    return ET.tostring(root, encoding="unicode")
+
+
+def _resolve_meshes(geom: ET.Element, mesh_root: pathlib.Path | None) -> bool:
+    """Points mesh file names at files on disk; False when a mesh cannot be loaded."""
+    for mesh in geom.iter("mesh"):
+        filename = mesh.get("filename", "")
+        prefix = "package://example-robot-data/robots/"
+        if filename.startswith(prefix) and mesh_root is not None:
+            path = mesh_root / filename[len(prefix) :]
+        elif filename.startswith("package://"):
+            return False
+        else:
+            path = pathlib.Path(filename)
+        if path.suffix.lower() not in _MUJOCO_MESH_SUFFIXES or not path.is_file():
+            return False
+        mesh.set("filename", str(path))
+    return True
+
+
+def _compile(text: str, source: pathlib.Path, urdf_path: pathlib.Path) -> mujoco.MjModel:
+    try:
+        spec = mujoco.MjSpec.from_string(text)
+        root_body = spec.worldbody.first_body()
+        if root_body is None:
+            raise ValueError("the model has no body")
+        free = root_body.add_freejoint()
+        free.name = _FREE_JOINT_NAME
+        model = spec.compile()
+    except ValueError as err:  # MuJoCo raises ValueError on parse and compile errors
+        raise RobotLoadError(f"{source}: MuJoCo could not load URDF {urdf_path}: {err}") from err
+    return model
+
+
+def _link_in_body(
+    urdf: _Urdf,
+    locked: tuple[str, ...],
+    model: mujoco.MjModel,
+    link: str,
+    source: pathlib.Path,
+    what: str,
+) -> tuple[int, np.ndarray, np.ndarray]:
+    """(body id, R_body_link, p_body_link) of a URDF link: the link itself if MuJoCo kept it
+    as a body, else its closest ancestor through fixed joints."""
+    if link not in urdf.links:
+        raise RobotLoadError(
+            f"{source}: {what} is on link {link!r}, which is not a link of {urdf.path}; "
+            f"expected one of: {', '.join(urdf.links)}"
+        )
+    R, p = np.eye(3), np.zeros(3)
+    current = link
+    while True:
+        body_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, current)
+        if body_id >= 0:
+            return body_id, R, p
+        joint = urdf.parent_joint.get(current)
+        if joint is None or (joint.get("type") != "fixed" and joint.get("name") not in locked):
+            raise RobotLoadError(f"{source}: link {current!r} has no MuJoCo body and no fixed parent joint")
+        R_j, p_j = _origin(joint)
+        # T_parent_link = T_joint-origin T_current_link
+        R, p = R_j @ R, R_j @ p + p_j
+        current = joint.find("parent").get("link")
+
+
+def _limits(urdf: _Urdf, joint_names: tuple[str, ...]) -> tuple[np.ndarray, ...]:
+    lower, upper, velocity, effort = (np.empty(len(joint_names)) for _ in range(4))
+    for i, name in enumerate(joint_names):
+        joint = urdf.joints[name]
+        limit = joint.find("limit")
+        continuous = joint.get("type") == "continuous"
+
+        def get(key, default, limit=limit):
+            return float(limit.get(key)) if limit is not None and limit.get(key) is not None else default
+
+        lower[i] = -np.inf if continuous else get("lower", -np.inf)
+        upper[i] = np.inf if continuous else get("upper", np.inf)
+        velocity[i] = get("velocity", np.inf)
+        effort[i] = get("effort", np.inf)
+    return lower, upper, velocity, effort
+
+
+def _readonly(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False
+    return a
+
+
+# ----------------------------------------------------------------------------------------
+# Building a Robot
+
+
+def _require(config: Mapping, key: str, kind: type, source: pathlib.Path, where: str = ""):
+    if key not in config:
+        raise RobotLoadError(f"{source}: missing key {where}{key!r}")
+    value = config[key]
+    if not isinstance(value, kind):
+        raise RobotLoadError(f"{source}: {where}{key!r} must be a {kind.__name__}, got {value!r}")
+    return value
+
+
+def _vector(value: Any, n: int, source: pathlib.Path, what: str) -> np.ndarray:
+    try:
+        array = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        array = None
+    if array is None or array.shape != (n,) or not np.all(np.isfinite(array)):
+        raise RobotLoadError(f"{source}: {what} must be {n} finite numbers, got {value!r}")
+    return array
+
+
+def _build(config: Mapping, source: pathlib.Path) -> Robot:
+    name = config.get("name", source.stem)
+    urdf_rel = _require(config, "urdf", str, source)
+    urdf_path = robots_data_dir() / urdf_rel
+    if not urdf_path.is_file():
+        raise RobotLoadError(
+            f"{source}: URDF {urdf_rel!r} not found; expected a path relative to {robots_data_dir()} "
+            f"(e.g. 'talos_data/robots/talos_reduced.urdf')"
+        )
+    urdf = _parse_urdf(urdf_path, source)
+
+    locked = tuple(config.get("locked_joints", ()))
+    for joint in locked:
+        if joint not in urdf.joints:
+            raise RobotLoadError(
+                f"{source}: locked joint {joint!r} is not a joint of {urdf_path}; "
+                f"expected one of: {', '.join(urdf.joints)}"
+            )
+    return _assemble(config, source, name, urdf_path, urdf, locked)
+
+
+def _assemble(config, source, name, urdf_path, urdf, locked) -> Robot:
+    model = _compile(_mujoco_urdf_string(urdf, locked, keep_geometry=False), source, urdf_path)
+    # The formulation is pure rigid-body dynamics.
+    model.dof_damping[:] = 0.0
+    model.dof_armature[:] = 0.0
+    model.dof_frictionloss[:] = 0.0
+    model.jnt_stiffness[:] = 0.0
+
+    free = mujoco.mjtJoint.mjJNT_FREE
+    hinge = mujoco.mjtJoint.mjJNT_HINGE
+    if model.njnt < 1 or model.jnt_type[0] != free:
+        raise RobotLoadError(f"{source}: expected the free joint first in the MuJoCo model of {urdf_path}")
+    joint_names = []
+    for j in range(1, model.njnt):
+        jname = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j)
+        if model.jnt_type[j] != hinge:
+            kind = mujoco.mjtJoint(model.jnt_type[j]).name
+            raise RobotLoadError(
+                f"{source}: joint {jname!r} of {urdf_path} has MuJoCo type {kind}; "
+                "only revolute joints are supported"
+            )
+        joint_names.append(jname)
+    joint_names = tuple(joint_names)
+
+    expected_nj = config.get("expected_joints")
+    if expected_nj is not None and expected_nj != len(joint_names):
+        raise RobotLoadError(
+            f"{source}: {urdf_path} with locked joints {list(locked)} has {len(joint_names)} joints, "
+            f"expected {expected_nj}"
+        )
+
+    # Contact points.
+    contacts: list[ContactPoint] = []
+    for i, entry in enumerate(config.get("contact", ())):
+        where = f"contact[{i}]."
+        cname = _require(entry, "name", str, source, where)
+        link = _require(entry, "link", str, source, where)
+        offset = _vector(entry.get("offset", [0.0, 0.0, 0.0]), 3, source, f"{where}offset")
+        if cname in (c.name for c in contacts):
+            raise RobotLoadError(f"{source}: duplicate contact point name {cname!r}")
+        body_id, R_bl, p_bl = _link_in_body(urdf, locked, model, link, source, f"contact point {cname!r}")
+        offset_body = R_bl @ offset + p_bl
+        contacts.append(
+            ContactPoint(
+                name=cname,
+                link=link,
+                offset_link=tuple(float(x) for x in offset),
+                body=mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, body_id),
+                body_id=int(body_id),
+                offset_body=tuple(float(x) for x in offset_body),
+            )
+        )
+    contact_names = [c.name for c in contacts]
+    groups: dict[str, tuple[int, ...]] = {}
+    for gname, members in config.get("groups", {}).items():
+        indices = []
+        for member in members:
+            if member not in contact_names:
+                raise RobotLoadError(
+                    f"{source}: group {gname!r} names contact point {member!r}, which is not declared; "
+                    f"expected one of: {', '.join(contact_names)}"
+                )
+            indices.append(contact_names.index(member))
+        groups[gname] = tuple(indices)
+
+    # Standing pose.
+    standing = config.get("standing", {})
+    base_xyz = _vector(standing.get("base_xyz", [0.0, 0.0, 0.0]), 3, source, "standing.base_xyz")
+    base_wxyz = _vector(standing.get("base_wxyz", [1.0, 0.0, 0.0, 0.0]), 4, source, "standing.base_wxyz")
+    base_wxyz = base_wxyz / np.linalg.norm(base_wxyz)
+    q_standing = np.zeros(len(joint_names))
+    for jname, value in standing.get("joints", {}).items():
+        if jname not in joint_names:
+            raise RobotLoadError(
+                f"{source}: standing.joints names {jname!r}, which is not an actuated joint; "
+                f"expected one of: {', '.join(joint_names)}"
+            )
+        q_standing[joint_names.index(jname)] = float(value)
+
+    lower, upper, velocity, effort = _limits(urdf, joint_names)
+    return Robot(
+        name=name,
+        source=source,
+        urdf_path=urdf_path,
+        mj_model=model,
+        mjx_model=mjx.put_model(model),
+        joint_names=joint_names,
+        locked_joints=locked,
+        contacts=tuple(contacts),
+        contact_groups=MappingProxyType(groups),
+        q_joints_standing=_readonly(q_standing),
+        base_xyz_wxyz_standing=_readonly(np.concatenate([base_xyz, base_wxyz])),
+        q_lower=_readonly(lower),
+        q_upper=_readonly(upper),
+        v_max=_readonly(velocity),
+        tau_max=_readonly(effort),
+        total_mass=float(np.sum(model.body_mass)),
+        gravity=float(-model.opt.gravity[2]),
+    )
+
+
+def load_render_model(robot: Robot) -> mujoco.MjModel:
+    """A MuJoCo model of ``robot`` with the meshes it can load, for rendering.
+
+    Same bodies and joints as ``robot.mj_model`` (same ``qpos`` layout); visual and collision
+    geometry whose mesh files exist in a format MuJoCo reads are kept, the rest is skipped.
+    Dynamics never uses this model.
+    """
+    urdf = _parse_urdf(robot.urdf_path, robot.source)
+    text = _mujoco_urdf_string(urdf, robot.locked_joints, keep_geometry=True, mesh_root=robots_data_dir())
+    model = _compile(text, robot.source, robot.urdf_path)
+    if model.nbody != robot.mj_model.nbody or model.nq != robot.mj_model.nq:
+        raise RobotLoadError(
+            f"{robot.source}: render model of {robot.urdf_path} has {model.nbody} bodies and nq={model.nq}, "
+            f"expected {robot.mj_model.nbody} and {robot.mj_model.nq}"
+        )
+    return model

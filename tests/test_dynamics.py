@@ -1,0 +1,327 @@
+"""Inverse dynamics and contact kinematics against MuJoCo C, Pinocchio and MJX; the analytical
+Jacobians against jax.jacfwd; physical laws (free fall, Newton) and the convention details.
+
+Inputs are a few random states per robot; compiled functions are module-level and shared.
+"""
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from jtraj import dynamics, lie
+from jtraj import robot as robot_lib
+from jtraj.parameterization import PARAMETERIZATIONS
+
+ROBOTS = ("talos", "g1", "go2")
+NSTATES = 2
+QUAT1 = PARAMETERIZATIONS["quat1"]
+
+
+@functools.partial(jax.jit, static_argnums=(0, 1))
+def _evaluate(robot, param, Q, V, A, F):
+    """Everything the oracles compare, for a batch of states (one compile per robot/chart)."""
+
+    def one(q, v, a, f):
+        M, dtau_df = dynamics.acceleration_force_jacobians(robot, param, q)
+        return dict(
+            tau=dynamics.inverse_dynamics(robot, param, q, v, a, f),
+            points=dynamics.contact_positions(robot, param, q),
+            Jc=dynamics.contact_jacobians(robot, param, q),
+            M=dynamics.mass_matrix(robot, param, q),
+            M_direct=M,
+            dtau_df=dtau_df,
+            qpos_qvel_qacc=dynamics.to_mujoco(robot, param, q, v, a),
+        )
+
+    return jax.vmap(one)(Q, V, A, F)
+
+
+_jacfwd = jax.jit(
+    jax.vmap(jax.jacfwd(dynamics.inverse_dynamics, argnums=(2, 3, 4, 5)), in_axes=(None, None, 0, 0, 0, 0)),
+    static_argnums=(0, 1),
+)
+_points_jacfwd = jax.jit(
+    jax.vmap(jax.jacfwd(dynamics.contact_positions, argnums=2), in_axes=(None, None, 0)),
+    static_argnums=(0, 1),
+)
+_points_jacobians = jax.jit(
+    jax.vmap(dynamics.contact_position_jacobians, in_axes=(None, None, 0)), static_argnums=(0, 1)
+)
+_mjx = jax.jit(
+    jax.vmap(dynamics.inverse_dynamics_mjx, in_axes=(None, None, 0, 0, 0, 0)), static_argnums=(0, 1)
+)
+_tau = jax.jit(dynamics.inverse_dynamics, static_argnums=(0, 1))
+
+
+def random_states(robot, param, n, seed=0, quaternion_scale=1.0, standing=False):
+    """n random states: base anywhere with any orientation, joints inside their limits;
+    with ``standing``, the first is the standing pose at rest."""
+    rng = np.random.default_rng(seed)
+    Q, V, A, F = [], [], [], []
+    for _ in range(n):
+        T = lie.exp(lie.SE3, jnp.asarray(rng.normal(size=6) * np.array([1, 1, 1, 1.5, 1.5, 1.5])))
+        q_base = np.array(param.from_pose(T))
+        if param.nq == 7:  # quaternion charts normalize wherever they use rho
+            q_base[3:] *= quaternion_scale
+        q_joints = rng.uniform(robot.q_lower.clip(-2, 2), robot.q_upper.clip(-2, 2))
+        Q.append(np.concatenate([q_base, q_joints]))
+        V.append(rng.normal(size=robot.nv))
+        A.append(rng.normal(size=robot.nv))
+        F.append(rng.normal(scale=50.0, size=(robot.ncontact, 3)))
+    if standing:  # the warm start: identity rotation (series branches of the charts), at rest
+        q_base = np.asarray(param.from_pose(robot.base_pose_standing))
+        Q[0] = np.concatenate([q_base, robot.q_joints_standing])
+        V[0], A[0] = np.zeros(robot.nv), np.zeros(robot.nv)
+        F[0] = np.tile([0.0, 0.0, robot.total_mass * robot.gravity / robot.ncontact], (robot.ncontact, 1))
+    return tuple(jnp.asarray(np.stack(x)) for x in (Q, V, A, F))
+
+
+def rel_err(x, ref):
+    x, ref = np.asarray(x), np.asarray(ref)
+    return np.abs(x - ref).max() / max(np.abs(ref).max(), 1e-300)
+
+
+@pytest.fixture(scope="module", params=ROBOTS)
+def robot(request):
+    return robot_lib.load(request.param)
+
+
+@pytest.fixture(scope="module")
+def evaluated(robot):
+    """States (quat1 chart, quaternions not unit norm) and all quantities at them."""
+    states = random_states(robot, QUAT1, NSTATES, seed=1, quaternion_scale=1.7)
+    return states, jax.tree.map(np.asarray, _evaluate(robot, QUAT1, *states))
+
+
+# ----------------------------------------------------------------------------------------
+# MuJoCo C
+
+
+def _rotation(qpos):
+    R = np.zeros(9)
+    mujoco.mju_quat2Mat(R, qpos[3:7] / np.linalg.norm(qpos[3:7]))
+    return R.reshape(3, 3)
+
+
+def test_matches_mujoco_c(robot, evaluated):
+    (Q, V, A, F), out = evaluated
+    m = robot.mj_model
+    d = mujoco.MjData(m)
+    for k in range(NSTATES):
+        qpos, qvel, qacc = (np.asarray(x[k]) for x in out["qpos_qvel_qacc"])
+        d.qpos[:], d.qvel[:], d.qacc[:] = qpos, qvel, qacc
+        mujoco.mj_inverse(m, d)
+        qfrc = d.qfrc_inverse.copy()
+        jacs = []
+        for c in range(robot.ncontact):
+            jacp = np.zeros((3, m.nv))
+            mujoco.mj_jac(m, d, jacp, None, out["points"][k, c], robot.contact_body_ids[c])
+            jacs.append(jacp)
+            qfrc -= jacp.T @ np.asarray(F[k, c])
+        # qvel = P V with P = diag(R, 1): tau = P^T qfrc, M = P^T M_mj P, J = J_mj P
+        P = np.eye(m.nv)
+        P[:3, :3] = _rotation(qpos)
+        M_mj = np.zeros((m.nv, m.nv))
+        mujoco.mj_fullM(m, d, M_mj)
+        assert rel_err(out["tau"][k], P.T @ qfrc) < 1e-10
+        assert rel_err(out["M"][k], P.T @ M_mj @ P) < 1e-10
+        assert rel_err(out["Jc"][k], np.stack(jacs) @ P) < 1e-10
+        b = robot.contact_body_ids
+        points = d.xpos[b] + np.einsum("cij,cj->ci", d.xmat[b].reshape(-1, 3, 3), robot.contact_offsets)
+        np.testing.assert_allclose(out["points"][k], points, atol=1e-12)
+
+
+# ----------------------------------------------------------------------------------------
+# Pinocchio
+
+
+def _pinocchio(robot):
+    full = pin.buildModelFromUrdf(str(robot.urdf_path), pin.JointModelFreeFlyer())
+    locked = [full.getJointId(n) for n in robot.locked_joints]
+    model = pin.buildReducedModel(full, locked, pin.neutral(full)) if locked else full
+    frames = []
+    for c in robot.contacts:
+        link_frame = model.getFrameId(c.link)
+        placement = model.frames[link_frame].placement * pin.SE3(np.eye(3), np.array(c.offset_link))
+        parent_joint = model.frames[link_frame].parentJoint
+        frame = pin.Frame(f"contact_{c.name}", parent_joint, link_frame, placement, pin.FrameType.OP_FRAME)
+        frames.append(model.addFrame(frame))
+    joints = [model.joints[model.getJointId(n)] for n in robot.joint_names]
+    q_index = np.array([j.idx_q for j in joints])
+    v_perm = np.concatenate([np.arange(6), [j.idx_v for j in joints]])  # ours -> Pinocchio
+    return model, frames, q_index, v_perm
+
+
+def _pin_q(model, q_index, q_quat1):
+    """Pinocchio configuration of a quat1 configuration (xyz, wxyz not unit, joints)."""
+    q = np.zeros(model.nq)
+    q[:3] = q_quat1[:3]
+    w, x, y, z = q_quat1[3:7] / np.linalg.norm(q_quat1[3:7])
+    q[3:7] = [x, y, z, w]
+    q[q_index] = q_quat1[7:]
+    return q
+
+
+def test_matches_pinocchio(robot, evaluated):
+    (Q, V, A, F), out = evaluated
+    model, frames, q_index, perm = _pinocchio(robot)
+    data = model.createData()
+    for k in range(NSTATES):
+        q = _pin_q(model, q_index, np.asarray(Q[k]))
+        v, a = np.zeros(model.nv), np.zeros(model.nv)
+        v[perm], a[perm] = V[k], A[k]
+        pin.framesForwardKinematics(model, data, q)
+        pin.computeJointJacobians(model, data, q)
+        Jc = np.stack([pin.getFrameJacobian(model, data, f, pin.LOCAL_WORLD_ALIGNED)[:3] for f in frames])
+        points = np.stack([data.oMf[f].translation for f in frames])
+        tau = pin.rnea(model, data, q, v, a) - np.einsum("cij,ci->j", Jc, np.asarray(F[k]))
+        M = pin.crba(model, data, q)
+        M = np.triu(M) + np.triu(M, 1).T
+        assert rel_err(out["tau"][k], tau[perm]) < 1e-10
+        assert rel_err(out["M"][k], M[np.ix_(perm, perm)]) < 1e-10
+        assert rel_err(out["Jc"][k], Jc[:, :, perm]) < 1e-10
+        np.testing.assert_allclose(out["points"][k], points, atol=1e-12)
+
+
+def test_derivatives_match_pinocchio_rnea_derivatives():
+    """dtau/dq, dtau/dv, dtau/da against Pinocchio's analytical RNEA derivatives (no
+    contact forces: Pinocchio's external forces are fixed in the joint frames, ours in the
+    world). dtau/dq is compared along the tangent: q(delta) = Pinocchio's integrate."""
+    robot = robot_lib.load("talos")
+    model, _, q_index, perm = _pinocchio(robot)
+    data = model.createData()
+    Q, V, A, F = random_states(robot, QUAT1, 1, seed=5)
+    F = jnp.zeros_like(F)
+    jac = dynamics.inverse_dynamics_jacobians(robot, QUAT1, Q, V, A, F)
+    q = _pin_q(model, q_index, np.asarray(Q[0]))
+    v, a = np.zeros(model.nv), np.zeros(model.nv)
+    v[perm], a[perm] = V[0], A[0]
+    dq, dv, da = pin.computeRNEADerivatives(model, data, q, v, a)
+    da = np.triu(da) + np.triu(da, 1).T
+    # coordinates of q (+) delta for the quat1 chart (xyz, wxyz), first order in delta:
+    # d xyz = R d_lin, d wxyz = 1/2 wxyz * (0, d_ang)
+    wxyz = np.asarray(Q[0, 3:7])
+    w, x, y, z = wxyz / np.linalg.norm(wxyz)
+    R = pin.Quaternion(w, x, y, z).toRotationMatrix()
+    L = np.array([[-x, -y, -z], [w, -z, y], [z, w, -x], [-y, x, w]])  # d wxyz / d omega_body * 2
+    dcoords = np.zeros((robot.nj + 7, robot.nv))
+    dcoords[:3, :3] = R
+    dcoords[3:7, 3:6] = 0.5 * L * np.linalg.norm(wxyz)
+    dcoords[7:, 6:] = np.eye(robot.nj)
+    assert rel_err(np.asarray(jac.dq[0]) @ dcoords, dq[np.ix_(perm, perm)]) < 1e-10
+    assert rel_err(jac.dv[0], dv[np.ix_(perm, perm)]) < 1e-10
+    assert rel_err(jac.da[0], da[np.ix_(perm, perm)]) < 1e-10
+
+
+# ----------------------------------------------------------------------------------------
+# MJX's pipeline
+
+
+@pytest.mark.parametrize("name", ["go2", "talos"])
+def test_mjx_reference_matches(name):
+    robot = robot_lib.load(name)
+    states = random_states(robot, QUAT1, NSTATES, seed=2)
+    out = _evaluate(robot, QUAT1, *states)
+    assert rel_err(_mjx(robot, QUAT1, *states), out["tau"]) < 1e-10
+
+
+# ----------------------------------------------------------------------------------------
+# Analytical Jacobians == jax.jacfwd
+
+
+@pytest.mark.parametrize(
+    "name, chart",
+    [("talos", "se3"), ("talos", "quat1"), ("go2", "euler"), ("go2", "quat3")],
+)
+def test_jacobians_equal_jacfwd(name, chart):
+    robot = robot_lib.load(name)
+    param = PARAMETERIZATIONS[chart]
+    Q, V, A, F = random_states(robot, param, NSTATES, seed=3, quaternion_scale=0.8, standing=True)
+    fast = dynamics.inverse_dynamics_jacobians(robot, param, Q, V, A, F)
+    for x in fast:
+        assert np.all(np.isfinite(x))
+    dq, dv, da, df = _jacfwd(robot, param, Q, V, A, F)
+    K, nv = Q.shape[0], robot.nv
+    assert fast.dq.shape == (K, nv, param.nq + robot.nj)
+    assert fast.df.shape == (K, nv, 3 * robot.ncontact)
+    assert rel_err(fast.dq, dq) < 1e-10
+    assert rel_err(fast.dv, dv) < 1e-10
+    assert rel_err(fast.da, da) < 1e-10
+    assert rel_err(fast.df, df.reshape(K, nv, -1)) < 1e-10
+    assert rel_err(_points_jacobians(robot, param, Q), _points_jacfwd(robot, param, Q)) < 1e-12
+    # tau comes with the Jacobians, equal to the per-knot function's
+    assert rel_err(fast.tau[-1], _tau(robot, param, Q[-1], V[-1], A[-1], F[-1])) < 1e-12
+
+
+def test_direct_jacobians_are_mass_matrix_and_contact_jacobians(robot, evaluated):
+    _, out = evaluated
+    np.testing.assert_allclose(out["M_direct"], out["M"], rtol=0, atol=1e-12 * np.abs(out["M"]).max())
+    K, nc = out["Jc"].shape[:2]
+    minus_Jc_T = -out["Jc"].reshape(K, 3 * nc, -1).transpose(0, 2, 1)
+    np.testing.assert_allclose(out["dtau_df"], minus_Jc_T, atol=1e-15)
+    for M in out["M"]:
+        np.testing.assert_allclose(M, M.T, atol=1e-12 * np.abs(M).max())
+        assert np.linalg.eigvalsh(M).min() > 0
+
+
+def test_jacobians_do_not_recompile():
+    robot = robot_lib.load("go2")
+    param = PARAMETERIZATIONS["quat3"]
+    states = random_states(robot, param, NSTATES, seed=3, quaternion_scale=0.8)
+    dynamics.inverse_dynamics_jacobians(robot, param, *states)
+    before = dynamics.inverse_dynamics_jacobians._cache_size()
+    states = random_states(robot, param, NSTATES, seed=4)
+    dynamics.inverse_dynamics_jacobians(robot, param, *states)
+    assert dynamics.inverse_dynamics_jacobians._cache_size() == before
+
+
+# ----------------------------------------------------------------------------------------
+# Physics and conventions
+
+
+def test_free_fall_needs_no_force(robot):
+    """Every body falling with gravity, at rest: tau = 0 (v = 0, base accel = R^T g)."""
+    (Q, V, A, F) = random_states(robot, QUAT1, NSTATES, seed=6)
+    R = jax.vmap(lambda q: QUAT1.to_pose(q[:7]).rotation().as_matrix())(Q)
+    g = jnp.array([0.0, 0.0, -robot.gravity])
+    A = jnp.zeros_like(A).at[:, :3].set(jnp.einsum("kji,j->ki", R, g))
+    out = _evaluate(robot, QUAT1, Q, jnp.zeros_like(V), A, jnp.zeros_like(F))
+    assert np.abs(out["tau"]).max() < 1e-10 * robot.total_mass * robot.gravity
+
+
+def test_base_force_obeys_newton(robot):
+    """At rest (v = a = 0) the base force is m g minus the contact forces, in the world."""
+    (Q, V, A, F) = random_states(robot, QUAT1, NSTATES, seed=7)
+    out = _evaluate(robot, QUAT1, Q, jnp.zeros_like(V), jnp.zeros_like(A), F)
+    R = np.stack([np.asarray(QUAT1.to_pose(q[:7]).rotation().as_matrix()) for q in Q])
+    f_world = np.einsum("kij,kj->ki", R, out["tau"][:, :3])
+    expected = np.array([0.0, 0.0, robot.total_mass * robot.gravity]) - np.asarray(F).sum(axis=1)
+    np.testing.assert_allclose(f_world, expected, atol=1e-9 * np.abs(expected).max())
+
+
+def test_quaternion_scale_is_invisible(robot, evaluated):
+    """quat1 normalizes rho: tau does not change when rho is scaled, and dtau/dq along rho is 0."""
+    (Q, V, A, F), out = evaluated
+    Q2 = Q.at[:, 3:7].multiply(0.3)
+    out2 = _evaluate(robot, QUAT1, Q2, V, A, F)
+    assert rel_err(out2["tau"], out["tau"]) < 1e-12
+    if robot.name == "go2":  # cheapest compile for the Jacobian
+        jac = dynamics.inverse_dynamics_jacobians(robot, QUAT1, Q, V, A, F)
+        radial = jnp.einsum("kij,kj->ki", jac.dq[:, :, 3:7], Q[:, 3:7])
+        assert np.abs(radial).max() < 1e-10 * np.abs(jac.dq).max()
+
+
+def test_wrong_shapes_raise_with_expected_shape():
+    robot = robot_lib.load("go2")
+    q = jnp.zeros(7 + robot.nj)
+    v = jnp.zeros(robot.nv)
+    f = jnp.zeros((robot.ncontact, 3))
+    with pytest.raises(ValueError, match=r"expected \(18,\)"):
+        dynamics.inverse_dynamics(robot, PARAMETERIZATIONS["se3"], q, v, v, f)
+    with pytest.raises(ValueError, match=r"\(4, 3\)"):
+        dynamics.inverse_dynamics(robot, QUAT1, q, v, v, f[:2])

@@ -1,0 +1,311 @@
+"""Robot definitions: loading, the declared data, and agreement with Pinocchio and MuJoCo."""
+
+import dataclasses
+import importlib.resources
+import tomllib
+import xml.etree.ElementTree as ET
+
+import mujoco
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from jtraj import robot as robot_lib
+
+ROBOTS = ("talos", "g1", "go2")
+EXPECTED = {  # name: (joints, nv, contact groups and their sizes)
+    "talos": (30, 36, {"left_foot": 4, "right_foot": 4, "left_hand": 1, "right_hand": 1}),
+    "g1": (29, 35, {"left_foot": 4, "right_foot": 4, "left_hand": 1, "right_hand": 1}),
+    "go2": (12, 18, {"FL_foot": 1, "FR_foot": 1, "RL_foot": 1, "RR_foot": 1}),
+}
+
+
+def pinocchio_model(robot):
+    """Pinocchio model from the same URDF, locked joints removed at 0, one frame per contact."""
+    full = pin.buildModelFromUrdf(str(robot.urdf_path), pin.JointModelFreeFlyer())
+    locked = [full.getJointId(n) for n in robot.locked_joints]
+    model = pin.buildReducedModel(full, locked, pin.neutral(full)) if locked else full
+    frames = []
+    for c in robot.contacts:
+        link_frame = model.getFrameId(c.link)
+        placement = model.frames[link_frame].placement * pin.SE3(np.eye(3), np.array(c.offset_link))
+        parent_joint = model.frames[link_frame].parentJoint
+        frame = pin.Frame(f"contact_{c.name}", parent_joint, link_frame, placement, pin.FrameType.OP_FRAME)
+        frames.append(model.addFrame(frame))
+    return model, frames
+
+
+def pinocchio_q(model, robot, xyz_wxyz, q_joints):
+    q = np.zeros(model.nq)
+    q[:3] = xyz_wxyz[:3]
+    w, x, y, z = xyz_wxyz[3:7]
+    q[3:7] = [x, y, z, w]
+    for name, value in zip(robot.joint_names, q_joints):
+        q[model.joints[model.getJointId(name)].idx_q] = value
+    return q
+
+
+@pytest.fixture(scope="module", params=ROBOTS)
+def robot(request):
+    return robot_lib.load(request.param)
+
+
+def test_available_lists_the_three_robots():
+    assert set(ROBOTS) <= set(robot_lib.available())
+
+
+def test_sizes_and_groups(robot):
+    nj, nv, groups = EXPECTED[robot.name]
+    assert robot.nj == robot.nq_joints == nj
+    assert robot.nv == nv == robot.mj_model.nv == robot.mjx_model.nv
+    assert robot.mj_model.nq == 7 + nj
+    assert len(set(robot.joint_names)) == nj
+    assert not set(robot.locked_joints) & set(robot.joint_names)
+    assert {g: len(idx) for g, idx in robot.contact_groups.items()} == groups
+    for idx in robot.contact_groups.values():
+        assert all(0 <= i < robot.ncontact for i in idx)
+    assert robot.contact_offsets.shape == (robot.ncontact, 3)
+    assert robot.contact_body_ids.shape == (robot.ncontact,)
+    assert robot.gravity == pytest.approx(9.81)
+
+
+def test_joint_order_is_mujoco_qpos_order(robot):
+    m = robot.mj_model
+    for k, name in enumerate(robot.joint_names):
+        j = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, name)
+        assert m.jnt_qposadr[j] == 7 + k
+        assert m.jnt_dofadr[j] == 6 + k
+
+
+def test_talos_grippers_locked():
+    talos = robot_lib.load("talos")
+    assert set(talos.locked_joints) == {"gripper_left_joint", "gripper_right_joint"}
+    assert "gripper_left_joint" not in talos.joint_names
+
+
+def test_load_is_cached_and_frozen():
+    talos = robot_lib.load("talos")
+    assert robot_lib.load("talos") is talos
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        talos.name = "other"
+    with pytest.raises(ValueError):
+        talos.q_joints_standing[0] = 1.0
+
+
+def test_pure_rigid_body_model(robot):
+    m = robot.mj_model
+    assert np.all(m.dof_damping == 0) and np.all(m.dof_armature == 0) and np.all(m.dof_frictionloss == 0)
+    assert m.ngeom == 0  # geometry stripped for dynamics
+    assert m.jnt_type[0] == mujoco.mjtJoint.mjJNT_FREE
+
+
+def test_limits_agree_with_mujoco_and_urdf(robot):
+    m = robot.mj_model
+    ids = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, n) for n in robot.joint_names]
+    ranges = m.jnt_range[ids]
+    np.testing.assert_allclose(robot.q_lower, ranges[:, 0])
+    np.testing.assert_allclose(robot.q_upper, ranges[:, 1])
+    assert np.all(robot.q_lower < robot.q_upper)
+    assert np.all(np.isfinite(robot.v_max)) and np.all(robot.v_max > 0)
+    assert np.all(np.isfinite(robot.tau_max)) and np.all(robot.tau_max > 0)
+    # velocity limits come from the URDF (MuJoCo drops them)
+    urdf = ET.parse(robot.urdf_path).getroot()
+    by_name = {j.get("name"): j for j in urdf.findall("joint")}
+    for k, name in enumerate(robot.joint_names):
+        limit = by_name[name].find("limit")
+        assert robot.v_max[k] == float(limit.get("velocity"))
+        assert robot.tau_max[k] == float(limit.get("effort"))
+
+
+def test_go2_effort_limits():
+    go2 = robot_lib.load("go2")
+    for name, effort in zip(go2.joint_names, go2.tau_max):
+        expected = 45.43 if "calf" in name else 23.7
+        assert effort == pytest.approx(expected), name
+
+
+def test_standing_pose_values():
+    talos = robot_lib.load("talos")
+    q = dict(zip(talos.joint_names, talos.q_joints_standing))
+    for side in ("left", "right"):
+        hip, knee, ankle = (q[f"leg_{side}_{i}_joint"] for i in (3, 4, 5))
+        assert (hip, knee, ankle) == (-0.4, 0.8, -0.4)
+    assert talos.base_xyz_wxyz_standing.tolist() == [0.0, 0.0, 1.0274, 1.0, 0.0, 0.0, 0.0]
+    # arms as in talos.srdf's half_sitting (read independently here)
+    srdf = robot_lib.robots_data_dir() / "talos_data" / "srdf" / "talos.srdf"
+    state = next(s for s in ET.parse(srdf).getroot().iter("group_state") if s.get("name") == "half_sitting")
+    joints = [j for j in state.iter("joint") if j.get("name").startswith("arm_")]
+    arms = {j.get("name"): float(j.get("value")) for j in joints}
+    assert len(arms) == 14
+    for name, value in arms.items():
+        assert q[name] == value, name
+
+    g1 = robot_lib.load("g1")
+    q = dict(zip(g1.joint_names, g1.q_joints_standing))
+    for side in ("left", "right"):
+        hip, knee, ankle = (q[f"{side}_{j}_joint"] for j in ("hip_pitch", "knee", "ankle_pitch"))
+        assert (hip, knee, ankle) == (-0.6, 1.2, -0.6)
+    assert g1.base_xyz_wxyz_standing[2] == 0.6756
+
+    go2 = robot_lib.load("go2")
+    q = dict(zip(go2.joint_names, go2.q_joints_standing))
+    for leg in ("FL", "FR", "RL", "RR"):
+        assert (q[f"{leg}_hip_joint"], q[f"{leg}_thigh_joint"], q[f"{leg}_calf_joint"]) == (0.0, 0.7, -1.5)
+    assert go2.base_xyz_wxyz_standing[2] == 0.31131
+
+
+def test_fused_links_resolve_to_surviving_bodies():
+    talos = robot_lib.load("talos")
+    hand = talos.contacts[talos.contact_index("left_hand")]
+    assert hand.link == "gripper_left_inner_single_link" and hand.body == "arm_left_7_link"
+    assert mujoco.mj_name2id(talos.mj_model, mujoco.mjtObj.mjOBJ_BODY, hand.link) == -1
+    g1 = robot_lib.load("g1")
+    hand = g1.contacts[g1.contact_index("right_hand")]
+    assert hand.link == "right_rubber_hand" and hand.body == "right_wrist_yaw_link"
+
+
+def _mujoco_contact_positions(robot, qpos):
+    m = robot.mj_model
+    d = mujoco.MjData(m)
+    d.qpos[:] = qpos
+    mujoco.mj_kinematics(m, d)
+    b = robot.contact_body_ids
+    return d.xpos[b] + np.einsum("cij,cj->ci", d.xmat[b].reshape(-1, 3, 3), robot.contact_offsets)
+
+
+def test_total_mass_and_standing_contacts_match_pinocchio(robot):
+    model, frames = pinocchio_model(robot)
+    data = model.createData()
+    assert robot.total_mass == pytest.approx(pin.computeTotalMass(model), rel=1e-12)
+
+    # standing pose: contact points agree in 3-D, and the feet touch the ground
+    q = pinocchio_q(model, robot, robot.base_xyz_wxyz_standing, robot.q_joints_standing)
+    pin.framesForwardKinematics(model, data, q)
+    p_pin = np.stack([data.oMf[f].translation for f in frames])
+    p_mj = _mujoco_contact_positions(robot, robot.qpos_standing)
+    np.testing.assert_allclose(p_mj, p_pin, atol=1e-12)
+    feet = [i for g, idx in robot.contact_groups.items() if "foot" in g for i in idx]
+    heights = p_mj[feet, 2]
+    print(f"\n{robot.name} standing contact heights (m): " + ", ".join(
+        f"{robot.contacts[i].name} {p_mj[i, 2]:+.6f}" for i in range(robot.ncontact)))
+    assert np.all(np.abs(heights) < 2e-4), heights
+
+
+def test_contact_positions_match_pinocchio_at_random_pose(robot):
+    rng = np.random.default_rng(7)
+    model, frames = pinocchio_model(robot)
+    data = model.createData()
+    wxyz = rng.normal(size=4)
+    xyz_wxyz = np.concatenate([rng.normal(size=3), wxyz / np.linalg.norm(wxyz)])
+    q_joints = rng.uniform(robot.q_lower.clip(-2, 2), robot.q_upper.clip(-2, 2))
+    pin.framesForwardKinematics(model, data, pinocchio_q(model, robot, xyz_wxyz, q_joints))
+    p_pin = np.stack([data.oMf[f].translation for f in frames])
+    p_mj = _mujoco_contact_positions(robot, np.concatenate([xyz_wxyz, q_joints]))
+    np.testing.assert_allclose(p_mj, p_pin, atol=1e-12)
+
+
+def test_render_model_has_meshes_and_same_layout():
+    go2 = robot_lib.load("go2")
+    render = robot_lib.load_render_model(go2)
+    assert render.ngeom > 0 and render.nmesh > 0
+    assert (render.nbody, render.nq, render.nv) == (go2.mj_model.nbody, go2.mj_model.nq, go2.mj_model.nv)
+
+
+# ----------------------------------------------------------------------------------------
+# Errors a user can act on
+
+
+def _talos_config():
+    return tomllib.loads((importlib.resources.files("jtraj.robots") / "talos.toml").read_text())
+
+
+def _write_toml(path, config):
+    """Minimal TOML writer for the robot format (tomllib only reads)."""
+
+    def value(v):
+        if isinstance(v, str):
+            return f'"{v}"'
+        if isinstance(v, (list, tuple)):
+            return "[" + ", ".join(value(x) for x in v) + "]"
+        return repr(v)
+
+    def is_table_array(v):
+        return isinstance(v, list) and len(v) > 0 and isinstance(v[0], dict)
+
+    lines = [f"{k} = {value(v)}" for k, v in config.items() if not (isinstance(v, dict) or is_table_array(v))]
+    for key, v in config.items():
+        if isinstance(v, dict):
+            lines.append(f"[{key}]")
+            lines += [f"{k2} = {value(v2)}" for k2, v2 in v.items() if not isinstance(v2, dict)]
+            for k2, v2 in v.items():
+                if isinstance(v2, dict):
+                    lines.append(f"[{key}.{k2}]")
+                    lines += [f"{k3} = {value(v3)}" for k3, v3 in v2.items()]
+        elif is_table_array(v):
+            for entry in v:
+                lines.append(f"[[{key}]]")
+                lines += [f"{k2} = {value(v2)}" for k2, v2 in entry.items()]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_toml_writer_round_trips(tmp_path):
+    config = _talos_config()
+    robot = robot_lib.load_file(_write_toml(tmp_path / "copy.toml", config))
+    assert robot.joint_names == robot_lib.load("talos").joint_names
+    assert robot.contact_names == robot_lib.load("talos").contact_names
+
+
+def test_contact_on_missing_link_names_the_link(tmp_path):
+    config = _talos_config()
+    config["contact"][0]["link"] = "leg_left_7_link"
+    path = _write_toml(tmp_path / "bad_link.toml", config)
+    with pytest.raises(robot_lib.RobotLoadError) as err:
+        robot_lib.load_file(path)
+    message = str(err.value)
+    assert "leg_left_7_link" in message and "bad_link.toml" in message
+    assert "leg_left_6_link" in message  # lists the valid names
+
+
+def test_unknown_robot_lists_choices():
+    with pytest.raises(robot_lib.RobotLoadError, match="talos"):
+        robot_lib.load("atlas")
+
+
+@pytest.mark.parametrize(
+    "edit, fragment",
+    [
+        (lambda c: c.update(locked_joints=["gripper_joint"]), "gripper_joint"),
+        (lambda c: c["groups"].update(left_foot=["left_foot_toe"]), "left_foot_toe"),
+        (lambda c: c["standing"]["joints"].update(knee=0.3), "knee"),
+        (lambda c: c.update(urdf="talos_data/robots/no_such.urdf"), "no_such.urdf"),
+        (lambda c: c.update(expected_joints=32), "expected 32"),
+        (lambda c: c["contact"][0].update(offset=[0.0, 1.0]), "offset"),
+    ],
+)
+def test_invalid_definitions_raise_with_the_offending_value(tmp_path, edit, fragment):
+    config = _talos_config()
+    edit(config)
+    path = _write_toml(tmp_path / "bad.toml", config)
+    with pytest.raises(robot_lib.RobotLoadError, match="bad.toml") as err:
+        robot_lib.load_file(path)
+    assert fragment in str(err.value)
+
+
+def test_model_that_mujoco_cannot_load_names_the_file(tmp_path):
+    # A moving body without mass is rejected by MuJoCo's compiler.
+    urdf = tmp_path / "massless.urdf"
+    urdf.write_text(
+        """<robot name="massless">
+  <link name="base"><inertial><mass value="1"/>
+    <inertia ixx="1" iyy="1" izz="1" ixy="0" ixz="0" iyz="0"/></inertial></link>
+  <link name="arm"/>
+  <joint name="hinge" type="revolute"><parent link="base"/><child link="arm"/><axis xyz="0 0 1"/>
+    <limit lower="-1" upper="1" effort="1" velocity="1"/></joint>
+</robot>
+"""
+    )
+    path = _write_toml(tmp_path / "massless.toml", {"name": "massless", "urdf": str(urdf)})
+    with pytest.raises(robot_lib.RobotLoadError) as err:
+        robot_lib.load_file(path)
+    assert "massless.toml" in str(err.value) and "massless.urdf" in str(err.value)
