@@ -50,6 +50,7 @@ def _cmd_solve(args: argparse.Namespace) -> int:
     result = solve(
         task,
         args.param,
+        layout=args.layout,
         exact_hessian=args.exact_hessian,
         ipopt_options=options,
         noise=args.noise,
@@ -82,6 +83,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("task", help="a built-in task (walk, hopscotch, big_jump, handstand, backflip, sideflip) or a .toml file")
     p.add_argument("--param", default="se3", choices=["se3", "quat1", "quat2", "quat3", "euler"], help="floating-base parameterization (default se3)")
     p.add_argument("--out", help="output directory (default runs/TASK_PARAM)")
+    p.add_argument("--layout", default="paper", choices=["paper", "lean"], help="variables per knot: the study's (q, v, a, f, c) or lean (q, v, f)")
     p.add_argument("--exact-hessian", action="store_true", help="exact Hessian of the Lagrangian instead of L-BFGS")
     p.add_argument("--ipopt", action="append", metavar="NAME=VALUE", help="any Ipopt option, repeatable (e.g. --ipopt max_iter=50)")
     p.add_argument("--noise", type=float, default=0.0, help="std of Gaussian noise added to the warm start")

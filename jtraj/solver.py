@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import time
 from typing import Any, TextIO
@@ -15,7 +16,18 @@ from jtraj import robot as robots
 from jtraj import task as tasks
 from jtraj.ipopt import DEFAULT_OPTIONS, solve_nlp
 from jtraj.result import Result, Status, count_turns
-from jtraj.transcription import Transcription
+from jtraj.transcription import LEAN_LAYOUT, PAPER_LAYOUT, Transcription, TranscriptionOptions
+
+LAYOUTS = {"paper": PAPER_LAYOUT, "lean": LEAN_LAYOUT}
+
+
+def _layout(layout: str | TranscriptionOptions) -> TranscriptionOptions:
+    if isinstance(layout, TranscriptionOptions):
+        return layout
+    try:
+        return LAYOUTS[layout]
+    except KeyError:
+        raise ValueError(f"unknown layout {layout!r}; expected one of {sorted(LAYOUTS)} or a TranscriptionOptions") from None
 
 __all__ = ["solve", "prepare", "Prepared"]
 
@@ -32,17 +44,22 @@ class Prepared:
 _CACHE: dict[tuple, Prepared] = {}
 
 
-def prepare(task: tasks.Task | str, parameterization: str | params.AbstractParameterization = "se3") -> Prepared:
-    """Build (once per task and parameterization) the transcription and compile its NLP."""
+def prepare(
+    task: tasks.Task | str,
+    parameterization: str | params.AbstractParameterization = "se3",
+    layout: str | TranscriptionOptions = "paper",
+) -> Prepared:
+    """Build (once per task, parameterization and layout) the transcription and compile its NLP."""
     task = tasks.load(task)
     param = params.get(parameterization)
-    key = (task, param)
+    options = _layout(layout)
+    key = (task, param, options)
     if key in _CACHE:
         return _CACHE[key]
     config.enable_compilation_cache()
     t0 = time.perf_counter()
     robot = robots.load(task.robot)
-    tr = Transcription(robot, task, param)
+    tr = Transcription(robot, task, param, options)
     nlp = tr.build_nlp()
     # compile every callback once, on the warm start, before Ipopt runs
     x = jnp.asarray(tr.warm_start().reshape(-1))
@@ -58,6 +75,7 @@ def solve(
     task: tasks.Task | str,
     parameterization: str | params.AbstractParameterization = "se3",
     *,
+    layout: str | TranscriptionOptions = "paper",
     exact_hessian: bool = False,
     ipopt_options: dict[str, Any] | None = None,
     warm_start: np.ndarray | None = None,
@@ -74,6 +92,8 @@ def solve(
         task: a built-in task name (``"big_jump"``), a ``.toml`` path or a `jtraj.task.Task`.
         parameterization: ``"se3"`` (default), ``"quat1"``, ``"quat2"``, ``"quat3"``, ``"euler"``
             or a parameterization object.
+        layout: ``"paper"`` (q, v, a, f, c per knot, as the study) or ``"lean"`` (contact
+            positions and accelerations substituted; see `TranscriptionOptions`).
         exact_hessian: use the exact Hessian of the Lagrangian from JAX instead of L-BFGS.
         ipopt_options: any Ipopt options, over `jtraj.ipopt.DEFAULT_OPTIONS` (the task's
             ``max_iter`` is the default iteration limit).
@@ -83,7 +103,7 @@ def solve(
         progress: stream for the live Ipopt progress (None: quiet).
         out: directory to write ``result.json`` and ``trajectory.npz`` into.
     """
-    prep = prepare(task, parameterization)
+    prep = prepare(task, parameterization, layout)
     tr, nlp = prep.transcription, prep.nlp
     compile_time = prep.time_compile
     prep.time_compile = 0.0  # counted once per process
@@ -102,7 +122,7 @@ def solve(
         )
     outcome = solve_nlp(nlp, x0.reshape(-1), options, exact_hessian=exact_hessian, progress=progress, progress_every=progress_every)
     traj = tr.decode(outcome.x)
-    result = evaluate(tr, outcome, traj, compile_time, {**DEFAULT_OPTIONS, **options, "exact_hessian": exact_hessian}, nlp.nnz_jac)
+    result = evaluate(tr, outcome, traj, compile_time, {**DEFAULT_OPTIONS, **options, "exact_hessian": exact_hessian, "layout": dataclasses.asdict(tr.options)}, nlp.nnz_jac)
     if not keep_trajectory:
         result.trajectory = None
     if progress is not None:

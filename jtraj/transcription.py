@@ -42,9 +42,34 @@ from jtraj.nlp import ConstraintGroup, CostGroup, Dep, KnotNLP, Layout
 from jtraj.parameterization import AbstractParameterization
 from jtraj.task import Task
 
-__all__ = ["Transcription", "Trajectory"]
+__all__ = ["Transcription", "TranscriptionOptions", "PAPER_LAYOUT", "LEAN_LAYOUT", "Trajectory"]
 
 GRAVITY = 9.81
+
+
+@dataclasses.dataclass(frozen=True)
+class TranscriptionOptions:
+    """Variable layout.
+
+    Attributes:
+        contact_variables: keep the contact positions c_{j,k} as variables with
+            ``FK_j(q_k) = c_{j,k}`` (the paper). False substitutes ``FK_j(q_k)``: the contact
+            rows become ``FK_j(q_k)_z = terrain`` and stationarity ``FK_j(q_{k+1})_xy =
+            FK_j(q_k)_xy``.
+        acceleration_variables: keep a_k as variables with ``v_{k+1} = v_k + a_k h`` (the
+            paper). False substitutes ``a_k = (v_{k+1} - v_k) / h`` (and a_N = 0).
+    Both substitutions eliminate equality constraints exactly: the feasible trajectories are
+    the same, the NLP is smaller.
+    """
+
+    contact_variables: bool = True
+    acceleration_variables: bool = True
+
+
+#: The study's variable layout (q, v, a, f, c at every knot).
+PAPER_LAYOUT = TranscriptionOptions()
+#: Contact positions and accelerations substituted: (q, v, f) at every knot.
+LEAN_LAYOUT = TranscriptionOptions(contact_variables=False, acceleration_variables=False)
 
 
 @dataclasses.dataclass
@@ -67,8 +92,9 @@ class Trajectory:
 class Transcription:
     """The transcription of ``task`` for ``robot`` in parameterization ``param``."""
 
-    def __init__(self, robot, task: Task, param: AbstractParameterization):
+    def __init__(self, robot, task: Task, param: AbstractParameterization, options: TranscriptionOptions = PAPER_LAYOUT):
         task.validate(robot)
+        self.options = options
         self.robot = robot
         self.task = task
         self.param = param
@@ -80,9 +106,13 @@ class Transcription:
         self.nq = param.nq + robot.nj
         self.N = self.schedule.n_knots - 1
         self.h = float(task.timestep)
-        self.layout = Layout(
-            (("q", self.nq), ("v", self.nv), ("a", self.nv), ("f", 3 * self.P), ("c", 3 * self.P))
-        )
+        slots = [("q", self.nq), ("v", self.nv)]
+        if options.acceleration_variables:
+            slots.append(("a", self.nv))
+        slots.append(("f", 3 * self.P))
+        if options.contact_variables:
+            slots.append(("c", 3 * self.P))
+        self.layout = Layout(tuple(slots))
         self.contact_names = tuple(robot.contact_names[i] for i in self.points)
 
     # -------------------------------------------------------------------- poses
@@ -143,60 +173,124 @@ class Transcription:
         lo = np.concatenate([np.zeros(6), -effort])
         hi = np.concatenate([np.zeros(6), effort])
 
-        def dyn(data, q, v, a, f):
-            return self._tau(q, v, a, f)
-
         points = self.points
+        ncp = len(robot.contact_names)
+        acc_vars = self.options.acceleration_variables
 
-        def dyn_jac(data, Q, V, A, Fv):
+        def derivatives(Q, V, A, Fv):
             # analytical RNEA derivatives; d tau / d a = M and d tau / d f = -J^T need no autodiff
             K = Q.shape[0]
-            F = jnp.zeros((K, len(robot.contact_names), 3), Q.dtype).at[:, points].set(Fv.reshape(K, P, 3))
+            F = jnp.zeros((K, ncp, 3), Q.dtype).at[:, points].set(Fv.reshape(K, P, 3))
             d = dynamics.inverse_dynamics_jacobians(robot, param, Q, V, A, F)
-            df = d.df.reshape(K, nv, -1, 3)[:, :, points, :].reshape(K, nv, 3 * P)
-            return jnp.concatenate([d.dq, d.dv, d.da, df], axis=-1)
+            df = d.df.reshape(K, nv, ncp, 3)[:, :, points, :].reshape(K, nv, 3 * P)
+            return d, df
 
-        groups.append(
-            ConstraintGroup(
-                "dynamics", (Dep("q"), Dep("v"), Dep("a"), Dep("f")), dyn, knots,
-                np.tile(lo, (n_knots, 1)), np.tile(hi, (n_knots, 1)), np.ones((n_knots, nv), bool),
-                batched_jacobian=dyn_jac,
+        if acc_vars:
+
+            def dyn(data, q, v, a, f):
+                return self._tau(q, v, a, f)
+
+            def dyn_jac(data, Q, V, A, Fv):
+                d, df = derivatives(Q, V, A, Fv)
+                return jnp.concatenate([d.dq, d.dv, d.da, df], axis=-1)
+
+            groups.append(
+                ConstraintGroup(
+                    "dynamics", (Dep("q"), Dep("v"), Dep("a"), Dep("f")), dyn, knots,
+                    np.tile(lo, (n_knots, 1)), np.tile(hi, (n_knots, 1)), np.ones((n_knots, nv), bool),
+                    batched_jacobian=dyn_jac,
+                )
             )
-        )
+        else:
+            # a_k = (v_{k+1} - v_k) / h at k < N; a_N = 0 (the final knot is at rest)
+            def dyn_pair(data, q, v, f, v1):
+                return self._tau(q, v, (v1 - v) / h, f)
+
+            def dyn_pair_jac(data, Q, V, Fv, V1):
+                d, df = derivatives(Q, V, (V1 - V) / h, Fv)
+                return jnp.concatenate([d.dq, d.dv - d.da / h, df, d.da / h], axis=-1)
+
+            def dyn_last(data, q, v, f):
+                return self._tau(q, v, jnp.zeros_like(v), f)
+
+            def dyn_last_jac(data, Q, V, Fv):
+                d, df = derivatives(Q, V, jnp.zeros_like(V), Fv)
+                return jnp.concatenate([d.dq, d.dv, df], axis=-1)
+
+            groups.append(
+                ConstraintGroup(
+                    "dynamics", (Dep("q"), Dep("v"), Dep("f"), Dep("v", 1)), dyn_pair, pairs,
+                    np.tile(lo, (N, 1)), np.tile(hi, (N, 1)), np.ones((N, nv), bool),
+                    batched_jacobian=dyn_pair_jac,
+                )
+            )
+            groups.append(
+                ConstraintGroup(
+                    "dynamics", (Dep("q"), Dep("v"), Dep("f")), dyn_last, np.array([N]),
+                    lo[None], hi[None], np.ones((1, nv), bool), batched_jacobian=dyn_last_jac,
+                )
+            )
 
         # integration -----------------------------------------------------------
-        def integ(hk, q, v, a, q1, v1):
-            r_v = v1 - v - a * hk
+        def position_step(hk, q, q1, v1):
             r_base = param.difference(param.integrate(q[:nqb], v1[:6], hk), q1[:nqb])
             r_j = q1[nqb:] - q[nqb:] - v1[6:] * hk
-            return jnp.concatenate([r_v, r_base, r_j])
+            return jnp.concatenate([r_base, r_j])
 
-        n_int = nv + param.ndiff + nj
+        if acc_vars:
+
+            def integ(hk, q, v, a, q1, v1):
+                return jnp.concatenate([v1 - v - a * hk, position_step(hk, q, q1, v1)])
+
+            deps = (Dep("q"), Dep("v"), Dep("a"), Dep("q", 1), Dep("v", 1))
+            n_int = nv + param.ndiff + nj
+        else:
+
+            def integ(hk, q, q1, v1):
+                return position_step(hk, q, q1, v1)
+
+            deps = (Dep("q"), Dep("q", 1), Dep("v", 1))
+            n_int = param.ndiff + nj
         groups.append(
             ConstraintGroup(
-                "integration", (Dep("q"), Dep("v"), Dep("a"), Dep("q", 1), Dep("v", 1)), integ, pairs,
+                "integration", deps, integ, pairs,
                 np.zeros((N, n_int)), np.zeros((N, n_int)), np.ones((N, n_int), bool),
                 data=jnp.full((N,), h),
             )
         )
 
         if P:
-            # contact kinematics -------------------------------------------------
-            groups.append(
-                ConstraintGroup(
-                    "contact", (Dep("q"), Dep("c")), lambda data, q, c: (self._fk(q) - c.reshape(P, 3)).reshape(-1), knots,
-                    np.zeros((n_knots, 3 * P)), np.zeros((n_knots, 3 * P)), np.repeat(contact, 3, axis=1),
-                )
-            )
-            # stationarity: x, y of a touching point stay put (z is a bound) --------
             both = contact[:-1] & contact[1:]
-            groups.append(
-                ConstraintGroup(
-                    "stationary", (Dep("c"), Dep("c", 1)),
-                    lambda data, c, c1: (c1.reshape(P, 3)[:, :2] - c.reshape(P, 3)[:, :2]).reshape(-1), pairs,
-                    np.zeros((N, 2 * P)), np.zeros((N, 2 * P)), np.repeat(both, 2, axis=1),
+            if self.options.contact_variables:
+                # contact kinematics FK = c; c_z is the terrain height (a bound) ----------
+                groups.append(
+                    ConstraintGroup(
+                        "contact", (Dep("q"), Dep("c")), lambda data, q, c: (self._fk(q) - c.reshape(P, 3)).reshape(-1), knots,
+                        np.zeros((n_knots, 3 * P)), np.zeros((n_knots, 3 * P)), np.repeat(contact, 3, axis=1),
+                    )
                 )
-            )
+                # stationarity: x, y of a touching point stay put ---------------------
+                groups.append(
+                    ConstraintGroup(
+                        "stationary", (Dep("c"), Dep("c", 1)),
+                        lambda data, c, c1: (c1.reshape(P, 3)[:, :2] - c.reshape(P, 3)[:, :2]).reshape(-1), pairs,
+                        np.zeros((N, 2 * P)), np.zeros((N, 2 * P)), np.repeat(both, 2, axis=1),
+                    )
+                )
+            else:
+                groups.append(
+                    ConstraintGroup(
+                        "contact", (Dep("q"),), lambda data, q: self._fk(q)[:, 2], knots,
+                        np.full((n_knots, P), task.terrain_height), np.full((n_knots, P), task.terrain_height), contact,
+                    )
+                )
+                groups.append(
+                    ConstraintGroup(
+                        "stationary", (Dep("q"), Dep("q", 1)),
+                        lambda data, q, q1: (self._fk(q1)[:, :2] - self._fk(q)[:, :2]).reshape(-1), pairs,
+                        np.zeros((N, 2 * P)), np.zeros((N, 2 * P)), np.repeat(both, 2, axis=1),
+                    )
+                )
             # swing points above the terrain ----------------------------------------
             groups.append(
                 ConstraintGroup(
@@ -242,7 +336,10 @@ class Transcription:
             costs.append(CostGroup("configuration", (Dep("q"),), lambda data, q: 0.5 * w * jnp.sum((q[nqb:] - q_ref) ** 2), knots))
         if task.acceleration_weight > 0:
             w = task.acceleration_weight
-            costs.append(CostGroup("acceleration", (Dep("a"),), lambda data, a: 0.5 * w * jnp.sum(a[6:] ** 2), knots))
+            if acc_vars:
+                costs.append(CostGroup("acceleration", (Dep("a"),), lambda data, a: 0.5 * w * jnp.sum(a[6:] ** 2), knots))
+            else:  # a_N = 0 adds nothing
+                costs.append(CostGroup("acceleration", (Dep("v"), Dep("v", 1)), lambda data, v, v1: 0.5 * w * jnp.sum(((v1 - v)[6:] / h) ** 2), pairs))
 
         lower, upper = self.bounds()
         return KnotNLP(self.layout, n_knots, costs, groups, lower, upper)
@@ -253,7 +350,7 @@ class Transcription:
         n_knots, P, nqb = self.N + 1, self.P, param.nq
         lower = np.full((n_knots, L.nz), -np.inf)
         upper = np.full((n_knots, L.nz), np.inf)
-        sq, sv, sf, sc, sa = L.slice("q"), L.slice("v"), L.slice("f"), L.slice("c"), L.slice("a")
+        sq, sv, sf = L.slice("q"), L.slice("v"), L.slice("f")
         # joint position and velocity limits
         lower[:, sq.start + nqb : sq.stop] = robot.q_lower
         upper[:, sq.start + nqb : sq.stop] = robot.q_upper
@@ -265,18 +362,20 @@ class Transcription:
         fl = np.where(contact[:, :, None], np.array([-F, -F, 0.0]), 0.0).reshape(n_knots, 3 * P)
         fu = np.where(contact[:, :, None], np.array([F, F, F]), 0.0).reshape(n_knots, 3 * P)
         lower[:, sf], upper[:, sf] = fl, fu
-        # contact positions: touching points on the terrain (z fixed), others unused (0)
-        cz = task.terrain_height
-        cl = np.where(contact[:, :, None], np.array([-np.inf, -np.inf, cz]), 0.0).reshape(n_knots, 3 * P)
-        cu = np.where(contact[:, :, None], np.array([np.inf, np.inf, cz]), 0.0).reshape(n_knots, 3 * P)
-        lower[:, sc], upper[:, sc] = cl, cu
+        if self.options.contact_variables:
+            # contact positions: touching points on the terrain (z fixed), others unused (0)
+            cz = task.terrain_height
+            sc = L.slice("c")
+            lower[:, sc] = np.where(contact[:, :, None], np.array([-np.inf, -np.inf, cz]), 0.0).reshape(n_knots, 3 * P)
+            upper[:, sc] = np.where(contact[:, :, None], np.array([np.inf, np.inf, cz]), 0.0).reshape(n_knots, 3 * P)
         # boundary conditions
         q0 = np.concatenate([np.asarray(param.from_pose(self.initial_pose)), robot.q_joints_standing])
         qN = np.concatenate([np.asarray(param.from_pose(self.target_pose)), self.q_joints_target])
         for k, q in ((0, q0), (n_knots - 1, qN)):
             lower[k, sq] = upper[k, sq] = q
             lower[k, sv] = upper[k, sv] = 0.0
-        lower[-1, sa] = upper[-1, sa] = 0.0
+        if self.options.acceleration_variables:
+            lower[-1, L.slice("a")] = upper[-1, L.slice("a")] = 0.0
         return lower, upper
 
     # -------------------------------------------------------------------- warm start
@@ -302,20 +401,34 @@ class Transcription:
                 f = np.zeros((P, 3))
                 f[contact[k], 2] = weight / n_touch
                 Z[k, L.slice("f")] = f.reshape(-1)
-                c = np.array(self._fk(jnp.asarray(q)))
-                c[:, 2] = self.task.terrain_height
-                Z[k, L.slice("c")] = np.where(contact[k][:, None], c, 0.0).reshape(-1)
+                if self.options.contact_variables:
+                    c = np.array(self._fk(jnp.asarray(q)))
+                    c[:, 2] = self.task.terrain_height
+                    Z[k, L.slice("c")] = np.where(contact[k][:, None], c, 0.0).reshape(-1)
         return Z
 
     # -------------------------------------------------------------------- decoding
+    @cached_property
+    def _decode_arrays(self):
+        @jax.jit
+        def arrays(q, v, a, f):
+            tau = jax.vmap(self._tau)(q, v, a, f)
+            fk = jax.vmap(self._fk)(q)
+            qpos = jax.vmap(self.param.to_qpos)(q[:, : self.param.nq])
+            return tau, fk, qpos
+
+        return arrays
+
     def decode(self, x: np.ndarray) -> Trajectory:
         L, param = self.layout, self.param
         Z = jnp.asarray(np.asarray(x).reshape(self.N + 1, L.nz))
         s = L.split(Z)
-        q, v, a, f = s["q"], s["v"], s["a"], s["f"]
-        tau = jax.vmap(self._tau)(q, v, a, f)
-        fk = jax.vmap(self._fk)(q)
-        qpos = jax.vmap(param.to_qpos)(q[:, : param.nq])
+        q, v, f = s["q"], s["v"], s["f"]
+        if self.options.acceleration_variables:
+            a = s["a"]
+        else:
+            a = jnp.concatenate([(v[1:] - v[:-1]) / self.h, jnp.zeros_like(v[:1])])
+        tau, fk, qpos = self._decode_arrays(q, v, a, f)
         return Trajectory(
             t=np.arange(self.N + 1) * self.h,
             base_xyz_wxyz=np.asarray(qpos),
