@@ -52,6 +52,7 @@ class IpoptOutcome:
     time_ipopt: float
     mult_g: np.ndarray
     history: list[dict[str, float]]
+    violation_by_group: dict[str, float]
 
     @property
     def converged(self) -> bool:
@@ -172,4 +173,5 @@ def solve_nlp(
         time_ipopt=total - cb.t_callbacks,
         mult_g=np.asarray(info["mult_g"]),
         history=cb.history,
+        violation_by_group=nlp.violation_by_group(x),
     )

@@ -412,6 +412,14 @@ class KnotNLP:
         names, counts = np.unique(self.row_group, return_counts=True)
         return dict(zip(names.tolist(), counts.tolist()))
 
+    def violation_by_group(self, x: np.ndarray) -> dict[str, float]:
+        """Max violation of each constraint group's rows, and of the variable bounds, at x."""
+        g = np.asarray(self.constraints(jnp.asarray(x)))
+        viol = np.maximum(np.maximum(self.g_lower - g, g - self.g_upper), 0.0)
+        out = {name: float(viol[self.row_group == name].max(initial=0.0)) for name in dict.fromkeys(self.row_group.tolist())}
+        out["bounds"] = float(np.maximum(np.maximum(self.x_lower - x, x - self.x_upper), 0.0).max(initial=0.0))
+        return out
+
     def violation(self, x: np.ndarray) -> float:
         """Max violation of the constraint rows and variable bounds at x."""
         g = np.asarray(self.constraints(jnp.asarray(x)))

@@ -56,6 +56,7 @@ class Result:
     hess_evals: int
     cost: float
     constraint_violation: float
+    violation_by_group: dict[str, float]
     final_position_error: float
     time_s: float  # time to solution, compile excluded
     time_compile: float

@@ -127,6 +127,9 @@ def solve(
         result.trajectory = None
     if progress is not None:
         print(result.summary(), file=progress, flush=True)
+        if not result.converged:
+            worst = sorted(result.violation_by_group.items(), key=lambda kv: -kv[1])[:3]
+            print("  largest violations: " + ", ".join(f"{k} {v:.2e}" for k, v in worst), file=progress, flush=True)
     if out is not None:
         result.save(out)
     return result
@@ -161,6 +164,7 @@ def evaluate(tr: Transcription, outcome, traj, compile_time: float, options: dic
         hess_evals=outcome.hess_evals,
         cost=outcome.objective,
         constraint_violation=outcome.constraint_violation,
+        violation_by_group=outcome.violation_by_group,
         final_position_error=final_error,
         time_s=outcome.time_total,
         time_compile=compile_time,

@@ -26,6 +26,10 @@ TOML form (see ``tasks/big_jump.toml``)::
     axis = [0.0, 1.0, 0.0]
     angle = -6.283185307179586
     phases = [1]
+    [[warm_start_joints]]            # optional joint overrides during phases
+    phases = [2]
+    joints = { arm_left_2_joint = 2.8 }
+    place_on_terrain = true          # shift the base so the touching points rest on the ground
 """
 
 from __future__ import annotations
@@ -40,7 +44,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["TaskError", "Phase", "Profile", "RotationRule", "Task", "Schedule", "load", "from_file", "from_dict", "available"]
+__all__ = ["TaskError", "Phase", "Profile", "RotationRule", "JointRule", "Task", "Schedule", "load", "from_file", "from_dict", "available"]
 
 
 class TaskError(ValueError):
@@ -71,6 +75,16 @@ class RotationRule:
 
 
 @dataclasses.dataclass(frozen=True)
+class JointRule:
+    """Warm-start rule: set some joints during some phases; optionally shift the base
+    vertically so that the points touching the ground in those knots rest on the terrain."""
+
+    phases: tuple[int, ...]
+    joints: tuple[tuple[str, float], ...]
+    place_on_terrain: bool = False
+
+
+@dataclasses.dataclass(frozen=True)
 class Schedule:
     """Knots of a task: phase of each knot and which contact points touch at each knot."""
 
@@ -98,6 +112,7 @@ class Task:
     configuration_weight: float = 0.0
     acceleration_weight: float = 0.0
     warm_start: tuple[RotationRule, ...] = ()
+    warm_start_joints: tuple[JointRule, ...] = ()
     flip_axis: tuple[float, float, float] | None = None  # success needs a full turn about it
     max_iter: int = 200
     terrain_height: float = 0.0
@@ -188,6 +203,19 @@ class Task:
                 raise TaskError(f"task {self.name!r}: warm_start[{i}].phases is {list(rule.phases)}; expected indices in 0..{len(self.phases) - 1}")
         if robot is None:
             robot = robot_module.load(self.robot)
+        for i, rule in enumerate(self.warm_start_joints):
+            bad = [p for p in rule.phases if not 0 <= p < len(self.phases)]
+            if bad or not rule.phases:
+                raise TaskError(f"task {self.name!r}: warm_start_joints[{i}].phases is {list(rule.phases)}; expected indices in 0..{len(self.phases) - 1}")
+            for joint, value in rule.joints:
+                if joint not in robot.joint_names:
+                    raise TaskError(f"task {self.name!r}: warm_start_joints[{i}] names unknown joint {joint!r}; expected one of {list(robot.joint_names)}")
+                j = robot.joint_names.index(joint)
+                if not robot.q_lower[j] <= value <= robot.q_upper[j]:
+                    raise TaskError(
+                        f"task {self.name!r}: warm_start_joints[{i}] sets {joint!r} = {value:g} rad, outside its limits "
+                        f"[{robot.q_lower[j]:g}, {robot.q_upper[j]:g}]"
+                    )
         groups = sorted(robot.contact_groups)
         for i, phase in enumerate(self.phases):
             for c in phase.contacts:
@@ -214,7 +242,7 @@ class Task:
 # ------------------------------------------------------------------ loading
 _KNOWN = {
     "name", "robot", "timestep", "phases", "target", "costs", "friction", "max_delta_force",
-    "force_limit_factor", "warm_start", "flip_axis", "max_iter", "terrain_height", "description",
+    "force_limit_factor", "warm_start", "warm_start_joints", "flip_axis", "max_iter", "terrain_height", "description",
 }
 
 
@@ -250,6 +278,12 @@ def from_dict(data: dict[str, Any], source: str = "<dict>") -> Task:
         except ValueError:
             raise TaskError(f"{source}: warm_start[{i}].profile is {w.get('profile')!r}; expected 'ramp' or 'hold'") from None
         rules.append(RotationRule(profile, _vec3(w.get("axis"), f"{source}: warm_start[{i}].axis"), float(w["angle"]), tuple(int(p) for p in w["phases"])))
+    joint_rules = []
+    for i, w in enumerate(data.get("warm_start_joints", [])):
+        if "phases" not in w or "joints" not in w:
+            raise TaskError(f"{source}: warm_start_joints[{i}] needs 'phases' (list of phase indices) and 'joints' (table of joint = angle)")
+        joints = tuple((str(k), float(v)) for k, v in w["joints"].items())
+        joint_rules.append(JointRule(tuple(int(p) for p in w["phases"]), joints, bool(w.get("place_on_terrain", False))))
     task = Task(
         name=str(data["name"]),
         robot=str(data["robot"]),
@@ -264,6 +298,7 @@ def from_dict(data: dict[str, Any], source: str = "<dict>") -> Task:
         configuration_weight=float(costs.get("configuration", 0.0)),
         acceleration_weight=float(costs.get("acceleration", 0.0)),
         warm_start=tuple(rules),
+        warm_start_joints=tuple(joint_rules),
         flip_axis=_vec3(data["flip_axis"], f"{source}: flip_axis") if "flip_axis" in data else None,
         max_iter=int(data.get("max_iter", 200)),
         terrain_height=float(data.get("terrain_height", 0.0)),

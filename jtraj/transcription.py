@@ -389,22 +389,33 @@ class Transcription:
         for axis, angles in self.task.warm_start_angles():
             rotations = [lie.exp(SO3, jnp.asarray(axis * ang)) @ R for R, ang in zip(rotations, angles)]
         Z = np.zeros((n_knots, L.nz))
-        qj = np.asarray(robot.q_joints_standing)
+        qj = np.tile(np.asarray(robot.q_joints_standing, float), (n_knots, 1))
+        placed = np.zeros(n_knots, bool)
+        for rule in self.task.warm_start_joints:
+            knots = np.isin(self.schedule.phase_of_knot, rule.phases)
+            for joint, value in rule.joints:
+                qj[knots, robot.joint_names.index(joint)] = value
+            placed |= knots & rule.place_on_terrain
         contact = self.schedule.in_contact
         weight = robot.total_mass * GRAVITY
         for k in range(n_knots):
             Tk = SE3.from_rotation_and_translation(rotations[k], T0.translation())
-            q = np.concatenate([np.asarray(param.from_pose(Tk)), qj])
+            q = np.concatenate([np.asarray(param.from_pose(Tk)), qj[k]])
+            touching = contact[k]
+            if placed[k] and touching.any():
+                dz = float(np.mean(np.asarray(self._fk(jnp.asarray(q)))[touching, 2])) - self.task.terrain_height
+                Tk = SE3.from_rotation_and_translation(rotations[k], T0.translation() - jnp.array([0.0, 0.0, dz]))
+                q = np.concatenate([np.asarray(param.from_pose(Tk)), qj[k]])
             Z[k, L.slice("q")] = q
-            n_touch = int(contact[k].sum())
+            n_touch = int(touching.sum())
             if n_touch:
                 f = np.zeros((P, 3))
-                f[contact[k], 2] = weight / n_touch
+                f[touching, 2] = weight / n_touch
                 Z[k, L.slice("f")] = f.reshape(-1)
                 if self.options.contact_variables:
                     c = np.array(self._fk(jnp.asarray(q)))
                     c[:, 2] = self.task.terrain_height
-                    Z[k, L.slice("c")] = np.where(contact[k][:, None], c, 0.0).reshape(-1)
+                    Z[k, L.slice("c")] = np.where(touching[:, None], c, 0.0).reshape(-1)
         return Z
 
     # -------------------------------------------------------------------- decoding

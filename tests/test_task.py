@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from jtraj import task as tasks
-from jtraj.task import Phase, Task, TaskError
+from jtraj.task import JointRule, Phase, Task, TaskError
 
 FEET = ("FL_foot", "FR_foot", "RL_foot", "RR_foot")
 
@@ -74,11 +74,27 @@ def test_warm_start_ramp_reaches_full_turn_over_flight():
         (dict(target_joints=(0.0, 0.7, -1.5) * 3 + (0.0, 0.7, 5.0)), r"target joint 'RR_calf_joint' = 5 rad is outside its limits"),
         (dict(friction=-0.5), r"field 'friction' is -0.5"),
         (dict(phases=(Phase((), 0.1), Phase(FEET, 0.1))), r"phases\[0\].contacts is empty"),
+        (dict(warm_start_joints=(JointRule((1,), (("FL_knee", 0.0),)),)), r"warm_start_joints\[0\] names unknown joint 'FL_knee'"),
+        (dict(warm_start_joints=(JointRule((1,), (("FL_calf_joint", 0.5),)),)), r"sets 'FL_calf_joint' = 0.5 rad, outside its limits"),
+        (dict(warm_start_joints=(JointRule((7,), (("FL_calf_joint", -1.0),)),)), r"warm_start_joints\[0\].phases is \[7\]"),
     ],
 )
 def test_bad_tasks_raise_actionable_errors(go2, changes, match):
     with pytest.raises(TaskError, match=match):
         small_task(**changes).validate(go2)
+
+
+def test_joint_rule_shapes_the_warm_start(go2):
+    from jtraj.parameterization import get
+    from jtraj.transcription import Transcription
+
+    rule = JointRule((1,), (("FL_calf_joint", -2.0),), place_on_terrain=False)
+    tr = Transcription(go2, small_task(warm_start_joints=(rule,)), get("se3"))
+    Z = tr.warm_start()
+    calf = tr.param.nq + go2.joint_names.index("FL_calf_joint")
+    flight = tr.schedule.phase_of_knot == 1
+    np.testing.assert_allclose(Z[flight, calf], -2.0)
+    np.testing.assert_allclose(Z[~flight, calf], go2.q_joints_standing[go2.joint_names.index("FL_calf_joint")])
 
 
 def test_task_files(tmp_path):
