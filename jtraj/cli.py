@@ -58,8 +58,33 @@ def _cmd_solve(args: argparse.Namespace) -> int:
         out=out,
         progress_every=args.every,
     )
-    print(f"wrote {out}/result.json and {out}/trajectory.npz")
+    from jtraj.plots import plot_convergence, plot_result
+
+    plot_result(result, f"{out}/trajectory.png")
+    plot_convergence(result, f"{out}/convergence.png")
+    print(f"wrote {out}/result.json, {out}/trajectory.npz, {out}/trajectory.png, {out}/convergence.png")
     return 0 if result.converged else 2
+
+
+def _split(text: str) -> list[str]:
+    return [x for x in text.split(",") if x]
+
+
+def _cmd_compare(args: argparse.Namespace) -> int:
+    from jtraj.experiments import compare
+
+    rows = compare(_split(args.tasks), _split(args.params), out=args.out, layout=args.layout, exact_hessian=args.exact_hessian)
+    print((__import__("pathlib").Path(args.out) / "table_iv.md").read_text())
+    return 0 if rows else 1
+
+
+def _cmd_robustness(args: argparse.Namespace) -> int:
+    from jtraj.experiments import robustness
+
+    sigmas = [float(s) for s in _split(args.sigmas)]
+    robustness(_split(args.tasks), _split(args.params), sigmas, replicates=args.replicates, seed=args.seed, out=args.out, layout=args.layout)
+    print((__import__("pathlib").Path(args.out) / "table_iii.md").read_text())
+    return 0
 
 
 def _parse_value(text: str):
@@ -90,6 +115,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--every", type=int, default=1, help="print Ipopt progress every N iterations")
     p.set_defaults(func=_cmd_solve)
+
+    p = sub.add_parser("compare", help="Table IV: every task with every parameterization (writes OUT/table_iv.{json,md})")
+    p.add_argument("--tasks", default="walk,hopscotch,big_jump,handstand,backflip,sideflip")
+    p.add_argument("--params", default="se3,quat1,quat2,quat3,euler")
+    p.add_argument("--layout", default="paper", choices=["paper", "lean"])
+    p.add_argument("--exact-hessian", action="store_true")
+    p.add_argument("--out", default="runs/table_iv")
+    p.set_defaults(func=_cmd_compare)
+
+    p = sub.add_parser("robustness", help="Table III and Fig. 2: success and iterations under warm-start noise")
+    p.add_argument("--tasks", default="walk,big_jump,backflip,sideflip")
+    p.add_argument("--params", default="euler,quat1,quat2,se3")
+    p.add_argument("--sigmas", default="1e-6,1e-3,0.1,0.5")
+    p.add_argument("--replicates", type=int, default=10)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--layout", default="paper", choices=["paper", "lean"])
+    p.add_argument("--out", default="runs/robustness")
+    p.set_defaults(func=_cmd_robustness)
     return parser
 
 

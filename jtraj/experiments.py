@@ -20,6 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jtraj.parameterization import PARAMETERIZATIONS
+from jtraj.task import Task
 from jtraj.solver import prepare, solve
 
 __all__ = ["compare", "robustness", "noisy_warm_starts", "TABLE_IV_PAPER_SE3"]
@@ -41,9 +42,10 @@ def _row(result) -> dict:
 
 
 def compare(
-    tasks: Sequence[str] = ALL_TASKS,
+    tasks: Sequence[str | Task] = ALL_TASKS,
     params: Sequence[str] = tuple(PARAMETERIZATIONS),
     out: str | Path = "runs/table_iv",
+    layout: str = "paper",
     exact_hessian: bool = False,
     progress: TextIO | None = sys.stdout,
     save_trajectories: bool = True,
@@ -52,8 +54,9 @@ def compare(
     out = Path(out)
     rows = []
     for task in tasks:
+        name = task if isinstance(task, str) else task.name
         for p in params:
-            r = solve(task, p, exact_hessian=exact_hessian, progress=progress, progress_every=10, out=out / f"{task}_{p}" if save_trajectories else None)
+            r = solve(task, p, layout=layout, exact_hessian=exact_hessian, progress=progress, progress_every=10, out=out / f"{name}_{p}" if save_trajectories else None)
             rows.append(_row(r))
             _write_table_iv(rows, out)
     return rows
@@ -91,12 +94,13 @@ def noisy_warm_starts(x0: np.ndarray, sigmas: Sequence[float], replicates: int, 
 
 
 def robustness(
-    tasks: Sequence[str] = ROBUSTNESS_TASKS,
+    tasks: Sequence[str | Task] = ROBUSTNESS_TASKS,
     params: Sequence[str] = ROBUSTNESS_PARAMS,
     sigmas: Sequence[float] = SIGMAS,
     replicates: int = 10,
     seed: int = 0,
     out: str | Path = "runs/robustness",
+    layout: str = "paper",
     exact_hessian: bool = False,
     progress: TextIO | None = sys.stdout,
 ) -> list[dict]:
@@ -111,11 +115,11 @@ def robustness(
     runs: list[dict] = []
     for task in tasks:
         for p in params:
-            prep = prepare(task, p)
+            prep = prepare(task, p, layout)
             starts = noisy_warm_starts(prep.transcription.warm_start(), sigmas, replicates, seed)
             for si, sigma in enumerate(sigmas):
                 for r in range(replicates):
-                    res = solve(task, p, warm_start=starts[si, r], exact_hessian=exact_hessian, progress=None, keep_trajectory=False)
+                    res = solve(task, p, layout=layout, warm_start=starts[si, r], exact_hessian=exact_hessian, progress=None, keep_trajectory=False)
                     run = _row(res) | {"sigma": float(sigma), "replicate": r}
                     runs.append(run)
                     if progress is not None:
