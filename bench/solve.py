@@ -28,6 +28,8 @@ VARIANTS = {
     "paper": dict(layout="paper", exact_hessian=False, ipopt_options={}),
     "lean": dict(layout="lean", exact_hessian=False, ipopt_options={}),
     "exact": dict(layout="paper", exact_hessian=True, ipopt_options={}),
+    "no_c": dict(layout="no_contact_vars", exact_hessian=False, ipopt_options={}),
+    "no_a": dict(layout="no_accel_vars", exact_hessian=False, ipopt_options={}),
 }
 
 

@@ -18,7 +18,12 @@ from jtraj.ipopt import DEFAULT_OPTIONS, solve_nlp
 from jtraj.result import Result, Status, count_turns
 from jtraj.transcription import LEAN_LAYOUT, PAPER_LAYOUT, Transcription, TranscriptionOptions
 
-LAYOUTS = {"paper": PAPER_LAYOUT, "lean": LEAN_LAYOUT}
+LAYOUTS = {
+    "paper": PAPER_LAYOUT,
+    "lean": LEAN_LAYOUT,
+    "no_contact_vars": TranscriptionOptions(contact_variables=False, acceleration_variables=True),
+    "no_accel_vars": TranscriptionOptions(contact_variables=True, acceleration_variables=False),
+}
 
 
 def _layout(layout: str | TranscriptionOptions) -> TranscriptionOptions:
