@@ -3,12 +3,13 @@ into JAX evaluation (functions and derivatives) and Ipopt's own work, side by si
 paper's public implementation (figures of REFERENCE.md / issue, same kind of machine) and
 with jtraj's paper-faithful settings in the same run.
 
-    python bench/solve.py big_jump [--param se3] [--variants paper,fast] [--repeat 1]
+    python bench/solve.py big_jump [--param se3] [--variants paper,compact,lean]
 
-Variants:
-    paper  the study's settings: L-BFGS Hessian, tol 1e-3, MUMPS defaults
-    fast   jtraj's defaults for speed (see FAST_OPTIONS)
-    exact  exact Hessian of the Lagrangian from JAX
+Variants (all with the study's Ipopt settings: L-BFGS Hessian, tol 1e-3, MUMPS):
+    paper    the study's variables per knot (q, v, a, f, c)
+    compact  jtraj's default: contact positions substituted by forward kinematics (q, v, a, f)
+    lean     accelerations substituted too (q, v, f)
+    exact    the paper layout with the exact Hessian of the Lagrangian from JAX
 """
 
 from __future__ import annotations
@@ -28,8 +29,7 @@ VARIANTS = {
     "paper": dict(layout="paper", exact_hessian=False, ipopt_options={}),
     "lean": dict(layout="lean", exact_hessian=False, ipopt_options={}),
     "exact": dict(layout="paper", exact_hessian=True, ipopt_options={}),
-    "no_c": dict(layout="no_contact_vars", exact_hessian=False, ipopt_options={}),
-    "no_a": dict(layout="no_accel_vars", exact_hessian=False, ipopt_options={}),
+    "compact": dict(layout="compact", exact_hessian=False, ipopt_options={}),
 }
 
 
@@ -46,7 +46,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("task")
     ap.add_argument("--param", default="se3")
-    ap.add_argument("--variants", default="paper,exact")
+    ap.add_argument("--variants", default="paper,compact,lean")
     ap.add_argument("--ipopt", action="append", default=[], metavar="NAME=VALUE", help="extra Ipopt option for every variant")
     args = ap.parse_args()
     extra = {}

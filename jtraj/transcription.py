@@ -42,7 +42,7 @@ from jtraj.nlp import ConstraintGroup, CostGroup, Dep, KnotNLP, Layout
 from jtraj.parameterization import AbstractParameterization
 from jtraj.task import Task
 
-__all__ = ["Transcription", "TranscriptionOptions", "PAPER_LAYOUT", "LEAN_LAYOUT", "Trajectory"]
+__all__ = ["Transcription", "TranscriptionOptions", "PAPER_LAYOUT", "COMPACT_LAYOUT", "LEAN_LAYOUT", "Trajectory"]
 
 GRAVITY = 9.81
 
@@ -68,6 +68,8 @@ class TranscriptionOptions:
 
 #: The study's variable layout (q, v, a, f, c at every knot).
 PAPER_LAYOUT = TranscriptionOptions()
+#: Contact positions substituted by forward kinematics: (q, v, a, f) at every knot.
+COMPACT_LAYOUT = TranscriptionOptions(contact_variables=False, acceleration_variables=True)
 #: Contact positions and accelerations substituted: (q, v, f) at every knot.
 LEAN_LAYOUT = TranscriptionOptions(contact_variables=False, acceleration_variables=False)
 
@@ -92,7 +94,7 @@ class Trajectory:
 class Transcription:
     """The transcription of ``task`` for ``robot`` in parameterization ``param``."""
 
-    def __init__(self, robot, task: Task, param: AbstractParameterization, options: TranscriptionOptions = PAPER_LAYOUT):
+    def __init__(self, robot, task: Task, param: AbstractParameterization, options: TranscriptionOptions = COMPACT_LAYOUT):
         task.validate(robot)
         self.options = options
         self.robot = robot

@@ -32,7 +32,7 @@ HOP = Task(
 PARAM_IDS = list(PARAMETERIZATIONS)
 
 
-CASES = [(p, "paper") for p in PARAM_IDS] + [("se3", "lean"), ("euler", "lean")]
+CASES = [(p, "paper") for p in PARAM_IDS] + [("se3", "compact"), ("se3", "lean"), ("euler", "lean")]
 
 
 @pytest.fixture(scope="module", params=CASES, ids=[f"{p}-{l}" for p, l in CASES])
@@ -53,13 +53,13 @@ def test_sparse_jacobian_equals_dense_jacfwd(prepared):
 def test_layout_and_rows(prepared):
     tr, nlp = prepared.transcription, prepared.nlp
     P, nv, nq = 4, 18, tr.param.nq + 12
-    paper = tr.options.acceleration_variables
-    assert tr.layout.nz == (nq + 2 * nv + 6 * P if paper else nq + nv + 3 * P)
+    accel, cvars = tr.options.acceleration_variables, tr.options.contact_variables
+    assert tr.layout.nz == nq + (2 if accel else 1) * nv + (6 if cvars else 3) * P
     rows = nlp.row_groups_summary()
     n_knots, touching = 7, 5  # knots 0-1 and 4-6 touch the ground
     assert rows["dynamics"] == n_knots * nv
-    assert rows["integration"] == (n_knots - 1) * ((nv if paper else 0) + tr.param.ndiff + 12)
-    assert rows["contact"] == touching * (3 if paper else 1) * P
+    assert rows["integration"] == (n_knots - 1) * ((nv if accel else 0) + tr.param.ndiff + 12)
+    assert rows["contact"] == touching * (3 if cvars else 1) * P
     assert rows["clearance"] == (n_knots - touching) * P
     assert rows["friction"] == touching * 4 * P
     assert rows["stationary"] == 3 * 2 * P  # pairs (0,1), (4,5), (5,6)

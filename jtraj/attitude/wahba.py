@@ -406,6 +406,8 @@ def summarize(result: WahbaResult, floor: float = 1e-13) -> dict:
             "final_max": float(np.max(e[:, -1])),
             "median_order_estimate": float(np.nanmedian(order)) if np.any(np.isfinite(order)) else None,
             "median_error_ratio": float(np.median(ratio[ok])) if np.any(ok) else None,
+            # e_{k+1} / e_k^2 over errors above the floor: bounded for quadratic convergence.
+            "max_quadratic_constant": float(np.max(ratio[ok] / e[:, :-1][ok])) if np.any(ok) else None,
             "first_iteration_below_1e-10_median": _first_below(np.median(e, axis=0), 1e-10),
         }
     return summary
@@ -459,7 +461,7 @@ def plot_wahba(result: WahbaResult, path: str | Path) -> None:
         ax.set_xlabel("iteration")
         ax.axhline(np.finfo(float).eps, color="k", ls=":", lw=0.8)
         ax.grid(True, which="major", alpha=0.4)
-        ax.legend(fontsize=8, loc="upper right")
+        ax.legend(fontsize=8, loc="center right")
     axes[0].set_ylabel("angle error to SVD solution (rad)")
     axes[0].set_title(f"Wahba's problem, {result.trials} trials (all trials + median)")
     axes[1].set_title("median and 10-90 % band")
