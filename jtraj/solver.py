@@ -142,7 +142,7 @@ def solve(
 def evaluate(tr: Transcription, outcome, traj, compile_time: float, options: dict[str, Any], nnz_jacobian: int = 0) -> Result:
     """Task-success check: converged, at the target, and for flips one full turn."""
     task = tr.task
-    target = np.asarray(tr.target_pose.translation())
+    target = tr.target_xyz_wxyz[:3]
     final_error = float(np.linalg.norm(traj.base_xyz_wxyz[-1, :3] - target))
     feasible = outcome.converged and outcome.constraint_violation < 1e-2
     turns = None

@@ -117,30 +117,64 @@ class Transcription:
         self.layout = Layout(tuple(slots))
         self.contact_names = tuple(robot.contact_names[i] for i in self.points)
 
-    # -------------------------------------------------------------------- poses
+    # -------------------------------------------------------------------- host-side helpers
+    # Poses on the host are numpy xyz_wxyz arrays and every JAX computation here is jitted
+    # and batched over knots: evaluated op by op, each primitive would compile on its own
+    # (measured: 235 compilations, half a minute, for the warm start of big_jump).
     @cached_property
-    def initial_pose(self) -> SE3:
-        """Standing pose, lowered/raised so the first phase's contact points touch the terrain."""
+    def _host(self):
+        param = self.param
+
+        def coords(xyz_wxyz, qj):
+            """Configuration q of base poses (K, 7) and joint positions (K, nj)."""
+            T = SE3.from_rotation_and_translation(SO3(xyz_wxyz[..., 3:]), xyz_wxyz[..., :3])
+            return jnp.concatenate([jax.vmap(param.from_pose)(T), qj], axis=-1)
+
+        def rotate(axis_angle, wxyz):
+            """Rotations Exp(axis_angle) R about world axes, batched."""
+            return jax.vmap(lambda w, R: (lie.exp(SO3, w) @ SO3(R)).wxyz)(axis_angle, wxyz)
+
+        return dict(coords=jax.jit(coords), rotate=jax.jit(rotate), fk=jax.jit(jax.vmap(self._fk)))
+
+    @cached_property
+    def initial_xyz_wxyz(self) -> np.ndarray:
+        """Standing base pose, lowered/raised so the first phase's contact points touch the terrain."""
         robot = self.robot
-        T = robot.base_pose_standing
-        qj = jnp.asarray(robot.q_joints_standing)
-        q = jnp.concatenate([self.param.from_pose(T), qj])
-        p = np.asarray(dynamics.contact_positions(robot, self.param, q))[self.points]
+        xyz_wxyz = np.array(robot.base_xyz_wxyz_standing, float)
+        q = self._host["coords"](xyz_wxyz[None], np.asarray(robot.q_joints_standing)[None])
+        p = np.asarray(self._host["fk"](q))[0]
         touching = self.schedule.in_contact[0]
-        dz = float(np.mean(p[touching, 2])) - self.task.terrain_height
         spread = float(np.ptp(p[touching, 2]))
         if spread > 5e-3:
             raise ValueError(
                 f"the standing pose of {robot.name!r} does not put the contact points of phase 0 on flat "
                 f"ground (heights differ by {spread * 1000:.1f} mm)"
             )
-        return SE3.from_rotation_and_translation(T.rotation(), T.translation() - jnp.array([0.0, 0.0, dz]))
+        xyz_wxyz[2] -= float(np.mean(p[touching, 2])) - self.task.terrain_height
+        return xyz_wxyz
 
     @cached_property
+    def target_xyz_wxyz(self) -> np.ndarray:
+        """Target base pose: the task's displacement and rotation applied to the initial pose."""
+        T0 = self.initial_xyz_wxyz
+        rpy = np.asarray(self.task.target_rotation_rpy, float)
+        # rotate by Rz(yaw) Ry(pitch) Rx(roll), composed about world axes
+        wxyz = T0[3:][None]
+        for axis, angle in ((0, rpy[0]), (1, rpy[1]), (2, rpy[2])):
+            aa = np.zeros((1, 3))
+            aa[0, axis] = angle
+            wxyz = self._host["rotate"](aa, wxyz)
+        return np.concatenate([T0[:3] + np.asarray(self.task.target_translation), np.asarray(wxyz)[0]])
+
+    @property
+    def initial_pose(self) -> SE3:
+        x = self.initial_xyz_wxyz
+        return SE3.from_rotation_and_translation(SO3(jnp.asarray(x[3:])), jnp.asarray(x[:3]))
+
+    @property
     def target_pose(self) -> SE3:
-        T0 = self.initial_pose
-        rot = SO3.from_rpy_radians(*self.task.target_rotation_rpy)
-        return SE3.from_rotation_and_translation(rot @ T0.rotation(), T0.translation() + jnp.asarray(self.task.target_translation))
+        x = self.target_xyz_wxyz
+        return SE3.from_rotation_and_translation(SO3(jnp.asarray(x[3:])), jnp.asarray(x[:3]))
 
     @cached_property
     def q_joints_target(self) -> np.ndarray:
@@ -149,15 +183,19 @@ class Transcription:
         return np.asarray(self.robot.q_joints_standing, float)
 
     # -------------------------------------------------------------------- functions of one knot
+    # Jitted so that the groups which call them (and vmap / jacfwd of those) reuse one traced
+    # jaxpr: tracing the unrolled kinematic tree costs about a second each time.
     def _forces_all(self, f: jax.Array) -> jax.Array:
         F = jnp.zeros((len(self.robot.contact_names), 3), f.dtype)
         return F.at[self.points].set(f.reshape(self.P, 3))
 
-    def _tau(self, q, v, a, f):
-        return dynamics.inverse_dynamics(self.robot, self.param, q, v, a, self._forces_all(f))
+    @cached_property
+    def _tau(self):
+        return jax.jit(lambda q, v, a, f: dynamics.inverse_dynamics(self.robot, self.param, q, v, a, self._forces_all(f)))
 
-    def _fk(self, q):
-        return dynamics.contact_positions(self.robot, self.param, q)[self.points]
+    @cached_property
+    def _fk(self):
+        return jax.jit(lambda q: dynamics.contact_positions(self.robot, self.param, q)[self.points])
 
     # -------------------------------------------------------------------- the NLP
     def build_nlp(self) -> KnotNLP:
@@ -371,8 +409,12 @@ class Transcription:
             lower[:, sc] = np.where(contact[:, :, None], np.array([-np.inf, -np.inf, cz]), 0.0).reshape(n_knots, 3 * P)
             upper[:, sc] = np.where(contact[:, :, None], np.array([np.inf, np.inf, cz]), 0.0).reshape(n_knots, 3 * P)
         # boundary conditions
-        q0 = np.concatenate([np.asarray(param.from_pose(self.initial_pose)), robot.q_joints_standing])
-        qN = np.concatenate([np.asarray(param.from_pose(self.target_pose)), self.q_joints_target])
+        q0, qN = np.asarray(
+            self._host["coords"](
+                np.stack([self.initial_xyz_wxyz, self.target_xyz_wxyz]),
+                np.stack([robot.q_joints_standing, self.q_joints_target]),
+            )
+        )
         for k, q in ((0, q0), (n_knots - 1, qN)):
             lower[k, sq] = upper[k, sq] = q
             lower[k, sv] = upper[k, sv] = 0.0
@@ -384,13 +426,12 @@ class Transcription:
     def warm_start(self) -> np.ndarray:
         """The paper's non-informative warm start (plus the task's rotation rules): every knot
         at the standing pose at rest, the weight shared among the touching points."""
-        robot, param, L = self.robot, self.param, self.layout
+        robot, L = self.robot, self.layout
         n_knots, P = self.N + 1, self.P
-        T0 = self.initial_pose
-        rotations = [T0.rotation() for _ in range(n_knots)]
+        host = self._host
+        poses = np.tile(self.initial_xyz_wxyz, (n_knots, 1))
         for axis, angles in self.task.warm_start_angles():
-            rotations = [lie.exp(SO3, jnp.asarray(axis * ang)) @ R for R, ang in zip(rotations, angles)]
-        Z = np.zeros((n_knots, L.nz))
+            poses[:, 3:] = np.asarray(host["rotate"](axis[None] * angles[:, None], poses[:, 3:]))
         qj = np.tile(np.asarray(robot.q_joints_standing, float), (n_knots, 1))
         placed = np.zeros(n_knots, bool)
         for rule in self.task.warm_start_joints:
@@ -399,25 +440,23 @@ class Transcription:
                 qj[knots, robot.joint_names.index(joint)] = value
             placed |= knots & rule.place_on_terrain
         contact = self.schedule.in_contact
-        weight = robot.total_mass * GRAVITY
-        for k in range(n_knots):
-            Tk = SE3.from_rotation_and_translation(rotations[k], T0.translation())
-            q = np.concatenate([np.asarray(param.from_pose(Tk)), qj[k]])
-            touching = contact[k]
-            if placed[k] and touching.any():
-                dz = float(np.mean(np.asarray(self._fk(jnp.asarray(q)))[touching, 2])) - self.task.terrain_height
-                Tk = SE3.from_rotation_and_translation(rotations[k], T0.translation() - jnp.array([0.0, 0.0, dz]))
-                q = np.concatenate([np.asarray(param.from_pose(Tk)), qj[k]])
-            Z[k, L.slice("q")] = q
-            n_touch = int(touching.sum())
-            if n_touch:
-                f = np.zeros((P, 3))
-                f[touching, 2] = weight / n_touch
-                Z[k, L.slice("f")] = f.reshape(-1)
-                if self.options.contact_variables:
-                    c = np.array(self._fk(jnp.asarray(q)))
-                    c[:, 2] = self.task.terrain_height
-                    Z[k, L.slice("c")] = np.where(touching[:, None], c, 0.0).reshape(-1)
+        q = np.asarray(host["coords"](poses, qj))
+        if placed.any():
+            # rest the touching points of the placed knots on the terrain (vertical shift)
+            fk = np.asarray(host["fk"](q))
+            for k in np.flatnonzero(placed & contact.any(axis=1)):
+                poses[k, 2] -= float(np.mean(fk[k, contact[k], 2])) - self.task.terrain_height
+            q = np.asarray(host["coords"](poses, qj))
+        Z = np.zeros((n_knots, L.nz))
+        Z[:, L.slice("q")] = q
+        n_touch = contact.sum(axis=1)
+        f = np.zeros((n_knots, P, 3))
+        f[:, :, 2] = np.where(contact, robot.total_mass * GRAVITY / np.maximum(n_touch, 1)[:, None], 0.0)
+        Z[:, L.slice("f")] = f.reshape(n_knots, -1)
+        if self.options.contact_variables:
+            c = np.array(host["fk"](q))
+            c[:, :, 2] = self.task.terrain_height
+            Z[:, L.slice("c")] = np.where(contact[:, :, None], c, 0.0).reshape(n_knots, -1)
         return Z
 
     # -------------------------------------------------------------------- decoding
