@@ -96,6 +96,13 @@ def _parse_value(text: str):
     return text
 
 
+def _cmd_wahba(args: argparse.Namespace) -> int:
+    from jtraj.attitude.wahba import main_wahba
+
+    main_wahba(args.out, trials=args.trials, iterations=args.iterations, seed=args.seed)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="jtraj", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -133,6 +140,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--layout", default="paper", choices=["paper", "compact", "lean"], help="default: the study's layout, for comparison with its tables")
     p.add_argument("--out", default="runs/robustness")
     p.set_defaults(func=_cmd_robustness)
+
+    p = sub.add_parser("wahba", help="Wahba's problem: projected vs multiplicative Gauss-Newton (writes OUT/wahba.{npz,json,png})")
+    p.add_argument("--out", default="runs/wahba")
+    p.add_argument("--trials", type=int, default=100)
+    p.add_argument("--iterations", type=int, default=12)
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(func=_cmd_wahba)
     return parser
 
 
