@@ -125,9 +125,10 @@ def robustness(
                     if progress is not None:
                         print(f"{task:10s} {p:6s} sigma={sigma:<7g} #{r}: {res.status.value:26s} {res.iterations:4d} it  {res.time_s:6.1f} s", file=progress, flush=True)
                 (out / "runs.json").write_text(json.dumps(runs, indent=2))
-    summary = summarize_robustness(runs)
-    (out / "table_iii.json").write_text(json.dumps(summary, indent=2))
-    (out / "table_iii.md").write_text(_table_iii_markdown(summary, sigmas))
+            # tables after every (task, parameterization): a long study can be stopped
+            summary = summarize_robustness(runs)
+            (out / "table_iii.json").write_text(json.dumps(summary, indent=2))
+            (out / "table_iii.md").write_text(_table_iii_markdown(summary, sigmas))
     plot_iterations(runs, out / "fig2.png")
     return runs
 
