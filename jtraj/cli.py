@@ -103,6 +103,16 @@ def _cmd_wahba(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_attitude(args: argparse.Namespace) -> int:
+    from jtraj.attitude import benchmarks
+
+    if args.bench == "all":
+        rows = benchmarks.compare_benchmarks(args.out, n_knots=args.knots)
+        return 0 if all(r["status"] == "solved" for r in rows) else 2
+    result = benchmarks.main_attitude(args.bench, args.variant, args.out, n_knots=args.knots)
+    return 0 if result.success else 2
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="jtraj", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -147,6 +157,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--iterations", type=int, default=12)
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(func=_cmd_wahba)
+
+    p = sub.add_parser("attitude", help="Planning with Attitude benchmarks with Ipopt, naive or attitude-aware (OUT/BENCH_VARIANT.{json,npz,png}; 'all' writes OUT/table.md)")
+    p.add_argument("bench", choices=["quadflip", "barrelroll", "satellite", "all"])
+    p.add_argument("--variant", default="attitude", choices=["naive", "attitude"])
+    p.add_argument("--out", default="runs/attitude")
+    p.add_argument("--knots", type=int, default=None, help="number of knots (default: the paper's)")
+    p.set_defaults(func=_cmd_attitude)
     return parser
 
 

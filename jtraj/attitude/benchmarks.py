@@ -344,7 +344,7 @@ def quadrotor_flip(n_knots: int = 101, tf: float = 5.0) -> Benchmark:
     )
 
 
-def barrel_roll(n_knots: int = 101, tf: float = 1.25, speed: float = 5.0) -> Benchmark:
+def barrel_roll(n_knots: int = 101, tf: float = 1.25, speed: float = 5.0, roll_guess: bool = True) -> Benchmark:
     """Airplane barrel roll to inverted flight (paper Section VI-B).
 
     From (-3, 0, 1.5) in level trimmed flight at 5 m/s (`jtraj.attitude.models.Airplane.trim`)
@@ -354,8 +354,13 @@ def barrel_roll(n_knots: int = 101, tf: float = 1.25, speed: float = 5.0) -> Ben
     Stage costs: 1/2 (0.1 |v - v_goal|^2 + 0.1 |omega|^2) and an attitude weight of 0.1 toward
     the goal attitude (pulling the roll along), plus 1/2 R |u - u_trim|^2 with
     R = (10, 1, 1, 1) per N^2 / rad^2. Limits: thrust in [0, 2] N, surface deflections within
-    +-60 degrees. Warm start: the trimmed level flight itself (a feasible rollout of the trim
-    inputs from the start), as in the paper.
+    +-60 degrees. Warm start ("initialized at level-flight trim"): trim inputs at every knot
+    and states on the trimmed straight flight path; with ``roll_guess`` (default) the guessed
+    attitude turns uniformly through the 180 degree roll about the body x axis (a dynamically
+    infeasible guess, like the quadrotor's). ``roll_guess=False`` keeps the trim attitude
+    (the exact trim rollout); its last knot is then exactly 180 degrees from the goal, where
+    the Cayley-map goal error of the attitude formulation is singular (q_s = 0), so that
+    start is only usable by the naive formulation.
     """
     _check_n_knots("barrelroll", n_knots, 11)
     model = M.Airplane()
@@ -382,6 +387,10 @@ def barrel_roll(n_knots: int = 101, tf: float = 1.25, speed: float = 5.0) -> Ben
     t = np.linspace(0.0, tf, N)
     x_init = np.tile(x0, (N, 1))
     x_init[:, 0] = x0[0] + speed * t
+    if roll_guess:
+        # q_trim (x) R_x(s pi): rolling about the body x axis
+        rolls = np.stack([M.quat_about_axis((1.0, 0.0, 0.0), np.pi * s) for s in np.linspace(0.0, 1.0, N)])
+        x_init[:, M.QUAT] = rolls @ np.asarray(quat.L(jnp.asarray(q_trim))).T
     return Benchmark(
         name="barrelroll",
         model=model,
@@ -678,15 +687,22 @@ def _json_default(obj: Any) -> Any:
     raise TypeError(f"cannot write {type(obj).__name__} to JSON")
 
 
-def accumulated_rotation(q: np.ndarray) -> np.ndarray:
+def accumulated_rotation(q: np.ndarray, frame: str = "world") -> np.ndarray:
     """(N, 4) attitudes -> (N, 3) rotation accumulated about the world axes (rad), summing the
-    world-frame increments ``Log(q_{k+1} q_k^*)`` so that a 360 degree flip reads 2 pi."""
+    world-frame increments ``Log(q_{k+1} q_k^*)`` so that a 360 degree flip reads 2 pi; with
+    ``frame="body"`` the body-frame increments ``Log(q_k^* q_{k+1})`` (roll about the body x
+    axis for an airplane)."""
     from jtraj.lie import SO3
 
+    if frame not in ("world", "body"):
+        raise ValueError(f"frame must be 'world' or 'body', got {frame!r}")
     q = np.asarray(q, float)
-    q = q / np.linalg.norm(q, axis=1, keepdims=True)
-    steps = np.asarray(jax.vmap(lambda a, b: SO3(a).multiply(SO3(b).inverse()).log())(jnp.asarray(q[1:]), jnp.asarray(q[:-1])))
-    return np.vstack([np.zeros(3), np.cumsum(steps, axis=0)])
+    q = jnp.asarray(q / np.linalg.norm(q, axis=1, keepdims=True))
+    if frame == "world":
+        steps = jax.vmap(lambda a, b: SO3(a).multiply(SO3(b).inverse()).log())(q[1:], q[:-1])
+    else:
+        steps = jax.vmap(lambda a, b: SO3(b).inverse().multiply(SO3(a)).log())(q[1:], q[:-1])
+    return np.vstack([np.zeros(3), np.cumsum(np.asarray(steps), axis=0)])
 
 
 def _angle_between(qa: np.ndarray, qb: np.ndarray) -> float:
@@ -708,9 +724,10 @@ def _metrics(bench: Benchmark, X: np.ndarray, U: np.ndarray) -> tuple[dict[str, 
         out["final_position_error_m"] = float(np.linalg.norm(X[-1, M.POS] - bench.x_lower[-1, M.POS]))
         ok &= abs(out["roll_turns"] - 1.0) < 0.05 and out["min_altitude_m"] > -1e-5
     elif bench.name == "barrelroll":
-        out["roll_deg"] = float(np.degrees(roll[-1, 0]))
+        # the goal attitude is a hard target (checked above); the body-axis roll is reported
+        out["roll_deg"] = float(np.degrees(accumulated_rotation(X[:, M.QUAT], "body")[-1, 0]))
+        out["min_altitude_m"] = float(X[:, 2].min())
         out["final_position_error_m"] = float(np.linalg.norm(X[-1, M.POS] - bench.x_lower[-1, M.POS]))
-        ok &= abs(abs(out["roll_deg"]) - 180.0) < 10.0
     elif bench.name == "satellite":
         ko = bench.keep_out
         cam, sun = np.asarray(CAMERA_BODY), np.asarray(SUN_WORLD)
@@ -846,7 +863,7 @@ def plot_benchmark(result: BenchmarkResult, path: str | Path | None = None, ax=N
         ax.set_ylabel("roll about x (deg, accumulated)")
         ax.set_yticks([0, 90, 180, 270, 360])
     elif result.name == "barrelroll":
-        roll = np.degrees(accumulated_rotation(X[:, M.QUAT])[:, 0])
+        roll = np.degrees(accumulated_rotation(X[:, M.QUAT], "body")[:, 0])
         ax.plot(X[:, 0], X[:, 2], label=f"z, {label}")
         ax.plot(X[:, 0], X[:, 1], ls="--", label=f"y, {label}")
         ax.set_xlabel("x (m)")
@@ -896,7 +913,8 @@ def compare_benchmarks(
     progress: TextIO | None = None,
 ) -> list[dict[str, Any]]:
     """Solve every benchmark in every variant; write ``out_dir``/table.json and table.md
-    (iterations, time, violation, status next to the paper's iterations) and each result."""
+    (iterations, time, violation, status next to the paper's iterations) and each result's
+    files; prints the table (``jtraj attitude all``)."""
     out = Path(out_dir)
     rows = []
     for name in names:
@@ -925,4 +943,5 @@ def compare_benchmarks(
             f"{row['time_s']:.2f} | {row['constraint_violation']:.1e} |"
         )
     (out / "table.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
     return rows

@@ -1,0 +1,249 @@
+"""Benchmarks of "Planning with Attitude" (`jtraj.attitude.benchmarks`): the two formulations'
+contract, the problem definitions, and short-horizon solves of every benchmark in both
+formulations (N = 21 knots), including an active keep-out cone in the satellite slew."""
+
+import functools
+import json
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jtraj import quaternion as Q
+from jtraj.attitude import benchmarks as B
+from jtraj.attitude import models as M
+
+SHORT = {"quadflip": {}, "barrelroll": {}, "satellite": {"tf": 25.0}}  # tf: 1.25 s steps keep RK4 stable
+N_SHORT = 21
+
+
+@functools.cache
+def solve(name, variant, ipopt_options=(), **kwargs):
+    kw = {**SHORT[name], **kwargs}
+    return B.solve_benchmark(name, variant, n_knots=N_SHORT, progress=None, ipopt_options=dict(ipopt_options), **kw)
+
+
+def random_quaternion(rng):
+    q = rng.normal(size=4)
+    return jnp.asarray(q / np.linalg.norm(q))
+
+
+# ---------------------------------------------------------------------------------------- contract
+
+
+def test_formulation_dimensions():
+    naive, att = B.FORMULATIONS["naive"], B.FORMULATIONS["attitude"]
+    assert (naive.defect_dim(13), att.defect_dim(13), att.defect_dim(23)) == (13, 12, 22)
+    assert (naive.target_dim, att.target_dim) == (4, 3)
+    assert att.unit_norm and not naive.unit_norm
+
+
+def test_attitude_defect_ignores_sign_and_scale_of_the_quaternion(rng):
+    att = B.FORMULATIONS["attitude"]
+    model = M.Quadrotor()
+    x = jnp.asarray(M.rigid_state(r=(0.1, 0.2, 1.0), q=random_quaternion(rng), v=(1.0, 0.0, 0.5), omega=(3.0, -1.0, 2.0)))
+    x_pred = M.rk4(model.dynamics, x, jnp.asarray(model.hover_control()) + 0.3, 0.05)
+    # RK4 leaves |q| slightly off 1; the error-state defect only sees the rotation
+    for x_next in (x_pred, x_pred.at[3:7].multiply(-1.0), x_pred.at[3:7].multiply(1.0 / jnp.linalg.norm(x_pred[3:7]))):
+        np.testing.assert_allclose(att.defect(x_next, x_pred), 0.0, atol=1e-15)
+    # while the naive defect sees the sign flip as a distance of 2
+    naive = B.FORMULATIONS["naive"]
+    assert float(jnp.linalg.norm(naive.defect(x_pred.at[3:7].multiply(-1.0), x_pred))) > 1.9
+
+
+def test_attitude_target_and_cost_use_the_rotation_only(rng):
+    att, naive = B.FORMULATIONS["attitude"], B.FORMULATIONS["naive"]
+    q_ref = random_quaternion(rng)
+    np.testing.assert_allclose(att.attitude_error(-q_ref, q_ref), 0.0, atol=1e-15)
+    np.testing.assert_allclose(att.attitude_error(Q.multiplicative_update(q_ref, jnp.array([0.1, -0.2, 0.3])), q_ref), [0.1, -0.2, 0.3], atol=1e-14)
+    assert float(jnp.max(jnp.abs(naive.attitude_error(-q_ref, q_ref)))) > 0.1
+    # the geodesic cost differentiated by JAX and corrected by G(q) is eq. 41 (sign-corrected)
+    q = random_quaternion(rng)
+    g = jax.grad(att.attitude_cost)(q, q_ref) @ Q.attitude_jacobian(q)
+    np.testing.assert_allclose(g, Q.geodesic_cost_gradient(q, q_ref), atol=1e-14)
+    # same weights on the sphere: 1/2 |q - q_ref|^2 = 1 - q_ref . q for unit q (near q_ref)
+    q_near = Q.multiplicative_update(q_ref, jnp.array([0.1, 0.2, -0.1]))
+    np.testing.assert_allclose(naive.attitude_cost(q_near, q_ref), att.attitude_cost(q_near, q_ref), atol=1e-15)
+
+
+# ---------------------------------------------------------------------------------------- definitions
+
+
+def test_quadrotor_flip_definition():
+    b = B.quadrotor_flip()
+    assert (b.n_knots, b.tf, b.h) == (101, 5.0, 0.05)
+    knots = [t.knot for t in b.targets]
+    assert knots == [19, 44, 50, 54, 74, 100]  # the paper code's 1-based knots 20, 45, 51, 55, 75
+    rolls = [math.degrees(2 * math.atan2(t.q[1], t.q[0])) % 360 for t in b.targets]
+    np.testing.assert_allclose(rolls[1:5], [90, 180, 270, 0], atol=1e-9)
+    np.testing.assert_allclose(b.targets[-1].q, [-1, 0, 0, 0], atol=1e-15)  # 360 degrees, continuous branch
+    np.testing.assert_allclose(b.x_lower[0, :3], [0, -1, 1])
+    np.testing.assert_allclose(b.x_lower[-1, :3], [0, 1, 1])  # 2 m along +y
+    assert np.all(b.x_lower[:, 2] >= 0.0)  # floor
+    # warm start turns a full revolution about x
+    turns = B.accumulated_rotation(b.x_init[:, 3:7])[-1] / (2 * np.pi)
+    np.testing.assert_allclose(turns, [1, 0, 0], atol=1e-12)
+    # shorter horizons keep the waypoint times
+    short = B.quadrotor_flip(N_SHORT)
+    np.testing.assert_allclose([short.t[t.knot] for t in short.targets], [b.t[t.knot] for t in b.targets], atol=0.13)
+
+
+def test_barrel_roll_definition():
+    b = B.barrel_roll()
+    plane = b.model
+    assert (b.n_knots, b.tf) == (101, 1.25)
+    x0 = b.x_lower[0]
+    np.testing.assert_allclose(x0[:3], [-3, 0, 1.5])
+    np.testing.assert_allclose(x0[7:10], [5, 0, 0])
+    np.testing.assert_allclose(plane.dynamics(jnp.asarray(x0), jnp.asarray(b.u_init[0]))[7:], 0.0, atol=1e-10)  # trimmed
+    q_goal = jnp.asarray(b.targets[0].q)
+    A = np.asarray(Q.rotation_matrix(q_goal))
+    assert A[2, 2] < -0.9  # body z points down: upside down
+    np.testing.assert_allclose(A[:, 0], np.asarray(Q.rotation_matrix(jnp.asarray(x0[3:7])))[:, 0], atol=1e-14)  # same nose direction
+    # the guess rolls into the goal; the pure trim rollout sits exactly pi from it (Cayley singular)
+    np.testing.assert_allclose(jnp.abs(jnp.asarray(b.x_init[-1, 3:7]) @ q_goal), 1.0, atol=1e-14)
+    trim_only = B.barrel_roll(roll_guess=False)
+    assert abs(float(jnp.asarray(trim_only.x_init[-1, 3:7]) @ q_goal)) < 1e-12
+
+
+def test_satellite_definition_and_keep_out_geometry():
+    b = B.satellite_slew()
+    assert (b.n_knots, b.tf, b.h) == (401, 100.0, 0.25)
+    q0 = jnp.asarray(b.x_lower[0, 3:7])
+    np.testing.assert_allclose(2 * math.acos(float(q0[0])), math.radians(150), atol=1e-14)
+    np.testing.assert_allclose(q0[1:] / jnp.linalg.norm(q0[1:]), np.array([1, 2, 3]) / math.sqrt(14), atol=1e-14)
+    assert np.all(b.u_upper[:-1] == 0.5) and np.all(b.u_lower[:-1] == -0.5)
+    ko = b.keep_out
+    np.testing.assert_allclose(np.linalg.norm(ko.camera_body), 1.0, atol=1e-15)
+    cam, sun = jnp.asarray(ko.camera_body), jnp.asarray(ko.sun_world)
+    # start and goal are outside the 40 degree cone, the constant-axis slew between them is not
+    path = np.stack([np.asarray(Q.multiply(q0, jnp.asarray(M.quat_about_axis((1, 2, 3), -math.radians(150) * s)))) for s in np.linspace(0, 1, 101)])
+    angles = np.degrees(jax.vmap(lambda q: M.FlexibleSpacecraft.sun_angle(q, cam, sun))(jnp.asarray(path)))
+    assert angles[0] > 40 and angles[-1] > 40 and angles.min() < 36
+
+
+def test_bad_requests_are_reported():
+    with pytest.raises(ValueError, match="unknown benchmark 'loop'.*barrelroll"):
+        B.solve_benchmark("loop", "attitude")
+    with pytest.raises(ValueError, match="unknown variant 'euler'.*attitude"):
+        B.solve_benchmark("quadflip", "euler")
+    with pytest.raises(ValueError, match="n_knots"):
+        B.quadrotor_flip(n_knots=3)
+    with pytest.raises(ValueError, match="too long"):
+        B.satellite_slew(n_knots=21)  # 5 s steps cannot resolve the 0.3 Hz mode
+
+
+# ---------------------------------------------------------------------------------------- solves
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("variant", ["naive", "attitude"])
+def test_quadrotor_flip_short(variant):
+    r = solve("quadflip", variant)
+    assert r.success, r.summary()
+    assert r.constraint_violation < 1e-5
+    assert abs(r.metrics["roll_turns"] - 1.0) < 0.05  # a real flip
+    assert max(r.metrics["target_errors_deg"].values()) < 1e-3
+    assert r.metrics["min_altitude_m"] > -1e-6
+    np.testing.assert_allclose(r.X[-1, :3], [0, 1, 1], atol=1e-9)
+    if variant == "attitude":
+        assert r.metrics["max_quaternion_norm_error"] < 1e-8
+
+
+@pytest.mark.slow
+def test_naive_quaternions_drift_off_the_sphere():
+    """The naive defect carries RK4's norm error; the attitude formulation's unit-norm rows
+    remove it."""
+    naive, att = solve("quadflip", "naive"), solve("quadflip", "attitude")
+    assert naive.metrics["max_quaternion_norm_error"] > 1e3 * att.metrics["max_quaternion_norm_error"]
+
+
+@pytest.mark.slow
+def test_barrel_roll_short():
+    r = solve("barrelroll", "attitude")
+    assert r.success, r.summary()
+    A = np.asarray(Q.rotation_matrix(jnp.asarray(r.X[-1, 3:7])))
+    assert A[2, 2] < -0.9  # ends upside down
+    assert abs(r.metrics["roll_deg"]) > 90
+    np.testing.assert_allclose(r.X[-1, :3], [3, 0, 1.5], atol=1e-9)
+    assert np.all(r.U[:, 0] >= -1e-8) and np.all(np.abs(r.U[:, 1:]) <= math.radians(60) + 1e-8)
+
+
+@pytest.mark.slow
+def test_barrel_roll_naive_is_much_slower():
+    """The naive barrel roll converges only after hundreds of iterations (365 at N = 21, none
+    within 1000 at N = 101, see the module docs of `benchmarks`); capped here to keep CI
+    short, it must still be far from the attitude formulation's count."""
+    att = solve("barrelroll", "attitude")
+    naive = solve("barrelroll", "naive", ipopt_options=(("max_iter", 60),))
+    assert att.iterations <= 30
+    assert not naive.converged or naive.iterations > 3 * att.iterations
+    assert naive.iterations >= 2 * att.iterations
+
+
+@pytest.mark.slow
+def test_naive_constraint_jacobian_is_rank_deficient():
+    """Why the naive formulation struggles: its 4-row attitude targets plus the additive
+    defects constrain the quaternion norm, which the inputs barely move (only through RK4's
+    O(h^5) norm error), so the constraint Jacobian loses rank (LICQ fails). The attitude
+    formulation's Jacobian at the same point is well conditioned."""
+    r = solve("quadflip", "attitude")
+    bench = B.quadrotor_flip(N_SHORT)
+    z = jnp.asarray(np.concatenate([r.X, np.vstack([r.U, bench.u_lower[-1:]])], axis=1).reshape(-1))
+    sigma_min = {}
+    for variant in ("naive", "attitude"):
+        nlp = B.build_nlp(bench, B.FORMULATIONS[variant])
+        J = nlp.dense_jacobian(z)[:, nlp.x_lower < nlp.x_upper]  # fixed variables are not variables
+        sigma_min[variant] = np.linalg.svd(J, compute_uv=False)[-1]
+    assert sigma_min["naive"] < 1e-8
+    assert sigma_min["attitude"] > 1e-3
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("variant", ["naive", "attitude"])
+def test_satellite_keep_out_is_active_and_satisfied(variant):
+    r = solve("satellite", variant)
+    assert r.success, r.summary()
+    margin = r.metrics["min_sun_angle_deg"] - 40.0
+    assert -1e-3 < margin < 1e-2  # satisfied (to the 1e-5 tolerance on the cosine) and touching
+    assert r.metrics["max_abs_torque"] <= 0.5 + 1e-8
+    assert r.metrics["target_errors_deg"]["goal@20"] < 1e-6
+
+
+@pytest.mark.slow
+def test_satellite_without_keep_out_crosses_the_cone():
+    free = solve("satellite", "attitude", keep_out_deg=None)
+    assert free.success, free.summary()
+    assert free.metrics["min_sun_angle_deg"] < 39.0
+    assert "keep_out" not in free.violation_by_group
+    # the constraint costs something
+    assert solve("satellite", "attitude").objective > free.objective
+
+
+@pytest.mark.slow
+def test_result_files_and_figure(tmp_path):
+    r = solve("satellite", "attitude")
+    json_path, npz_path = r.save(tmp_path)
+    data = json.loads(json_path.read_text())
+    assert data["status"] == "solved" and data["iterations"] == r.iterations
+    assert data["constraint_violation"] == r.constraint_violation
+    with np.load(npz_path) as z:
+        np.testing.assert_array_equal(z["X"], r.X)
+        assert z["U"].shape == (N_SHORT - 1, 4) and z["t"][-1] == 25.0
+    for name in ("quadflip", "barrelroll", "satellite"):
+        fig = B.plot_benchmark(solve(name, "attitude"), tmp_path / f"{name}.png")
+        assert fig.axes and (tmp_path / f"{name}.png").read_bytes()[:4] == b"\x89PNG"
+
+
+@pytest.mark.slow
+def test_main_attitude_prints_and_saves(tmp_path, capsys):
+    r = B.main_attitude("quadflip", "attitude", tmp_path, n_knots=N_SHORT)
+    out = capsys.readouterr().out
+    assert "iterations" in out and "constraint violation" in out
+    for suffix in ("json", "npz", "png"):
+        assert (tmp_path / f"quadflip_attitude.{suffix}").stat().st_size > 0
+    # deterministic: the same problem gives the same iterations as the cached solve
+    assert r.iterations == solve("quadflip", "attitude").iterations
+    np.testing.assert_allclose(r.X, solve("quadflip", "attitude").X, atol=1e-12)
