@@ -53,20 +53,7 @@ def row(label, ours, theirs=None, note=""):
 
 
 def pinocchio_model(robot):
-    full = pin.buildModelFromUrdf(str(robot.urdf_path), pin.JointModelFreeFlyer())
-    locked = [full.getJointId(n) for n in robot.locked_joints]
-    model = pin.buildReducedModel(full, locked, pin.neutral(full)) if locked else full
-    frames = []
-    for c in robot.contacts:
-        link_frame = model.getFrameId(c.link)
-        placement = model.frames[link_frame].placement * pin.SE3(np.eye(3), np.array(c.offset_link))
-        parent_joint = model.frames[link_frame].parentJoint
-        frame = pin.Frame(f"contact_{c.name}", parent_joint, link_frame, placement, pin.FrameType.OP_FRAME)
-        frames.append(model.addFrame(frame))
-    joint_ids = [model.getJointId(n) for n in robot.joint_names]
-    q_index = np.array([model.joints[j].idx_q for j in joint_ids])
-    v_index = np.array([model.joints[j].idx_v for j in joint_ids])
-    return model, frames, q_index, v_index
+    return robot_lib.to_pinocchio(robot)
 
 
 def main():

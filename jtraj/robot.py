@@ -587,3 +587,29 @@ def load_render_model(robot: Robot) -> mujoco.MjModel:
             f"expected {robot.mj_model.nbody} and {robot.mj_model.nq}"
         )
     return model
+
+
+def to_pinocchio(robot: Robot):
+    """The same robot as a Pinocchio model, for oracles and benchmarks (needs ``pin``).
+
+    Built from the same URDF with a free-flyer root, the locked joints removed at 0, and one
+    operational frame per contact point (in declaration order). Returns
+    ``(model, frame_ids, q_index, v_index)``: the Pinocchio ``q`` / ``v`` index of each of
+    ``robot.joint_names``.
+    """
+    import pinocchio as pin
+
+    full = pin.buildModelFromUrdf(str(robot.urdf_path), pin.JointModelFreeFlyer())
+    locked = [full.getJointId(n) for n in robot.locked_joints]
+    model = pin.buildReducedModel(full, locked, pin.neutral(full)) if locked else full
+    frames = []
+    for c in robot.contacts:
+        link_frame = model.getFrameId(c.link)
+        placement = model.frames[link_frame].placement * pin.SE3(np.eye(3), np.array(c.offset_link))
+        parent_joint = model.frames[link_frame].parentJoint
+        frame = pin.Frame(f"contact_{c.name}", parent_joint, link_frame, placement, pin.FrameType.OP_FRAME)
+        frames.append(model.addFrame(frame))
+    joints = [model.joints[model.getJointId(n)] for n in robot.joint_names]
+    q_index = np.array([j.idx_q for j in joints])
+    v_index = np.array([j.idx_v for j in joints])
+    return model, frames, q_index, v_index

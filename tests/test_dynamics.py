@@ -141,19 +141,8 @@ def test_matches_mujoco_c(robot, evaluated):
 
 
 def _pinocchio(robot):
-    full = pin.buildModelFromUrdf(str(robot.urdf_path), pin.JointModelFreeFlyer())
-    locked = [full.getJointId(n) for n in robot.locked_joints]
-    model = pin.buildReducedModel(full, locked, pin.neutral(full)) if locked else full
-    frames = []
-    for c in robot.contacts:
-        link_frame = model.getFrameId(c.link)
-        placement = model.frames[link_frame].placement * pin.SE3(np.eye(3), np.array(c.offset_link))
-        parent_joint = model.frames[link_frame].parentJoint
-        frame = pin.Frame(f"contact_{c.name}", parent_joint, link_frame, placement, pin.FrameType.OP_FRAME)
-        frames.append(model.addFrame(frame))
-    joints = [model.joints[model.getJointId(n)] for n in robot.joint_names]
-    q_index = np.array([j.idx_q for j in joints])
-    v_perm = np.concatenate([np.arange(6), [j.idx_v for j in joints]])  # ours -> Pinocchio
+    model, frames, q_index, v_index = robot_lib.to_pinocchio(robot)
+    v_perm = np.concatenate([np.arange(6), v_index])  # ours -> Pinocchio
     return model, frames, q_index, v_perm
 
 

@@ -22,16 +22,7 @@ EXPECTED = {  # name: (joints, nv, contact groups and their sizes)
 
 def pinocchio_model(robot):
     """Pinocchio model from the same URDF, locked joints removed at 0, one frame per contact."""
-    full = pin.buildModelFromUrdf(str(robot.urdf_path), pin.JointModelFreeFlyer())
-    locked = [full.getJointId(n) for n in robot.locked_joints]
-    model = pin.buildReducedModel(full, locked, pin.neutral(full)) if locked else full
-    frames = []
-    for c in robot.contacts:
-        link_frame = model.getFrameId(c.link)
-        placement = model.frames[link_frame].placement * pin.SE3(np.eye(3), np.array(c.offset_link))
-        parent_joint = model.frames[link_frame].parentJoint
-        frame = pin.Frame(f"contact_{c.name}", parent_joint, link_frame, placement, pin.FrameType.OP_FRAME)
-        frames.append(model.addFrame(frame))
+    model, frames, _, _ = robot_lib.to_pinocchio(robot)
     return model, frames
 
 

@@ -57,6 +57,7 @@ import numpy as np
 from jtraj import quaternion as quat
 from jtraj.attitude import models as M
 from jtraj.nlp import ConstraintGroup, CostGroup, Dep, KnotNLP, Layout
+from jtraj.result import _json_default
 
 __all__ = [
     "AbstractFormulation",
@@ -676,15 +677,6 @@ class BenchmarkResult:
         np.savez_compressed(d / f"{stem}.npz", t=self.t, X=self.X, U=self.U)
         return d / f"{stem}.json", d / f"{stem}.npz"
 
-
-def _json_default(obj: Any) -> Any:
-    if isinstance(obj, (np.floating, np.integer, np.bool_)):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, enum.Enum):
-        return obj.value
-    raise TypeError(f"cannot write {type(obj).__name__} to JSON")
 
 
 def accumulated_rotation(q: np.ndarray, frame: str = "world") -> np.ndarray:
