@@ -82,7 +82,7 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
     from jtraj.experiments import robustness
 
     sigmas = [float(s) for s in _split(args.sigmas)]
-    robustness(_split(args.tasks), _split(args.params), sigmas, replicates=args.replicates, seed=args.seed, out=args.out, layout=args.layout)
+    robustness(_split(args.tasks), _split(args.params), sigmas, replicates=args.replicates, seed=args.seed, out=args.out, layout=args.layout, workers=args.workers, resume=not args.no_resume)
     print((__import__("pathlib").Path(args.out) / "table_iii.md").read_text())
     return 0
 
@@ -149,6 +149,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--layout", default="paper", choices=["paper", "compact", "lean"], help="default: the study's layout, for comparison with its tables")
     p.add_argument("--out", default="runs/robustness")
+    p.add_argument("--workers", type=int, default=1, help="solve (task, parameterization) groups in this many processes")
+    p.add_argument("--no-resume", action="store_true", help="solve again the runs already in OUT/runs.json")
     p.set_defaults(func=_cmd_robustness)
 
     p = sub.add_parser("wahba", help="Wahba's problem: projected vs multiplicative Gauss-Newton (writes OUT/wahba.{npz,json,png})")

@@ -93,6 +93,24 @@ def noisy_warm_starts(x0: np.ndarray, sigmas: Sequence[float], replicates: int, 
     return np.asarray(draw(keys, jnp.asarray(sigmas, base.dtype)))
 
 
+def _robustness_group(task, p, sigmas, replicates, seed, layout, exact_hessian, done, verbose) -> list[dict]:
+    """One (task, parameterization) of the study: one compile, then every noisy replicate not in
+    ``done``. Runs in the calling process or in a worker process."""
+    prep = prepare(task, p, layout)
+    name = prep.transcription.task.name
+    starts = noisy_warm_starts(prep.transcription.warm_start(), sigmas, replicates, seed)
+    rows = []
+    for si, sigma in enumerate(sigmas):
+        for r in range(replicates):
+            if (name, p, float(sigma), r) in done:
+                continue
+            res = solve(task, p, layout=layout, warm_start=starts[si, r], exact_hessian=exact_hessian, progress=None, keep_trajectory=False)
+            rows.append(_row(res) | {"sigma": float(sigma), "replicate": r, "seed": seed, "layout": layout})
+            if verbose:
+                print(f"{name:10s} {p:6s} sigma={sigma:<7g} #{r}: {res.status.value:26s} {res.iterations:4d} it  {res.time_s:6.1f} s", flush=True)
+    return rows
+
+
 def robustness(
     tasks: Sequence[str | Task] = ROBUSTNESS_TASKS,
     params: Sequence[str] = ROBUSTNESS_PARAMS,
@@ -103,32 +121,53 @@ def robustness(
     layout: str = "paper",
     exact_hessian: bool = False,
     progress: TextIO | None = sys.stdout,
+    workers: int = 1,
+    resume: bool = True,
 ) -> list[dict]:
     """Table III and Fig. 2: success rate and iterations under warm-start noise.
 
     Success follows the paper's Table III: the solve converged to a feasible point; rows
     also count how many of those converged without doing the task (e.g. no flip: the
     paper's asterisk).
+
+    ``workers > 1`` solves (task, parameterization) groups in that many processes. With
+    ``resume`` (default), runs already in ``out/runs.json`` with the same seed and layout are
+    kept and not solved again, so a stopped study goes on where it ended.
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     runs: list[dict] = []
-    for task in tasks:
-        for p in params:
-            prep = prepare(task, p, layout)
-            starts = noisy_warm_starts(prep.transcription.warm_start(), sigmas, replicates, seed)
-            for si, sigma in enumerate(sigmas):
-                for r in range(replicates):
-                    res = solve(task, p, layout=layout, warm_start=starts[si, r], exact_hessian=exact_hessian, progress=None, keep_trajectory=False)
-                    run = _row(res) | {"sigma": float(sigma), "replicate": r}
-                    runs.append(run)
-                    if progress is not None:
-                        print(f"{task:10s} {p:6s} sigma={sigma:<7g} #{r}: {res.status.value:26s} {res.iterations:4d} it  {res.time_s:6.1f} s", file=progress, flush=True)
-                (out / "runs.json").write_text(json.dumps(runs, indent=2))
-            # tables after every (task, parameterization): a long study can be stopped
-            summary = summarize_robustness(runs)
-            (out / "table_iii.json").write_text(json.dumps(summary, indent=2))
-            (out / "table_iii.md").write_text(_table_iii_markdown(summary, sigmas))
+    if resume and (out / "runs.json").exists():
+        old = json.loads((out / "runs.json").read_text())
+        runs = [r for r in old if r.get("seed") == seed and r.get("layout") == layout]
+        if progress is not None and runs:
+            print(f"resuming: {len(runs)} runs already in {out / 'runs.json'}", file=progress, flush=True)
+    done = {(r["task"], r["parameterization"], r["sigma"], r["replicate"]) for r in runs}
+    groups = [(task, p) for task in tasks for p in params]
+
+    def record(rows: list[dict]) -> None:
+        # tables after every (task, parameterization): a long study can be stopped
+        runs.extend(rows)
+        (out / "runs.json").write_text(json.dumps(runs, indent=2))
+        summary = summarize_robustness(runs)
+        (out / "table_iii.json").write_text(json.dumps(summary, indent=2))
+        (out / "table_iii.md").write_text(_table_iii_markdown(summary, sigmas))
+
+    args = [(task, p, tuple(sigmas), replicates, seed, layout, exact_hessian, done, progress is not None) for task, p in groups]
+    if workers <= 1:
+        for a in args:
+            record(_robustness_group(*a))
+    else:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        # JAX is not fork-safe: workers start fresh interpreters
+        with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+            futures = [pool.submit(_robustness_group, *a) for a in args]
+            for f in as_completed(futures):
+                record(f.result())
+    if not runs:
+        raise ValueError("robustness: no runs (empty tasks, parameterizations or sigmas)")
     plot_iterations(runs, out / "fig2.png")
     return runs
 

@@ -34,6 +34,27 @@ def test_robustness_study_writes_tables_and_figure(tmp_path):
     assert (tmp_path / "fig2.png").stat().st_size > 1000
 
 
+def test_robustness_resumes_a_stopped_study(tmp_path):
+    first = robustness([HOP], ["se3"], sigmas=[1e-3], replicates=1, seed=5, out=tmp_path, progress=None)
+    more = robustness([HOP], ["se3"], sigmas=[1e-3], replicates=2, seed=5, out=tmp_path, progress=None)
+    # the first run is kept as it was (same timing record), only replicate 1 is new
+    assert [r["replicate"] for r in more] == [0, 1]
+    assert more[0] == first[0]
+    # another seed is another study: nothing is reused
+    other = robustness([HOP], ["se3"], sigmas=[1e-3], replicates=1, seed=6, out=tmp_path, progress=None)
+    assert len(other) == 1 and other[0]["seed"] == 6 and other[0]["time_s"] != first[0]["time_s"]
+
+
+def test_robustness_with_worker_processes_matches_in_process(tmp_path):
+    kw = dict(sigmas=[1e-2], replicates=1, seed=2, progress=None, resume=False)
+    serial = robustness([HOP], ["se3", "euler"], out=tmp_path / "a", **kw)
+    parallel = robustness([HOP], ["se3", "euler"], out=tmp_path / "b", workers=2, **kw)
+    key = lambda r: r["parameterization"]
+    for a, b in zip(sorted(serial, key=key), sorted(parallel, key=key)):
+        assert (a["parameterization"], a["status"], a["iterations"]) == (b["parameterization"], b["status"], b["iterations"])
+        np.testing.assert_allclose(a["cost"], b["cost"], rtol=1e-6)
+
+
 def test_compare_writes_table_iv_and_plots(tmp_path):
     rows = compare([HOP], ["se3"], out=tmp_path, progress=None)
     assert rows[0]["task"] == "test_hop" and rows[0]["converged"]
