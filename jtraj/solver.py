@@ -95,8 +95,8 @@ def solve(
         layout: variables per knot (see `TranscriptionOptions`): ``"compact"`` (default; q, v,
             a, f: contact positions substituted by forward kinematics), ``"paper"`` (q, v, a,
             f, c as the study) or ``"lean"`` (q, v, f: accelerations substituted too).
-            Measured with bench/solve.py (SE(3) tangent): compact is 4.2-7.5x faster than the
-            study's public code on all six tasks; lean is faster still on five but needs 136
+            Measured with bench/solve.py (SE(3) tangent): compact is 6.6-15x faster than the
+            study's public code on all six tasks; lean is faster still on five but needs 160
             iterations on the back-flip's acceleration cost.
         exact_hessian: use the exact Hessian of the Lagrangian from JAX instead of L-BFGS.
         ipopt_options: any Ipopt options, over `jtraj.ipopt.DEFAULT_OPTIONS` (the task's
