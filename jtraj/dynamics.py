@@ -39,10 +39,9 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 from jaxlie import SO3
-from mujoco import mjx
 
 from jtraj.parameterization import AbstractParameterization, body_twist_to_qvel
-from jtraj.robot import Robot
+from jtraj.robot import Robot, mjx  # jtraj.robot imports MJX quietly
 
 __all__ = [
     "inverse_dynamics",

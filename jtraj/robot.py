@@ -22,6 +22,8 @@ import dataclasses
 import functools
 import importlib.metadata
 import importlib.resources
+import contextlib
+import io
 import math
 import pathlib
 import tomllib
@@ -33,7 +35,14 @@ from typing import Any
 import mujoco
 import numpy as np
 from jaxlie import SE3, SO3
-from mujoco import mjx
+
+# MJX prints "Failed to import warp" (its optional GPU backend) on import: keep the command line
+# clean and pass on anything else it prints.
+with contextlib.redirect_stdout(io.StringIO()) as _mjx_import_output:
+    from mujoco import mjx
+for _line in _mjx_import_output.getvalue().splitlines():
+    if "warp" not in _line:
+        print(_line)
 
 __all__ = [
     "Robot",
