@@ -173,7 +173,13 @@ def robustness(
 
 
 def summarize_robustness(runs: list[dict]) -> list[dict]:
-    keys = sorted({(r["task"], r["parameterization"], r["sigma"]) for r in runs}, key=lambda k: (k[0], k[1], k[2]))
+    # the paper's order: tasks as in Table III, parameterizations as in Table I, then others
+    task_rank = {t: i for i, t in enumerate(("walk", "big_jump", "backflip", "sideflip", "hopscotch", "handstand"))}
+    param_rank = {p: i for i, p in enumerate(PARAMETERIZATIONS)}
+    keys = sorted(
+        {(r["task"], r["parameterization"], r["sigma"]) for r in runs},
+        key=lambda k: (task_rank.get(k[0], len(task_rank)), k[0], param_rank.get(k[1], len(param_rank)), k[1], k[2]),
+    )
     rows = []
     for task, p, sigma in keys:
         sel = [r for r in runs if (r["task"], r["parameterization"], r["sigma"]) == (task, p, sigma)]
