@@ -40,6 +40,10 @@ def test_robustness_resumes_a_stopped_study(tmp_path):
     # the first run is kept as it was (same timing record), only replicate 1 is new
     assert [r["replicate"] for r in more] == [0, 1]
     assert more[0] == first[0]
+    # a complete study solves nothing and still writes its tables
+    (tmp_path / "table_iii.md").unlink()
+    assert robustness([HOP], ["se3"], sigmas=[1e-3], replicates=2, seed=5, out=tmp_path, progress=None) == more
+    assert "| test_hop | se3 | 100% |" in (tmp_path / "table_iii.md").read_text()
     # another seed is another study: nothing is reused
     other = robustness([HOP], ["se3"], sigmas=[1e-3], replicates=1, seed=6, out=tmp_path, progress=None)
     assert len(other) == 1 and other[0]["seed"] == 6 and other[0]["time_s"] != first[0]["time_s"]
