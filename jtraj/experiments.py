@@ -20,8 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jtraj.parameterization import PARAMETERIZATIONS
-from jtraj.task import Task
-from jtraj.task import load as load_task
+from jtraj.task import Task, load as load_task
 from jtraj.solver import prepare, solve
 
 __all__ = ["compare", "robustness", "noisy_warm_starts", "TABLE_IV_PAPER_SE3"]
@@ -94,22 +93,31 @@ def noisy_warm_starts(x0: np.ndarray, sigmas: Sequence[float], replicates: int, 
     return np.asarray(draw(keys, jnp.asarray(sigmas, base.dtype)))
 
 
-def _robustness_group(task, p, sigmas, replicates, seed, layout, exact_hessian, done, verbose) -> list[dict]:
+def _robustness_group(task, p, sigmas, replicates, seed, layout, exact_hessian, done, progress=None, on_sigma=None) -> list[dict]:
     """One (task, parameterization) of the study: one compile, then every noisy replicate not in
-    ``done``. Runs in the calling process or in a worker process."""
+    ``done``. ``on_sigma(rows)`` is called after each noise level (checkpoints)."""
     prep = prepare(task, p, layout)
     name = prep.transcription.task.name
     starts = noisy_warm_starts(prep.transcription.warm_start(), sigmas, replicates, seed)
     rows = []
     for si, sigma in enumerate(sigmas):
+        new = []
         for r in range(replicates):
             if (name, p, float(sigma), r) in done:
                 continue
             res = solve(task, p, layout=layout, warm_start=starts[si, r], exact_hessian=exact_hessian, progress=None, keep_trajectory=False)
-            rows.append(_row(res) | {"sigma": float(sigma), "replicate": r, "seed": seed, "layout": layout})
-            if verbose:
-                print(f"{name:10s} {p:6s} sigma={sigma:<7g} #{r}: {res.status.value:26s} {res.iterations:4d} it  {res.time_s:6.1f} s", flush=True)
+            new.append(_row(res) | {"sigma": float(sigma), "replicate": r, "seed": seed, "layout": layout})
+            if progress is not None:
+                print(f"{name:10s} {p:6s} sigma={sigma:<7g} #{r}: {res.status.value:26s} {res.iterations:4d} it  {res.time_s:6.1f} s", file=progress, flush=True)
+        rows += new
+        if on_sigma is not None:
+            on_sigma(new)
     return rows
+
+
+def _robustness_group_in_worker(*args, verbose: bool) -> list[dict]:
+    # a stream does not cross processes: a worker prints to its own stdout
+    return _robustness_group(*args, progress=sys.stdout if verbose else None)
 
 
 def robustness(
@@ -146,10 +154,12 @@ def robustness(
     done = {(r["task"], r["parameterization"], r["sigma"], r["replicate"]) for r in runs}
     groups = [(task, p) for task in tasks for p in params]
 
-    def record(rows: list[dict]) -> None:
-        # tables after every (task, parameterization): a long study can be stopped
+    def checkpoint(rows: list[dict]) -> None:
         runs.extend(rows)
         (out / "runs.json").write_text(json.dumps(runs, indent=2))
+
+    def write_tables() -> None:
+        # after every (task, parameterization): a long study can be stopped
         summary = summarize_robustness(runs)
         (out / "table_iii.json").write_text(json.dumps(summary, indent=2))
         (out / "table_iii.md").write_text(_table_iii_markdown(summary, sigmas))
@@ -159,22 +169,25 @@ def robustness(
         return all((name, p, float(s), r) in done for s in sigmas for r in range(replicates))
 
     # groups already complete are not compiled again
-    args = [(task, p, tuple(sigmas), replicates, seed, layout, exact_hessian, done, progress is not None) for task, p in groups if not complete(task, p)]
+    args = [(task, p, tuple(sigmas), replicates, seed, layout, exact_hessian, done) for task, p in groups if not complete(task, p)]
     if workers <= 1:
         for a in args:
-            record(_robustness_group(*a))
+            _robustness_group(*a, progress=progress, on_sigma=checkpoint)
+            write_tables()
     else:
         import multiprocessing
         from concurrent.futures import ProcessPoolExecutor, as_completed
 
         # JAX is not fork-safe: workers start fresh interpreters
         with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-            futures = [pool.submit(_robustness_group, *a) for a in args]
+            futures = [pool.submit(_robustness_group_in_worker, *a, verbose=progress is not None) for a in args]
             for f in as_completed(futures):
-                record(f.result())
+                checkpoint(f.result())
+                write_tables()
     if not runs:
         raise ValueError("robustness: no runs (empty tasks, parameterizations or sigmas)")
-    record([])  # the tables also when every run was already there
+    if not args:
+        write_tables()  # every run was already there: the tables all the same
     plot_iterations(runs, out / "fig2.png")
     return runs
 

@@ -18,11 +18,11 @@ Joint order everywhere is MuJoCo's ``qpos`` order (`Robot.joint_names`).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import importlib.metadata
 import importlib.resources
-import contextlib
 import io
 import math
 import pathlib
