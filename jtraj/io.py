@@ -1,0 +1,205 @@
+"""Files that are never half-written, and JSON that every strict reader accepts.
+
+Every writer here writes into a temporary file in the destination's own folder, flushes and
+fsyncs it, then renames it over the destination with `os.replace` (atomic on POSIX when both
+are on one file system, which the same folder guarantees). A reader therefore sees either the
+old file or the new one, never a truncated mix, even when the writer is killed.
+
+JSON is strict (RFC 8259): ``NaN``, ``Infinity`` and ``-Infinity`` are not JSON, and Python's
+default ``json.dump`` writes them anyway. Here a non-finite float is written as ``null``
+(a failed solve can legitimately have a NaN objective, and losing the whole result file over
+it would be worse); the encoder then runs with ``allow_nan=False`` so that nothing non-finite
+can slip through. numpy scalars and arrays, enums and dataclasses are converted on the way.
+
+`read_json` raises `FileFormatError` (a `ValueError`) with one line naming the file when it is
+missing, empty or not valid JSON.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import enum
+import json
+import math
+import os
+import tempfile
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+
+__all__ = [
+    "FileFormatError",
+    "atomic_open",
+    "write_text",
+    "write_json",
+    "to_jsonable",
+    "dumps",
+    "read_json",
+    "append_jsonl",
+    "read_jsonl",
+    "write_npz",
+    "save_figure",
+]
+
+
+class FileFormatError(ValueError):
+    """A file that is missing, empty or not in the expected format; the message names it."""
+
+
+@contextlib.contextmanager
+def atomic_open(path: str | Path, mode: str = "w", encoding: str | None = "utf-8") -> Iterator[IO]:
+    """Open a temporary file next to ``path``; on a clean exit, fsync it and rename it over
+    ``path``. On an exception the temporary file is removed and ``path`` is untouched.
+
+    ``mode`` is ``"w"`` (text) or ``"wb"`` (binary). The parent folder is created.
+    """
+    if mode not in ("w", "wb"):
+        raise ValueError(f"atomic_open: mode {mode!r}; expected 'w' or 'wb'")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, mode, encoding=None if "b" in mode else encoding) as f:
+            yield f
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+    _fsync_dir(path.parent)
+
+
+def _fsync_dir(folder: Path) -> None:
+    # the rename itself is durable only once the directory entry is on disk
+    with contextlib.suppress(OSError):
+        fd = os.open(folder, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+def write_text(path: str | Path, text: str) -> Path:
+    """Write ``text`` (a Markdown table, a log...) atomically."""
+    with atomic_open(path, "w") as f:
+        f.write(text)
+    return Path(path)
+
+
+def to_jsonable(obj: Any) -> Any:
+    """``obj`` as plain JSON types: numpy scalars/arrays to numbers/lists, enums to their value,
+    dataclasses to dicts, tuples to lists, non-finite floats to ``None``."""
+    if obj is None or isinstance(obj, (str, bool)):
+        return obj
+    if isinstance(obj, enum.Enum):
+        return to_jsonable(obj.value)
+    if isinstance(obj, (int, np.integer)) and not isinstance(obj, np.bool_):
+        return int(obj)
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    if isinstance(obj, (float, np.floating)):
+        x = float(obj)
+        return x if math.isfinite(x) else None
+    if isinstance(obj, np.ndarray):
+        return to_jsonable(obj.tolist())
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return {f.name: to_jsonable(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+    if isinstance(obj, Mapping):
+        return {str(k): to_jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [to_jsonable(v) for v in obj]
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"cannot write {type(obj).__name__} to JSON")
+
+
+def dumps(obj: Any, indent: int | None = 2) -> str:
+    """Strict JSON text of ``obj`` (see `to_jsonable`)."""
+    return json.dumps(to_jsonable(obj), indent=indent, allow_nan=False)
+
+
+def write_json(path: str | Path, obj: Any, indent: int | None = 2) -> Path:
+    """Write ``obj`` as strict JSON, atomically (non-finite floats become ``null``)."""
+    text = dumps(obj, indent)  # before opening: a bad object leaves no temporary file
+    return write_text(path, text + "\n")
+
+
+def read_json(path: str | Path) -> Any:
+    """Parse a JSON file; `FileFormatError` naming the file if it is missing, empty or corrupt."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise FileFormatError(f"{path}: file does not exist") from None
+    except IsADirectoryError:
+        raise FileFormatError(f"{path}: is a folder; expected a JSON file") from None
+    except UnicodeDecodeError:
+        raise FileFormatError(f"{path}: not UTF-8 text; expected a JSON file") from None
+    if not text.strip():
+        raise FileFormatError(f"{path}: file is empty; expected JSON")
+    try:
+        return json.loads(text, parse_constant=_reject_constant)
+    except (json.JSONDecodeError, ValueError) as e:
+        raise FileFormatError(f"{path}: not valid JSON ({e})") from None
+
+
+def _reject_constant(name: str) -> Any:
+    raise ValueError(f"{name} is not JSON")
+
+
+def append_jsonl(path: str | Path, record: Any) -> None:
+    """Append one record as one strict-JSON line and fsync.
+
+    One ``write`` of a line opened with ``O_APPEND`` lands whole at the end of the file even
+    with several processes appending at once (lines here are far below the pipe-buffer size
+    that local file systems honour in practice); a kill can leave at most one partial last
+    line, which `read_jsonl` reports and skips.
+    """
+    line = (json.dumps(to_jsonable(record), allow_nan=False, separators=(",", ":")) + "\n").encode()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    try:
+        os.write(fd, line)
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def read_jsonl(path: str | Path) -> tuple[list[Any], list[int]]:
+    """Records of a JSON-lines file and the 1-based numbers of the lines that did not parse
+    (a torn last line after a kill, or damage). A missing file gives no records."""
+    path = Path(path)
+    if not path.exists():
+        return [], []
+    records, bad = [], []
+    with open(path, "rb") as f:
+        for i, raw in enumerate(f, 1):
+            if not raw.strip():
+                continue
+            try:
+                records.append(json.loads(raw.decode("utf-8"), parse_constant=_reject_constant))
+            except (UnicodeDecodeError, ValueError):
+                bad.append(i)
+    return records, bad
+
+
+def write_npz(path: str | Path, **arrays: Any) -> Path:
+    """`numpy.savez_compressed` of ``arrays``, atomically."""
+    with atomic_open(path, "wb") as f:
+        np.savez_compressed(f, **arrays)
+    return Path(path)
+
+
+def save_figure(fig: Any, path: str | Path, **savefig_kwargs: Any) -> Path:
+    """``fig.savefig`` (matplotlib) atomically; the format is taken from ``path``'s suffix."""
+    path = Path(path)
+    fmt = savefig_kwargs.pop("format", path.suffix.lstrip(".") or "png")
+    with atomic_open(path, "wb") as f:
+        fig.savefig(f, format=fmt, **savefig_kwargs)
+    return path

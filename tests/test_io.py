@@ -1,0 +1,74 @@
+"""Atomic writers and strict JSON (jtraj.io)."""
+
+import json
+import math
+import os
+
+import numpy as np
+import pytest
+
+from jtraj import io
+
+
+def test_write_json_is_strict_and_maps_nonfinite_to_null(tmp_path):
+    path = io.write_json(tmp_path / "r.json", {"a": float("nan"), "b": [np.float64(np.inf), -math.inf, 1.5], "c": np.arange(3), "d": np.bool_(True)})
+    text = path.read_text()
+    assert "NaN" not in text and "Infinity" not in text
+    # the strictest reader: refuses any non-JSON constant
+    data = json.loads(text, parse_constant=lambda name: pytest.fail(f"non-JSON token {name}"))
+    assert data == {"a": None, "b": [None, None, 1.5], "c": [0, 1, 2], "d": True}
+    assert io.read_json(path) == data
+
+
+def test_failed_write_keeps_the_old_file_and_leaves_no_temporary(tmp_path):
+    path = tmp_path / "out.json"
+    io.write_json(path, {"v": 1})
+    with pytest.raises(TypeError):
+        io.write_json(path, {"v": object()})
+    with pytest.raises(RuntimeError):
+        with io.atomic_open(path) as f:
+            f.write('{"v": 2, "trunc')
+            raise RuntimeError("killed mid-write")
+    assert io.read_json(path) == {"v": 1}
+    assert sorted(os.listdir(tmp_path)) == ["out.json"]
+
+
+@pytest.mark.parametrize("content, expected", [(None, "does not exist"), ("", "empty"), ("  \n", "empty"), ('{"a": 1', "not valid JSON"), ('{"a": NaN}', "not valid JSON")])
+def test_read_json_names_the_file(tmp_path, content, expected):
+    path = tmp_path / "result.json"
+    if content is not None:
+        path.write_text(content)
+    with pytest.raises(io.FileFormatError) as e:
+        io.read_json(path)
+    msg = str(e.value)
+    assert str(path) in msg and expected in msg and "\n" not in msg
+
+
+def test_jsonl_append_and_torn_last_line(tmp_path):
+    path = tmp_path / "runs.jsonl"
+    for i in range(3):
+        io.append_jsonl(path, {"i": i, "x": float("nan") if i == 1 else 0.5})
+    with open(path, "ab") as f:
+        f.write(b'{"i": 3, "x"')  # what a kill in the middle of a write could leave
+    records, bad = io.read_jsonl(path)
+    assert records == [{"i": 0, "x": 0.5}, {"i": 1, "x": None}, {"i": 2, "x": 0.5}]
+    assert bad == [4]
+
+
+def test_npz_and_figure_round_trip(tmp_path):
+    a = np.random.default_rng(0).standard_normal((4, 3))
+    io.write_npz(tmp_path / "t.npz", a=a, names=np.array(["x", "y"]))
+    with np.load(tmp_path / "t.npz") as z:
+        np.testing.assert_array_equal(z["a"], a)
+        assert list(z["names"]) == ["x", "y"]
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots()
+    ax.plot([0, 1], [0, 1])
+    io.save_figure(fig, tmp_path / "f.png", dpi=50)
+    plt.close(fig)
+    assert (tmp_path / "f.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert sorted(os.listdir(tmp_path)) == ["f.png", "t.npz"]
