@@ -1,0 +1,177 @@
+"""A solver as a differentiable JAX function: ``theta -> (x, lam)`` with implicit derivatives.
+
+`implicit_solution(nlp, forward)` wraps a host-side solver ``forward(theta) -> (x, lam)`` (Ipopt,
+through `jax.pure_callback`) into a JAX function with a `jax.custom_jvp` rule: the tangent is
+``dz = -K^{-1} (dr/dtheta) dtheta`` with K and r of `jtraj.sensitivity`. The linear solve is a
+`jax.lax.custom_linear_solve` whose forward and transposed solves call the sparse LU of K on
+the host, so `jax.jvp`, `jax.grad`, `jax.vjp` and `jax.jacobian` (one factorization, all
+columns solved together) all work, under `jax.jit` too. Derivatives are first order only (the
+callbacks have no derivatives of their own).
+
+K is assembled and its LU factored once per forward solve, on the host, and kept (a small
+cache keyed by a token that the forward pass returns); a reverse pass then costs one
+transposed triangular solve plus the JAX evaluation of ``(dr/dtheta)^T w``.
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import itertools
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jtraj.sensitivity import ActiveArrays, KKTSystem, ParametricNLP, kkt_system, residual
+
+__all__ = ["ImplicitSolution", "implicit_solution"]
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class ImplicitSolution:
+    """Output of an `implicit_solution` function (a pytree).
+
+    Attributes:
+        x: (n,) primal solution.
+        lam: (m,) constraint multipliers (Ipopt's convention; 0 on inactive rows).
+        degenerate: () bool, strict complementarity fails: derivatives are one-sided.
+        active: the active set held fixed by the derivatives (bool arrays).
+        token: () int64, the host-side handle of the factorized sensitivity system.
+    """
+
+    x: jax.Array
+    lam: jax.Array
+    degenerate: jax.Array
+    active: ActiveArrays
+    token: jax.Array
+
+
+class _SystemCache:
+    """Factorized sensitivity systems by token (most recent few)."""
+
+    def __init__(self, size: int):
+        self.size = size
+        self.systems: collections.OrderedDict[int, KKTSystem] = collections.OrderedDict()
+        self.counter = itertools.count(1)
+
+    def put(self, system: KKTSystem) -> int:
+        token = next(self.counter)
+        self.systems[token] = system
+        while len(self.systems) > self.size:
+            self.systems.popitem(last=False)
+        return token
+
+    def get(self, token: int) -> KKTSystem | None:
+        system = self.systems.get(token)
+        if system is not None:
+            self.systems.move_to_end(token)
+        return system
+
+
+def implicit_solution(
+    nlp: ParametricNLP,
+    forward: Callable[[Any], tuple[np.ndarray, np.ndarray]],
+    *,
+    weak_tol: float = 1e-6,
+    cache_size: int = 16,
+) -> Callable[[Any], ImplicitSolution]:
+    """``theta -> ImplicitSolution`` solving ``nlp`` with ``forward`` and differentiable in theta.
+
+    Args:
+        nlp: the parametric NLP (`jtraj.sensitivity.ParametricNLP`).
+        forward: host function ``forward(theta) -> (x (n,), lam (m,))`` returning a solution
+            (a numpy pytree theta in); it should solve tightly (the derivatives are those of
+            the exact solution) and may raise on failure.
+        weak_tol: weak-activity tolerance of `jtraj.sensitivity.active_set`.
+        cache_size: how many factorized systems to keep for backward passes.
+    """
+    n, m = nlp.n, nlp.m
+    cache = _SystemCache(cache_size)
+    bool_n = jax.ShapeDtypeStruct((n,), jnp.bool_)
+    bool_m = jax.ShapeDtypeStruct((m,), jnp.bool_)
+
+    def host_forward(theta):
+        theta = jax.tree_util.tree_map(np.asarray, theta)
+        x, lam = forward(theta)
+        x = np.asarray(x, float)
+        lam = np.asarray(lam, float)
+        system = kkt_system(nlp, x, lam, theta, weak_tol=weak_tol)
+        a = system.active
+        token = cache.put(system)
+        lam = np.where(a.row_active, lam, 0.0)
+        return x, lam, np.bool_(a.degenerate), a.at_bound, a.at_upper, a.row_active, a.row_upper, np.int64(token)
+
+    out_shapes = (
+        jax.ShapeDtypeStruct((n,), jnp.float64),
+        jax.ShapeDtypeStruct((m,), jnp.float64),
+        jax.ShapeDtypeStruct((), jnp.bool_),
+        bool_n, bool_n, bool_m, bool_m,
+        jax.ShapeDtypeStruct((), jnp.int64),
+    )
+
+    def primal(theta) -> ImplicitSolution:
+        x, lam, deg, ab, au, ra, ru, token = jax.pure_callback(host_forward, out_shapes, theta, vmap_method="sequential")
+        return ImplicitSolution(x, lam, deg, ActiveArrays(ab, au, ra, ru), token)
+
+    def host_solve(transpose, token, x, lam, theta, b):
+        # broadcast_all: every argument carries the batch axes of b (if any)
+        token = np.asarray(token)
+        b = np.asarray(b, float)
+        batch = b.shape[:-1]
+        tokens = token.reshape(-1)
+        bb = b.reshape(-1, b.shape[-1])
+        xs = np.asarray(x).reshape(-1, n)
+        lams = np.asarray(lam).reshape(-1, m)
+        thetas = [np.asarray(leaf) for leaf in jax.tree_util.tree_leaves(theta)]
+        treedef = jax.tree_util.tree_structure(theta)
+        out = np.empty_like(bb)
+        for t in np.unique(tokens):
+            rows = np.flatnonzero(tokens == t)
+            system = cache.get(int(t))
+            if system is None:  # evicted: rebuild from the solution it was made for
+                i = rows[0]
+                th = jax.tree_util.tree_unflatten(treedef, [leaf.reshape((-1,) + leaf.shape[len(batch):])[i] for leaf in thetas])
+                system = kkt_system(nlp, xs[i], lams[i], th, weak_tol=weak_tol)
+                cache.systems[int(t)] = system
+            out[rows] = system.solve(bb[rows], transpose=transpose)
+        return out.reshape(batch + (b.shape[-1],))
+
+    def linear_solve(sol: ImplicitSolution, theta, b, transpose: bool):
+        return jax.pure_callback(
+            lambda *args: host_solve(transpose, *args),
+            jax.ShapeDtypeStruct(b.shape, b.dtype),
+            sol.token, sol.x, sol.lam, theta, b,
+            vmap_method="broadcast_all",
+        )
+
+    @jax.custom_jvp
+    def solution(theta):
+        return primal(theta)
+
+    @solution.defjvp
+    def solution_jvp(primals, tangents):
+        (theta,), (dtheta,) = primals, tangents
+        sol = primal(theta)
+        x, lam, act = sol.x, sol.lam, sol.active
+
+        def r_of_theta(th):
+            return residual(nlp, x, lam, th, act)
+
+        def matvec(dz):
+            return jax.jvp(lambda z: residual(nlp, z[:n], z[n:], theta, act), (jnp.concatenate([x, lam]),), (dz,))[1]
+
+        _, r_dot = jax.jvp(r_of_theta, (theta,), (dtheta,))
+        dz = jax.lax.custom_linear_solve(
+            matvec,
+            -r_dot,
+            solve=lambda _, b: linear_solve(sol, theta, b, False),
+            transpose_solve=lambda _, b: linear_solve(sol, theta, b, True),
+        )
+        zero = jax.tree_util.tree_map(lambda a: np.zeros(np.shape(a), jax.dtypes.float0), (sol.degenerate, sol.active, sol.token))
+        return sol, ImplicitSolution(dz[:n], dz[n:], zero[0], zero[1], zero[2])
+
+    return solution

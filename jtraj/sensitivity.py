@@ -1,0 +1,311 @@
+"""Sensitivity of an NLP's solution to its parameters (the implicit function theorem at a KKT point).
+
+The NLP, with a parameter pytree ``theta``::
+
+    min_x f(x, theta)   s.t.   g_l(theta) <= g(x, theta) <= g_u(theta),   x_l(theta) <= x <= x_u(theta)
+
+is given as JAX functions (`ParametricNLP`: objective, constraints, bounds, sparse constraint
+Jacobian and lower-triangle Lagrangian Hessian in COO form; `jtraj.nlp.KnotNLP` is one, and
+`DenseNLP` wraps small hand-written problems). At a solution ``x`` with constraint multipliers
+``lam`` (Ipopt's sign convention: ``grad f + J^T lam - z_L + z_U = 0``; ``lam > 0`` on rows at
+their upper bound), `kkt_system` identifies the active set and assembles the sensitivity
+system; `KKTSystem.solve` is its one sparse LU (scipy.sparse.linalg.splu), for a tangent (JVP)
+or, transposed, for a cotangent (VJP).
+
+Active set (decided once, at the solution, and then held fixed):
+- constraint rows with ``g_l == g_u`` (equalities) are always active;
+- an inequality row is active at its nearer bound when its multiplier exceeds its slack
+  (``|lam_j| > s_j``; at an interior-point solution one of the two is of the order of the
+  barrier parameter, the other of order one);
+- a variable is held at a bound when it is fixed (``x_l == x_u``) or when its bound
+  multiplier ``z_i = |grad f + J^T lam|_i`` exceeds its slack. Bound multipliers are read off
+  stationarity, so any solver that returns ``x`` and ``lam`` will do. A variable at a bound
+  follows the bound's dependence on theta (this is how boundary conditions, e.g. a target
+  pose, drive the solution).
+- An active row with no nonzero Jacobian entry in a free variable (it constrains only
+  variables already fixed by their bounds, e.g. a foot-height row at a fixed initial pose)
+  carries no information about ``dx`` and would make the system singular; it is dropped.
+
+Unknowns ``z = (x, lam)`` (n + m) and the residual ``r(z, theta)`` whose Jacobian is the
+system matrix ``K = dr/dz``::
+
+    free variable i        (grad f + J^T lam_A)_i          (Lagrangian stationarity)
+    variable i at bound    x_i - x_bound_i(theta)
+    active row j           g_j(x, theta) - g_bound_j(theta)
+    inactive row j         lam_j
+
+so ``dz/dtheta = -K^{-1} dr/dtheta`` and ``dx/dtheta`` is its first n rows (`residual` gives
+``r`` in JAX for the tangent ``dr/dtheta . dtheta`` and its transpose).
+
+What is not differentiated: the active set itself. Where strict complementarity fails (a
+constraint or bound at its limit with a multiplier of about zero: weakly active) the solution
+is only one-sidedly differentiable; the weakly active rows are treated as inactive (the
+derivative for perturbations that keep them slack) and the system reports ``degenerate``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Any, Protocol
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+__all__ = ["ParametricNLP", "DenseNLP", "ActiveSet", "KKTSystem", "kkt_system", "residual", "SingularKKTError"]
+
+
+class SingularKKTError(RuntimeError):
+    """The sensitivity system is singular (linear independence of the active constraints fails)."""
+
+
+class ParametricNLP(Protocol):
+    """What the sensitivity system needs of an NLP (`jtraj.nlp.KnotNLP` provides it).
+
+    Shapes: x (n,), lam (m,); theta is any pytree of arrays.
+    """
+
+    n: int
+    m: int
+    jac_rows: np.ndarray  # (nnz_jac,) COO structure of dg/dx
+    jac_cols: np.ndarray
+    hess_rows: np.ndarray  # (nnz_hess,) lower triangle (row >= col) of the Lagrangian Hessian
+    hess_cols: np.ndarray
+
+    def objective(self, x, theta): ...
+
+    def constraints(self, x, theta): ...
+
+    def jacobian(self, x, theta): ...  # (nnz_jac,) values
+
+    def hessian(self, x, lam, obj_factor, theta): ...  # (nnz_hess,) values of obj_factor f + lam.g
+
+    def bounds(self, theta): ...  # (x_lower (n,), x_upper (n,), g_lower (m,), g_upper (m,))
+
+
+class DenseNLP:
+    """A small `ParametricNLP` from plain JAX functions, with dense derivative structure.
+
+    Args:
+        objective: ``f(x, theta) -> ()``.
+        constraints: ``g(x, theta) -> (m,)``.
+        bounds: ``bounds(theta) -> (x_lower, x_upper, g_lower, g_upper)`` (use +-inf for none).
+        n, m: sizes.
+    """
+
+    def __init__(self, objective: Callable, constraints: Callable, bounds: Callable, n: int, m: int):
+        self.n, self.m = n, m
+        self._f, self._g, self._bounds = objective, constraints, bounds
+        self.jac_rows, self.jac_cols = (a.reshape(-1) for a in np.meshgrid(np.arange(m), np.arange(n), indexing="ij"))
+        self.hess_rows, self.hess_cols = np.tril_indices(n)
+        self.objective = jax.jit(objective)
+        self.gradient = jax.jit(jax.grad(objective))
+        self.constraints = jax.jit(constraints)
+        self.jacobian = jax.jit(lambda x, theta: jax.jacfwd(constraints)(x, theta).reshape(-1))
+
+        def hessian(x, lam, obj_factor, theta):
+            H = jax.hessian(lambda y: obj_factor * objective(y, theta) + lam @ constraints(y, theta))(x)
+            return H[self.hess_rows, self.hess_cols]
+
+        self.hessian = jax.jit(hessian)
+
+    def bounds(self, theta):
+        return self._bounds(theta)
+
+
+@dataclasses.dataclass(frozen=True)
+class ActiveSet:
+    """The active set at a solution (numpy bool arrays).
+
+    Attributes:
+        at_bound: (n,) variable held at a bound (fixed, or bound multiplier > slack).
+        at_upper: (n,) which bound (True: upper) for ``at_bound`` variables.
+        row_active: (m,) constraint rows held at a bound (equalities always).
+        row_upper: (m,) which bound (True: upper) for active rows.
+        weak_rows: (m,) inequality rows at a bound with a multiplier of about zero.
+        weak_bounds: (n,) variables at a bound with a bound multiplier of about zero.
+        dropped_rows: (m,) active rows that only involve variables at bounds (left out).
+    """
+
+    at_bound: np.ndarray
+    at_upper: np.ndarray
+    row_active: np.ndarray
+    row_upper: np.ndarray
+    weak_rows: np.ndarray
+    weak_bounds: np.ndarray
+    dropped_rows: np.ndarray
+
+    @property
+    def degenerate(self) -> bool:
+        """Strict complementarity fails somewhere: the derivative is one-sided."""
+        return bool(self.weak_rows.any() or self.weak_bounds.any())
+
+    def summary(self) -> dict[str, int]:
+        return dict(
+            variables_at_bounds=int(self.at_bound.sum()),
+            active_rows=int(self.row_active.sum()),
+            weakly_active_rows=int(self.weak_rows.sum()),
+            weakly_active_bounds=int(self.weak_bounds.sum()),
+            dropped_rows=int(self.dropped_rows.sum()),
+        )
+
+
+def _side_and_slack(value, lower, upper):
+    """Nearer bound (True: upper) and the slack to it, elementwise."""
+    s_lo = np.where(np.isfinite(lower), value - lower, np.inf)
+    s_up = np.where(np.isfinite(upper), upper - value, np.inf)
+    upper_side = s_up < s_lo
+    return upper_side, np.abs(np.where(upper_side, s_up, s_lo))
+
+
+def active_set(
+    nlp: ParametricNLP, x: np.ndarray, lam: np.ndarray, theta: Any, *, weak_tol: float = 1e-6, jac_values: np.ndarray | None = None
+) -> ActiveSet:
+    """Active set at a KKT point (see the module docstring for the rules).
+
+    ``weak_tol``: a constraint or bound is weakly active when both its slack and its
+    multiplier are below ``weak_tol * max(1, largest multiplier)``.
+    """
+    x = np.asarray(x, float)
+    lam = np.asarray(lam, float)
+    xl, xu, gl, gu = (np.asarray(b, float) for b in nlp.bounds(theta))
+    g = np.asarray(nlp.constraints(jnp.asarray(x), theta))
+    J = np.asarray(nlp.jacobian(jnp.asarray(x), theta)) if jac_values is None else jac_values
+    # bound multipliers from stationarity: z_L - z_U = grad f + J^T lam
+    z = np.asarray(jax.grad(nlp.objective)(jnp.asarray(x), theta)).copy()
+    np.add.at(z, nlp.jac_cols, J * lam[nlp.jac_rows])
+    scale = max(1.0, float(np.abs(lam).max(initial=0.0)), float(np.abs(z).max(initial=0.0)))
+    tol = weak_tol * scale
+
+    fixed = xl == xu
+    x_up, x_slack = _side_and_slack(x, xl, xu)
+    z_mag = np.abs(z)
+    at_bound = fixed | (np.isfinite(x_slack) & (z_mag > x_slack))
+    weak_bounds = ~fixed & np.isfinite(x_slack) & (x_slack < tol) & (z_mag < tol)
+
+    equality = gl == gu
+    g_up, g_slack = _side_and_slack(g, gl, gu)
+    g_up = np.where(equality, False, g_up)
+    lam_mag = np.abs(lam)
+    row_active = equality | (np.isfinite(g_slack) & (lam_mag > g_slack))
+    weak_rows = ~equality & np.isfinite(g_slack) & (g_slack < tol) & (lam_mag < tol)
+    # weakly active: one-sided; keep the side where the constraint may become slack
+    at_bound &= ~weak_bounds
+    row_active &= ~weak_rows
+
+    # active rows touching no free variable say nothing about dx (and make K singular)
+    free_cols = ~at_bound[nlp.jac_cols] & (J != 0.0)
+    touches_free = np.zeros(nlp.m, bool)
+    touches_free[nlp.jac_rows[free_cols]] = True
+    dropped = row_active & ~touches_free
+    row_active &= touches_free
+    return ActiveSet(at_bound, x_up & at_bound, row_active, g_up & row_active, weak_rows, weak_bounds, dropped)
+
+
+def residual(nlp: ParametricNLP, x, lam, theta, act: "ActiveArrays"):
+    """The residual r(x, lam, theta) of the module docstring, (n + m,), in JAX.
+
+    ``act`` holds the active set as arrays (`ActiveSet.arrays`) so that this traces once.
+    """
+    xl, xu, gl, gu = nlp.bounds(theta)
+    lam_a = jnp.where(act.row_active, lam, 0.0)
+    grad_l = jax.grad(lambda y: nlp.objective(y, theta) + lam_a @ nlp.constraints(y, theta))(x)
+    x_bound = jnp.where(act.at_upper, xu, xl)
+    r_x = jnp.where(act.at_bound, x - jnp.where(act.at_bound, x_bound, 0.0), grad_l)
+    g_bound = jnp.where(act.row_upper, gu, gl)
+    g = nlp.constraints(x, theta)
+    r_g = jnp.where(act.row_active, g - jnp.where(act.row_active, g_bound, 0.0), lam)
+    return jnp.concatenate([r_x, r_g])
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class ActiveArrays:
+    """`ActiveSet` as JAX-friendly boolean arrays (a pytree), for `residual`."""
+
+    at_bound: Any
+    at_upper: Any
+    row_active: Any
+    row_upper: Any
+
+
+def active_arrays(act: ActiveSet) -> ActiveArrays:
+    return ActiveArrays(act.at_bound, act.at_upper, act.row_active, act.row_upper)
+
+
+@dataclasses.dataclass
+class KKTSystem:
+    """The factorized sensitivity system ``K dz = rhs`` at one solution.
+
+    Attributes:
+        active: the active set it was built for.
+        matrix: (n + m, n + m) scipy CSC matrix K = dr/d(x, lam).
+    """
+
+    active: ActiveSet
+    matrix: sp.csc_matrix
+    _lu: Any = None
+
+    @property
+    def degenerate(self) -> bool:
+        return self.active.degenerate
+
+    def solve(self, rhs: np.ndarray, transpose: bool = False) -> np.ndarray:
+        """K^{-1} rhs (or K^{-T} rhs); rhs (n + m,) or (batch, n + m)."""
+        if self._lu is None:
+            try:
+                self._lu = spla.splu(self.matrix.tocsc())
+            except RuntimeError as e:  # "Factor is exactly singular"
+                raise SingularKKTError(
+                    f"the sensitivity system is singular ({e}): the active constraints are linearly dependent "
+                    f"at this solution ({self.active.summary()}); the solution is not differentiable here"
+                ) from None
+        rhs = np.asarray(rhs, float)
+        trans = "T" if transpose else "N"
+        if rhs.ndim == 1:
+            out = self._lu.solve(rhs, trans=trans)
+        else:
+            out = self._lu.solve(np.ascontiguousarray(rhs.T), trans=trans).T
+        if not np.all(np.isfinite(out)):
+            raise SingularKKTError(f"the sensitivity system is numerically singular at this solution ({self.active.summary()})")
+        return out
+
+
+def kkt_system(nlp: ParametricNLP, x: np.ndarray, lam: np.ndarray, theta: Any, *, weak_tol: float = 1e-6) -> KKTSystem:
+    """Active set and sensitivity matrix K at a solution ``(x, lam)`` of ``nlp`` at ``theta``.
+
+    K is built from the sparse Jacobian and Lagrangian Hessian values of ``nlp`` (the
+    Hessian with the active rows' multipliers only); `residual` is the function it is the
+    Jacobian of. The LU factorization happens on the first `KKTSystem.solve`.
+    """
+    n, m = nlp.n, nlp.m
+    xj = jnp.asarray(x)
+    J = np.asarray(nlp.jacobian(xj, theta))
+    act = active_set(nlp, x, lam, theta, weak_tol=weak_tol, jac_values=J)
+    lam_a = np.where(act.row_active, np.asarray(lam, float), 0.0)
+    Hv = np.asarray(nlp.hessian(xj, jnp.asarray(lam_a), 1.0, theta))
+    hr, hc = np.asarray(nlp.hess_rows), np.asarray(nlp.hess_cols)
+    off = hr != hc
+    # full symmetric Hessian from its lower triangle
+    Hr = np.concatenate([hr, hc[off]])
+    Hc = np.concatenate([hc, hr[off]])
+    Hv = np.concatenate([Hv, Hv[off]])
+    free = ~act.at_bound
+    jr, jc = np.asarray(nlp.jac_rows), np.asarray(nlp.jac_cols)
+    rows, cols, vals = [], [], []
+    keep = free[Hr]  # stationarity rows of free variables: H
+    rows.append(Hr[keep]), cols.append(Hc[keep]), vals.append(Hv[keep])
+    keep = free[jc] & act.row_active[jr]  # ... and J^T of the active rows
+    rows.append(jc[keep]), cols.append(n + jr[keep]), vals.append(J[keep])
+    keep = act.row_active[jr]  # active rows: J
+    rows.append(n + jr[keep]), cols.append(jc[keep]), vals.append(J[keep])
+    b = np.flatnonzero(act.at_bound)  # bound rows: identity on x
+    rows.append(b), cols.append(b), vals.append(np.ones(b.size))
+    i = np.flatnonzero(~act.row_active)  # inactive rows: identity on lam
+    rows.append(n + i), cols.append(n + i), vals.append(np.ones(i.size))
+    K = sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n + m, n + m)).tocsc()
+    K.sum_duplicates()
+    return KKTSystem(act, K)

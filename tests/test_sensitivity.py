@@ -1,0 +1,158 @@
+"""Implicit derivatives of small NLPs against central differences of re-solved problems."""
+
+import cyipopt
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jtraj  # noqa: F401  (float64)
+from jtraj.implicit import implicit_solution
+from jtraj.sensitivity import DenseNLP, kkt_system
+
+
+def ipopt_forward(nlp: DenseNLP, x0):
+    """Solve ``nlp`` at theta with Ipopt (tight tolerance, exact Hessian): (x, lam)."""
+
+    def forward(theta):
+        xl, xu, gl, gu = (np.asarray(b, float) for b in nlp.bounds(theta))
+
+        class Callbacks:
+            def objective(self, x):
+                return float(nlp.objective(x, theta))
+
+            def gradient(self, x):
+                return np.asarray(nlp.gradient(x, theta))
+
+            def constraints(self, x):
+                return np.asarray(nlp.constraints(x, theta))
+
+            def jacobian(self, x):
+                return np.asarray(nlp.jacobian(x, theta))
+
+            def jacobianstructure(self):
+                return nlp.jac_rows, nlp.jac_cols
+
+            def hessian(self, x, lam, obj_factor):
+                return np.asarray(nlp.hessian(x, lam, obj_factor, theta))
+
+            def hessianstructure(self):
+                return nlp.hess_rows, nlp.hess_cols
+
+        problem = cyipopt.Problem(n=nlp.n, m=nlp.m, problem_obj=Callbacks(), lb=xl, ub=xu, cl=gl, cu=gu)
+        for k, v in dict(tol=1e-12, print_level=0, sb="yes", mu_strategy="monotone").items():
+            problem.add_option(k, v)
+        x, info = problem.solve(np.clip(x0, xl, xu))
+        assert info["status"] == 0, info["status_msg"]
+        return x, info["mult_g"]
+
+    return forward
+
+
+def central_fd(fn, theta, eps=1e-6):
+    theta = np.asarray(theta, float)
+    cols = []
+    for i in range(theta.size):
+        d = np.zeros_like(theta)
+        d[i] = eps
+        cols.append((fn(theta + d) - fn(theta - d)) / (2 * eps))
+    return np.stack(cols, axis=-1)
+
+
+def equality_qp():
+    Q = np.array([[3.0, 1.0, 0.0], [1.0, 2.0, 0.5], [0.0, 0.5, 1.5]])
+    a = np.array([1.0, -1.0, 2.0])
+    f = lambda x, th: 0.5 * x @ Q @ x - th[:3] @ x
+    g = lambda x, th: jnp.array([a @ x])
+    bounds = lambda th: (np.full(3, -np.inf), np.full(3, np.inf), th[3:4], th[3:4])
+    return DenseNLP(f, g, bounds, 3, 1), np.array([0.3, -0.2, 0.5, 0.7]), np.zeros(3)
+
+
+def inequality_qp():
+    # x0 + x1 <= 1 active (the target p lies beyond it), x2 >= theta_4 active, x3 fixed at theta_5
+    f = lambda x, th: 0.5 * jnp.sum((x - th[:4]) ** 2) + 0.1 * x[0] * x[2]
+    g = lambda x, th: jnp.array([x[0] + x[1], x[1] - x[2]])
+    bounds = lambda th: (
+        jnp.array([-jnp.inf, -jnp.inf, th[4], th[5]]),
+        jnp.array([jnp.inf, jnp.inf, jnp.inf, th[5]]),
+        jnp.array([-jnp.inf, -5.0]),
+        jnp.array([1.0, 5.0]),
+    )
+    return DenseNLP(f, g, bounds, 4, 2), np.array([1.0, 0.8, -1.0, 0.4, 0.2, -0.3]), np.zeros(4)
+
+
+def nonlinear():
+    # a circle equality with a parametric radius, an active nonlinear inequality whose shape
+    # depends on theta, and a theta-dependent objective
+    f = lambda x, th: (x[0] - th[0]) ** 2 + (x[1] - 1.0) ** 2 + 0.3 * jnp.exp(x[2]) + jnp.sin(th[1] * x[0] * x[1])
+    g = lambda x, th: jnp.array([x[0] ** 2 + x[1] ** 2 + x[2] ** 2, x[0] - th[3] * x[1] ** 2])
+    bounds = lambda th: (jnp.full(3, -jnp.inf), jnp.full(3, jnp.inf), jnp.array([th[2], -jnp.inf]), jnp.array([th[2], 0.0]))
+    return DenseNLP(f, g, bounds, 3, 2), np.array([2.0, 0.7, 1.5, 0.8]), np.array([0.5, 0.5, 0.5])
+
+
+PROBLEMS = {"equality_qp": equality_qp, "inequality_qp": inequality_qp, "nonlinear": nonlinear}
+
+
+@pytest.mark.parametrize("name", sorted(PROBLEMS))
+def test_jacobian_matches_resolved_differences(name):
+    nlp, theta, x0 = PROBLEMS[name]()
+    forward = ipopt_forward(nlp, x0)
+    solve = implicit_solution(nlp, forward)
+    sol = solve(jnp.asarray(theta))
+    assert not bool(sol.degenerate)
+    J = np.asarray(jax.jacobian(lambda th: solve(th).x)(jnp.asarray(theta)))
+    J_fd = central_fd(lambda th: forward(th)[0], theta)
+    np.testing.assert_allclose(J, J_fd, rtol=1e-6, atol=1e-7)
+
+
+def test_active_set_of_the_inequality_problem():
+    nlp, theta, x0 = inequality_qp()
+    x, lam = ipopt_forward(nlp, x0)(theta)
+    a = kkt_system(nlp, x, lam, theta).active
+    np.testing.assert_array_equal(a.row_active, [True, False])
+    np.testing.assert_array_equal(a.at_bound, [False, False, True, True])
+    assert not a.degenerate
+    np.testing.assert_allclose(x[2:], theta[4:], atol=1e-9)  # driven by its bounds
+
+
+def test_grad_vjp_jvp_agree_and_compose_with_jit():
+    nlp, theta, x0 = nonlinear()
+    solve = implicit_solution(nlp, ipopt_forward(nlp, x0))
+    w = jnp.array([1.0, -2.0, 0.5])
+
+    def loss(th):
+        s = solve(th)
+        return jnp.sum(w * s.x) + jnp.sum(s.x**2) * th[0]
+
+    th = jnp.asarray(theta)
+    g = jax.grad(loss)(th)
+    g_jit = jax.jit(jax.grad(loss))(th)
+    np.testing.assert_allclose(g_jit, g, rtol=1e-12)
+    J = jax.jacobian(lambda t: solve(t).x)(th)
+    v = jnp.array([0.3, -1.0, 0.2, 0.5])
+    _, x_dot = jax.jvp(lambda t: solve(t).x, (th,), (v,))
+    np.testing.assert_allclose(x_dot, J @ v, rtol=1e-10, atol=1e-12)
+    _, pullback = jax.vjp(lambda t: solve(t).x, th)
+    np.testing.assert_allclose(pullback(w)[0], w @ J, rtol=1e-10, atol=1e-12)
+    g_fd = central_fd(lambda t: float(loss(jnp.asarray(t))), theta)
+    np.testing.assert_allclose(g, g_fd, rtol=1e-6)
+
+
+def test_weakly_active_constraint_is_flagged_and_one_sided():
+    # min (x - theta)^2 s.t. x <= 0 at theta = 0: the bound is reached with a zero multiplier
+    nlp = DenseNLP(
+        lambda x, th: (x[0] - th[0]) ** 2,
+        lambda x, th: x[:1],
+        lambda th: (np.full(1, -np.inf), np.full(1, np.inf), np.array([-np.inf]), np.array([0.0])),
+        1, 1,
+    )
+    forward = ipopt_forward(nlp, np.array([-1.0]))
+    solve = implicit_solution(nlp, forward)
+    assert bool(solve(jnp.zeros(1)).degenerate)
+    d = float(jax.grad(lambda t: solve(t).x[0])(jnp.zeros(1))[0])
+    eps = 1e-2  # (the interior point stops about sqrt(mu) inside the bound)
+    left = (forward(np.zeros(1))[0][0] - forward(np.array([-eps]))[0][0]) / eps
+    right = (forward(np.array([eps]))[0][0] - forward(np.zeros(1))[0][0]) / eps
+    assert abs(left - 1.0) < 1e-3 and abs(right) < 1e-3  # the two one-sided derivatives differ
+    assert abs(d - 1.0) < 1e-8  # treated as inactive: the side where it is slack
+    assert not bool(solve(jnp.array([-0.5])).degenerate)
