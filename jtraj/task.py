@@ -2,8 +2,10 @@
 
 A task is a frozen `Task`; the paper's six tasks live in ``tasks/*.toml`` (`load`), and a
 user can write a TOML file of the same form (`from_file`) or build a `Task` in Python.
-`Task.validate(robot)` checks everything a solve relies on and raises `TaskError` naming the
-field, the offending value and what was expected.
+Every field is checked when a `Task` is built (from TOML, a dict or Python), before anything
+compiles; `Task.validate(robot)` adds the checks that need the robot model (contact and joint
+names, joint limits). Both raise `TaskError` naming the field, the offending value and what
+was expected.
 
 TOML form (see ``tasks/big_jump.toml``)::
 
@@ -12,6 +14,9 @@ TOML form (see ``tasks/big_jump.toml``)::
     timestep = 0.05
     friction = 0.9
     max_delta_force = 100.0          # optional, N per knot and component
+    max_iter = 200                   # optional, Ipopt's iteration limit for this task
+    flip_axis = [0.0, 1.0, 0.0]      # optional: the task is a flip about this world axis
+    flip_turns = -1                  # its expected signed turns (right-hand rule about flip_axis)
     [target]
     translation = [1.0, 0.0, 0.0]    # base displacement from the standing pose, world frame (m)
     rotation_rpy = [0.0, 0.0, 0.0]   # base rotation from the standing pose (rad)
@@ -48,7 +53,30 @@ __all__ = ["TaskError", "Phase", "Profile", "RotationRule", "JointRule", "Task",
 
 
 class TaskError(ValueError):
-    """A task definition that cannot be solved as written."""
+    """A task definition that cannot be solved as written.
+
+    ``field`` is the TOML path of the offending entry (``target.translation``,
+    ``phases[1].duration``), ``value`` what was given and ``expected`` what would be accepted;
+    ``source`` is the file (or ``<dict>``) it came from, if any. ``str(error)`` is one line,
+    ``"SOURCE: FIELD: VALUE: EXPECTED"``.
+    """
+
+    def __init__(self, field: str, value: Any, expected: str, source: str | None = None):
+        self.field, self.value, self.expected, self.source = field, value, expected, source
+        super().__init__(self._line())
+
+    def _line(self) -> str:
+        value = self.value if isinstance(self.value, _Raw) else repr(self.value)
+        head = f"{self.source}: " if self.source else ""
+        return f"{head}{self.field}: {value}: {self.expected}"
+
+    def with_source(self, source: str) -> TaskError:
+        """The same error, attributed to ``source`` (a file name)."""
+        return TaskError(_TOML_NAMES.get(self.field, self.field), self.value, self.expected, source)
+
+
+class _Raw(str):
+    """A value already written for the message (not repr'd again)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -113,10 +141,15 @@ class Task:
     acceleration_weight: float = 0.0
     warm_start: tuple[RotationRule, ...] = ()
     warm_start_joints: tuple[JointRule, ...] = ()
-    flip_axis: tuple[float, float, float] | None = None  # success needs a full turn about it
+    flip_axis: tuple[float, float, float] | None = None  # world axis of the flip, any length
+    flip_turns: float | None = None  # expected signed turns about flip_axis (back-flip about +y: -1)
     max_iter: int = 200
     terrain_height: float = 0.0
     description: str = ""
+
+    def __post_init__(self):
+        # robot-independent checks, whichever way the task is built (TOML, dict, Python)
+        _check_and_normalize(self)
 
     # -------------------------------------------------------------- knots and contacts
     def phase_knot_counts(self) -> tuple[int, ...]:
@@ -168,143 +201,296 @@ class Task:
 
     # -------------------------------------------------------------- validation
     def validate(self, robot=None) -> Task:
-        """Raise `TaskError` for a task that cannot be solved; return self."""
+        """Raise `TaskError` for what needs the robot model (contact and joint names, joint
+        limits); the rest was checked when the task was built. Return self."""
         from jtraj import robot as robot_module
 
-        if self.robot not in robot_module.available():
-            raise TaskError(f"task {self.name!r}: field 'robot' is {self.robot!r}; expected one of {sorted(robot_module.available())}")
-        if not (isinstance(self.timestep, (int, float)) and self.timestep > 0 and math.isfinite(self.timestep)):
-            raise TaskError(f"task {self.name!r}: field 'timestep' is {self.timestep!r}; expected a positive number of seconds")
-        if not self.phases:
-            raise TaskError(f"task {self.name!r}: field 'phases' is empty; expected at least one contact phase")
-        for i, phase in enumerate(self.phases):
-            if not (isinstance(phase.duration, (int, float)) and phase.duration > 0 and math.isfinite(phase.duration)):
-                raise TaskError(f"task {self.name!r}: phases[{i}].duration is {phase.duration!r}; expected a positive number of seconds")
-            if round(phase.duration / self.timestep) < 1:
-                raise TaskError(
-                    f"task {self.name!r}: phases[{i}].duration {phase.duration} s is shorter than one knot "
-                    f"(timestep {self.timestep} s); expected at least {self.timestep / 2:g} s"
-                )
-        if not self.phases[0].contacts:
-            raise TaskError(f"task {self.name!r}: phases[0].contacts is empty; expected the task to start in contact (it starts at rest)")
-        if not self.phases[-1].contacts:
-            raise TaskError(f"task {self.name!r}: phases[-1].contacts is empty; expected the task to end in contact (it ends at rest)")
-        if not (self.friction > 0):
-            raise TaskError(f"task {self.name!r}: field 'friction' is {self.friction!r}; expected a positive coefficient")
-        if self.max_delta_force is not None and not (self.max_delta_force > 0):
-            raise TaskError(f"task {self.name!r}: field 'max_delta_force' is {self.max_delta_force!r}; expected a positive force (N) or none")
-        if self.configuration_weight < 0 or self.acceleration_weight < 0:
-            raise TaskError(f"task {self.name!r}: cost weights must be >= 0, got configuration={self.configuration_weight}, acceleration={self.acceleration_weight}")
-        for i, rule in enumerate(self.warm_start):
-            if np.linalg.norm(rule.axis) == 0:
-                raise TaskError(f"task {self.name!r}: warm_start[{i}].axis is zero; expected a nonzero 3-vector")
-            bad = [p for p in rule.phases if not 0 <= p < len(self.phases)]
-            if bad or not rule.phases:
-                raise TaskError(f"task {self.name!r}: warm_start[{i}].phases is {list(rule.phases)}; expected indices in 0..{len(self.phases) - 1}")
         if robot is None:
             robot = robot_module.load(self.robot)
-        for i, rule in enumerate(self.warm_start_joints):
-            bad = [p for p in rule.phases if not 0 <= p < len(self.phases)]
-            if bad or not rule.phases:
-                raise TaskError(f"task {self.name!r}: warm_start_joints[{i}].phases is {list(rule.phases)}; expected indices in 0..{len(self.phases) - 1}")
-            for joint, value in rule.joints:
-                if joint not in robot.joint_names:
-                    raise TaskError(f"task {self.name!r}: warm_start_joints[{i}] names unknown joint {joint!r}; expected one of {list(robot.joint_names)}")
-                j = robot.joint_names.index(joint)
-                if not robot.q_lower[j] <= value <= robot.q_upper[j]:
-                    raise TaskError(
-                        f"task {self.name!r}: warm_start_joints[{i}] sets {joint!r} = {value:g} rad, outside its limits "
-                        f"[{robot.q_lower[j]:g}, {robot.q_upper[j]:g}]"
-                    )
         groups = sorted(robot.contact_groups)
         for i, phase in enumerate(self.phases):
             for c in phase.contacts:
                 if c not in robot.contact_groups:
-                    raise TaskError(f"task {self.name!r}: phases[{i}].contacts has unknown contact {c!r}; expected one of {groups} for robot {robot.name!r}")
+                    raise TaskError(f"phases[{i}].contacts", c, f"expected a contact of robot {robot.name!r}: one of {groups}")
+        for i, rule in enumerate(self.warm_start_joints):
+            for joint, value in rule.joints:
+                if joint not in robot.joint_names:
+                    raise TaskError(f"warm_start_joints[{i}].joints", joint, f"unknown joint; expected one of {list(robot.joint_names)}")
+                j = robot.joint_names.index(joint)
+                if not robot.q_lower[j] <= value <= robot.q_upper[j]:
+                    raise TaskError(
+                        f"warm_start_joints[{i}].joints.{joint}", value, f"outside the joint limits [{robot.q_lower[j]:g}, {robot.q_upper[j]:g}] rad"
+                    )
         if self.target_joints is not None:
             tj = np.asarray(self.target_joints, float)
             if tj.shape != (robot.nj,):
-                raise TaskError(f"task {self.name!r}: field 'target_joints' has {tj.size} values; expected {robot.nj} (one per joint of {robot.name!r})")
+                raise TaskError("target_joints", _Raw(f"{tj.size} values"), f"expected {robot.nj} (one per joint of {robot.name!r})")
             lo, hi = robot.q_lower, robot.q_upper
             outside = np.flatnonzero((tj < lo) | (tj > hi))
             if outside.size:
                 j = outside[0]
-                raise TaskError(
-                    f"task {self.name!r}: target joint {robot.joint_names[j]!r} = {tj[j]:g} rad is outside its limits "
-                    f"[{lo[j]:g}, {hi[j]:g}]"
-                )
+                raise TaskError(f"target_joints[{j}] ({robot.joint_names[j]})", float(tj[j]), f"outside the joint limits [{lo[j]:g}, {hi[j]:g}] rad")
         return self
+
+    def content_hash(self) -> str:
+        """A hex digest of everything that defines the problem (every field but the
+        description): equal for equal tasks, whatever file or name they came from."""
+        import hashlib
+        import json
+
+        data = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "description"}
+        text = json.dumps(data, default=lambda o: o.value if isinstance(o, enum.Enum) else dataclasses.asdict(o), sort_keys=True)
+        return hashlib.sha256(text.encode()).hexdigest()[:16]
 
     def replace(self, **changes: Any) -> Task:
         return dataclasses.replace(self, **changes)
 
 
+# ------------------------------------------------------------------ checks
+def _is_real(x: Any) -> bool:
+    return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, (bool, np.bool_)) and math.isfinite(float(x))
+
+
+def _real(value: Any, field: str, expected: str = "expected a number", positive: bool = False, nonnegative: bool = False) -> float:
+    if not _is_real(value):
+        raise TaskError(field, value, expected)
+    x = float(value)
+    if (positive and not x > 0) or (nonnegative and not x >= 0):
+        raise TaskError(field, value, expected)
+    return x
+
+
+def _vector(value: Any, field: str, n: int = 3, nonzero: bool = False) -> tuple[float, ...]:
+    expected = f"expected a list of {n} numbers" + (", not all zero" if nonzero else "")
+    shown = _Raw(repr(list(value)) if isinstance(value, (tuple, np.ndarray)) else repr(value))
+    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != n or not all(_is_real(x) for x in value):
+        raise TaskError(field, shown, expected)
+    out = tuple(float(x) for x in value)
+    if nonzero and not any(out):
+        raise TaskError(field, shown, expected)
+    return out
+
+
+def _indices(value: Any, field: str, n_phases: int) -> tuple[int, ...]:
+    expected = f"expected a non-empty list of phase indices in 0..{n_phases - 1}"
+    if isinstance(value, (str, bytes)) or not hasattr(value, "__iter__"):
+        raise TaskError(field, value, expected)
+    items = tuple(value)
+    if not items or not all(isinstance(p, (int, np.integer)) and not isinstance(p, bool) and 0 <= p < n_phases for p in items):
+        raise TaskError(field, _Raw(repr(list(items))), expected)
+    return tuple(int(p) for p in items)
+
+
+def _check_and_normalize(t: Task) -> None:
+    """Check every field that does not need the robot model; store tuples and floats.
+
+    Field names in errors are the Python names; `from_dict` maps them to TOML paths."""
+    from jtraj import robot as robot_module
+
+    def put(name: str, value: Any) -> None:
+        object.__setattr__(t, name, value)
+
+    if not isinstance(t.name, str) or not t.name:
+        raise TaskError("name", t.name, "expected a non-empty string")
+    robots = robot_module.available()
+    if t.robot not in robots:
+        raise TaskError("robot", t.robot, f"expected one of {list(robots)}")
+    put("timestep", _real(t.timestep, "timestep", "expected a positive number of seconds", positive=True))
+    if isinstance(t.phases, (str, bytes)) or not hasattr(t.phases, "__iter__"):
+        raise TaskError("phases", t.phases, "expected a list of phases (each with contacts and duration)")
+    phases = tuple(t.phases)
+    if not phases:
+        raise TaskError("phases", _Raw("[]"), "expected at least one contact phase")
+    checked = []
+    for i, phase in enumerate(phases):
+        if not isinstance(phase, Phase):
+            raise TaskError(f"phases[{i}]", phase, "expected a Phase(contacts, duration)")
+        contacts = phase.contacts
+        if isinstance(contacts, (str, bytes)) or not hasattr(contacts, "__iter__") or not all(isinstance(c, str) for c in contacts):
+            raise TaskError(f"phases[{i}].contacts", contacts, 'expected a list of contact names, e.g. ["FL_foot", "FR_foot"] ([] for flight)')
+        duration = _real(phase.duration, f"phases[{i}].duration", "expected a positive number of seconds", positive=True)
+        if round(duration / t.timestep) < 1:
+            raise TaskError(f"phases[{i}].duration", duration, f"shorter than one knot (timestep {t.timestep:g} s); expected at least {t.timestep / 2:g} s")
+        checked.append(Phase(tuple(contacts), duration))
+    put("phases", tuple(checked))
+    if not checked[0].contacts:
+        raise TaskError("phases[0].contacts", _Raw("[]"), "expected the task to start in contact (it starts at rest)")
+    if not checked[-1].contacts:
+        raise TaskError(f"phases[{len(checked) - 1}].contacts", _Raw("[]"), "expected the task to end in contact (it ends at rest)")
+    put("target_translation", _vector(t.target_translation, "target_translation"))
+    put("target_rotation_rpy", _vector(t.target_rotation_rpy, "target_rotation_rpy"))
+    if t.target_joints is not None:
+        tj = t.target_joints
+        if isinstance(tj, (str, bytes)) or not hasattr(tj, "__iter__") or not all(_is_real(x) for x in tj):
+            raise TaskError("target_joints", tj, "expected a list of joint angles (rad)")
+        put("target_joints", tuple(float(x) for x in tj))
+    put("friction", _real(t.friction, "friction", "expected a positive friction coefficient", positive=True))
+    if t.max_delta_force is not None:
+        put("max_delta_force", _real(t.max_delta_force, "max_delta_force", "expected a positive force (N) or no entry", positive=True))
+    put("force_limit_factor", _real(t.force_limit_factor, "force_limit_factor", "expected a positive factor of m g", positive=True))
+    put("configuration_weight", _real(t.configuration_weight, "configuration_weight", "expected a weight >= 0", nonnegative=True))
+    put("acceleration_weight", _real(t.acceleration_weight, "acceleration_weight", "expected a weight >= 0", nonnegative=True))
+    rules = []
+    for i, rule in enumerate(tuple(t.warm_start)):
+        if not isinstance(rule, RotationRule):
+            raise TaskError(f"warm_start[{i}]", rule, "expected a RotationRule(profile, axis, angle, phases)")
+        if not isinstance(rule.profile, Profile):
+            raise TaskError(f"warm_start[{i}].profile", rule.profile, "expected 'ramp' or 'hold'")
+        axis = _vector(rule.axis, f"warm_start[{i}].axis", nonzero=True)
+        angle = _real(rule.angle, f"warm_start[{i}].angle", "expected an angle in radians")
+        rules.append(RotationRule(rule.profile, axis, angle, _indices(rule.phases, f"warm_start[{i}].phases", len(checked))))
+    put("warm_start", tuple(rules))
+    joint_rules = []
+    for i, rule in enumerate(tuple(t.warm_start_joints)):
+        if not isinstance(rule, JointRule):
+            raise TaskError(f"warm_start_joints[{i}]", rule, "expected a JointRule(phases, joints, place_on_terrain)")
+        phases_i = _indices(rule.phases, f"warm_start_joints[{i}].phases", len(checked))
+        joints = []
+        for item in tuple(rule.joints):
+            if not (isinstance(item, tuple) and len(item) == 2 and isinstance(item[0], str)):
+                raise TaskError(f"warm_start_joints[{i}].joints", item, "expected joint = angle (rad) entries")
+            joints.append((item[0], _real(item[1], f"warm_start_joints[{i}].joints.{item[0]}", "expected an angle in radians")))
+        if not joints:
+            raise TaskError(f"warm_start_joints[{i}].joints", _Raw("{}"), "expected at least one joint = angle (rad)")
+        if not isinstance(rule.place_on_terrain, bool):
+            raise TaskError(f"warm_start_joints[{i}].place_on_terrain", rule.place_on_terrain, "expected true or false")
+        joint_rules.append(JointRule(phases_i, tuple(joints), rule.place_on_terrain))
+    put("warm_start_joints", tuple(joint_rules))
+    if t.flip_axis is not None:
+        put("flip_axis", _vector(t.flip_axis, "flip_axis", nonzero=True))
+        put("flip_turns", _real(t.flip_turns, "flip_turns", "expected the signed number of turns about flip_axis (e.g. -1 for a back-flip about +y), nonzero"))
+        if t.flip_turns == 0:
+            raise TaskError("flip_turns", t.flip_turns, "expected a nonzero signed number of turns (a task without a flip has no flip_axis)")
+    elif t.flip_turns is not None:
+        raise TaskError("flip_turns", t.flip_turns, "expected no flip_turns without a flip_axis")
+    if isinstance(t.max_iter, bool) or not isinstance(t.max_iter, (int, np.integer)) or t.max_iter < 1:
+        raise TaskError("max_iter", t.max_iter, "expected a positive whole number of iterations")
+    put("max_iter", int(t.max_iter))
+    put("terrain_height", _real(t.terrain_height, "terrain_height", "expected a height in m"))
+    if not isinstance(t.description, str):
+        raise TaskError("description", t.description, "expected a string")
+
+
 # ------------------------------------------------------------------ loading
-_KNOWN = {
-    "name", "robot", "timestep", "phases", "target", "costs", "friction", "max_delta_force",
-    "force_limit_factor", "warm_start", "warm_start_joints", "flip_axis", "max_iter", "terrain_height", "description",
+#: Python field names -> TOML paths, for errors of tasks loaded from files
+_TOML_NAMES = {
+    "target_translation": "target.translation",
+    "target_rotation_rpy": "target.rotation_rpy",
+    "target_joints": "target.joints",
+    "configuration_weight": "costs.configuration",
+    "acceleration_weight": "costs.acceleration",
+}
+_TOP_KEYS = (
+    "name", "robot", "timestep", "phases", "target", "costs", "friction", "max_delta_force", "force_limit_factor",
+    "warm_start", "warm_start_joints", "flip_axis", "flip_turns", "max_iter", "terrain_height", "description",
+)
+_TABLE_KEYS = {
+    "target": ("translation", "rotation_rpy", "joints"),
+    "costs": ("configuration", "acceleration"),
+    "phases": ("contacts", "duration"),
+    "warm_start": ("profile", "axis", "angle", "phases"),
+    "warm_start_joints": ("phases", "joints", "place_on_terrain"),
 }
 
 
-def _vec3(value: Any, where: str) -> tuple[float, float, float]:
-    try:
-        arr = tuple(float(x) for x in value)
-    except TypeError:
-        raise TaskError(f"{where} is {value!r}; expected a list of 3 numbers") from None
-    if len(arr) != 3:
-        raise TaskError(f"{where} is {value!r}; expected a list of 3 numbers")
-    return arr  # type: ignore[return-value]
+def _table(value: Any, field: str, keys: tuple[str, ...]) -> dict[str, Any]:
+    if not isinstance(value, dict):
+        raise TaskError(field, value, f"expected a table with keys {list(keys)}")
+    for k in value:
+        if k not in keys:
+            raise TaskError(f"{field}.{k}", _Raw("unknown key"), f"expected one of {list(keys)}")
+    return value
+
+
+def _tables(data: dict[str, Any], key: str) -> list[dict[str, Any]]:
+    value = data.get(key, [])
+    if not isinstance(value, list) or not all(isinstance(v, dict) for v in value):
+        raise TaskError(key, value, f"expected an array of tables [[{key}]] with keys {list(_TABLE_KEYS[key])}")
+    return [_table(v, f"{key}[{i}]", _TABLE_KEYS[key]) for i, v in enumerate(value)]
+
+
+def _need(table: dict[str, Any], key: str, field: str, expected: str) -> Any:
+    if key not in table:
+        raise TaskError(f"{field}.{key}", _Raw("missing"), expected)
+    return table[key]
+
+
+def _text(value: Any, field: str) -> str:
+    if not isinstance(value, str):
+        raise TaskError(field, value, "expected a string")
+    return value
 
 
 def from_dict(data: dict[str, Any], source: str = "<dict>") -> Task:
-    """Build a task from the TOML structure (see the module docstring)."""
-    unknown = set(data) - _KNOWN
-    if unknown:
-        raise TaskError(f"{source}: unknown field(s) {sorted(unknown)}; expected some of {sorted(_KNOWN)}")
-    for field in ("name", "robot", "timestep", "phases"):
-        if field not in data:
-            raise TaskError(f"{source}: missing field {field!r}")
+    """Build a task from the TOML structure (see the module docstring).
+
+    Every key at every level must be known, and every value of the right type; a `TaskError`
+    names the first one that is not, with ``source`` as its origin."""
+    try:
+        return _from_dict(data)
+    except TaskError as e:
+        raise e.with_source(source) from None
+
+
+def _from_dict(data: dict[str, Any]) -> Task:
+    if not isinstance(data, dict):
+        raise TaskError("task", data, "expected a table of fields")
+    for k in data:
+        if k not in _TOP_KEYS:
+            raise TaskError(k, _Raw("unknown field"), f"expected one of {sorted(_TOP_KEYS)}")
+    for key in ("name", "robot", "timestep", "phases"):
+        _need(data, key, "task", f"a task needs {key!r}")
     phases = []
-    for i, p in enumerate(data["phases"]):
-        if "contacts" not in p or "duration" not in p:
-            raise TaskError(f"{source}: phases[{i}] needs 'contacts' (list of contact names) and 'duration' (s)")
-        phases.append(Phase(tuple(p["contacts"]), p["duration"]))
-    target = data.get("target", {})
-    costs = data.get("costs", {})
+    for i, p in enumerate(_tables(data, "phases")):
+        contacts = _need(p, "contacts", f"phases[{i}]", "expected a list of contact names ([] for flight)")
+        if not isinstance(contacts, list):
+            raise TaskError(f"phases[{i}].contacts", contacts, 'expected a list of contact names, e.g. ["FL_foot", "FR_foot"] ([] for flight)')
+        phases.append(Phase(tuple(contacts), _need(p, "duration", f"phases[{i}]", "expected a duration in seconds")))
+    target = _table(data.get("target", {}), "target", _TABLE_KEYS["target"])
+    costs = _table(data.get("costs", {}), "costs", _TABLE_KEYS["costs"])
     rules = []
-    for i, w in enumerate(data.get("warm_start", [])):
+    for i, w in enumerate(_tables(data, "warm_start")):
+        profile = w.get("profile", "ramp")
         try:
-            profile = Profile(w.get("profile", "ramp"))
+            profile = Profile(profile)
         except ValueError:
-            raise TaskError(f"{source}: warm_start[{i}].profile is {w.get('profile')!r}; expected 'ramp' or 'hold'") from None
-        rules.append(RotationRule(profile, _vec3(w.get("axis"), f"{source}: warm_start[{i}].axis"), float(w["angle"]), tuple(int(p) for p in w["phases"])))
+            raise TaskError(f"warm_start[{i}].profile", profile, "expected 'ramp' or 'hold'") from None
+        rules.append(
+            RotationRule(
+                profile,
+                _need(w, "axis", f"warm_start[{i}]", "expected a rotation axis, a list of 3 numbers"),
+                _need(w, "angle", f"warm_start[{i}]", "expected a rotation angle in radians"),
+                _need(w, "phases", f"warm_start[{i}]", "expected a list of phase indices"),
+            )
+        )
     joint_rules = []
-    for i, w in enumerate(data.get("warm_start_joints", [])):
-        if "phases" not in w or "joints" not in w:
-            raise TaskError(f"{source}: warm_start_joints[{i}] needs 'phases' (list of phase indices) and 'joints' (table of joint = angle)")
-        joints = tuple((str(k), float(v)) for k, v in w["joints"].items())
-        joint_rules.append(JointRule(tuple(int(p) for p in w["phases"]), joints, bool(w.get("place_on_terrain", False))))
-    task = Task(
-        name=str(data["name"]),
-        robot=str(data["robot"]),
+    for i, w in enumerate(_tables(data, "warm_start_joints")):
+        joints = _need(w, "joints", f"warm_start_joints[{i}]", "expected a table of joint = angle (rad)")
+        if not isinstance(joints, dict):
+            raise TaskError(f"warm_start_joints[{i}].joints", joints, "expected a table of joint = angle (rad)")
+        phases_i = _need(w, "phases", f"warm_start_joints[{i}]", "expected a list of phase indices")
+        joint_rules.append(JointRule(phases_i, tuple(joints.items()), w.get("place_on_terrain", False)))
+    return Task(
+        name=_text(data["name"], "name"),
+        robot=_text(data["robot"], "robot"),
         timestep=data["timestep"],
         phases=tuple(phases),
-        target_translation=_vec3(target.get("translation", (0, 0, 0)), f"{source}: target.translation"),
-        target_rotation_rpy=_vec3(target.get("rotation_rpy", (0, 0, 0)), f"{source}: target.rotation_rpy"),
-        target_joints=tuple(target["joints"]) if "joints" in target else None,
-        friction=float(data.get("friction", 0.9)),
+        target_translation=target.get("translation", (0.0, 0.0, 0.0)),
+        target_rotation_rpy=target.get("rotation_rpy", (0.0, 0.0, 0.0)),
+        target_joints=target.get("joints"),
+        friction=data.get("friction", 0.9),
         max_delta_force=data.get("max_delta_force"),
-        force_limit_factor=float(data.get("force_limit_factor", 1.5)),
-        configuration_weight=float(costs.get("configuration", 0.0)),
-        acceleration_weight=float(costs.get("acceleration", 0.0)),
+        force_limit_factor=data.get("force_limit_factor", 1.5),
+        configuration_weight=costs.get("configuration", 0.0),
+        acceleration_weight=costs.get("acceleration", 0.0),
         warm_start=tuple(rules),
         warm_start_joints=tuple(joint_rules),
-        flip_axis=_vec3(data["flip_axis"], f"{source}: flip_axis") if "flip_axis" in data else None,
-        max_iter=int(data.get("max_iter", 200)),
-        terrain_height=float(data.get("terrain_height", 0.0)),
-        description=str(data.get("description", "")),
+        flip_axis=data.get("flip_axis"),
+        flip_turns=data.get("flip_turns"),
+        max_iter=data.get("max_iter", 200),
+        terrain_height=data.get("terrain_height", 0.0),
+        description=data.get("description", ""),
     )
-    return task
 
 
 def from_file(path: str | Path) -> Task:
@@ -313,10 +499,10 @@ def from_file(path: str | Path) -> Task:
     try:
         with open(path, "rb") as f:
             data = tomllib.load(f)
-    except FileNotFoundError:
-        raise TaskError(f"task file {str(path)!r} does not exist") from None
+    except (FileNotFoundError, IsADirectoryError):
+        raise TaskError("task file", str(path), "does not exist; expected a .toml task file") from None
     except tomllib.TOMLDecodeError as e:
-        raise TaskError(f"task file {str(path)!r} is not valid TOML: {e}") from None
+        raise TaskError("task file", str(path), f"not valid TOML ({e})") from None
     return from_dict(data, source=str(path))
 
 
@@ -333,7 +519,6 @@ def load(name: str | Path | Task) -> Task:
     if isinstance(name, Path) or str(name).endswith(".toml"):
         return from_file(name)
     if name not in available():
-        raise TaskError(f"unknown task {name!r}; expected one of {available()} or a path to a .toml file")
+        raise TaskError("task", name, f"unknown task; expected one of {available()} or a path to a .toml file")
     with importlib.resources.files("jtraj.tasks").joinpath(f"{name}.toml").open("rb") as f:
         return from_dict(tomllib.load(f), source=f"tasks/{name}.toml")
-

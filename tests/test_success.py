@@ -1,0 +1,74 @@
+"""The task-success check on synthetic base trajectories (jtraj.success)."""
+
+import numpy as np
+import pytest
+
+from jtraj import success
+
+
+def _about(axis, angles, xyz=None):
+    """(n, 7) base trajectory rotating about a fixed world axis through the given angles."""
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    angles = np.asarray(angles, float)
+    wxyz = np.concatenate([np.cos(angles / 2)[:, None], np.sin(angles / 2)[:, None] * axis], axis=1)
+    xyz = np.zeros((angles.size, 3)) if xyz is None else xyz
+    return np.concatenate([xyz, wxyz], axis=1)
+
+
+def _ramp(total, n=25):
+    return np.concatenate([np.zeros(5), np.linspace(0.0, total, n), np.full(5, total)])
+
+
+Y = [0.0, 1.0, 0.0]
+BACKFLIP = dict(flip_axis=Y, flip_turns=-1)
+
+
+def test_backflip_counts():
+    check = success.evaluate(_about(Y, _ramp(-2 * np.pi)), **BACKFLIP)
+    assert check.ok, check.reason
+    assert check.turns == pytest.approx(-1.0, abs=1e-12)
+    assert check.off_axis_share == pytest.approx(0.0, abs=1e-12)
+
+
+def test_axis_length_does_not_matter():
+    assert success.evaluate(_about(Y, _ramp(-2 * np.pi)), flip_axis=[0, 3.0, 0], flip_turns=-1).ok
+
+
+@pytest.mark.parametrize(
+    "angle, reason",
+    [(2 * np.pi, "+1.00 turns"), (-4 * np.pi, "-2.00 turns"), (0.0, "+0.00 turns"), (-1.4 * np.pi, "-0.70 turns")],
+    ids=["forward_flip", "double_flip", "no_flip", "short_flip"],
+)
+def test_wrong_flips_fail(angle, reason):
+    check = success.evaluate(_about(Y, _ramp(angle, n=40)), **BACKFLIP)
+    assert not check.ok
+    assert reason in check.reason
+
+
+def test_flip_about_another_axis_fails():
+    # a full turn about a tilted axis projects to -0.77 turns on y: the count alone would pass
+    tilted = [0.0, -np.cos(0.7), np.sin(0.7)]
+    check = success.evaluate(_about(tilted, _ramp(2 * np.pi)), **BACKFLIP)
+    assert abs(check.turns + 1) <= success.TURN_TOLERANCE
+    assert not check.ok and "off the flip axis" in check.reason
+
+
+def test_zero_axis_and_missing_turns_are_errors():
+    traj = _about(Y, _ramp(-2 * np.pi))
+    with pytest.raises(ValueError, match="nonzero 3-vector"):
+        success.evaluate(traj, flip_axis=[0, 0, 0], flip_turns=-1)
+    with pytest.raises(ValueError, match="flip_turns"):
+        success.evaluate(traj, flip_axis=Y)
+
+
+def test_tasks_without_flip_reject_a_somersault():
+    there_and_back = np.concatenate([_ramp(np.pi), np.linspace(np.pi, 0.0, 20)])
+    assert success.evaluate(_about(Y, there_and_back)).ok  # a handstand: over and back
+    over_the_top = np.concatenate([_ramp(np.pi), np.linspace(np.pi, 2 * np.pi, 20)])
+    check = success.evaluate(_about(Y, over_the_top))
+    assert not check.ok and "somersault" in check.reason
+
+
+def test_too_coarse_steps_are_not_guessed():
+    check = success.evaluate(_about(Y, [0.0, -0.95 * np.pi, -1.9 * np.pi, -2 * np.pi]), **BACKFLIP)
+    assert not check.ok and "too coarse" in check.reason
