@@ -1,0 +1,1 @@
+"""Solvers of knot-structured NLPs."""

@@ -1,0 +1,112 @@
+"""The block-tridiagonal KKT solve against a dense solve of the same system."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jtraj.solvers import kkt
+
+
+def random_system(rng, K=5, n=4, m=3, indefinite=False):
+    """A random stage KKT system: element Hessians (PSD, or indefinite), equality and
+    inequality rows, one inactive row, some fixed variables."""
+    H = rng.normal(size=(K, 2 * n, 2 * n))
+    H = np.einsum("kij,klj->kil", H, H) / (2 * n)
+    if indefinite:
+        H = H - 3.0 * np.eye(2 * n)
+    H[-1, n:, :] = 0.0
+    H[-1, :, n:] = 0.0
+    sigma = rng.uniform(0.0, 2.0, size=(K, n))
+    A = rng.normal(size=(K, m, n))
+    B = rng.normal(size=(K, m, n))
+    B[-1] = 0.0
+    d0 = np.where(rng.uniform(size=(K, m)) < 0.5, 0.0, rng.uniform(0.1, 1.0, size=(K, m)))
+    # an inactive row: zero Jacobian, positive d0
+    A[1, 0] = 0.0
+    B[1, 0] = 0.0
+    d0[1, 0] = 1.0
+    free = np.ones((K, n), bool)
+    free[0, :2] = False
+    free[-1, -1] = False
+    return kkt.KKTSystem(*(jnp.asarray(a) for a in (H, sigma, A, B, d0, free)))
+
+
+def dense_kkt(system, delta_w):
+    """Dense KKT matrix over the free variables and all rows."""
+    H, sigma, A, B, d0, free = (np.asarray(a) for a in system)
+    K, n = sigma.shape
+    m = A.shape[1]
+    N = K * n
+    Hd = np.zeros((N, N))
+    J = np.zeros((K * m, N))
+    for k in range(K):
+        sl = slice(k * n, (k + 1) * n)
+        Hd[sl, sl] += H[k, :n, :n]
+        J[k * m : (k + 1) * m, sl] = A[k]
+        if k < K - 1:
+            sn = slice((k + 1) * n, (k + 2) * n)
+            Hd[sn, sn] += H[k, n:, n:]
+            Hd[sl, sn] += H[k, :n, n:]
+            Hd[sn, sl] += H[k, n:, :n]
+            J[k * m : (k + 1) * m, sn] = B[k]
+    Hd += np.diag(sigma.reshape(-1) + delta_w)
+    keep = free.reshape(-1)
+    Hf, Jf = Hd[np.ix_(keep, keep)], J[:, keep]
+    M = np.block([[Hf, Jf.T], [Jf, -np.diag(d0.reshape(-1))]])
+    return M, keep
+
+
+@pytest.mark.parametrize("indefinite", [False, True])
+def test_kkt_solve_equals_dense_solve(rng, indefinite):
+    system = random_system(rng, indefinite=indefinite)
+    K, n = system.sigma.shape
+    m = system.A.shape[1]
+    r_x = rng.normal(size=(K, n))
+    r_c = rng.normal(size=(K, m))
+    fac, delta_w, ok = jax.jit(kkt.factor_with_correction)(system, jnp.asarray(1e-9), jnp.asarray(0.0))
+    assert bool(ok)
+    if indefinite:
+        # the correction was needed, and the corrected KKT matrix has the right inertia
+        assert float(delta_w) > 0.0
+    else:
+        assert float(delta_w) == 0.0
+    M, keep = dense_kkt(system, float(delta_w))
+    eig = np.linalg.eigvalsh(M)
+    assert np.sum(eig > 0) == keep.sum() and np.sum(eig < 0) == K * m
+    dx, dy = jax.jit(kkt.solve)(system, fac, delta_w, jnp.asarray(1e-9), jnp.asarray(r_x), jnp.asarray(r_c))
+    ref = np.linalg.solve(M, np.concatenate([r_x.reshape(-1)[keep], r_c.reshape(-1)]))
+    np.testing.assert_allclose(np.asarray(dx).reshape(-1)[keep], ref[: keep.sum()], rtol=1e-8, atol=1e-8)
+    np.testing.assert_allclose(np.asarray(dy).reshape(-1), ref[keep.sum() :], rtol=1e-8, atol=1e-8)
+    assert np.all(np.asarray(dx).reshape(-1)[~keep] == 0.0)
+
+
+def test_wrong_inertia_is_detected(rng):
+    """With delta_w = 0 an indefinite Hessian (on the null space of J) fails to factor."""
+    system = random_system(rng, indefinite=True)
+    d = system.d0 + 1e-9
+    _, ok = kkt.factor(*kkt.condensed_blocks(system, d, jnp.asarray(0.0)))
+    M, keep = dense_kkt(system, 0.0)
+    eig = np.linalg.eigvalsh(M)
+    wrong = np.sum(eig > 0) != keep.sum()
+    assert wrong and not bool(ok)
+
+
+def test_block_factor_equals_dense_cholesky(rng):
+    K, n = 4, 3
+    X = rng.normal(size=(K * n, K * n))
+    band = np.zeros_like(X)
+    for k in range(K):
+        for j in (k - 1, k, k + 1):
+            if 0 <= j < K:
+                band[k * n : (k + 1) * n, j * n : (j + 1) * n] = 1.0
+    M = (X @ X.T + K * n * np.eye(K * n)) * band
+    diag = np.stack([M[k * n : (k + 1) * n, k * n : (k + 1) * n] for k in range(K)])
+    upper = np.stack([M[k * n : (k + 1) * n, (k + 1) * n : (k + 2) * n] if k < K - 1 else np.zeros((n, n)) for k in range(K)])
+    fac, ok = kkt.factor(jnp.asarray(diag), jnp.asarray(upper))
+    assert bool(ok)
+    L = np.linalg.cholesky(M)
+    for k in range(K):
+        np.testing.assert_allclose(fac.diag[k], L[k * n : (k + 1) * n, k * n : (k + 1) * n], atol=1e-10)
+    b = rng.normal(size=(K, n))
+    np.testing.assert_allclose(np.asarray(kkt.solve_factored(fac, jnp.asarray(b))).reshape(-1), np.linalg.solve(M, b.reshape(-1)), atol=1e-10)
