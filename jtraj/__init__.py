@@ -1,6 +1,14 @@
 """jtraj: JAX-native, differentiable trajectory optimization for legged and humanoid robots."""
 
+import os as _os
+import sys as _sys
+
 import jax as _jax
+
+# MuJoCo picks its OpenGL backend when imported: without a display, software EGL (Mesa's
+# llvmpipe) lets jtraj.render draw offscreen. An explicit MUJOCO_GL is left alone.
+if _sys.platform.startswith("linux") and not _os.environ.get("DISPLAY") and not _os.environ.get("WAYLAND_DISPLAY"):
+    _os.environ.setdefault("MUJOCO_GL", "egl")
 
 # All numerics in float64: interior-point solves and Lie-group series need the digits.
 _jax.config.update("jax_enable_x64", True)
@@ -23,6 +31,10 @@ _LAZY = {"solve": ("jtraj.solver", "solve"), "Result": ("jtraj.result", "Result"
 
 def __getattr__(name: str):
     # solve() pulls in MuJoCo and the robots; keep `import jtraj` light until it is used.
+    if name == "render":  # the module jtraj.render, callable as its render() function
+        import importlib
+
+        return importlib.import_module("jtraj.render")
     if name in _LAZY:
         import importlib
 
@@ -46,4 +58,5 @@ __all__ = [
     "Result",
     "load_task",
     "load_robot",
+    "render",
 ]

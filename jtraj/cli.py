@@ -63,6 +63,8 @@ def _cmd_solve(args: argparse.Namespace) -> int:
     plot_result(result, f"{out}/trajectory.png")
     plot_convergence(result, f"{out}/convergence.png")
     print(f"wrote {out}/result.json, {out}/trajectory.npz, {out}/trajectory.png, {out}/convergence.png")
+    if args.render:
+        _render_after_solve(out)
     return 0 if result.converged else 2
 
 
@@ -113,6 +115,67 @@ def _cmd_attitude(args: argparse.Namespace) -> int:
     return 0 if result.success else 2
 
 
+def _render_options(args: argparse.Namespace):
+    from jtraj.render import RenderOptions
+
+    return RenderOptions(width=args.width, height=args.height, fps=args.fps, speed=args.speed, shadows=not args.no_shadows)
+
+
+def _render_after_solve(out: str) -> None:
+    """``solve --render``: the video and the keyframe strip of the solution just written."""
+    from jtraj.render import render_directory
+
+    for path in render_directory(out, f"{out}/motion.mp4", f"{out}/keyframes.png"):
+        print(f"wrote {path}")
+
+
+def _cmd_render(args: argparse.Namespace) -> int:
+    from jtraj.render import RenderError, render_directory
+
+    if args.out is None and args.strip is None:
+        raise SystemExit("jtraj render: give --out FILE.mp4|FILE.gif and/or --strip FILE.png")
+    try:
+        paths = render_directory(args.dir, args.out, args.strip, keyframes=args.keyframes, layout=args.layout, spacing=args.spacing, options=_render_options(args))
+    except (FileNotFoundError, RenderError, ValueError) as e:
+        raise SystemExit(f"jtraj render: {e}") from None
+    for path in paths:
+        print(f"wrote {path}")
+    return 0
+
+
+def _cmd_plot(args: argparse.Namespace) -> int:
+    from jtraj.plots import plot_directory
+
+    try:
+        paths = plot_directory(args.dir, args.out)
+    except (FileNotFoundError, ValueError) as e:
+        raise SystemExit(f"jtraj plot: {e}") from None
+    for path in paths:
+        print(f"wrote {path}")
+    return 0
+
+
+def _add_render_parsers(sub) -> None:
+    p = sub.add_parser("render", help="video and/or keyframe strip of a solution folder (DIR/trajectory.npz)")
+    p.add_argument("dir", help="a folder written by `jtraj solve`")
+    p.add_argument("--out", help="video file, .mp4 or .gif")
+    p.add_argument("--strip", help="keyframe strip image, .png")
+    p.add_argument("--keyframes", type=int, default=6, help="keyframes in the strip (default 6)")
+    p.add_argument("--layout", default="side", choices=["side", "overlay"], help="strip: panels side by side (default) or overlaid in one scene")
+    p.add_argument("--spacing", default="motion", choices=["motion", "time"], help="strip: keyframes evenly along the base's motion (default) or in time")
+    p.add_argument("--speed", type=float, default=1.0, help="playback speed, 1 = real time (default)")
+    p.add_argument("--fps", type=float, default=30.0)
+    p.add_argument("--width", type=int, default=640)
+    p.add_argument("--height", type=int, default=480)
+    p.add_argument("--no-shadows", action="store_true", help="faster with software OpenGL")
+    p.set_defaults(func=_cmd_render)
+
+    p = sub.add_parser("plot", help="figures of a solution folder (or of a `jtraj compare` folder)")
+    p.add_argument("dir", help="a folder written by `jtraj solve` or `jtraj compare`")
+    p.add_argument("--out", help="output folder (default DIR)")
+    p.set_defaults(func=_cmd_plot)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="jtraj", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -131,6 +194,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--noise", type=float, default=0.0, help="std of Gaussian noise added to the warm start")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--every", type=int, default=1, help="print Ipopt progress every N iterations")
+    p.add_argument("--render", action="store_true", help="also write DIR/motion.mp4 and DIR/keyframes.png")
     p.set_defaults(func=_cmd_solve)
 
     p = sub.add_parser("compare", help="Table IV: every task with every parameterization (writes OUT/table_iv.{json,md})")
@@ -166,6 +230,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="runs/attitude")
     p.add_argument("--knots", type=int, default=None, help="number of knots (default: the paper's)")
     p.set_defaults(func=_cmd_attitude)
+    _add_render_parsers(sub)
     return parser
 
 

@@ -8,7 +8,7 @@ import numpy as np
 
 from jtraj.result import Result
 
-__all__ = ["plot_result", "plot_convergence"]
+__all__ = ["plot_result", "plot_convergence", "plot_solution", "plot_comparison", "plot_directory", "friction_cone_ratio"]
 
 
 def _pyplot():
@@ -90,3 +90,183 @@ def plot_convergence(result: Result, path: str | Path) -> Path:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def _flight_shading(ax, t, touching) -> None:
+    """Grey bands over the knots where no contact point touches the ground."""
+    dt = t[1] - t[0] if len(t) > 1 else 0.0
+    for k in np.flatnonzero(~touching):
+        ax.axvspan(t[k] - 0.5 * dt, t[k] + 0.5 * dt, color="0.9", lw=0)
+
+
+def _task_friction(task_name: str) -> float | None:
+    """The friction coefficient of a built-in task, None when ``task_name`` is not one."""
+    from jtraj import task as tasks
+
+    try:
+        return float(tasks.load(task_name).friction)
+    except Exception:  # not a built-in task name (a task built in Python or from a file)
+        return None
+
+
+def friction_cone_ratio(forces: np.ndarray, friction: float) -> np.ndarray:
+    """``|f_t| / (mu f_z)`` of world-frame contact forces (..., 3) on flat ground: at most 1
+    inside the friction cone; NaN where ``f_z`` is not positive (no contact)."""
+    forces = np.asarray(forces, float)
+    tangential = np.linalg.norm(forces[..., :2], axis=-1)
+    fz = forces[..., 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(fz > 1e-9, tangential / (friction * fz), np.nan)
+
+
+def plot_solution(result: Result, path: str | Path | None = None, *, friction: float | None = None):
+    """Six panels against time, contact phases shaded (grey: flight): base position; base
+    rotation (world-axis angles, accumulated, deg); joint angles and joint torques as fractions
+    of their limits (0..1 is the range for angles, |tau| / tau_max <= 1 for torques); vertical
+    contact forces (N); and the friction-cone use ``|f_t| / (mu f_z)`` (<= 1 inside the cone).
+
+    ``friction`` (mu) defaults to the built-in task's. Returns the figure, or writes it to
+    ``path`` and returns the path.
+    """
+    from jtraj import robot as robots
+
+    plt = _pyplot()
+    t = result.trajectory
+    if t is None:
+        raise ValueError("the result has no trajectory (solve(..., keep_trajectory=True))")
+    robot = robots.load(result.robot)
+    mu = friction if friction is not None else _task_friction(result.task)
+    mu_note = "" if friction is not None or mu is not None else " (mu = 0.9 assumed: not a built-in task)"
+    mu = 0.9 if mu is None else mu
+    touching = t.in_contact.any(axis=1)
+    fig, axes = plt.subplots(3, 2, figsize=(12, 9), sharex=True)
+    for ax in axes.ravel():
+        _flight_shading(ax, t.t, touching)
+
+    ax = axes[0, 0]
+    for i, name in enumerate("xyz"):
+        ax.plot(t.t, t.base_xyz_wxyz[:, i], label=name)
+    ax.set_ylabel("base position (m)")
+    ax.legend(fontsize=8)
+
+    ax = axes[0, 1]
+    angles = _rpy_unwrapped(t.base_xyz_wxyz)
+    for i, name in enumerate(("about x", "about y", "about z")):
+        ax.plot(t.t, np.degrees(angles[:, i]), label=name)
+    ax.set_ylabel("base rotation (deg, accumulated)")
+    ax.legend(fontsize=8)
+
+    ax = axes[1, 0]
+    span = robot.q_upper - robot.q_lower
+    bounded = np.isfinite(span)
+    ax.plot(t.t, (t.q_joints[:, bounded] - robot.q_lower[bounded]) / span[bounded], lw=0.7)
+    for limit in (0.0, 1.0):
+        ax.axhline(limit, color="k", ls="--", lw=0.8)
+    ax.set_ylabel("joint angle (fraction of range)")
+
+    ax = axes[1, 1]
+    ratio = np.abs(t.tau[:, 6:]) / robot.tau_max
+    ax.plot(t.t, ratio, lw=0.7)
+    ax.axhline(1.0, color="k", ls="--", lw=0.8)
+    worst = robot.joint_names[int(np.nanargmax(ratio.max(axis=0)))]
+    ax.set_ylabel("|joint torque| / limit")
+    ax.set_title(f"highest: {worst} ({np.nanmax(ratio):.2f})", fontsize=8)
+
+    labels = t.contact_names if len(t.contact_names) <= 8 else [None] * len(t.contact_names)
+    ax = axes[2, 0]
+    for j, name in enumerate(labels):
+        ax.plot(t.t, t.forces[:, j, 2], lw=0.8, label=name)
+    ax.axhline(robot.total_mass * robot.gravity, color="k", ls=":", lw=0.8, label="weight")
+    ax.set_ylabel("contact force z (N)")
+    ax.set_xlabel("time (s)")
+    ax.legend(fontsize=6, ncol=2)
+
+    ax = axes[2, 1]
+    cone = friction_cone_ratio(t.forces, mu)
+    for j, name in enumerate(labels):
+        ax.plot(t.t, cone[:, j], lw=0.8, label=name)
+    ax.axhline(1.0, color="k", ls="--", lw=0.8)
+    ax.set_ylabel(f"|f_t| / (mu f_z), mu = {mu:g}")
+    ax.set_xlabel("time (s)")
+    ax.set_title(mu_note, fontsize=8)
+
+    turns = "" if result.turns is None else f", {result.turns:+.2f} turns"
+    fig.suptitle(
+        f"{result.task} on {result.robot}, {result.parameterization}: {result.status.value}, "
+        f"{result.iterations} iterations{turns} (grey: flight; dashed: limits)"
+    )
+    fig.tight_layout()
+    return _finish(plt, fig, path)
+
+
+def _finish(plt, fig, path):
+    if path is None:
+        return fig
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_comparison(directory: str | Path, path: str | Path | None = None):
+    """The motions of a ``jtraj compare`` folder side by side: one column per
+    parameterization, two rows per task (base position; accumulated base rotation), titled
+    with each run's outcome and iterations. Runs without a saved trajectory are left blank.
+    Returns the figure, or writes it to ``path`` and returns the path."""
+    import json
+
+    plt = _pyplot()
+    directory = Path(directory)
+    table = directory / "table_iv.json"
+    if not table.is_file():
+        raise FileNotFoundError(f"{directory}: no table_iv.json (expected a folder written by `jtraj compare`)")
+    rows = json.loads(table.read_text())
+    tasks = list(dict.fromkeys(r["task"] for r in rows))
+    params = list(dict.fromkeys(r["parameterization"] for r in rows))
+    fig, axes = plt.subplots(2 * len(tasks), len(params), figsize=(3.2 * len(params), 2.3 * 2 * len(tasks)), squeeze=False, sharex="row")
+    for i, task in enumerate(tasks):
+        for j, param in enumerate(params):
+            top, bottom = axes[2 * i, j], axes[2 * i + 1, j]
+            run = directory / f"{task}_{param}"
+            if not (run / "trajectory.npz").is_file():
+                top.set_title(f"{task} [{param}]: no trajectory", fontsize=8)
+                continue
+            result = Result.load(run)
+            t = result.trajectory
+            touching = t.in_contact.any(axis=1)
+            for ax in (top, bottom):
+                _flight_shading(ax, t.t, touching)
+            for k, name in enumerate("xyz"):
+                top.plot(t.t, t.base_xyz_wxyz[:, k], lw=0.9, label=name)
+            angles = np.degrees(_rpy_unwrapped(t.base_xyz_wxyz))
+            for k, name in enumerate(("x", "y", "z")):
+                bottom.plot(t.t, angles[:, k], lw=0.9, label=f"about {name}")
+            top.set_title(f"{task} [{param}]: {result.status.value}, {result.iterations} it", fontsize=8)
+            bottom.set_xlabel("time (s)", fontsize=8)
+            if j == 0:
+                top.set_ylabel("base position (m)", fontsize=8)
+                bottom.set_ylabel("rotation (deg)", fontsize=8)
+            if i == 0 and j == 0:
+                top.legend(fontsize=6)
+                bottom.legend(fontsize=6)
+    fig.suptitle("one column per parameterization (grey: flight)")
+    fig.tight_layout()
+    return _finish(plt, fig, path)
+
+
+def plot_directory(directory: str | Path, out: str | Path | None = None) -> list[Path]:
+    """``jtraj plot DIR``: for a solution folder (``result.json`` + ``trajectory.npz``),
+    ``solution.png`` (`plot_solution`) and ``convergence.png``; for a ``jtraj compare`` folder
+    (``table_iv.json``), ``comparison.png`` (`plot_comparison`). Written into ``out``
+    (default ``directory``); returns the paths."""
+    directory = Path(directory)
+    out = Path(out) if out is not None else directory
+    if (directory / "table_iv.json").is_file():
+        return [plot_comparison(directory, out / "comparison.png")]
+    if not (directory / "result.json").is_file():
+        raise FileNotFoundError(f"{directory}: neither result.json (a `jtraj solve` folder) nor table_iv.json (a `jtraj compare` folder)")
+    result = Result.load(directory)
+    if result.trajectory is None:
+        raise FileNotFoundError(f"{directory}: result.json without trajectory.npz; nothing to plot against time")
+    return [plot_solution(result, out / "solution.png"), plot_convergence(result, out / "convergence.png")]

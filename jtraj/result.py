@@ -78,6 +78,14 @@ class Result:
             f"Ipopt {self.time_ipopt:.2f} s)"
         )
 
+    def plot(self, path: str | Path | None = None, **kwargs):
+        """Base pose, joint angles and torques against their limits, contact forces and the
+        friction-cone use, contact phases shaded (`jtraj.plots.plot_solution`): the figure,
+        or the path when ``path`` is given."""
+        from jtraj.plots import plot_solution
+
+        return plot_solution(self, path, **kwargs)
+
     # ------------------------------------------------------------------ files
     def to_json(self) -> dict[str, Any]:
         out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "trajectory"}

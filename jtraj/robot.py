@@ -21,12 +21,18 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import functools
+import hashlib
 import importlib.metadata
 import importlib.resources
 import io
+import json
 import math
+import os
 import pathlib
+import shutil
+import tempfile
 import tomllib
+import warnings
 import xml.etree.ElementTree as ET
 from collections.abc import Mapping
 from types import MappingProxyType
@@ -52,6 +58,9 @@ __all__ = [
     "load",
     "load_file",
     "load_render_model",
+    "render_spec",
+    "compile_render_spec",
+    "mesh_cache_dir",
     "robots_data_dir",
     "GRAVITY",
 ]
@@ -60,7 +69,7 @@ __all__ = [
 GRAVITY = 9.81
 
 _FREE_JOINT_NAME = "floating_base"
-# Mesh formats MuJoCo can read; others (e.g. Collada .dae) are skipped for rendering.
+# Mesh formats MuJoCo can read; Collada (.dae) is converted for rendering, others are skipped.
 _MUJOCO_MESH_SUFFIXES = (".stl", ".obj", ".msh")
 
 
@@ -338,8 +347,11 @@ def _mujoco_urdf_string(
     for link in root.findall("link"):
         for tag in ("visual", "collision"):
             for geom in link.findall(tag):
-                if not keep_geometry or not _resolve_meshes(geom, mesh_root):
-                    link.remove(geom)
+                position = list(link).index(geom)
+                link.remove(geom)
+                if keep_geometry:
+                    for i, part in enumerate(_resolve_meshes(geom, mesh_root)):
+                        link.insert(position + i, part)
     # Gazebo/transmission extras are noise to MuJoCo.
     for child in list(root):
         if child.tag not in ("link", "joint", "material"):
@@ -352,35 +364,127 @@ def _mujoco_urdf_string(
     return ET.tostring(root, encoding="unicode")
 
 
-def _resolve_meshes(geom: ET.Element, mesh_root: pathlib.Path | None) -> bool:
-    """Points mesh file names at files on disk; False when a mesh cannot be loaded."""
-    for mesh in geom.iter("mesh"):
+def _resolve_meshes(geom: ET.Element, mesh_root: pathlib.Path | None) -> list[ET.Element]:
+    """``geom`` (a ``<visual>`` or ``<collision>``) with its mesh file names pointed at files
+    MuJoCo reads: empty when a mesh cannot be loaded; one element per colored part when a
+    Collada mesh was converted (see `_collada_parts`)."""
+    meshes = list(geom.iter("mesh"))
+    for mesh in meshes:
         filename = mesh.get("filename", "")
         prefix = "package://example-robot-data/robots/"
         if filename.startswith(prefix) and mesh_root is not None:
             path = mesh_root / filename[len(prefix) :]
         elif filename.startswith("package://"):
-            return False
+            return []
         else:
             path = pathlib.Path(filename)
-        if path.suffix.lower() not in _MUJOCO_MESH_SUFFIXES or not path.is_file():
-            return False
+        if not path.is_file():
+            return []
+        if path.suffix.lower() == ".dae" and len(meshes) == 1:
+            return _collada_geoms(geom, mesh, path)
+        if path.suffix.lower() not in _MUJOCO_MESH_SUFFIXES:
+            return []
         mesh.set("filename", str(path))
-    return True
+    return [geom]
+
+
+def _collada_geoms(geom: ET.Element, mesh: ET.Element, path: pathlib.Path) -> list[ET.Element]:
+    """One copy of ``geom`` per part of the Collada file ``path``, each pointing at that
+    part's OBJ file and colored with the part's material."""
+    parts = _collada_parts(path)
+    out = []
+    for i, (part_path, rgba) in enumerate(parts):
+        mesh.set("filename", str(part_path))
+        copy = ET.fromstring(ET.tostring(geom))
+        for material in copy.findall("material"):
+            copy.remove(material)
+        material = ET.SubElement(copy, "material", name=f"{path.stem}_{i}_{'%02x%02x%02x' % rgba[:3]}")
+        ET.SubElement(material, "color", rgba=" ".join(f"{c / 255:.3f}" for c in rgba))
+        out.append(copy)
+    return out
+
+
+def mesh_cache_dir() -> pathlib.Path:
+    """Where converted meshes are kept: ``$JTRAJ_MESH_CACHE`` or ``~/.cache/jtraj/meshes``."""
+    if os.environ.get("JTRAJ_MESH_CACHE"):
+        return pathlib.Path(os.environ["JTRAJ_MESH_CACHE"])
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return pathlib.Path(base) / "jtraj" / "meshes"
+
+
+@functools.lru_cache(maxsize=None)
+def _collada_parts(path: pathlib.Path) -> tuple[tuple[pathlib.Path, tuple[int, int, int, int]], ...]:
+    """The parts of a Collada (.dae) mesh as OBJ files MuJoCo reads, with their RGBA (0-255).
+
+    MuJoCo cannot read Collada; trimesh (with pycollada) converts it, once per file: the OBJ
+    files are cached under `mesh_cache_dir`, keyed by the source's path, size and time stamp.
+    Without trimesh the mesh is skipped (returns no parts) with a warning naming the extra.
+    """
+    stat = path.stat()
+    key = hashlib.sha1(f"{path.resolve()}:{stat.st_size}:{stat.st_mtime_ns}".encode()).hexdigest()[:16]
+    folder = mesh_cache_dir() / f"{path.stem}-{key}"
+    index = folder / "parts.json"
+    if index.is_file():
+        entries = json.loads(index.read_text())
+        return tuple((folder / e["file"], tuple(e["rgba"])) for e in entries)
+    try:
+        import trimesh
+    except ImportError:
+        warnings.warn(
+            f"{path.name}: Collada meshes need trimesh and pycollada to be drawn "
+            "(`pip install 'jtraj[render]'`); drawing this link without its visual mesh",
+            stacklevel=2,
+        )
+        return ()
+    try:
+        # Each geometry of the scene, with the scene graph's transforms applied.
+        geometries = trimesh.load(str(path), force="scene").dump()
+    except Exception as err:  # trimesh raises a variety of parser errors
+        raise RobotLoadError(f"cannot convert Collada mesh {path} with trimesh: {err}") from err
+    # Write into a temporary folder, then rename: concurrent loads never see half a cache entry.
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    tmp = pathlib.Path(tempfile.mkdtemp(dir=folder.parent, prefix=f".{path.stem}-"))
+    entries = []
+    for i, g in enumerate(geometries):
+        if len(g.faces) == 0:
+            continue
+        material = getattr(g.visual, "material", None)
+        rgba = getattr(material, "main_color", None)
+        if rgba is None:
+            rgba = np.asarray(g.visual.main_color) if hasattr(g.visual, "main_color") else (200, 200, 200, 255)
+        # MuJoCo names meshes after their file stem: the stems must be unique across files.
+        name = f"{path.stem}_{key[:6]}_part{i}.obj"
+        # Geometry only: MuJoCo takes the color from the URDF material written beside it.
+        trimesh.Trimesh(vertices=g.vertices, faces=g.faces, process=False).export(tmp / name)
+        entries.append({"file": name, "rgba": [int(c) for c in rgba]})
+    (tmp / "parts.json").write_text(json.dumps(entries))
+    try:
+        tmp.rename(folder)
+    except OSError:  # another process finished first: use its copy
+        shutil.rmtree(tmp, ignore_errors=True)
+    return tuple((folder / e["file"], tuple(e["rgba"])) for e in entries)
+
+
+def _spec(text: str, source: pathlib.Path, urdf_path: pathlib.Path) -> mujoco.MjSpec:
+    """The URDF text as a MuJoCo spec, with the free joint added to the root body."""
+    try:
+        spec = mujoco.MjSpec.from_string(text)
+    except ValueError as err:  # MuJoCo raises ValueError on parse and compile errors
+        raise RobotLoadError(f"{source}: MuJoCo could not load URDF {urdf_path}: {err}") from err
+    root_body = spec.worldbody.first_body()
+    if root_body is None:
+        raise RobotLoadError(f"{source}: MuJoCo could not load URDF {urdf_path}: the model has no body")
+    free = root_body.add_freejoint()
+    free.name = _FREE_JOINT_NAME
+    return spec
 
 
 def _compile(text: str, source: pathlib.Path, urdf_path: pathlib.Path) -> mujoco.MjModel:
+    spec = _spec(text, source, urdf_path)
     try:
-        spec = mujoco.MjSpec.from_string(text)
-        root_body = spec.worldbody.first_body()
-        if root_body is None:
-            raise ValueError("the model has no body")
-        free = root_body.add_freejoint()
-        free.name = _FREE_JOINT_NAME
-        model = spec.compile()
-    except ValueError as err:  # MuJoCo raises ValueError on parse and compile errors
+        return spec.compile()
+    except ValueError as err:
         raise RobotLoadError(f"{source}: MuJoCo could not load URDF {urdf_path}: {err}") from err
-    return model
 
 
 def _link_in_body(
@@ -580,20 +684,43 @@ def _assemble(config, source, name, urdf_path, urdf, locked) -> Robot:
     )
 
 
+def render_spec(robot: Robot) -> mujoco.MjSpec:
+    """The MuJoCo spec of `load_render_model`, for callers that add scenery (a floor, lights,
+    textures) before compiling it with `compile_render_spec`."""
+    urdf = _parse_urdf(robot.urdf_path, robot.source)
+    text = _mujoco_urdf_string(urdf, robot.locked_joints, keep_geometry=True, mesh_root=robots_data_dir())
+    return _spec(text, robot.source, robot.urdf_path)
+
+
+def compile_render_spec(robot: Robot, spec: mujoco.MjSpec) -> mujoco.MjModel:
+    """Compiles a `render_spec` (possibly with scenery added) and checks that the robot's
+    ``qpos`` layout is unchanged."""
+    try:
+        model = spec.compile()
+    except ValueError as err:
+        raise RobotLoadError(f"{robot.source}: MuJoCo could not compile the render model of {robot.urdf_path}: {err}") from err
+    body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, mujoco.mj_id2name(robot.mj_model, mujoco.mjtObj.mjOBJ_BODY, 1))
+    if model.nq != robot.mj_model.nq or body != 1 or model.jnt_type[0] != mujoco.mjtJoint.mjJNT_FREE:
+        raise RobotLoadError(
+            f"{robot.source}: render model of {robot.urdf_path} has nq={model.nq} and its root body at id {body}, "
+            f"expected nq={robot.mj_model.nq} with the robot's root body first"
+        )
+    return model
+
+
 def load_render_model(robot: Robot) -> mujoco.MjModel:
     """A MuJoCo model of ``robot`` with the meshes it can load, for rendering.
 
     Same bodies and joints as ``robot.mj_model`` (same ``qpos`` layout); visual and collision
-    geometry whose mesh files exist in a format MuJoCo reads are kept, the rest is skipped.
+    geometry whose mesh files exist in a format MuJoCo reads are kept, Collada (.dae) visuals
+    are converted to OBJ once and cached (`mesh_cache_dir`; needs trimesh and pycollada, the
+    ``render`` extra), the rest is skipped. URDF visuals are geom group 1, collisions group 0.
     Dynamics never uses this model.
     """
-    urdf = _parse_urdf(robot.urdf_path, robot.source)
-    text = _mujoco_urdf_string(urdf, robot.locked_joints, keep_geometry=True, mesh_root=robots_data_dir())
-    model = _compile(text, robot.source, robot.urdf_path)
-    if model.nbody != robot.mj_model.nbody or model.nq != robot.mj_model.nq:
+    model = compile_render_spec(robot, render_spec(robot))
+    if model.nbody != robot.mj_model.nbody:
         raise RobotLoadError(
-            f"{robot.source}: render model of {robot.urdf_path} has {model.nbody} bodies and nq={model.nq}, "
-            f"expected {robot.mj_model.nbody} and {robot.mj_model.nq}"
+            f"{robot.source}: render model of {robot.urdf_path} has {model.nbody} bodies, expected {robot.mj_model.nbody}"
         )
     return model
 

@@ -1,0 +1,544 @@
+"""Pictures of a solution: videos and keyframe strips drawn with MuJoCo's offscreen renderer.
+
+``jtraj.render(result)`` returns the frames of a video (numpy, ``(T, H, W, 3)`` uint8) at real
+time (or ``speed`` times it); `keyframe_strip` returns one image of keyframes spread along the
+motion, side by side or overlaid (the paper's Fig. 1); `write_video` / `write_image` save them,
+`render_directory` does both for a folder written by ``jtraj solve`` (``jtraj render DIR``).
+
+Between knots the base pose is interpolated on SE(3) (``T_k Exp(s Log(T_k^-1 T_k+1))``) and
+the joints linearly. The scene has a checker ground, contact forces drawn as arrows (a force
+equal to the robot's weight twice as long as the robot stands tall), a label that marks the flight
+phases, and a camera that follows the base.
+
+Headless machines: MuJoCo picks its OpenGL backend when it is imported, from ``MUJOCO_GL``.
+``import jtraj`` sets ``MUJOCO_GL=egl`` when the variable is unset and there is no display, so
+Mesa's software EGL (llvmpipe) draws without a GPU; ``MUJOCO_GL=osmesa`` works too where
+libOSMesa is installed. Writing MP4 needs ``imageio-ffmpeg`` (the ``render`` extra); GIF and
+PNG are written with Pillow (a matplotlib dependency).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import os
+import sys
+import types
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    import mujoco
+
+    from jtraj.result import Result
+    from jtraj.transcription import Trajectory
+
+__all__ = [
+    "RenderOptions",
+    "RenderError",
+    "render",
+    "keyframe_strip",
+    "keyframe_times",
+    "interpolate",
+    "write_video",
+    "write_image",
+    "render_directory",
+]
+
+
+class RenderError(RuntimeError):
+    """Rendering is not possible here; the message says what to install or set."""
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class RenderOptions:
+    """How a motion is drawn.
+
+    Attributes:
+        width, height: image size (pixels).
+        fps: video frame rate (frames per second of video).
+        speed: playback speed; 1 is real time, 0.25 four times slower.
+        distance: camera distance to the base (m); None: from the robot's standing height and
+            the motion's extent.
+        azimuth, elevation: camera angles (degrees, MuJoCo's convention); azimuth 90 looks
+            along +y, so motions in the x-z plane (back-flips) are seen from the side.
+        forces: draw contact forces as arrows.
+        force_length: arrow length (m) of a force equal to the robot's weight; None: twice
+            the standing base height (so the share of the weight on one foot clears the leg).
+        label: write the time and "flight" (when no contact point touches) on each image.
+        shadows: cast shadows (several times slower with software OpenGL).
+    """
+
+    width: int = 640
+    height: int = 480
+    fps: float = 30.0
+    speed: float = 1.0
+    distance: float | None = None
+    azimuth: float = 90.0
+    elevation: float = -15.0
+    forces: bool = True
+    force_length: float | None = None
+    label: bool = True
+    shadows: bool = True
+
+    def __post_init__(self):
+        if self.width < 16 or self.height < 16:
+            raise ValueError(f"image size must be at least 16x16 pixels, got {self.width}x{self.height}")
+        if not self.fps > 0 or not self.speed > 0:
+            raise ValueError(f"fps and speed must be positive, got fps={self.fps}, speed={self.speed}")
+
+
+# ----------------------------------------------------------------------------------------
+# OpenGL backend
+
+
+def _mujoco():
+    """MuJoCo with an OpenGL context usable here, or a RenderError that says what to do."""
+    import mujoco
+
+    from mujoco import gl_context
+
+    if getattr(gl_context, "GLContext", None) is None:
+        raise RenderError(
+            f"MuJoCo has no OpenGL backend (MUJOCO_GL={os.environ.get('MUJOCO_GL')!r}); on a machine without "
+            "display set MUJOCO_GL=egl (Mesa's libEGL: apt-get install libegl1 libgl1-mesa-dri) or "
+            "MUJOCO_GL=osmesa (apt-get install libosmesa6) before importing mujoco"
+        )
+    return mujoco
+
+
+def _renderer(model, width: int, height: int):
+    mujoco = _mujoco()
+    model.vis.global_.offwidth = max(int(model.vis.global_.offwidth), width)
+    model.vis.global_.offheight = max(int(model.vis.global_.offheight), height)
+    try:
+        return mujoco.Renderer(model, height=height, width=width)
+    except Exception as err:  # the GL backends raise their own error types
+        raise RenderError(
+            f"MuJoCo could not open an offscreen OpenGL context with MUJOCO_GL={os.environ.get('MUJOCO_GL')!r}: {err}. "
+            "Without display or GPU use MUJOCO_GL=egl with Mesa (apt-get install libegl1 libgl1-mesa-dri) or "
+            "MUJOCO_GL=osmesa (apt-get install libosmesa6)"
+        ) from err
+
+
+# ----------------------------------------------------------------------------------------
+# Scene
+
+
+def add_scenery(spec: mujoco.MjSpec, *, checker_size: float = 0.5) -> None:
+    """Adds a checker ground plane (squares of ``checker_size`` m), a sky and a light that
+    casts shadows to a MuJoCo spec."""
+    mujoco = _mujoco()
+    spec.add_texture(
+        name="jtraj_sky", type=mujoco.mjtTexture.mjTEXTURE_SKYBOX, builtin=mujoco.mjtBuiltin.mjBUILTIN_GRADIENT,
+        rgb1=[0.55, 0.7, 0.88], rgb2=[0.95, 0.96, 0.98], width=256, height=256,
+    )
+    spec.add_texture(
+        name="jtraj_checker", type=mujoco.mjtTexture.mjTEXTURE_2D, builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER,
+        rgb1=[0.82, 0.84, 0.86], rgb2=[0.64, 0.67, 0.7], width=256, height=256,
+    )
+    ground = spec.add_material(name="jtraj_ground", texrepeat=[1.0 / (2 * checker_size)] * 2, texuniform=True)
+    ground.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = "jtraj_checker"
+    # A plane of size 0 is drawn to the horizon.
+    spec.worldbody.add_geom(
+        name="jtraj_ground", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 0.05], material="jtraj_ground",
+        contype=0, conaffinity=0, group=2,
+    )
+    spec.worldbody.add_light(
+        name="jtraj_sun", type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL, pos=[0, 0, 6], dir=[0.3, 0.2, -1],
+        diffuse=[0.6, 0.6, 0.6], specular=[0.1, 0.1, 0.1], castshadow=True,
+    )
+    spec.visual.headlight.ambient = [0.45, 0.45, 0.45]
+    spec.visual.headlight.diffuse = [0.4, 0.4, 0.4]
+    spec.visual.quality.shadowsize = 2048
+    spec.visual.map.znear = 0.01
+
+
+@functools.lru_cache(maxsize=None)
+def scene_model(robot_name: str) -> mujoco.MjModel:
+    """The robot's render model (`jtraj.robot.load_render_model`) on a checker ground.
+
+    Collision meshes of bodies that also have visual meshes are hidden (group 3) so each body
+    is drawn once; a body with only collision meshes shows those.
+    """
+    from jtraj import robot as robots
+
+    _mujoco()
+    robot = robots.load(robot_name)
+    spec = robots.render_spec(robot)
+    add_scenery(spec)
+    model = robots.compile_render_spec(robot, spec)
+    visual_bodies = set(model.geom_bodyid[model.geom_group == 1])
+    for g in range(model.ngeom):
+        if model.geom_group[g] == 0 and model.geom_bodyid[g] in visual_bodies:
+            model.geom_group[g] = 3
+    return model
+
+
+def _options(mujoco):
+    option = mujoco.MjvOption()
+    option.geomgroup[:] = 0
+    option.geomgroup[0:3] = 1
+    return option
+
+
+# ----------------------------------------------------------------------------------------
+# Interpolation
+
+
+@dataclasses.dataclass(frozen=True)
+class Frames:
+    """A trajectory resampled at given times (arrays have the time axis first).
+
+    Attributes:
+        t: times (s), shape (T,).
+        qpos: MuJoCo ``qpos`` (base xyz, base wxyz, joints), shape (T, 7 + nj).
+        forces: contact forces (N, world frame), shape (T, P, 3).
+        contact_positions: contact points (m, world frame), shape (T, P, 3).
+        in_contact: contact flags of the nearest knot, shape (T, P).
+    """
+
+    t: np.ndarray
+    qpos: np.ndarray
+    forces: np.ndarray
+    contact_positions: np.ndarray
+    in_contact: np.ndarray
+
+
+def interpolate(trajectory: Trajectory, times: np.ndarray) -> Frames:
+    """The trajectory at ``times`` (s, clipped to its span): base pose on SE(3)
+    (``T_k Exp(s Log(T_k^-1 T_k+1))``, constant body twist between knots), joints, forces and
+    contact points linearly, contact flags from the nearest knot."""
+    from jaxlie import SE3
+
+    t = np.asarray(trajectory.t, float)
+    times = np.clip(np.asarray(times, float), t[0], t[-1])
+    k = np.clip(np.searchsorted(t, times, side="right") - 1, 0, len(t) - 2)
+    s = (times - t[k]) / (t[k + 1] - t[k])
+    xyz_wxyz = np.asarray(trajectory.base_xyz_wxyz, float)
+    T = SE3(np.concatenate([xyz_wxyz[:, 3:7], xyz_wxyz[:, :3]], axis=1))  # jaxlie stores wxyz_xyz
+    Ta = SE3(T.wxyz_xyz[k])
+    Tb = SE3(T.wxyz_xyz[k + 1])
+    twist = (Ta.inverse() @ Tb).log()
+    pose = Ta @ SE3.exp(twist * s[:, None])
+    wxyz_xyz = np.asarray(pose.wxyz_xyz)
+
+    def lerp(a):
+        a = np.asarray(a, float)
+        w = s.reshape((-1,) + (1,) * (a.ndim - 1))
+        return (1 - w) * a[k] + w * a[k + 1]
+
+    qpos = np.concatenate([wxyz_xyz[:, 4:], wxyz_xyz[:, :4], lerp(trajectory.q_joints)], axis=1)
+    nearest = np.where(s < 0.5, k, k + 1)
+    return Frames(
+        t=times,
+        qpos=qpos,
+        forces=lerp(trajectory.forces),
+        contact_positions=lerp(trajectory.contact_positions),
+        in_contact=np.asarray(trajectory.in_contact, bool)[nearest],
+    )
+
+
+# ----------------------------------------------------------------------------------------
+# Drawing
+
+
+class _Painter:
+    """One robot, one offscreen renderer; draws a pose with its forces from a camera."""
+
+    def __init__(self, robot_name: str, options: RenderOptions):
+        from jtraj import robot as robots
+
+        self.mujoco = _mujoco()
+        self.robot = robots.load(robot_name)
+        self.model = scene_model(robot_name)
+        self.data = self.mujoco.MjData(self.model)
+        self.options = options
+        self.renderer = _renderer(self.model, options.width, options.height)
+        self.vopt = _options(self.mujoco)
+        self.renderer.scene.flags[self.mujoco.mjtRndFlag.mjRND_SHADOW] = options.shadows
+        self.weight = self.robot.total_mass * self.robot.gravity
+        height = float(self.robot.base_xyz_wxyz_standing[2])
+        self.force_length = options.force_length if options.force_length is not None else 2.0 * height
+        self.arrow_width = 0.04 * height
+
+    def close(self):
+        self.renderer.close()
+
+    def camera(self, lookat: np.ndarray, distance: float):
+        cam = self.mujoco.MjvCamera()
+        cam.type = self.mujoco.mjtCamera.mjCAMERA_FREE
+        cam.lookat[:] = lookat
+        cam.distance = distance
+        cam.azimuth = self.options.azimuth
+        cam.elevation = self.options.elevation
+        return cam
+
+    def pose(self, qpos: np.ndarray, data=None):
+        data = self.data if data is None else data
+        data.qpos[:] = qpos
+        self.mujoco.mj_kinematics(self.model, data)
+        return data
+
+    def draw(self, qpos, forces, points, in_contact, camera, extra_poses: Sequence[np.ndarray] = ()) -> np.ndarray:
+        mj = self.mujoco
+        self.renderer.update_scene(self.pose(qpos), camera=camera, scene_option=self.vopt)
+        scene = self.renderer.scene
+        for q in extra_poses:
+            # More copies of the robot in the same scene: MuJoCo sorts them by depth.
+            mj.mjv_addGeoms(self.model, self.pose(q, mj.MjData(self.model)), self.vopt, mj.MjvPerturb(), mj.mjtCatBit.mjCAT_DYNAMIC, scene)
+        if self.options.forces:
+            self._arrows(scene, forces, points, in_contact)
+        return self.renderer.render().copy()
+
+    def _arrows(self, scene, forces, points, in_contact):
+        mj = self.mujoco
+        for f, p, on in zip(forces, points, in_contact):
+            length = self.force_length * np.linalg.norm(f) / self.weight
+            if not on or length < 1e-3 or scene.ngeom >= scene.maxgeom:
+                continue
+            geom = scene.geoms[scene.ngeom]
+            mj.mjv_initGeom(geom, mj.mjtGeom.mjGEOM_ARROW, np.zeros(3), np.zeros(3), np.eye(3).ravel(), np.array([1.0, 0.75, 0.0, 1.0], np.float32))
+            mj.mjv_connector(geom, mj.mjtGeom.mjGEOM_ARROW, self.arrow_width, p, p + f / np.linalg.norm(f) * length)
+            scene.ngeom += 1
+
+
+def _label(image: np.ndarray, text: str, flight: bool) -> np.ndarray:
+    from PIL import Image, ImageDraw
+
+    img = Image.fromarray(image)
+    draw = ImageDraw.Draw(img)
+    size = max(10, image.shape[0] // 18)
+    try:
+        from PIL import ImageFont
+
+        font = ImageFont.load_default(size=size)
+    except TypeError:  # Pillow < 10.1 has one bitmap size
+        font = None
+    draw.text((4, 2), text, fill=(20, 20, 20), font=font)
+    if flight:
+        # An orange bar along the top marks the flight phases.
+        draw.rectangle([0, 0, image.shape[1] - 1, max(2, image.shape[0] // 60)], fill=(235, 120, 20))
+        draw.text((image.shape[1] - 5 * size // 2 * 2, 2), "flight", fill=(200, 80, 0), font=font)
+    return np.asarray(img)
+
+
+def _as_result(result) -> Result:
+    from jtraj.result import Result
+
+    if isinstance(result, (str, Path)):
+        return Result.load(result)
+    if result.trajectory is None:
+        raise ValueError("the result has no trajectory to draw (solve with keep_trajectory=True or load a folder with trajectory.npz)")
+    return result
+
+
+def _follow(frames: Frames, robot) -> tuple[np.ndarray, float]:
+    """Camera targets (T, 3) that follow the base in x and y at a steady height, and a
+    distance that keeps the robot and its vertical excursion in view."""
+    base = frames.qpos[:, :3]
+    height = float(robot.base_xyz_wxyz_standing[2])
+    z = 0.5 * (base[:, 2].min() + base[:, 2].max())
+    lookat = np.column_stack([base[:, 0], base[:, 1], np.full(len(base), z)])
+    distance = 3.2 * height + 1.2 * float(np.ptp(base[:, 2]))
+    return lookat, distance
+
+
+def render(result: Result | str | Path, options: RenderOptions | None = None, **kwargs) -> np.ndarray:
+    """Video frames of a solved motion, shape (T, height, width, 3), uint8.
+
+    ``result`` is a `jtraj.result.Result` with a trajectory or a folder written by
+    ``jtraj solve``; ``options`` a `RenderOptions` (keyword arguments override its fields, e.g.
+    ``render(r, width=320, height=240, speed=0.5)``). Frames are spaced ``speed / fps``
+    seconds of motion apart, from the first knot to the last.
+    """
+    options = dataclasses.replace(options or RenderOptions(), **kwargs)
+    result = _as_result(result)
+    traj = result.trajectory
+    duration = float(traj.t[-1] - traj.t[0])
+    n = max(2, int(round(duration / options.speed * options.fps)) + 1)
+    frames = interpolate(traj, np.linspace(traj.t[0], traj.t[-1], n))
+    painter = _Painter(result.robot, options)
+    try:
+        lookat, distance = _follow(frames, painter.robot)
+        distance = options.distance or distance
+        images = []
+        for i in range(n):
+            image = painter.draw(frames.qpos[i], frames.forces[i], frames.contact_positions[i], frames.in_contact[i], painter.camera(lookat[i], distance))
+            if options.label:
+                image = _label(image, f"t = {frames.t[i]:.2f} s", not frames.in_contact[i].any())
+            images.append(image)
+    finally:
+        painter.close()
+    return np.stack(images)
+
+
+def keyframe_times(trajectory: Trajectory, n: int, length: float = 1.0) -> np.ndarray:
+    """``n`` times (s) evenly spread along the base's motion, first and last knot included.
+
+    The motion between knots is ``|Log(T_k^-1 T_k+1)|`` with the rotation counted as the arc
+    it sweeps at ``length`` m from the base (e.g. the standing height), so turning and moving
+    both count; a motion that does not move the base falls back to even times.
+    """
+    from jaxlie import SE3
+
+    xyz_wxyz = np.asarray(trajectory.base_xyz_wxyz, float)
+    T = SE3(np.concatenate([xyz_wxyz[:, 3:7], xyz_wxyz[:, :3]], axis=1))
+    twist = np.asarray((SE3(T.wxyz_xyz[:-1]).inverse() @ SE3(T.wxyz_xyz[1:])).log())
+    step = np.linalg.norm(twist[:, :3], axis=1) + length * np.linalg.norm(twist[:, 3:], axis=1)
+    t = np.asarray(trajectory.t, float)
+    if not np.sum(step) > 0:
+        return np.linspace(t[0], t[-1], n)
+    travelled = np.concatenate([[0.0], np.cumsum(step)])
+    times = np.interp(np.linspace(0.0, travelled[-1], n), travelled, t)
+    times[[0, -1]] = t[[0, -1]]  # np.interp picks any knot of a still stretch at the ends
+    return times
+
+
+def keyframe_strip(
+    result: Result | str | Path,
+    n: int = 6,
+    *,
+    layout: str = "side",
+    spacing: str = "motion",
+    options: RenderOptions | None = None,
+    **kwargs,
+) -> np.ndarray:
+    """One image of ``n`` keyframes from the first knot to the last, shape (H, W, 3) uint8.
+
+    ``spacing="motion"`` spreads them evenly along the base's motion (`keyframe_times`: a
+    flip gets most keyframes, standing still few); ``spacing="time"`` evenly in time.
+
+    ``layout="side"``: one panel per keyframe (``options.width`` x ``options.height`` each),
+    the camera following the base, side by side. ``layout="overlay"``: every keyframe drawn in
+    one scene from a fixed camera that frames the whole path (the paper's Fig. 1).
+    """
+    if layout not in ("side", "overlay"):
+        raise ValueError(f"layout must be 'side' or 'overlay', got {layout!r}")
+    if n < 2:
+        raise ValueError(f"a strip needs at least 2 keyframes, got n={n}")
+    options = dataclasses.replace(options or RenderOptions(), **kwargs)
+    result = _as_result(result)
+    traj = result.trajectory
+    if spacing == "motion":
+        from jtraj import robot as robots
+
+        times = keyframe_times(traj, n, length=float(robots.load(result.robot).base_xyz_wxyz_standing[2]))
+    elif spacing == "time":
+        times = np.linspace(traj.t[0], traj.t[-1], n)
+    else:
+        raise ValueError(f"spacing must be 'motion' or 'time', got {spacing!r}")
+    frames = interpolate(traj, times)
+    painter = _Painter(result.robot, options)
+    try:
+        lookat, distance = _follow(frames, painter.robot)
+        distance = options.distance or distance
+        if layout == "overlay":
+            base = frames.qpos[:, :3]
+            center = 0.5 * (base.min(axis=0) + base.max(axis=0))
+            center[2] = lookat[0, 2]
+            span = float(np.max(np.ptp(base[:, :2], axis=0)))
+            cam = painter.camera(center, options.distance or distance + 1.2 * span)
+            return painter.draw(
+                frames.qpos[-1],
+                frames.forces.reshape(-1, 3),
+                frames.contact_positions.reshape(-1, 3),
+                frames.in_contact.reshape(-1),
+                cam,
+                extra_poses=list(frames.qpos[:-1]),
+            )
+        panels = []
+        for i in range(n):
+            image = painter.draw(frames.qpos[i], frames.forces[i], frames.contact_positions[i], frames.in_contact[i], painter.camera(lookat[i], distance))
+            if options.label:
+                image = _label(image, f"t = {frames.t[i]:.2f} s", not frames.in_contact[i].any())
+            panels.append(image)
+            panels.append(np.full((options.height, 2, 3), 255, np.uint8))
+    finally:
+        painter.close()
+    return np.concatenate(panels[:-1], axis=1)
+
+
+# ----------------------------------------------------------------------------------------
+# Files
+
+
+def write_video(frames: np.ndarray, path: str | Path, fps: float = 30.0) -> Path:
+    """Writes frames (T, H, W, 3) uint8 as ``.mp4`` (H.264 through imageio-ffmpeg) or ``.gif``."""
+    path = Path(path)
+    frames = np.asarray(frames, np.uint8)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    suffix = path.suffix.lower()
+    if suffix == ".gif":
+        from PIL import Image
+
+        images = [Image.fromarray(f) for f in frames]
+        images[0].save(path, save_all=True, append_images=images[1:], duration=int(round(1000 / fps)), loop=0)
+    elif suffix == ".mp4":
+        try:
+            import imageio_ffmpeg
+        except ImportError:
+            raise RenderError("writing .mp4 needs imageio-ffmpeg: pip install 'jtraj[render]' (or write a .gif)") from None
+        # H.264 in yuv420p wants even sizes.
+        h, w = frames.shape[1] // 2 * 2, frames.shape[2] // 2 * 2
+        writer = imageio_ffmpeg.write_frames(str(path), (w, h), fps=fps, codec="libx264", pix_fmt_out="yuv420p", quality=7, macro_block_size=1)
+        with warnings.catch_warnings():
+            # JAX warns on any fork; this one is subprocess's fork-exec of ffmpeg, which is safe.
+            warnings.filterwarnings("ignore", message="os.fork", category=RuntimeWarning)
+            writer.send(None)
+        for f in frames:
+            writer.send(np.ascontiguousarray(f[:h, :w]))
+        writer.close()
+    else:
+        raise ValueError(f"{path}: expected a .mp4 or .gif file name")
+    return path
+
+
+def write_image(image: np.ndarray, path: str | Path) -> Path:
+    """Writes an (H, W, 3) uint8 image (PNG or JPEG, from the file name)."""
+    from PIL import Image
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(np.asarray(image, np.uint8)).save(path, optimize=True)
+    return path
+
+
+def render_directory(
+    directory: str | Path,
+    out: str | Path | None = None,
+    strip: str | Path | None = None,
+    *,
+    keyframes: int = 6,
+    layout: str = "side",
+    spacing: str = "motion",
+    options: RenderOptions | None = None,
+) -> list[Path]:
+    """``jtraj render``: the video (``out``) and/or the keyframe strip (``strip``) of the
+    solution in ``directory`` (its ``result.json`` and ``trajectory.npz``); returns the paths."""
+    directory = Path(directory)
+    if not (directory / "trajectory.npz").is_file():
+        raise FileNotFoundError(f"{directory}: no trajectory.npz (expected a folder written by `jtraj solve`)")
+    result = _as_result(directory)
+    options = options or RenderOptions()
+    written = []
+    if out is not None:
+        written.append(write_video(render(result, options), out, fps=options.fps))
+    if strip is not None:
+        strip_options = dataclasses.replace(options, width=min(options.width, 480), height=min(options.height, 480))
+        written.append(write_image(keyframe_strip(result, keyframes, layout=layout, spacing=spacing, options=strip_options), strip))
+    return written
+
+
+class _CallableModule(types.ModuleType):
+    """``jtraj.render`` is this module and, called, its `render` function."""
+
+    def __call__(self, *args, **kwargs):
+        return render(*args, **kwargs)
+
+
+sys.modules[__name__].__class__ = _CallableModule

@@ -1,0 +1,193 @@
+"""Rendering and plots of a solution, on a Go2 motion made up (no solve): a base that turns
+half a back-flip at a constant body twist while the feet push off, then flies."""
+
+import json
+
+import numpy as np
+import pytest
+from jaxlie import SE3
+
+from jtraj import robot as robots
+from jtraj.cli import main
+from jtraj.plots import friction_cone_ratio, plot_comparison, plot_directory, plot_solution
+from jtraj.render import RenderOptions, interpolate, keyframe_strip, keyframe_times, render, write_image, write_video
+from jtraj.result import Result, Status
+from jtraj.transcription import Trajectory
+
+W, H = 160, 120
+SMALL = RenderOptions(width=W, height=H, fps=12, shadows=False)
+TWIST = np.array([0.6, 0.0, 0.8, 0.0, -2 * np.pi, 0.0])  # body frame: forward, up, pitching back
+
+
+def _result(n_knots=11, duration=0.5) -> Result:
+    """Go2 with the base at ``T_0 Exp(t V)`` (so SE(3) interpolation is exact), the feet in
+    contact for the first three knots."""
+    go2 = robots.load("go2")
+    t = np.linspace(0.0, duration, n_knots)
+    T0 = go2.base_pose_standing
+    poses = SE3(np.stack([(T0 @ SE3.exp(TWIST * tk)).wxyz_xyz for tk in t]))
+    xyz_wxyz = np.concatenate([np.asarray(poses.translation()), np.asarray(poses.rotation().wxyz)], axis=1)
+    P = go2.ncontact
+    forces = np.zeros((n_knots, P, 3))
+    forces[:3, :, 2] = go2.total_mass * go2.gravity / P
+    forces[:3, :, 0] = [[10.0], [0.0], [-5.0]]
+    contact_positions = np.zeros((n_knots, P, 3))
+    contact_positions[:, :, :2] = [[0.19, 0.14], [0.19, -0.14], [-0.19, 0.14], [-0.19, -0.14]]
+    traj = Trajectory(
+        t=t, base_xyz_wxyz=xyz_wxyz, q_base=xyz_wxyz, q_joints=np.tile(go2.q_joints_standing, (n_knots, 1)),
+        v=np.zeros((n_knots, go2.nv)), a=np.zeros((n_knots, go2.nv)), tau=np.zeros((n_knots, go2.nv)),
+        forces=forces, contact_positions=contact_positions, in_contact=np.arange(n_knots)[:, None].repeat(P, 1) < 3,
+        contact_names=go2.contact_names,
+    )
+    zeros = dict.fromkeys(("iterations", "obj_evals", "grad_evals", "con_evals", "jac_evals", "hess_evals", "n_variables", "n_constraints", "nnz_jacobian"), 0)
+    return Result(
+        task="made_up_flip", robot="go2", parameterization="se3", status=Status.SOLVED, status_msg="", converged=True,
+        success=True, turns=-0.5, cost=0.0, constraint_violation=0.0, violation_by_group={}, final_position_error=0.0,
+        time_s=0.0, time_compile=0.0, time_derivatives=0.0, time_ipopt=0.0, options={},
+        history=[{"iter": 0, "inf_pr": 1.0, "inf_du": 1.0}, {"iter": 1, "inf_pr": 1e-9, "inf_du": 1e-7}], trajectory=traj, **zeros,
+    )
+
+
+@pytest.fixture(scope="module")
+def result():
+    return _result()
+
+
+@pytest.fixture(scope="module")
+def frames(result):
+    return render(result, SMALL)
+
+
+def test_interpolation_follows_the_constant_twist_and_hits_the_knots(result):
+    traj = result.trajectory
+    times = np.array([0.0, 0.013, 0.21, 0.333, 0.5])
+    f = interpolate(traj, times)
+    T0 = robots.load("go2").base_pose_standing
+    for tk, qpos in zip(times, f.qpos):
+        expected = T0 @ SE3.exp(TWIST * tk)
+        np.testing.assert_allclose(qpos[:3], expected.translation(), atol=1e-9)
+        np.testing.assert_allclose(abs(qpos[3:7] @ np.asarray(expected.rotation().wxyz)), 1.0, atol=1e-9)
+    np.testing.assert_allclose(interpolate(traj, traj.t).qpos[:, 7:], traj.q_joints)
+    # forces are interpolated linearly, contact flags taken from the nearest knot
+    half = interpolate(traj, [0.5 * (traj.t[2] + traj.t[3])])
+    np.testing.assert_allclose(half.forces[0], 0.5 * (traj.forces[2] + traj.forces[3]))
+
+
+def test_video_frames_have_the_size_are_not_blank_and_move(frames, result):
+    duration = result.trajectory.t[-1]
+    assert frames.shape == (round(duration * SMALL.fps) + 1, H, W, 3) and frames.dtype == np.uint8
+    for image in frames:
+        assert image.std() > 10  # sky, ground and robot, not a flat color
+    assert np.abs(frames[0].astype(int) - frames[-1].astype(int)).mean() > 5
+
+
+def test_speed_sets_the_number_of_frames(result):
+    slow = render(result, SMALL, speed=0.5, fps=4, label=False)
+    assert len(slow) == round(0.5 / 0.5 * 4) + 1
+
+
+def test_flight_is_marked_and_forces_are_drawn(result, frames):
+    # the orange bar along the top marks flight (knots 3 and later), not the stance frames
+    top = frames[:, 0, :, :].astype(int)
+    orange = (top[:, :, 0] > 200) & (top[:, :, 2] < 80)
+    flying = ~interpolate(result.trajectory, np.linspace(0, 0.5, len(frames))).in_contact.any(axis=1)
+    assert np.all(orange.mean(axis=1)[flying] > 0.9) and np.all(orange.mean(axis=1)[~flying] < 0.1)
+    # the force arrows are the only yellow (R, G high, B low) things in the first frame
+    no_forces = render(result, SMALL, forces=False, label=False, fps=2)[0].astype(int)
+    with_forces = render(result, SMALL, label=False, fps=2)[0].astype(int)
+    yellow = lambda im: np.sum((im[..., 0] > 180) & (im[..., 1] > 120) & (im[..., 2] < 60))
+    assert yellow(with_forces) > 20 and yellow(no_forces) == 0
+
+
+def test_keyframe_strips(result):
+    n = 4
+    side = keyframe_strip(result, n, options=SMALL)
+    assert side.shape == (H, n * W + 2 * (n - 1), 3)
+    panels = [side[:, i * (W + 2) : i * (W + 2) + W] for i in range(n)]
+    assert all(p.std() > 10 for p in panels)
+    assert np.abs(panels[0].astype(int) - panels[-1].astype(int)).mean() > 5
+    overlay = keyframe_strip(result, n, layout="overlay", options=SMALL)
+    assert overlay.shape == (H, W, 3) and overlay.std() > 10
+    with pytest.raises(ValueError, match="layout"):
+        keyframe_strip(result, n, layout="grid", options=SMALL)
+
+
+def test_keyframes_spread_along_the_motion_not_the_clock():
+    traj = _result().trajectory
+    # the base stands still for the first half, then moves: keyframes gather in the second half
+    still = traj.base_xyz_wxyz.copy()
+    still[:6] = still[0]
+    times = keyframe_times(Trajectory(**{**traj.__dict__, "base_xyz_wxyz": still}), 5)
+    assert times[0] == traj.t[0] and times[-1] == traj.t[-1]
+    assert np.all(np.diff(times) > 0) and np.all(times[1:-1] > traj.t[5])
+    # a base that never moves: even times
+    frozen = np.tile(traj.base_xyz_wxyz[:1], (len(traj.t), 1))
+    np.testing.assert_allclose(keyframe_times(Trajectory(**{**traj.__dict__, "base_xyz_wxyz": frozen}), 3), [0.0, 0.25, 0.5])
+
+
+@pytest.mark.filterwarnings("ignore:os.fork:RuntimeWarning")  # reading back the MP4 runs ffmpeg
+def test_video_files(frames, tmp_path):
+    import imageio_ffmpeg
+
+    mp4 = write_video(frames, tmp_path / "m.mp4", fps=12)
+    reader = imageio_ffmpeg.read_frames(str(mp4))
+    meta = next(reader)
+    assert tuple(meta["size"]) == (W, H) and sum(1 for _ in reader) == len(frames)
+    from PIL import Image
+
+    gif = Image.open(write_video(frames, tmp_path / "m.gif", fps=12))
+    assert gif.size == (W, H) and gif.n_frames == len(frames)
+    assert Image.open(write_image(frames[0], tmp_path / "f.png")).size == (W, H)
+    with pytest.raises(ValueError, match="mp4 or .gif"):
+        write_video(frames, tmp_path / "m.avi")
+
+
+def test_collada_visuals_are_converted_for_every_go2_body():
+    go2 = robots.load("go2")
+    model = robots.load_render_model(go2)
+    visual_bodies = set(model.geom_bodyid[model.geom_group == 1])
+    # every body with a mesh in the URDF (all but the world) gets its Collada visual
+    assert visual_bodies == set(range(1, model.nbody)) - {b for b in range(1, model.nbody) if model.body_geomnum[b] == 0}
+    assert len(visual_bodies) >= 13  # base, 4 x (hip, thigh, calf)
+    # the converted parts keep their colors: the base has more than one
+    base_colors = {tuple(c) for c in model.geom_rgba[(model.geom_bodyid == 1) & (model.geom_group == 1)].round(2)}
+    assert len(base_colors) > 1
+
+
+def test_friction_cone_ratio():
+    f = np.array([[3.0, 4.0, 10.0], [0.0, 0.0, 5.0], [1.0, 0.0, 0.0]])
+    np.testing.assert_allclose(friction_cone_ratio(f, 0.5)[:2], [1.0, 0.0])
+    assert np.isnan(friction_cone_ratio(f, 0.5)[2])
+
+
+def test_plots_are_written(result, tmp_path):
+    assert plot_solution(result, tmp_path / "s.png").stat().st_size > 10_000
+    fig = result.plot()
+    assert len(fig.axes) == 6 and "made_up_flip" in fig._suptitle.get_text()
+    # a solution folder
+    result.save(tmp_path / "run")
+    paths = plot_directory(tmp_path / "run")
+    assert [p.name for p in paths] == ["solution.png", "convergence.png"] and all(p.stat().st_size > 5000 for p in paths)
+    # a comparison folder: runs named TASK_PARAM beside table_iv.json
+    compare = tmp_path / "compare"
+    for param in ("se3", "euler"):
+        result.save(compare / f"made_up_flip_{param}")
+    rows = [{"task": "made_up_flip", "parameterization": p} for p in ("se3", "euler", "quat1")]
+    (compare / "table_iv.json").write_text(json.dumps(rows))
+    fig = plot_comparison(compare)
+    assert fig.axes[0].get_title().startswith("made_up_flip [se3]: solved")
+    assert "no trajectory" in fig.axes[2].get_title()
+    assert [p.name for p in plot_directory(compare)] == ["comparison.png"]
+    with pytest.raises(FileNotFoundError, match="table_iv.json"):
+        plot_directory(tmp_path / "nothing")
+
+
+def test_render_and_plot_commands(result, tmp_path, capsys):
+    result.save(tmp_path)
+    size = ["--width", str(W), "--height", str(H), "--fps", "6", "--no-shadows"]
+    assert main(["render", str(tmp_path), "--out", str(tmp_path / "m.gif"), "--strip", str(tmp_path / "k.png"), "--keyframes", "3", *size]) == 0
+    assert (tmp_path / "m.gif").stat().st_size > 1000 and (tmp_path / "k.png").stat().st_size > 1000
+    assert main(["plot", str(tmp_path)]) == 0
+    assert "solution.png" in capsys.readouterr().out
+    with pytest.raises(SystemExit, match="no trajectory.npz"):
+        main(["render", str(tmp_path / "empty"), "--out", str(tmp_path / "x.gif")])
