@@ -50,6 +50,7 @@ def _cmd_solve(args: argparse.Namespace) -> int:
     result = solve(
         task,
         args.param,
+        solver=args.solver,
         layout=args.layout,
         exact_hessian=args.exact_hessian,
         ipopt_options=options,
@@ -109,9 +110,9 @@ def _cmd_attitude(args: argparse.Namespace) -> int:
     from jtraj.attitude import benchmarks
 
     if args.bench == "all":
-        rows = benchmarks.compare_benchmarks(args.out, n_knots=args.knots)
+        rows = benchmarks.compare_benchmarks(args.out, n_knots=args.knots, solver=args.solver)
         return 0 if all(r["status"] == "solved" for r in rows) else 2
-    result = benchmarks.main_attitude(args.bench, args.variant, args.out, n_knots=args.knots)
+    result = benchmarks.main_attitude(args.bench, args.variant, args.out, n_knots=args.knots, solver=args.solver)
     return 0 if result.success else 2
 
 
@@ -175,6 +176,11 @@ def _add_render_parsers(sub) -> None:
     p.add_argument("--out", help="output folder (default DIR)")
     p.set_defaults(func=_cmd_plot)
 
+def _solver_names() -> list[str]:
+    from jtraj.solvers import SOLVERS
+
+    return sorted(SOLVERS)
+
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="jtraj", description=__doc__)
@@ -187,10 +193,11 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("solve", help="solve a task with Ipopt and write DIR/result.json and DIR/trajectory.npz")
     p.add_argument("task", help="a built-in task (walk, hopscotch, big_jump, handstand, backflip, sideflip) or a .toml file")
     p.add_argument("--param", default="se3", choices=["se3", "quat1", "quat2", "quat3", "euler"], help="floating-base parameterization (default se3)")
+    p.add_argument("--solver", default="ipopt", choices=_solver_names(), help="NLP solver backend (default ipopt)")
     p.add_argument("--out", help="output directory (default runs/TASK_PARAM)")
     p.add_argument("--layout", default="compact", choices=["compact", "paper", "lean"], help="variables per knot: compact (q, v, a, f; default), the study's (q, v, a, f, c) or lean (q, v, f)")
     p.add_argument("--exact-hessian", action="store_true", help="exact Hessian of the Lagrangian instead of L-BFGS")
-    p.add_argument("--ipopt", action="append", metavar="NAME=VALUE", help="any Ipopt option, repeatable (e.g. --ipopt max_iter=50)")
+    p.add_argument("--ipopt", action="append", metavar="NAME=VALUE", help="any solver option (Ipopt's names for ipopt), repeatable (e.g. --ipopt max_iter=50)")
     p.add_argument("--noise", type=float, default=0.0, help="std of Gaussian noise added to the warm start")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--every", type=int, default=1, help="print Ipopt progress every N iterations")
@@ -229,6 +236,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--variant", default="attitude", choices=["naive", "attitude"])
     p.add_argument("--out", default="runs/attitude")
     p.add_argument("--knots", type=int, default=None, help="number of knots (default: the paper's)")
+    p.add_argument("--solver", default="ipopt", choices=_solver_names(), help="NLP solver backend (default ipopt)")
     p.set_defaults(func=_cmd_attitude)
     _add_render_parsers(sub)
     return parser

@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
-import sys
 import time
-from typing import Any, TextIO
+from typing import Any
 
 import jax.numpy as jnp
 import numpy as np
@@ -14,7 +13,7 @@ from jtraj import config
 from jtraj import parameterization as params
 from jtraj import robot as robots
 from jtraj import task as tasks
-from jtraj.ipopt import DEFAULT_OPTIONS, solve_nlp
+from jtraj import solvers
 from jtraj.result import Result, Status
 from jtraj.success import FEASIBILITY_TOL
 from jtraj.success import evaluate as check_motion
@@ -78,17 +77,19 @@ def solve(
     parameterization: str | params.AbstractParameterization = "se3",
     *,
     layout: str | TranscriptionOptions = "compact",
+    solver: str | solvers.AbstractSolver = "ipopt",
+    options: solvers.AbstractOptions | dict[str, Any] | None = None,
     exact_hessian: bool = False,
     ipopt_options: dict[str, Any] | None = None,
     warm_start: np.ndarray | None = None,
     noise: float = 0.0,
     seed: int = 0,
-    progress: TextIO | None = sys.stdout,
+    progress: solvers.Progress = True,
     progress_every: int = 1,
     out: str | None = None,
     keep_trajectory: bool = True,
 ) -> Result:
-    """Solve a task with Ipopt.
+    """Solve a task with one of `jtraj.solvers.SOLVERS` (Ipopt by default).
 
     Args:
         task: a built-in task name (``"big_jump"``), a ``.toml`` path or a `jtraj.task.Task`.
@@ -100,13 +101,18 @@ def solve(
             Measured with bench/solve.py (SE(3) tangent): compact is 6.6-15x faster than the
             study's public code on all six tasks; lean is faster still on five but needs 160
             iterations on the back-flip's acceleration cost.
+        solver: a name of `jtraj.solvers.SOLVERS` (``"ipopt"``) or a solver object.
+        options: the solver's options object (e.g. `jtraj.solvers.IpoptOptions`) or a dict of
+            option names (for Ipopt, any Ipopt option); the task's ``max_iter`` is the
+            default iteration limit of a dict.
         exact_hessian: use the exact Hessian of the Lagrangian from JAX instead of L-BFGS.
-        ipopt_options: any Ipopt options, over `jtraj.ipopt.DEFAULT_OPTIONS` (the task's
-            ``max_iter`` is the default iteration limit).
+        ipopt_options: a dict of Ipopt options, the same as ``options`` (kept for scripts).
         warm_start: (n_knots, nz) initial guess; default the task's warm start.
         noise: standard deviation of zero-mean Gaussian noise added to the warm start.
         seed: seed of that noise.
-        progress: stream for the live Ipopt progress (None: quiet).
+        progress: True (default) prints a line per ``progress_every`` iterations to the
+            ``sys.stdout`` of the moment; a text stream prints there; False or None is quiet;
+            a `jtraj.solvers.AbstractCallback` receives the iterations instead.
         out: directory to write ``result.json`` and ``trajectory.npz`` into.
     """
     prep = prepare(task, parameterization, layout)
@@ -116,32 +122,52 @@ def solve(
     x0 = tr.warm_start() if warm_start is None else np.asarray(warm_start, float)
     if noise:
         x0 = x0 + noise * np.random.default_rng(seed).standard_normal(x0.shape)
-    options = {"max_iter": tr.task.max_iter}
-    options.update(ipopt_options or {})
-    if progress is not None:
-        print(
+    backend = solvers.get(solver)
+    opts = _solver_options(backend, options, ipopt_options, exact_hessian, tr.task.max_iter)
+    callback = solvers.resolve_progress(progress, progress_every)
+    say = callback.write if isinstance(callback, solvers.PrintProgress) else None
+    if say is not None:
+        say(
             f"jtraj: {tr.task.name} on {tr.robot.name} with {tr.param.label}: {nlp.n} variables, "
             f"{nlp.m} constraints, {nlp.nnz_jac} Jacobian nonzeros, {tr.N + 1} knots"
-            + (f" (compiled in {compile_time:.1f} s)" if compile_time else ""),
-            file=progress,
-            flush=True,
+            + (f" (compiled in {compile_time:.1f} s)" if compile_time else "")
         )
-    outcome = solve_nlp(nlp, x0.reshape(-1), options, exact_hessian=exact_hessian, progress=progress, progress_every=progress_every)
-    traj = tr.decode(outcome.x)
-    result = evaluate(tr, outcome, traj, compile_time, {**DEFAULT_OPTIONS, **options, "exact_hessian": exact_hessian, "layout": dataclasses.asdict(tr.options)}, nlp.nnz_jac)
+    solution = backend.solve(nlp, x0.reshape(-1), None, opts, callback)
+    traj = tr.decode(solution.x)
+    result = evaluate(tr, solution, traj, compile_time, {"solver": backend.name, **opts.as_dict(), "layout": dataclasses.asdict(tr.options)}, nlp.nnz_jac, nlp.violation_by_group(solution.x))
     if not keep_trajectory:
         result.trajectory = None
-    if progress is not None:
-        print(result.summary(), file=progress, flush=True)
+    if say is not None:
+        say(result.summary())
         if not result.converged:
             worst = sorted(result.violation_by_group.items(), key=lambda kv: -kv[1])[:3]
-            print("  largest violations: " + ", ".join(f"{k} {v:.2e}" for k, v in worst), file=progress, flush=True)
+            say("  largest violations: " + ", ".join(f"{k} {v:.2e}" for k, v in worst))
     if out is not None:
         result.save(out)
     return result
 
 
-def evaluate(tr: Transcription, outcome, traj, compile_time: float, options: dict[str, Any], nnz_jacobian: int = 0) -> Result:
+def _solver_options(
+    backend: solvers.AbstractSolver,
+    options: solvers.AbstractOptions | dict[str, Any] | None,
+    ipopt_options: dict[str, Any] | None,
+    exact_hessian: bool,
+    max_iter: int,
+) -> solvers.AbstractOptions:
+    """The backend's options object: a given object as it is; otherwise the task's iteration
+    limit, then the dicts, then ``exact_hessian``."""
+    if isinstance(options, solvers.AbstractOptions):
+        if ipopt_options:
+            raise ValueError("pass the solver options either as an options object or as ipopt_options, not both")
+        return backend.options(options, hessian="exact") if exact_hessian else backend.options(options)
+    merged: dict[str, Any] = {"max_iter": max_iter, **(options or {}), **(ipopt_options or {})}
+    if exact_hessian:
+        merged.pop("hessian_approximation", None)
+        merged["hessian"] = "exact"
+    return backend.options(merged)
+
+
+def evaluate(tr: Transcription, outcome: solvers.Solution, traj, compile_time: float, options: dict[str, Any], nnz_jacobian: int = 0, violation_by_group: dict[str, float] | None = None) -> Result:
     """Task-success check (`jtraj.success`): converged, feasible to `FEASIBILITY_TOL`, and the
     base motion does the task (a flip with the expected sign, count and axis; no unplanned
     somersault otherwise). The final position error is reported but not tested: the variable
@@ -159,29 +185,29 @@ def evaluate(tr: Transcription, outcome, traj, compile_time: float, options: dic
         robot=tr.robot.name,
         parameterization=tr.param.name,
         status=status,
-        status_msg=outcome.status_msg,
+        status_msg=outcome.message,
         converged=outcome.converged,
         success=success,
         turns=turns,
-        iterations=outcome.iterations,
-        obj_evals=outcome.obj_evals,
-        grad_evals=outcome.grad_evals,
-        con_evals=outcome.con_evals,
-        jac_evals=outcome.jac_evals,
-        hess_evals=outcome.hess_evals,
+        iterations=outcome.stats.iterations,
+        obj_evals=outcome.stats.obj_evals,
+        grad_evals=outcome.stats.grad_evals,
+        con_evals=outcome.stats.con_evals,
+        jac_evals=outcome.stats.jac_evals,
+        hess_evals=outcome.stats.hess_evals,
         cost=outcome.objective,
         constraint_violation=outcome.constraint_violation,
-        violation_by_group=outcome.violation_by_group,
+        violation_by_group=violation_by_group or {},
         final_position_error=final_error,
-        time_s=outcome.time_total,
+        time_s=outcome.stats.time_total,
         time_compile=compile_time,
-        time_derivatives=outcome.time_callbacks,
-        time_ipopt=outcome.time_ipopt,
+        time_derivatives=outcome.stats.time_evaluations,
+        time_ipopt=outcome.stats.time_solver,
         n_variables=tr.layout.nz * (tr.N + 1),
         n_constraints=outcome.mult_g.size,
         nnz_jacobian=nnz_jacobian,
         options={k: v for k, v in options.items()},
-        history=outcome.history,
+        history=[it.as_dict() for it in outcome.history],
         trajectory=traj,
     )
 

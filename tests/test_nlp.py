@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jtraj.ipopt import solve_nlp
+from jtraj.solvers import InvalidOptionError, IpoptOptions, IpoptSolver, PrintProgress, Status
 from jtraj.nlp import ConstraintGroup, CostGroup, Dep, KnotNLP, Layout
 
 H = 0.1
@@ -96,24 +96,25 @@ def test_ipopt_solves_swing_up_without_recompiling(exact):
     x0[:, 0] = np.linspace(0, np.pi, N)
     log = io.StringIO()
     traces_before = len(traces)
-    out = solve_nlp(nlp, x0.ravel(), exact_hessian=exact, options={"tol": 1e-8, "max_iter": 300}, progress=log)
-    assert out.converged, out.status_msg
+    options = IpoptOptions(tol=1e-8, max_iter=300, hessian="exact" if exact else "lbfgs")
+    out = IpoptSolver().solve(nlp, x0.ravel(), None, options, PrintProgress(log))
+    assert out.converged and out.status is Status.SOLVED, out.message
     assert out.constraint_violation < 1e-7
     Z = out.x.reshape(N, 3)
     assert abs(Z[-1, 0] - np.pi) < 1e-9
     # the dynamics function is traced once for the Jacobian blocks (at construction) and
     # once for the constraint values (first call); iterations and a second solve add none
-    assert out.iterations > 3
+    assert out.stats.iterations > 3
     assert len(traces) - traces_before <= (2 if exact else 1)  # + the Hessian blocks, built on first use
     traces_after_first = len(traces)
-    out2 = solve_nlp(nlp, (x0 + 0.01).ravel(), exact_hessian=exact, options={"tol": 1e-8, "max_iter": 300}, progress=None)
+    out2 = IpoptSolver().solve(nlp, (x0 + 0.01).ravel(), None, options)
     assert out2.converged
     assert len(traces) == traces_after_first, "a second solve recompiled the NLP functions"
     assert "inf_pr" in log.getvalue()
-    assert out.jac_evals >= out.iterations
-    assert out.time_callbacks < out.time_total
+    assert out.stats.jac_evals >= out.stats.iterations
+    assert out.stats.time_evaluations < out.stats.time_total
 
 
 def test_unknown_ipopt_option_is_reported(nlp):
-    with pytest.raises(ValueError, match="not_an_option"):
-        solve_nlp(nlp, np.zeros(nlp.n), options={"not_an_option": 1}, progress=None)
+    with pytest.raises(InvalidOptionError, match="not_an_option"):
+        IpoptSolver().solve(nlp, np.zeros(nlp.n), None, {"not_an_option": 1})

@@ -44,11 +44,10 @@ import dataclasses
 import enum
 import json
 import math
-import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, ClassVar, TextIO
+from typing import Any, ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -58,6 +57,8 @@ from jtraj import quaternion as quat
 from jtraj.attitude import models as M
 from jtraj.nlp import ConstraintGroup, CostGroup, Dep, KnotNLP, Layout
 from jtraj.result import _json_default
+from jtraj import solvers
+from jtraj.solvers import AbstractOptions, AbstractSolver, IpoptOptions, IpoptSolver, Progress, resolve_progress
 
 __all__ = [
     "AbstractFormulation",
@@ -592,18 +593,17 @@ def build_nlp(bench: Benchmark, formulation: AbstractFormulation) -> KnotNLP:
 
 
 #: Ipopt options of every benchmark solve (see the module docstring).
-IPOPT_OPTIONS: dict[str, Any] = {
-    "tol": 1e-6,
-    "constr_viol_tol": 1e-5,
-    "acceptable_constr_viol_tol": 1e-5,
-    "acceptable_tol": 1e-4,
-    "max_iter": 1000,
-    "nlp_scaling_method": "gradient-based",
-    "linear_solver": "mumps",
-    "max_wall_time": 1800.0,
-    "print_level": 0,
-    "sb": "yes",
-}
+IPOPT_OPTIONS = IpoptOptions(
+    tol=1e-6,
+    constr_viol_tol=1e-5,
+    acceptable_constr_viol_tol=1e-5,
+    acceptable_tol=1e-4,
+    max_iter=1000,
+    hessian="exact",
+    nlp_scaling_method="gradient-based",
+    linear_solver="mumps",
+    max_wall_time=1800.0,
+)
 
 
 # ----------------------------------------------------------------------------------------
@@ -627,7 +627,7 @@ class BenchmarkResult:
     name: str
     variant: str
     status: BenchmarkStatus
-    ipopt_status: int
+    ipopt_status: str
     status_msg: str
     converged: bool
     iterations: int
@@ -757,13 +757,28 @@ def _benchmark(name: str | Benchmark, n_knots: int | None, **kwargs) -> Benchmar
     return factory(**kwargs)
 
 
+#: The paper's constraint tolerance: a converged solve must satisfy the constraints to it.
+CONSTRAINT_TOLERANCE = 1e-5
+
+
+def _options(backend: AbstractSolver, options: AbstractOptions | dict[str, Any] | None) -> AbstractOptions:
+    """The benchmarks' settings of ``backend`` (`IPOPT_OPTIONS` for Ipopt) with ``options``
+    over them (an options object replaces them)."""
+    if isinstance(options, AbstractOptions):
+        return backend.options(options)
+    if isinstance(backend, IpoptSolver):
+        return IPOPT_OPTIONS.merge(options)
+    return backend.options(options)
+
+
 def solve_benchmark(
     name: str | Benchmark,
     variant: str | AbstractFormulation = "attitude",
     out: str | Path | None = None,
     n_knots: int | None = None,
-    progress: TextIO | None = sys.stdout,
-    ipopt_options: dict[str, Any] | None = None,
+    progress: Progress = True,
+    ipopt_options: IpoptOptions | dict[str, Any] | None = None,
+    solver: str | AbstractSolver = "ipopt",
     **benchmark_kwargs,
 ) -> BenchmarkResult:
     """Solve a benchmark (a name of `BENCHMARKS` or a `Benchmark`) in one formulation.
@@ -774,7 +789,6 @@ def solve_benchmark(
     ``progress``: a stream for Ipopt's per-iteration line (None: silent).
     """
     from jtraj import config
-    from jtraj.ipopt import solve_nlp
 
     config.enable_compilation_cache()
     fm = _formulation(variant)
@@ -789,14 +803,14 @@ def solve_benchmark(
         jax.block_until_ready(fn(x0))
     jax.block_until_ready(nlp.hessian(x0, jnp.ones(nlp.m), 1.0))
     time_compile = time.perf_counter() - t0
-    options = dict(IPOPT_OPTIONS)
-    options.update(ipopt_options or {})
-    outcome = solve_nlp(nlp, z0, options=options, exact_hessian=True, progress=progress, progress_every=10)
+    backend = solvers.get(solver)
+    options = _options(backend, ipopt_options)
+    outcome = backend.solve(nlp, z0, None, options, resolve_progress(progress, 10))
     Z = outcome.x.reshape(bench.n_knots, -1)
     nx = bench.model.nx
     X, U = Z[:, :nx], Z[:-1, nx:]
     metrics, task_ok = _metrics(bench, X, U)
-    converged = outcome.converged and outcome.constraint_violation <= options["constr_viol_tol"]
+    converged = outcome.converged and outcome.constraint_violation <= CONSTRAINT_TOLERANCE
     status = BenchmarkStatus.NOT_CONVERGED
     if converged:
         status = BenchmarkStatus.SOLVED if task_ok else BenchmarkStatus.SOLVED_TASK_FAILED
@@ -804,24 +818,24 @@ def solve_benchmark(
         name=bench.name,
         variant=fm.name,
         status=status,
-        ipopt_status=outcome.status,
-        status_msg=outcome.status_msg,
+        ipopt_status=outcome.status.value,
+        status_msg=outcome.message,
         converged=converged,
-        iterations=outcome.iterations,
-        time_s=outcome.time_total,
+        iterations=outcome.stats.iterations,
+        time_s=outcome.stats.time_total,
         time_compile=time_compile,
-        time_derivatives=outcome.time_callbacks,
-        time_ipopt=outcome.time_ipopt,
+        time_derivatives=outcome.stats.time_evaluations,
+        time_ipopt=outcome.stats.time_solver,
         objective=outcome.objective,
         constraint_violation=outcome.constraint_violation,
-        violation_by_group=outcome.violation_by_group,
+        violation_by_group=nlp.violation_by_group(outcome.x),
         n_knots=bench.n_knots,
         tf=bench.tf,
         n_variables=nlp.n,
         n_constraints=nlp.m,
         metrics=metrics,
-        options=options,
-        history=outcome.history,
+        options=options.as_dict(),
+        history=[it.as_dict() for it in outcome.history],
         t=bench.t,
         X=X,
         U=U,
@@ -880,11 +894,11 @@ def plot_benchmark(result: BenchmarkResult, path: str | Path | None = None, ax=N
     return fig
 
 
-def main_attitude(bench: str, variant: str = "attitude", out_dir: str | Path | None = None, n_knots: int | None = None) -> BenchmarkResult:
+def main_attitude(bench: str, variant: str = "attitude", out_dir: str | Path | None = None, n_knots: int | None = None, solver: str = "ipopt") -> BenchmarkResult:
     """Command-line entry (``jtraj attitude BENCH --variant ... --out DIR``): solve, print
     iterations, time and constraint violation, save ``{bench}_{variant}.json/.npz/.png``."""
     out = Path(out_dir) if out_dir is not None else Path("runs") / "attitude"
-    result = solve_benchmark(bench, variant, out=out, n_knots=n_knots, progress=sys.stdout)
+    result = solve_benchmark(bench, variant, out=out, n_knots=n_knots, progress=True, solver=solver)
     plot_benchmark(result, out / f"{result.name}_{result.variant}.png")
     print(result.summary())
     for key in ("min_sun_angle_deg", "roll_turns", "roll_deg", "max_quaternion_norm_error"):
@@ -902,7 +916,8 @@ def compare_benchmarks(
     names: tuple[str, ...] = ("barrelroll", "quadflip", "satellite"),
     variants: tuple[str, ...] = ("naive", "attitude"),
     n_knots: int | None = None,
-    progress: TextIO | None = None,
+    progress: Progress = False,
+    solver: str = "ipopt",
 ) -> list[dict[str, Any]]:
     """Solve every benchmark in every variant; write ``out_dir``/table.json and table.md
     (iterations, time, violation, status next to the paper's iterations) and each result's
@@ -911,7 +926,7 @@ def compare_benchmarks(
     rows = []
     for name in names:
         for variant in variants:
-            r = solve_benchmark(name, variant, out=out, n_knots=n_knots, progress=progress)
+            r = solve_benchmark(name, variant, out=out, n_knots=n_knots, progress=progress, solver=solver)
             rows.append(
                 {
                     "benchmark": name,

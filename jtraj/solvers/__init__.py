@@ -1,1 +1,53 @@
-"""Solvers of knot-structured NLPs."""
+"""NLP solver backends behind one contract (`AbstractSolver`, `Solution`, `Status`).
+
+``SOLVERS`` maps a name to a backend class; `get` returns an instance. Adding a backend is one
+class (a subclass of `AbstractSolver` with its `AbstractOptions`) and one entry here.
+"""
+
+from __future__ import annotations
+
+from jtraj.registry import lookup
+from jtraj.solvers.base import (
+    AbstractCallback,
+    AbstractOptions,
+    AbstractSolver,
+    CallbackList,
+    InvalidOptionError,
+    Iteration,
+    PrintProgress,
+    Progress,
+    Solution,
+    Stats,
+    Status,
+    resolve_progress,
+)
+from jtraj.solvers.ipopt import IpoptOptions, IpoptSolver
+
+__all__ = [
+    "SOLVERS",
+    "get",
+    "AbstractSolver",
+    "AbstractOptions",
+    "AbstractCallback",
+    "CallbackList",
+    "InvalidOptionError",
+    "Iteration",
+    "PrintProgress",
+    "Progress",
+    "Solution",
+    "Stats",
+    "Status",
+    "resolve_progress",
+    "IpoptOptions",
+    "IpoptSolver",
+]
+
+#: Solver backends by name (``jtraj.solve(..., solver=NAME)``, ``jtraj solve --solver NAME``).
+SOLVERS: dict[str, type[AbstractSolver]] = {"ipopt": IpoptSolver}
+
+
+def get(solver: str | AbstractSolver) -> AbstractSolver:
+    """A solver backend from its registry name (or the solver itself)."""
+    if isinstance(solver, AbstractSolver):
+        return solver
+    return lookup(SOLVERS, solver, "solver")()

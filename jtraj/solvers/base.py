@@ -1,0 +1,382 @@
+"""The contract every NLP solver backend of jtraj fulfils, and what it returns.
+
+A backend is one class: ``solve(nlp, x0, theta, options, callback) -> Solution``.
+
+- ``nlp`` is a `jtraj.nlp.KnotNLP` (or anything with the same functions: ``objective``,
+  ``gradient``, ``constraints``, ``jacobian`` in COO order, ``hessian`` after
+  ``build_hessian()``, their sparsity ``jac_rows/jac_cols/hess_rows/hess_cols`` and the bounds).
+- ``theta`` is the NLP's parameter pytree; the backend passes it to every function unchanged
+  (None for an NLP whose numbers are all constants).
+- ``options`` is the backend's own typed options object (`AbstractOptions`): keyword-only,
+  validated when it is built, so a wrong option fails before anything compiles or runs.
+- ``callback`` receives the start, every iteration and the end (`AbstractCallback`); progress
+  printing is one such callback (`PrintProgress`), resolved when the solve starts, so that it
+  writes to the ``sys.stdout`` of that moment (pytest's and a notebook's capture included).
+
+Every backend maps its own return codes to the one `Status` enumeration, whose members carry a
+message saying what happened and what to try.
+"""
+
+from __future__ import annotations
+
+import abc
+import dataclasses
+import enum
+import sys
+import time
+from collections.abc import Callable
+from typing import Any, ClassVar, TextIO
+
+import numpy as np
+
+__all__ = [
+    "Status",
+    "Stats",
+    "Iteration",
+    "Solution",
+    "AbstractOptions",
+    "InvalidOptionError",
+    "AbstractCallback",
+    "PrintProgress",
+    "CallbackList",
+    "Progress",
+    "resolve_progress",
+    "AbstractSolver",
+    "max_violation",
+    "EvaluationTimer",
+    "BoundNLP",
+    "bind",
+]
+
+
+class Status(enum.Enum):
+    """How a solve ended, one enumeration for every backend. ``status.message`` explains it."""
+
+    SOLVED = ("solved", "converged to the requested tolerances")
+    ACCEPTABLE = ("acceptable", "converged only to the acceptable tolerances (acceptable_tol and friends), not to tol")
+    FEASIBLE_POINT = ("feasible_point", "stopped at a feasible point, as asked (a feasibility problem)")
+    MAX_ITER = ("max_iter", "the iteration limit was reached; raise max_iter or improve the warm start")
+    MAX_WALL_TIME = ("max_wall_time", "the wall-clock limit was reached; raise max_wall_time")
+    MAX_CPU_TIME = ("max_cpu_time", "the CPU-time limit was reached; raise max_cpu_time")
+    INFEASIBLE = ("infeasible", "the solver found the constraints locally infeasible; check bounds and targets")
+    DIVERGING = ("diverging", "the iterates diverged (an unbounded objective or badly scaled problem)")
+    SEARCH_DIRECTION_TOO_SMALL = ("search_direction_too_small", "the search direction became too small to make progress; the tolerance may be too tight")
+    RESTORATION_FAILED = ("restoration_failed", "the feasibility restoration phase failed; try another warm start or scaling")
+    STEP_COMPUTATION_FAILED = ("step_computation_failed", "the Newton step could not be computed (a singular or ill-conditioned KKT system)")
+    NUMERICAL_ERROR = ("numerical_error", "a function returned NaN or Inf; check the model near the iterate")
+    USER_STOP = ("user_stop", "a callback asked the solver to stop")
+    INVALID_OPTION = ("invalid_option", "the solver rejected an option; see the message for which")
+    INVALID_PROBLEM = ("invalid_problem", "the problem is ill-posed (too few degrees of freedom or inconsistent bounds)")
+    OUT_OF_MEMORY = ("out_of_memory", "the solver ran out of memory")
+    INTERNAL_ERROR = ("internal_error", "the solver failed internally")
+
+    def __new__(cls, value: str, message: str) -> Status:
+        member = object.__new__(cls)
+        member._value_ = value
+        member.message = message  # type: ignore[attr-defined]
+        return member
+
+    message: str
+
+    @property
+    def converged(self) -> bool:
+        """SOLVED or ACCEPTABLE: the solver returned a point it considers a solution."""
+        return self in (Status.SOLVED, Status.ACCEPTABLE)
+
+
+@dataclasses.dataclass(frozen=True)
+class Stats:
+    """Work of one solve. Times in seconds: ``time_total = time_evaluations + time_solver``,
+    where ``time_evaluations`` is spent in the NLP's (JAX) functions and ``time_solver`` in the
+    backend's own work (linear algebra, line search, ...). Compilation is not included."""
+
+    iterations: int = 0
+    obj_evals: int = 0
+    grad_evals: int = 0
+    con_evals: int = 0
+    jac_evals: int = 0
+    hess_evals: int = 0
+    time_total: float = 0.0
+    time_evaluations: float = 0.0
+
+    @property
+    def time_solver(self) -> float:
+        return self.time_total - self.time_evaluations
+
+
+@dataclasses.dataclass(frozen=True)
+class Iteration:
+    """One iteration as a backend reports it: objective, primal and dual infeasibility, barrier
+    parameter ``mu`` (0 for methods without one) and primal step length ``alpha_pr``."""
+
+    iter: int
+    objective: float
+    inf_pr: float
+    inf_du: float
+    mu: float = 0.0
+    alpha_pr: float = 0.0
+
+    def as_dict(self) -> dict[str, float]:
+        return dataclasses.asdict(self)
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class Solution:
+    """What every backend returns.
+
+    Attributes:
+        x: (n,) primal solution (the last iterate when not converged).
+        status: the `Status`; ``message`` is the backend's own wording of it.
+        objective: f(x).
+        constraint_violation: max violation of the constraint rows and variable bounds at x.
+        mult_g: (m,) multipliers of the constraints g(x).
+        mult_x_lower, mult_x_upper: (n,) multipliers of the lower and upper variable bounds.
+        stats: iteration and evaluation counts and the time split.
+        history: one `Iteration` per iteration, in order.
+    """
+
+    x: np.ndarray
+    status: Status
+    message: str
+    objective: float
+    constraint_violation: float
+    mult_g: np.ndarray
+    mult_x_lower: np.ndarray
+    mult_x_upper: np.ndarray
+    stats: Stats
+    history: tuple[Iteration, ...] = ()
+
+    @property
+    def converged(self) -> bool:
+        return self.status.converged
+
+
+class InvalidOptionError(ValueError):
+    """A solver option with a wrong name, type or value; the message says how to fix it."""
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class AbstractOptions:
+    """Base of the backends' option objects: frozen, keyword-only, checked at construction
+    (subclasses add their checks in ``__check__``, raising `InvalidOptionError`)."""
+
+    #: what the options are for, in error messages
+    solver_name: ClassVar[str] = "solver"
+
+    def __post_init__(self) -> None:
+        self.__check__()
+
+    def __check__(self) -> None:
+        return None
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any] | None) -> AbstractOptions:
+        """Options from a plain mapping (command line, JSON); unknown names raise."""
+        values = dict(values or {})
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(values) - names)
+        if unknown:
+            raise InvalidOptionError(f"unknown {cls.solver_name} option(s) {unknown}; expected one of {sorted(names)}")
+        return cls(**values)
+
+    def replace(self, **changes: Any) -> AbstractOptions:
+        return dataclasses.replace(self, **changes)
+
+    def as_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+def _positive(options: AbstractOptions, *names: str, allow_none: bool = False) -> None:
+    for name in names:
+        value = getattr(options, name)
+        if value is None and allow_none:
+            continue
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
+            raise InvalidOptionError(f"{options.solver_name} option {name}={value!r}: expected a positive number")
+
+
+class AbstractCallback:
+    """Hooks a solver calls: ``on_start`` once, ``on_iteration`` after every iteration (return
+    False to stop the solve with `Status.USER_STOP`), ``on_end`` with the `Solution`."""
+
+    def on_start(self, nlp: Any) -> None:
+        return None
+
+    def on_iteration(self, it: Iteration) -> bool | None:
+        return None
+
+    def on_end(self, solution: Solution) -> None:
+        return None
+
+
+class PrintProgress(AbstractCallback):
+    """One line per ``every`` iterations (iter, objective, inf_pr, inf_du, lg(mu), alpha_pr).
+
+    ``stream=None`` writes to ``sys.stdout`` as it is when the solve runs, not when this module
+    was imported (pytest and notebooks replace it)."""
+
+    def __init__(self, stream: TextIO | None = None, every: int = 1):
+        if not isinstance(every, int) or every < 1:
+            raise ValueError(f"progress every={every!r}: expected an integer >= 1")
+        self.stream = stream
+        self.every = every
+
+    def _out(self) -> TextIO:
+        return self.stream if self.stream is not None else sys.stdout
+
+    def on_iteration(self, it: Iteration) -> None:
+        if it.iter % self.every:
+            return
+        out = self._out()
+        if it.iter == 0:
+            print(f"{'iter':>5} {'objective':>14} {'inf_pr':>10} {'inf_du':>10} {'lg(mu)':>7} {'alpha_pr':>9}", file=out)
+        lgmu = np.log10(it.mu) if it.mu > 0 else -np.inf
+        print(f"{it.iter:5d} {it.objective:14.6e} {it.inf_pr:10.3e} {it.inf_du:10.3e} {lgmu:7.2f} {it.alpha_pr:9.2e}", file=out, flush=True)
+
+    def write(self, text: str) -> None:
+        """A free line (headers and summaries of the caller) on the same stream."""
+        print(text, file=self._out(), flush=True)
+
+
+class CallbackList(AbstractCallback):
+    """Several callbacks; the solve stops when any of them asks to."""
+
+    def __init__(self, callbacks: list[AbstractCallback]):
+        self.callbacks = list(callbacks)
+
+    def on_start(self, nlp: Any) -> None:
+        for c in self.callbacks:
+            c.on_start(nlp)
+
+    def on_iteration(self, it: Iteration) -> bool:
+        return all([c.on_iteration(it) is not False for c in self.callbacks])
+
+    def on_end(self, solution: Solution) -> None:
+        for c in self.callbacks:
+            c.on_end(solution)
+
+
+#: What a ``progress=`` argument accepts: True (print to the current sys.stdout), False or None
+#: (quiet), a text stream, or a callback object.
+Progress = bool | TextIO | AbstractCallback | None
+
+
+def resolve_progress(progress: Progress, every: int = 1) -> AbstractCallback | None:
+    """The callback a ``progress=`` argument stands for (None: quiet)."""
+    if progress is None or progress is False:
+        return None
+    if progress is True:
+        return PrintProgress(None, every)
+    if isinstance(progress, AbstractCallback):
+        return progress
+    if hasattr(progress, "write"):
+        return PrintProgress(progress, every)
+    raise TypeError(f"progress={progress!r}: expected True, False/None, a text stream or an AbstractCallback")
+
+
+def max_violation(g: np.ndarray, g_lower: np.ndarray, g_upper: np.ndarray, x: np.ndarray, x_lower: np.ndarray, x_upper: np.ndarray) -> float:
+    """Max violation of ``g_lower <= g <= g_upper`` and ``x_lower <= x <= x_upper``."""
+    viol = np.maximum(np.maximum(g_lower - g, g - g_upper), 0.0)
+    bviol = np.maximum(np.maximum(x_lower - x, x - x_upper), 0.0)
+    return float(max(viol.max(initial=0.0), bviol.max(initial=0.0)))
+
+
+class EvaluationTimer:
+    """Counts and times the calls of the NLP's functions (host conversion included)."""
+
+    def __init__(self) -> None:
+        self.counts = dict(obj=0, grad=0, con=0, jac=0, hess=0)
+        self.seconds = 0.0
+
+    def call(self, key: str, fn: Callable[..., Any], *args: Any) -> np.ndarray:
+        t = time.perf_counter()
+        out = np.asarray(fn(*args))
+        self.seconds += time.perf_counter() - t
+        self.counts[key] += 1
+        return out
+
+    def stats(self, iterations: int, time_total: float) -> Stats:
+        c = self.counts
+        return Stats(iterations, c["obj"], c["grad"], c["con"], c["jac"], c["hess"], time_total, self.seconds)
+
+
+class AbstractSolver(abc.ABC):
+    """A solver backend. Subclasses set ``name`` (the registry key) and ``Options`` (their
+    `AbstractOptions` subclass, whose defaults are used when ``options`` is None)."""
+
+    name: ClassVar[str]
+    Options: ClassVar[type[AbstractOptions]]
+
+    def options(self, options: AbstractOptions | dict[str, Any] | None = None, **overrides: Any) -> AbstractOptions:
+        """The options object from None (defaults), a mapping or an options object, with
+        ``overrides`` applied; wrong types and names raise `InvalidOptionError`."""
+        if options is None:
+            opts = self.Options()
+        elif isinstance(options, AbstractOptions):
+            if not isinstance(options, self.Options):
+                raise InvalidOptionError(f"solver {self.name!r} takes {self.Options.__name__}, got {type(options).__name__}")
+            opts = options
+        elif isinstance(options, dict):
+            opts = self.Options.from_dict(options)
+        else:
+            raise InvalidOptionError(f"options={options!r}: expected None, a dict or {self.Options.__name__}")
+        return opts.replace(**overrides) if overrides else opts
+
+    @abc.abstractmethod
+    def solve(
+        self,
+        nlp: Any,
+        x0: np.ndarray,
+        theta: Any = None,
+        options: AbstractOptions | dict[str, Any] | None = None,
+        callback: AbstractCallback | None = None,
+    ) -> Solution:
+        """Solve ``nlp`` with parameters ``theta`` from the primal guess ``x0`` (n,) (clipped
+        into the variable bounds)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class BoundNLP:
+    """An NLP's functions of the primal vector alone, with its parameters ``theta`` fixed, and
+    its bounds at that ``theta``: what a backend iterates on."""
+
+    objective: Callable[[Any], Any]
+    gradient: Callable[[Any], Any]
+    constraints: Callable[[Any], Any]
+    jacobian: Callable[[Any], Any]
+    hessian: Callable[[Any, Any, float], Any]
+    x_lower: np.ndarray
+    x_upper: np.ndarray
+    g_lower: np.ndarray
+    g_upper: np.ndarray
+
+
+def bind(nlp: Any, theta: Any = None) -> BoundNLP:
+    """Fix ``theta`` in ``nlp``'s functions. An NLP with parameters has ``bounds(theta)`` and
+    functions of ``(x, theta)``; one without takes x alone (``theta`` must then be None)."""
+    if callable(getattr(nlp, "bounds", None)):
+        x_lower, x_upper, g_lower, g_upper = (np.asarray(b, float) for b in nlp.bounds(theta))
+        return BoundNLP(
+            objective=lambda x: nlp.objective(x, theta),
+            gradient=lambda x: nlp.gradient(x, theta),
+            constraints=lambda x: nlp.constraints(x, theta),
+            jacobian=lambda x: nlp.jacobian(x, theta),
+            hessian=lambda x, lam, obj_factor: nlp.hessian(x, lam, obj_factor, theta),
+            x_lower=x_lower,
+            x_upper=x_upper,
+            g_lower=g_lower,
+            g_upper=g_upper,
+        )
+    if theta is not None:
+        raise TypeError(f"{type(nlp).__name__} takes no parameters theta; pass theta=None")
+    return BoundNLP(
+        objective=lambda x: nlp.objective(x),
+        gradient=lambda x: nlp.gradient(x),
+        constraints=lambda x: nlp.constraints(x),
+        jacobian=lambda x: nlp.jacobian(x),
+        hessian=lambda x, lam, obj_factor: nlp.hessian(x, lam, obj_factor),
+        x_lower=np.asarray(nlp.x_lower, float),
+        x_upper=np.asarray(nlp.x_upper, float),
+        g_lower=np.asarray(nlp.g_lower, float),
+        g_upper=np.asarray(nlp.g_upper, float),
+    )

@@ -1,0 +1,264 @@
+"""Ipopt (through cyipopt) as a jtraj solver backend: the only module that imports cyipopt.
+
+`IpoptSolver.solve` hands a knot NLP to Ipopt, counts and times the evaluations of its (JAX)
+functions apart from Ipopt's own work, reports every iteration to the callback, and maps
+Ipopt's return code to `jtraj.solvers.Status`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import Any, ClassVar
+
+import jax.numpy as jnp
+import numpy as np
+
+from jtraj.solvers.base import (
+    AbstractCallback,
+    AbstractOptions,
+    AbstractSolver,
+    BoundNLP,
+    EvaluationTimer,
+    InvalidOptionError,
+    Iteration,
+    Solution,
+    Status,
+    _positive,
+    bind,
+    max_violation,
+)
+
+__all__ = ["IpoptOptions", "IpoptSolver", "IPOPT_STATUS"]
+
+#: Ipopt's ApplicationReturnStatus codes (IpReturnCodes_inc.h) and what they mean here.
+IPOPT_STATUS: dict[int, Status] = {
+    0: Status.SOLVED,
+    1: Status.ACCEPTABLE,
+    2: Status.INFEASIBLE,
+    3: Status.SEARCH_DIRECTION_TOO_SMALL,
+    4: Status.DIVERGING,
+    5: Status.USER_STOP,
+    6: Status.FEASIBLE_POINT,
+    -1: Status.MAX_ITER,
+    -2: Status.RESTORATION_FAILED,
+    -3: Status.STEP_COMPUTATION_FAILED,
+    -4: Status.MAX_CPU_TIME,
+    -5: Status.MAX_WALL_TIME,
+    -10: Status.INVALID_PROBLEM,
+    -11: Status.INVALID_PROBLEM,
+    -12: Status.INVALID_OPTION,
+    -13: Status.NUMERICAL_ERROR,
+    -100: Status.INTERNAL_ERROR,
+    -101: Status.INTERNAL_ERROR,
+    -102: Status.OUT_OF_MEMORY,
+    -199: Status.INTERNAL_ERROR,
+}
+
+#: Linear solvers Ipopt can be built with (MUMPS is the one in the wheel).
+LINEAR_SOLVERS = ("mumps", "ma27", "ma57", "ma77", "ma86", "ma97", "pardiso", "pardisomkl", "spral", "wsmp")
+SCALING_METHODS = ("none", "gradient-based", "equilibration-based", "user-scaling")
+HESSIANS = {"lbfgs": "limited-memory", "exact": "exact"}
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class IpoptOptions(AbstractOptions):
+    """Ipopt settings. Defaults are those of the comparative study's public code (tolerance
+    1e-3, 200 iterations, L-BFGS Hessian, no NLP scaling, MUMPS).
+
+    Attributes:
+        tol: Ipopt's ``tol`` on the scaled KKT error.
+        max_iter: iteration limit.
+        max_wall_time: wall-clock limit (s).
+        hessian: ``"lbfgs"`` (limited-memory quasi-Newton) or ``"exact"`` (the NLP's exact
+            Hessian of the Lagrangian, built on first use).
+        linear_solver: Ipopt's ``linear_solver`` (one of `LINEAR_SOLVERS`).
+        nlp_scaling_method: Ipopt's ``nlp_scaling_method``.
+        acceptable_tol, constr_viol_tol, acceptable_constr_viol_tol: Ipopt's options of those
+            names; None leaves Ipopt's default.
+        extra: any other Ipopt option by its Ipopt name (booleans become "yes"/"no"); Ipopt
+            itself checks the names when the solve starts.
+    """
+
+    solver_name: ClassVar[str] = "Ipopt"
+
+    tol: float = 1e-3
+    max_iter: int = 200
+    max_wall_time: float = 600.0
+    hessian: str = "lbfgs"
+    linear_solver: str = "mumps"
+    nlp_scaling_method: str = "none"
+    acceptable_tol: float | None = None
+    constr_viol_tol: float | None = None
+    acceptable_constr_viol_tol: float | None = None
+    extra: dict[str, Any] = dataclasses.field(default_factory=dict)
+
+    def __check__(self) -> None:
+        for name in ("tol", "max_wall_time", "acceptable_tol", "constr_viol_tol", "acceptable_constr_viol_tol"):
+            value = getattr(self, name)
+            if isinstance(value, int) and not isinstance(value, bool):
+                object.__setattr__(self, name, float(value))  # Ipopt's real options take 1 as well as 1.0
+        _positive(self, "tol", "max_wall_time")
+        _positive(self, "acceptable_tol", "constr_viol_tol", "acceptable_constr_viol_tol", allow_none=True)
+        if isinstance(self.max_iter, bool) or not isinstance(self.max_iter, (int, np.integer)) or self.max_iter < 0:
+            raise InvalidOptionError(f"Ipopt option max_iter={self.max_iter!r}: expected an integer >= 0")
+        if self.hessian not in HESSIANS:
+            raise InvalidOptionError(f"Ipopt option hessian={self.hessian!r}: expected one of {sorted(HESSIANS)}")
+        if self.linear_solver not in LINEAR_SOLVERS:
+            raise InvalidOptionError(f"Ipopt option linear_solver={self.linear_solver!r}: expected one of {list(LINEAR_SOLVERS)}")
+        if self.nlp_scaling_method not in SCALING_METHODS:
+            raise InvalidOptionError(f"Ipopt option nlp_scaling_method={self.nlp_scaling_method!r}: expected one of {list(SCALING_METHODS)}")
+        if not isinstance(self.extra, dict):
+            raise InvalidOptionError(f"Ipopt option extra={self.extra!r}: expected a dict of Ipopt option names to values")
+        for key, value in self.extra.items():
+            if not isinstance(key, str) or not isinstance(value, (str, int, float, bool)):
+                raise InvalidOptionError(f"Ipopt option {key!r}={value!r}: expected a string, integer, float or boolean value")
+            if key in _FIELDS or key == "hessian_approximation":
+                raise InvalidOptionError(f"Ipopt option {key!r} has its own field: use IpoptOptions({_field_for(key)}=...)")
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any] | None) -> IpoptOptions:
+        """From Ipopt's own option names: the fields above by name (and Ipopt's
+        ``hessian_approximation`` = "exact" / "limited-memory"), everything else into ``extra``."""
+        values = dict(values or {})
+        hessian_approximation = values.pop("hessian_approximation", None)
+        fields: dict[str, Any] = {}
+        extra = dict(values.pop("extra", None) or {})
+        for key, value in values.items():
+            if key in _FIELDS:
+                fields[key] = value
+            else:
+                extra[key] = value
+        if hessian_approximation is not None:
+            names = {v: k for k, v in HESSIANS.items()}
+            if hessian_approximation not in names:
+                raise InvalidOptionError(f"Ipopt option hessian_approximation={hessian_approximation!r}: expected one of {sorted(names)}")
+            fields["hessian"] = names[hessian_approximation]
+        return cls(**fields, extra=extra)
+
+    def merge(self, values: dict[str, Any] | None) -> IpoptOptions:
+        """These options with ``values`` (named as for `from_dict`) over them."""
+        if not values:
+            return self
+        own = {k: v for k, v in self.as_dict().items() if k != "extra"}
+        return IpoptOptions.from_dict({**own, **self.extra, **values})
+
+    def to_ipopt(self) -> dict[str, Any]:
+        """The options as Ipopt's names and values (quiet: no banner, no own printing)."""
+        out: dict[str, Any] = {
+            "tol": self.tol,
+            "max_iter": int(self.max_iter),
+            "hessian_approximation": HESSIANS[self.hessian],
+            "nlp_scaling_method": self.nlp_scaling_method,
+            "linear_solver": self.linear_solver,
+            "max_wall_time": self.max_wall_time,
+            "print_level": 0,
+            "sb": "yes",
+        }
+        for name in ("acceptable_tol", "constr_viol_tol", "acceptable_constr_viol_tol"):
+            if getattr(self, name) is not None:
+                out[name] = getattr(self, name)
+        for key, value in self.extra.items():
+            out[key] = ("yes" if value else "no") if isinstance(value, bool) else value
+        return out
+
+
+_FIELDS = {f.name for f in dataclasses.fields(IpoptOptions)} - {"extra"}
+
+
+def _field_for(key: str) -> str:
+    return "hessian" if key == "hessian_approximation" else key
+
+
+class _Problem:
+    """The object cyipopt calls back: the bound NLP's functions on numpy vectors, timed."""
+
+    def __init__(self, nlp: Any, f: BoundNLP, exact_hessian: bool, callback: AbstractCallback | None):
+        self.f = f
+        self.nlp = nlp
+        self.timer = EvaluationTimer()
+        self.callback = callback
+        self.history: list[Iteration] = []
+        if exact_hessian:
+            self.hessianstructure = lambda: (nlp.hess_rows, nlp.hess_cols)
+            self.hessian = self._hessian
+
+    def objective(self, x):
+        return float(self.timer.call("obj", self.f.objective, jnp.asarray(x)))
+
+    def gradient(self, x):
+        return self.timer.call("grad", self.f.gradient, jnp.asarray(x))
+
+    def constraints(self, x):
+        return self.timer.call("con", self.f.constraints, jnp.asarray(x))
+
+    def jacobian(self, x):
+        return self.timer.call("jac", self.f.jacobian, jnp.asarray(x))
+
+    def jacobianstructure(self):
+        return self.nlp.jac_rows, self.nlp.jac_cols
+
+    def _hessian(self, x, lagrange, obj_factor):
+        return self.timer.call("hess", self.f.hessian, jnp.asarray(x), jnp.asarray(lagrange), float(obj_factor))
+
+    def intermediate(self, alg_mod, iter_count, obj_value, inf_pr, inf_du, mu, d_norm, regularization_size, alpha_du, alpha_pr, ls_trials):
+        it = Iteration(int(iter_count), float(obj_value), float(inf_pr), float(inf_du), float(mu), float(alpha_pr))
+        self.history.append(it)
+        if self.callback is not None:
+            return self.callback.on_iteration(it) is not False
+        return True
+
+
+class IpoptSolver(AbstractSolver):
+    """Ipopt, an interior-point method with a filter line search (sparse, MUMPS by default)."""
+
+    name: ClassVar[str] = "ipopt"
+    Options: ClassVar[type[AbstractOptions]] = IpoptOptions
+
+    def solve(
+        self,
+        nlp: Any,
+        x0: np.ndarray,
+        theta: Any = None,
+        options: AbstractOptions | dict[str, Any] | None = None,
+        callback: AbstractCallback | None = None,
+    ) -> Solution:
+        import cyipopt
+
+        opts = self.options(options)
+        assert isinstance(opts, IpoptOptions)
+        exact = opts.hessian == "exact"
+        if exact:
+            nlp.build_hessian()
+        f = bind(nlp, theta)
+        problem_obj = _Problem(nlp, f, exact, callback)
+        problem = cyipopt.Problem(n=nlp.n, m=nlp.m, problem_obj=problem_obj, lb=f.x_lower, ub=f.x_upper, cl=f.g_lower, cu=f.g_upper)
+        for key, value in opts.to_ipopt().items():
+            try:
+                problem.add_option(key, value)
+            except TypeError as e:  # cyipopt raises TypeError for unknown options and bad values
+                raise InvalidOptionError(f"Ipopt rejected option {key}={value!r}: {e}") from None
+        x0 = np.clip(np.asarray(x0, float), f.x_lower, f.x_upper)
+        if callback is not None:
+            callback.on_start(nlp)
+        t0 = time.perf_counter()
+        x, info = problem.solve(x0)
+        total = time.perf_counter() - t0
+        g = np.asarray(f.constraints(jnp.asarray(x)))
+        message = info["status_msg"]
+        history = tuple(problem_obj.history)
+        solution = Solution(
+            x=np.asarray(x),
+            status=IPOPT_STATUS.get(int(info["status"]), Status.INTERNAL_ERROR),
+            message=message.decode() if isinstance(message, bytes) else str(message),
+            objective=float(info["obj_val"]),
+            constraint_violation=max_violation(g, f.g_lower, f.g_upper, x, f.x_lower, f.x_upper),
+            mult_g=np.asarray(info["mult_g"]),
+            mult_x_lower=np.asarray(info["mult_x_L"]),
+            mult_x_upper=np.asarray(info["mult_x_U"]),
+            stats=problem_obj.timer.stats(history[-1].iter if history else 0, total),
+            history=history,
+        )
+        if callback is not None:
+            callback.on_end(solution)
+        return solution

@@ -1,0 +1,139 @@
+"""The solver-backend contract (`jtraj.solvers`): one status enumeration with messages, options
+that fail at construction, the registry, progress resolved at call time, and Ipopt's solution
+with its multipliers on a tiny bound-constrained problem."""
+
+import io
+import sys
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jtraj import solvers
+from jtraj.nlp import ConstraintGroup, CostGroup, Dep, KnotNLP, Layout
+from jtraj.solvers import AbstractCallback, InvalidOptionError, IpoptOptions, IpoptSolver, Status
+from jtraj.solvers.ipopt import IPOPT_STATUS
+
+N = 6
+
+
+@pytest.fixture(scope="module")
+def walk_nlp():
+    """x_{k+1} = x_k + u_k from x_0 = 0; cost sum (x_k - 1)^2 + u_k^2; u_k <= 0.3 (active)."""
+    layout = Layout((("x", 1), ("u", 1)))
+    step = ConstraintGroup(
+        name="step",
+        deps=(Dep("x"), Dep("u"), Dep("x", 1)),
+        fn=lambda data, x, u, x_next: x_next - x - u,
+        knots=np.arange(N - 1),
+        lower=np.zeros((N - 1, 1)),
+        upper=np.zeros((N - 1, 1)),
+        active=np.ones((N - 1, 1), bool),
+    )
+    cost = CostGroup(name="track", deps=(Dep("x"), Dep("u")), fn=lambda data, x, u: (x[0] - 1.0) ** 2 + u[0] ** 2, knots=np.arange(N))
+    lower = np.full((N, 2), -np.inf)
+    upper = np.full((N, 2), np.inf)
+    upper[:, 1] = 0.3
+    lower[0, 0] = upper[0, 0] = 0.0
+    return KnotNLP(layout, N, [cost], [step], lower, upper)
+
+
+def test_every_status_has_a_message_and_acceptable_is_not_solved():
+    for status in Status:
+        assert isinstance(status.value, str) and len(status.message) > 10
+    assert Status.SOLVED.converged and Status.ACCEPTABLE.converged and Status.ACCEPTABLE is not Status.SOLVED
+    assert not any(s.converged for s in Status if s not in (Status.SOLVED, Status.ACCEPTABLE))
+    assert Status("max_iter") is Status.MAX_ITER
+
+
+def test_ipopt_return_codes_map_to_the_enumeration():
+    # every code of Ipopt's ApplicationReturnStatus
+    codes = {0, 1, 2, 3, 4, 5, 6, -1, -2, -3, -4, -5, -10, -11, -12, -13, -100, -101, -102, -199}
+    assert set(IPOPT_STATUS) == codes
+    assert IPOPT_STATUS[0] is Status.SOLVED and IPOPT_STATUS[1] is Status.ACCEPTABLE
+    assert IPOPT_STATUS[-1] is Status.MAX_ITER and IPOPT_STATUS[-5] is Status.MAX_WALL_TIME
+    assert IPOPT_STATUS[-2] is Status.RESTORATION_FAILED and IPOPT_STATUS[2] is Status.INFEASIBLE
+
+
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        ({"tol": -1.0}, "tol=-1.0: expected a positive number"),
+        ({"max_iter": 2.5}, "max_iter=2.5: expected an integer"),
+        ({"hessian": "bfgs"}, r"hessian='bfgs': expected one of \['exact', 'lbfgs'\]"),
+        ({"linear_solver": "umfpack"}, "linear_solver='umfpack'"),
+        ({"extra": {"tol": 1e-3}}, r"use IpoptOptions\(tol=...\)"),
+    ],
+)
+def test_bad_options_fail_at_construction(kwargs, match):
+    with pytest.raises(InvalidOptionError, match=match):
+        IpoptOptions(**kwargs)
+
+
+def test_options_from_ipopt_names():
+    opts = IpoptOptions.from_dict({"tol": 1, "hessian_approximation": "exact", "mu_strategy": "adaptive", "warm_start_init_point": True})
+    assert opts.tol == 1.0 and isinstance(opts.tol, float) and opts.hessian == "exact"
+    ipopt = opts.to_ipopt()
+    assert ipopt["hessian_approximation"] == "exact" and ipopt["mu_strategy"] == "adaptive" and ipopt["warm_start_init_point"] == "yes"
+    merged = opts.merge({"max_iter": 7, "hessian_approximation": "limited-memory"})
+    assert (merged.max_iter, merged.hessian, merged.tol, merged.extra["mu_strategy"]) == (7, "lbfgs", 1.0, "adaptive")
+    with pytest.raises(TypeError):
+        IpoptOptions(1e-3)  # keyword-only
+
+
+def test_registry_names_the_choices():
+    assert isinstance(solvers.get("ipopt"), IpoptSolver)
+    with pytest.raises(ValueError, match=r"unknown solver 'snopt'; expected one of \['ipopt'"):
+        solvers.get("snopt")
+
+
+def test_progress_true_prints_to_the_stdout_of_the_call(walk_nlp, monkeypatch):
+    # resolved when the solve runs: a stream swapped in after import still receives it
+    stream = io.StringIO()
+    monkeypatch.setattr(sys, "stdout", stream)
+    IpoptSolver().solve(walk_nlp, np.zeros(walk_nlp.n), None, None, solvers.resolve_progress(True))
+    assert "inf_pr" in stream.getvalue()
+    assert solvers.resolve_progress(False) is None and solvers.resolve_progress(None) is None
+    with pytest.raises(TypeError, match="progress=3"):
+        solvers.resolve_progress(3)
+
+
+def test_ipopt_solution_multipliers_satisfy_stationarity(walk_nlp):
+    sol = IpoptSolver().solve(walk_nlp, np.zeros(walk_nlp.n), None, IpoptOptions(tol=1e-10, hessian="exact"))
+    assert sol.status is Status.SOLVED and sol.converged, sol.message
+    Z = sol.x.reshape(N, 2)
+    assert np.all(Z[:, 1] <= 0.3 + 1e-8) and Z[0, 1] > 0.3 - 1e-6  # the first step is at its bound
+    # grad f + J^T mult_g - mult_x_lower + mult_x_upper = 0 (Ipopt's sign convention)
+    x = jnp.asarray(sol.x)
+    J = walk_nlp.dense_jacobian(x)
+    residual = np.asarray(walk_nlp.gradient(x)) + J.T @ sol.mult_g - sol.mult_x_lower + sol.mult_x_upper
+    np.testing.assert_allclose(residual, 0.0, atol=1e-7)
+    assert sol.mult_x_upper[1] > 1e-3  # the active bound carries a multiplier
+    s = sol.stats
+    assert s.iterations == sol.history[-1].iter and s.obj_evals > 0 and s.hess_evals > 0
+    assert 0.0 < s.time_evaluations < s.time_total and s.time_solver > 0.0
+
+
+def test_callback_can_stop_the_solve(walk_nlp):
+    class StopAtTwo(AbstractCallback):
+        def __init__(self):
+            self.seen = []
+
+        def on_iteration(self, it):
+            self.seen.append(it.iter)
+            return it.iter < 2
+
+    cb = StopAtTwo()
+    sol = IpoptSolver().solve(walk_nlp, np.zeros(walk_nlp.n), None, IpoptOptions(tol=1e-12), cb)
+    assert sol.status is Status.USER_STOP and not sol.converged
+    assert cb.seen == [0, 1, 2]
+
+
+def test_iteration_limit_is_reported(walk_nlp):
+    sol = IpoptSolver().solve(walk_nlp, np.zeros(walk_nlp.n), None, {"max_iter": 1, "tol": 1e-12})
+    assert sol.status is Status.MAX_ITER and "iteration" in sol.status.message
+
+
+def test_unknown_ipopt_option_names_it(walk_nlp):
+    with pytest.raises(InvalidOptionError, match="not_an_option"):
+        IpoptSolver().solve(walk_nlp, np.zeros(walk_nlp.n), None, {"not_an_option": 1})
