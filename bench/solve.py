@@ -1,36 +1,51 @@
-"""Benchmark one task: compile time, time to solution, time per Ipopt iteration and its split
-into JAX evaluation (functions and derivatives) and Ipopt's own work, side by side with the
-paper's public implementation (figures of REFERENCE.md / issue, same kind of machine) and
-with jtraj's paper-faithful settings in the same run.
+"""Benchmark tasks side by side with the comparative study's public code, in one invocation:
+compile time, time to solution, time per Ipopt iteration and its split into JAX evaluation
+(functions and derivatives) and Ipopt's own work, for jtraj's variants, and the public code's
+time and iterations measured in the same run (never remembered figures: machines differ from
+day to day).
 
-    python bench/solve.py big_jump [--param se3] [--variants paper,compact,lean]
+    python bench/solve.py big_jump [sideflip ...] [--param se3] [--variants paper,compact,lean]
+        [--peer PATH | --no-peer] [--out DIR]
 
 Variants (all with the study's Ipopt settings: L-BFGS Hessian, tol 1e-3, MUMPS):
     paper    the study's variables per knot (q, v, a, f, c)
     compact  jtraj's default: contact positions substituted by forward kinematics (q, v, a, f)
     lean     accelerations substituted too (q, v, f)
     exact    the paper layout with the exact Hessian of the Lagrangian from JAX
+
+``--peer`` is a command that runs the public code on one task and prints one JSON line with
+at least ``iterations`` and ``time_s`` (its wall time around Ipopt's solve, model building
+excluded); the default is ``../shared/peers/run-se3-trajopt`` beside the repository when it
+exists. It runs before jtraj's variants, one after the other (never concurrently), and the
+ratio column is its time over each variant's time to solution (compile excluded). Without a
+peer the table has no ratio column. ``--out DIR`` writes ``DIR/speed.json`` (every raw record)
+and ``DIR/speed.md`` (the table).
 """
 
 from __future__ import annotations
 
 import argparse
 import io
+import json
+import os
+import platform
 import re
+import subprocess
+import sys
+import tempfile
 import time
+from pathlib import Path
 
+from jtraj import io as jio
 from jtraj.solver import prepare, solve
 
-#: Time to solution (s) and iterations of the paper's public implementation on a 2-core
-#: machine of this kind (issue #4), compile excluded.
-PAPER = {"big_jump": (12.7, 11), "walk": (46.7, 12), "hopscotch": (21.6, 10), "handstand": (103.0, 89), "backflip": (33.9, 28), "sideflip": (33.1, 29)}
-
 VARIANTS = {
-    "paper": dict(layout="paper", exact_hessian=False, ipopt_options={}),
-    "lean": dict(layout="lean", exact_hessian=False, ipopt_options={}),
-    "exact": dict(layout="paper", exact_hessian=True, ipopt_options={}),
-    "compact": dict(layout="compact", exact_hessian=False, ipopt_options={}),
+    "paper": dict(layout="paper", exact_hessian=False),
+    "lean": dict(layout="lean", exact_hessian=False),
+    "exact": dict(layout="paper", exact_hessian=True),
+    "compact": dict(layout="compact", exact_hessian=False),
 }
+DEFAULT_PEER = Path(__file__).resolve().parents[1].parent / "shared" / "peers" / "run-se3-trajopt"
 
 
 def ipopt_timing(text: str) -> dict[str, float]:
@@ -42,52 +57,110 @@ def ipopt_timing(text: str) -> dict[str, float]:
     return out
 
 
+def run_peer(peer: str, task: str) -> dict:
+    """Run the public code on ``task``; its JSON line (iterations, time_s, status, ...)."""
+    proc = subprocess.run([peer, task], capture_output=True, text=True)
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("{")]
+    if proc.returncode != 0 or not lines:
+        tail = (proc.stderr or proc.stdout).strip().splitlines()[-3:]
+        raise SystemExit(f"bench/solve.py: peer {peer} {task} failed (exit {proc.returncode}): {' | '.join(tail)}")
+    return json.loads(lines[-1])
+
+
+def run_variant(task: str, param: str, variant: str, extra: dict) -> dict:
+    v = VARIANTS[variant]
+    opts = dict(print_timing_statistics="yes", print_level=3, **extra)
+    # Ipopt prints its timing table on the C side: capture it from file descriptor 1
+    with tempfile.TemporaryFile(mode="w+") as tmp:
+        sys.stdout.flush()
+        saved = os.dup(1)
+        os.dup2(tmp.fileno(), 1)
+        try:
+            r = solve(task, param, layout=v["layout"], exact_hessian=v["exact_hessian"], ipopt_options=opts, progress=io.StringIO())
+        finally:
+            sys.stdout.flush()
+            os.dup2(saved, 1)
+            os.close(saved)
+        tmp.seek(0)
+        timing = ipopt_timing(tmp.read())
+    return dict(
+        variant=variant,
+        status=r.status.value,
+        success=r.success,
+        iterations=r.iterations,
+        time_s=r.time_s,
+        time_derivatives=r.time_derivatives,
+        time_ipopt=r.time_ipopt,
+        time_linear_solver=timing.get("StdAugSystemSolverMultiSolve"),
+        cost=r.cost,
+        constraint_violation=r.constraint_violation,
+    )
+
+
+def _parse_value(text: str):
+    for cast in (int, float):
+        try:
+            return cast(text)
+        except ValueError:
+            pass
+    return text
+
+
+def markdown(records: list[dict]) -> str:
+    with_peer = any(r.get("peer") for r in records)
+    head = "| task | variant | status | iterations | time (s) | s/iter | JAX eval (s) | Ipopt own (s) |"
+    head += " peer iterations | peer time (s) | peer / jtraj |" if with_peer else ""
+    lines = [head, "|" + "---|" * head.count(" | ") + "---|"]
+    for rec in records:
+        peer = rec.get("peer")
+        for v in rec["variants"]:
+            row = (
+                f"| {rec['task']} | {v['variant']} | {v['status']} | {v['iterations']} | {v['time_s']:.2f} | {v['time_s'] / max(v['iterations'], 1):.3f} "
+                f"| {v['time_derivatives']:.2f} | {v['time_ipopt']:.2f} |"
+            )
+            if with_peer:
+                row += f" {peer['iterations']} | {peer['time_s']:.2f} | {peer['time_s'] / v['time_s']:.1f}x |" if peer else " | | |"
+            lines.append(row)
+    return "\n".join(lines) + "\n"
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("task")
+    ap.add_argument("tasks", nargs="+")
     ap.add_argument("--param", default="se3")
     ap.add_argument("--variants", default="paper,compact,lean")
     ap.add_argument("--ipopt", action="append", default=[], metavar="NAME=VALUE", help="extra Ipopt option for every variant")
+    ap.add_argument("--peer", default=str(DEFAULT_PEER) if DEFAULT_PEER.exists() else None, help=f"command running the public code (default {DEFAULT_PEER} when it exists)")
+    ap.add_argument("--no-peer", action="store_true", help="do not run the public code")
+    ap.add_argument("--out", help="write DIR/speed.json and DIR/speed.md")
     args = ap.parse_args()
+    variants = [v for v in args.variants.split(",") if v]
+    for v in variants:
+        if v not in VARIANTS:
+            ap.error(f"--variants: {v!r}: expected some of {sorted(VARIANTS)}")
     extra = {}
     for item in args.ipopt:
-        k, v = item.split("=", 1)
-        extra[k] = int(v) if v.isdigit() else (float(v) if v.replace(".", "", 1).replace("e-", "", 1).isdigit() else v)
-
-    t0 = time.perf_counter()
-    prep = prepare(args.task, args.param)
-    compile_s = time.perf_counter() - t0
-    print(f"{args.task} [{args.param}]: {prep.nlp.n} variables, {prep.nlp.m} constraints, {prep.nlp.nnz_jac} Jacobian nonzeros")
-    print(f"compile (transcription, sparsity probes, first call of every callback): {compile_s:.1f} s")
-    paper_s, paper_it = PAPER.get(args.task, (float("nan"), 0))
-    header = f"{'variant':<8} {'status':<10} {'iters':>5} {'time (s)':>9} {'s/iter':>7} {'JAX eval':>9} {'Ipopt own':>9} {'  of which linear solver':>24} {'paper/jtraj':>11}"
-    print(header)
-    print(f"{'paper':<8} {'(public code)':<10} {paper_it:5d} {paper_s:9.2f} {paper_s / max(paper_it, 1):7.3f} {'':>9} {'':>9} {'':>24} {1.0:11.2f}")
-    for name in args.variants.split(","):
-        v = VARIANTS[name]
-        opts = dict(v["ipopt_options"], print_timing_statistics="yes", print_level=3, **extra)
-        # Ipopt prints its timing table on the C side: capture it from file descriptor 1
-        import os
-        import sys
-        import tempfile
-
-        with tempfile.TemporaryFile(mode="w+") as tmp:
-            sys.stdout.flush()
-            saved = os.dup(1)
-            os.dup2(tmp.fileno(), 1)
-            try:
-                r = solve(args.task, args.param, layout=v["layout"], exact_hessian=v["exact_hessian"], ipopt_options=opts, progress=io.StringIO())
-            finally:
-                sys.stdout.flush()
-                os.dup2(saved, 1)
-                os.close(saved)
-            tmp.seek(0)
-            timing = ipopt_timing(tmp.read())
-        linsolve = timing.get("StdAugSystemSolverMultiSolve", float("nan"))
-        print(
-            f"{name:<8} {('ok' if r.success else r.status.value)[:10]:<10} {r.iterations:5d} {r.time_s:9.2f} {r.time_s / max(r.iterations, 1):7.3f} "
-            f"{r.time_derivatives:9.2f} {r.time_ipopt:9.2f} {linsolve:24.2f} {paper_s / r.time_s:11.2f}"
-        )
+        k, _, v = item.partition("=")
+        extra[k] = _parse_value(v)
+    peer = None if args.no_peer else args.peer
+    records = []
+    for task in args.tasks:
+        rec = dict(task=task, param=args.param, machine=dict(cpus=os.cpu_count(), load_1min=os.getloadavg()[0], platform=platform.platform()), peer=None, variants=[])
+        if peer:
+            rec["peer"] = run_peer(peer, task)
+            print(f"{task}: public code: {rec['peer']['iterations']} iterations, {rec['peer']['time_s']:.2f} s", flush=True)
+        t0 = time.perf_counter()
+        prep = prepare(task, args.param)
+        rec["compile_s"] = time.perf_counter() - t0
+        print(f"{task} [{args.param}]: {prep.nlp.n} variables, {prep.nlp.m} constraints; compile {rec['compile_s']:.1f} s", flush=True)
+        for name in variants:
+            rec["variants"].append(run_variant(task, args.param, name, extra))
+        rec["load_1min_after"] = os.getloadavg()[0]
+        records.append(rec)
+        print(markdown([rec]), flush=True)
+        if args.out:
+            jio.write_json(Path(args.out) / "speed.json", records)
+            jio.write_text(Path(args.out) / "speed.md", markdown(records))
 
 
 if __name__ == "__main__":

@@ -98,9 +98,8 @@ def solve(
         layout: variables per knot (see `TranscriptionOptions`): ``"compact"`` (default; q, v,
             a, f: contact positions substituted by forward kinematics), ``"paper"`` (q, v, a,
             f, c as the study) or ``"lean"`` (q, v, f: accelerations substituted too).
-            Measured with bench/solve.py (SE(3) tangent): compact is 6.6-15x faster than the
-            study's public code on all six tasks; lean is faster still on five but needs 160
-            iterations on the back-flip's acceleration cost.
+            ``bench/solve.py TASK`` times the layouts against the study's public code in one
+            run (speed depends on the machine and its load: no figures here).
         solver: a name of `jtraj.solvers.SOLVERS` (``"ipopt"``) or a solver object.
         options: the solver's options object (e.g. `jtraj.solvers.IpoptOptions`) or a dict of
             option names (for Ipopt, any Ipopt option); the task's ``max_iter`` is the
