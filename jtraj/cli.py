@@ -1,9 +1,27 @@
-"""Command line: ``jtraj <command>``; ``jtraj --help`` lists the commands."""
+"""Command line: ``jtraj <command>``; ``jtraj --help`` lists the commands.
+
+Exit status: 0 success; 2 a bad input (one line on stderr, ``jtraj CMD: FIELD: VALUE:
+EXPECTED``, before anything compiles or solves); ``jtraj solve`` also exits 3 when the solver
+converged but the motion does not do the task (e.g. a jump instead of a flip) and 4 when it did
+not converge.
+"""
 
 from __future__ import annotations
 
 import argparse
+import math
+import os
 import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+#: exit status of a bad input (as argparse's own usage errors)
+EXIT_BAD_INPUT = 2
+#: exit status of `jtraj solve` when the solver converged but the task failed
+EXIT_TASK_FAILED = 3
+#: exit status of `jtraj solve` when the solver did not converge
+EXIT_NOT_CONVERGED = 4
 
 
 def _cmd_params(args: argparse.Namespace) -> int:
@@ -36,16 +54,8 @@ def _cmd_solve(args: argparse.Namespace) -> int:
     from jtraj import task as tasks
     from jtraj.solver import solve
 
-    options = {}
-    for item in args.ipopt or []:
-        if "=" not in item:
-            raise SystemExit(f"--ipopt expects NAME=VALUE, got {item!r}")
-        key, value = item.split("=", 1)
-        options[key] = _parse_value(value)
-    try:
-        task = tasks.load(args.task)
-    except tasks.TaskError as e:
-        raise SystemExit(f"jtraj solve: {e}") from None
+    options = args.ipopt_checked  # parsed and checked by _check_inputs
+    task = tasks.load(args.task)
     out = args.out or f"runs/{task.name}_{args.param}"
     result = solve(
         task,
@@ -66,7 +76,9 @@ def _cmd_solve(args: argparse.Namespace) -> int:
     print(f"wrote {out}/result.json, {out}/trajectory.npz, {out}/trajectory.png, {out}/convergence.png")
     if args.render:
         _render_after_solve(out)
-    return 0 if result.converged else 2
+    if result.success:
+        return 0
+    return EXIT_TASK_FAILED if result.converged else EXIT_NOT_CONVERGED
 
 
 def _split(text: str) -> list[str]:
@@ -84,7 +96,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
 def _cmd_robustness(args: argparse.Namespace) -> int:
     from jtraj.experiments import robustness
 
-    sigmas = [float(s) for s in _split(args.sigmas)]
+    sigmas = args.sigmas_checked
     robustness(_split(args.tasks), _split(args.params), sigmas, replicates=args.replicates, seed=args.seed, out=args.out, layout=args.layout, workers=args.workers, resume=not args.no_resume)
     print((__import__("pathlib").Path(args.out) / "table_iii.md").read_text())
     return 0
@@ -182,15 +194,27 @@ def _solver_names() -> list[str]:
     return sorted(SOLVERS)
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors (``jtraj solve: argument --noise: invalid float value:
+    'x'``) and exit status 2, like the checks of `_check_inputs`."""
+
+    def error(self, message: str):
+        self.exit(EXIT_BAD_INPUT, f"{self.prog}: {message}\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="jtraj", description=__doc__)
+    parser = _Parser(prog="jtraj", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("params", help="list the floating-base parameterizations and check them on a random pose")
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(func=_cmd_params)
 
-    p = sub.add_parser("solve", help="solve a task with Ipopt and write DIR/result.json and DIR/trajectory.npz")
+    p = sub.add_parser(
+        "solve",
+        help="solve a task with Ipopt and write DIR/result.json and DIR/trajectory.npz",
+        epilog=f"exit status: 0 the task succeeded, {EXIT_BAD_INPUT} bad input, {EXIT_TASK_FAILED} converged but the motion does not do the task, {EXIT_NOT_CONVERGED} not converged",
+    )
     p.add_argument("task", help="a built-in task (walk, hopscotch, big_jump, handstand, backflip, sideflip) or a .toml file")
     p.add_argument("--param", default="se3", choices=["se3", "quat1", "quat2", "quat3", "euler"], help="floating-base parameterization (default se3)")
     p.add_argument("--solver", default="ipopt", choices=_solver_names(), help="NLP solver backend (default ipopt)")
@@ -242,10 +266,142 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class InputError(ValueError):
+    """A command-line value that cannot work: ``str(error)`` is ``"FIELD: VALUE: EXPECTED"``."""
+
+    def __init__(self, field: str, value: Any, expected: str):
+        self.field, self.value, self.expected = field, value, expected
+        super().__init__(f"{field}: {value!r}: {expected}")
+
+
+def _check_out(path: str | None, field: str = "--out") -> None:
+    """An output folder must be a folder (or not exist yet) that this user can write in."""
+    if path is None:
+        return
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise InputError(field, path, "is a file; expected a folder (existing or to be created)")
+    existing = p
+    while not existing.exists():
+        existing = existing.parent
+    if not existing.is_dir():
+        raise InputError(field, path, f"{existing} is a file; expected a folder")
+    # a real probe: permission bits do not tell (root, read-only mounts, /proc)
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".jtraj-write-test.", dir=existing)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as e:
+        raise InputError(field, path, f"cannot write in {existing} ({e.strerror}); expected a folder you can write in") from None
+
+
+def _check_names(field: str, text: str, known: list[str], what: str, allow_files: bool = False) -> list[str]:
+    names = _split(text)
+    if not names:
+        raise InputError(field, text, f"expected a comma-separated list of {what}: {', '.join(known)}")
+    for name in names:
+        if name not in known and not (allow_files and name.endswith(".toml")):
+            raise InputError(field, name, f"unknown {what[:-1]}; expected some of {', '.join(known)}" + (" or .toml files" if allow_files else ""))
+    return names
+
+
+def _check_tasks(field: str, text: str) -> list[str]:
+    """Every task named loads and passes the checks that need its robot, before any solve."""
+    from jtraj import task as tasks
+
+    names = _check_names(field, text, tasks.available(), "tasks", allow_files=True)
+    for name in names:
+        tasks.load(name).validate()
+    return names
+
+
+def _check_params(field: str, text: str) -> list[str]:
+    from jtraj.parameterization import PARAMETERIZATIONS
+
+    return _check_names(field, text, list(PARAMETERIZATIONS), "parameterizations")
+
+
+def _check_ipopt(items: list[str] | None, solver: str = "ipopt") -> dict[str, Any]:
+    """``--ipopt NAME=VALUE`` items as Ipopt's option values, checked against Ipopt's own
+    option list (names, types, ranges, available linear solvers)."""
+    options: dict[str, Any] = {}
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise InputError("--ipopt", item, "expected NAME=VALUE, e.g. --ipopt max_iter=50")
+        options[key] = _parse_value(value)
+    if options and solver == "ipopt":
+        from jtraj.solvers.ipopt_catalog import check_all
+
+        options = check_all(options)
+    return options
+
+
+def _check_positive_int(field: str, value: int, minimum: int = 1) -> None:
+    if value < minimum:
+        raise InputError(field, value, f"expected an integer >= {minimum}")
+
+
+def _check_inputs(args: argparse.Namespace) -> None:
+    """Every value of the command line that can be checked without compiling anything."""
+    cmd = args.command
+    if cmd == "solve":
+        from jtraj import task as tasks
+
+        tasks.load(args.task).validate()
+        _check_out(args.out)
+        if not (math.isfinite(args.noise) and args.noise >= 0):
+            raise InputError("--noise", args.noise, "expected a standard deviation >= 0")
+        _check_positive_int("--every", args.every)
+        args.ipopt_checked = _check_ipopt(args.ipopt, getattr(args, "solver", "ipopt"))
+    elif cmd == "compare":
+        _check_tasks("--tasks", args.tasks)
+        _check_params("--params", args.params)
+        _check_out(args.out)
+    elif cmd == "robustness":
+        _check_tasks("--tasks", args.tasks)
+        _check_params("--params", args.params)
+        sigmas = []
+        for text in _split(args.sigmas) or [args.sigmas]:
+            try:
+                sigma = float(text)
+            except ValueError:
+                sigma = math.nan
+            if not (math.isfinite(sigma) and sigma >= 0):
+                raise InputError("--sigmas", text, "expected comma-separated noise levels >= 0, e.g. 1e-6,1e-3,0.1,0.5")
+            sigmas.append(sigma)
+        args.sigmas_checked = sigmas
+        _check_positive_int("--replicates", args.replicates)
+        _check_positive_int("--workers", args.workers)
+        _check_out(args.out)
+    elif cmd == "wahba":
+        _check_positive_int("--trials", args.trials)
+        _check_positive_int("--iterations", args.iterations)
+        _check_out(args.out)
+    elif cmd == "attitude":
+        if args.knots is not None:
+            _check_positive_int("--knots", args.knots, 3)
+        _check_out(args.out)
+
+
+def _input_errors() -> tuple[type[BaseException], ...]:
+    from jtraj.io import FileFormatError
+    from jtraj.solvers.ipopt_catalog import IpoptOptionError
+    from jtraj.task import TaskError
+
+    return (InputError, TaskError, IpoptOptionError, FileFormatError)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    return int(args.func(args) or 0)
+    # one handler for every input error, wherever it is found: one line, exit status 2
+    try:
+        _check_inputs(args)
+        return int(args.func(args) or 0)
+    except _input_errors() as e:
+        print(f"jtraj {args.command}: {e}", file=sys.stderr)
+        return EXIT_BAD_INPUT
 
 
 if __name__ == "__main__":

@@ -1,0 +1,204 @@
+"""Ipopt's own option list, read from the bundled Ipopt, to check options before any solve.
+
+Ipopt knows its options (name, type, bounds, allowed strings) but reports a bad one only when
+a solve starts, and cyipopt then raises a bare ``TypeError``; an integer given for a real
+option (``tol=1``) is refused too, because cyipopt picks Ipopt's setter from the Python type.
+Here the catalog comes from Ipopt's ``print_options_documentation`` (printed once per process
+by a one-variable problem, captured from file descriptor 1), and `check` turns a user's
+``NAME=VALUE`` into the value Ipopt expects, or raises `IpoptOptionError` with one line.
+
+The printed documentation does not say whether a numeric option is an integer or a real
+(``max_iter`` and ``s_max`` both print ``100``-like defaults); `check` asks Ipopt by setting
+the option to its documented default as a float on a throwaway problem.
+
+Linear solvers other than MUMPS are loaded by Ipopt at run time from libraries that may be
+absent; `linear_solver_available` solves the one-variable problem with one to find out.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import difflib
+import functools
+import math
+import os
+import re
+import sys
+import tempfile
+from typing import Any
+
+import numpy as np
+
+__all__ = ["IpoptOptionError", "OptionSpec", "catalog", "check", "check_all", "linear_solver_available"]
+
+
+class IpoptOptionError(ValueError):
+    """An Ipopt option that Ipopt does not know or whose value it would refuse.
+
+    ``str(error)`` is ``"--ipopt NAME: VALUE: EXPECTED"``."""
+
+    def __init__(self, name: str, value: Any, expected: str):
+        self.field, self.value, self.expected = f"--ipopt {name}", value, expected
+        super().__init__(f"{self.field}: {value!r}: {expected}")
+
+
+@dataclasses.dataclass(frozen=True)
+class OptionSpec:
+    """One Ipopt option: ``kind`` is "number" (integer or real, see `check`) or "string"."""
+
+    name: str
+    kind: str
+    default: str
+    lower: float = -math.inf
+    upper: float = math.inf
+    lower_strict: bool = False
+    upper_strict: bool = False
+    values: tuple[str, ...] | None = None  # allowed strings; None: any string
+
+
+class _Tiny:
+    """min x^2 on [-1, 1]: the smallest problem Ipopt accepts."""
+
+    def objective(self, x):
+        return float(x[0] ** 2)
+
+    def gradient(self, x):
+        return 2.0 * x
+
+    def constraints(self, x):
+        return np.zeros(0)
+
+    def jacobian(self, x):
+        return np.zeros(0)
+
+
+def _problem():
+    import cyipopt
+
+    return cyipopt.Problem(n=1, m=0, problem_obj=_Tiny(), lb=[-1.0], ub=[1.0], cl=[], cu=[])
+
+
+@contextlib.contextmanager
+def _captured_stdout():
+    """Capture what C code writes on file descriptor 1 (Ipopt prints there, not via Python)."""
+    with tempfile.TemporaryFile(mode="w+") as tmp:
+        sys.stdout.flush()
+        saved = os.dup(1)
+        os.dup2(tmp.fileno(), 1)
+        out: list[str] = []
+        try:
+            yield out
+        finally:
+            sys.stdout.flush()
+            os.dup2(saved, 1)
+            os.close(saved)
+            tmp.seek(0)
+            out.append(tmp.read())
+
+
+_NUMBER = re.compile(r"^(\w+)\s+(\S+)\s+(<=|<)\s+\(\s*(\S+)\)\s+(<=|<)\s+(\S+)\s*$")
+_STRING = re.compile(r'^(\w+)\s+\("(.*)"\)\s*$')
+_VALUE = re.compile(r"^\s+- (\S+)")
+
+
+def _parse(text: str) -> dict[str, OptionSpec]:
+    specs: dict[str, OptionSpec] = {}
+    current: str | None = None
+    for line in text.splitlines():
+        if m := _NUMBER.match(line):
+            lo, hi = (float(v) for v in (m.group(2), m.group(6)))
+            specs[m.group(1)] = OptionSpec(m.group(1), "number", m.group(4), lo, hi, m.group(3) == "<", m.group(5) == "<")
+            current = None
+        elif m := _STRING.match(line):
+            specs[m.group(1)] = OptionSpec(m.group(1), "string", m.group(2), values=())
+            current = m.group(1)
+        elif current and (m := _VALUE.match(line)):
+            spec = specs[current]
+            values = None if m.group(1) == "*" or spec.values is None else spec.values + (m.group(1),)
+            specs[current] = dataclasses.replace(spec, values=values)
+    # an undocumented but standard option: "sb=yes" suppresses Ipopt's banner
+    specs.setdefault("sb", OptionSpec("sb", "string", "no", values=("yes", "no")))
+    return specs
+
+
+@functools.lru_cache(maxsize=1)
+def catalog() -> dict[str, OptionSpec]:
+    """Every option of the bundled Ipopt, advanced ones included, by name."""
+    p = _problem()
+    for key, value in (("print_options_documentation", "yes"), ("print_advanced_options", "yes"), ("max_iter", 0), ("sb", "yes")):
+        p.add_option(key, value)
+    with _captured_stdout() as out:
+        p.solve(np.array([0.5]))
+    specs = _parse(out[0])
+    if len(specs) < 100:  # a different print format: better to fail loudly than check nothing
+        raise RuntimeError(f"could not read Ipopt's option list ({len(specs)} options parsed)")
+    return specs
+
+
+@functools.lru_cache(maxsize=None)
+def _is_real(name: str) -> bool:
+    spec = catalog()[name]
+    with _captured_stdout():  # Ipopt prints why it refuses
+        try:
+            _problem().add_option(name, float(spec.default))
+            return True
+        except TypeError:
+            return False
+
+
+@functools.lru_cache(maxsize=None)
+def linear_solver_available(name: str) -> bool:
+    """Whether this Ipopt can solve with ``linear_solver=name`` (MUMPS is built in; the
+    others are loaded at run time from libraries that may be absent)."""
+    if name == "mumps":
+        return True
+    p = _problem()
+    for key, value in (("linear_solver", name), ("print_level", 0), ("sb", "yes")):
+        p.add_option(key, value)
+    with _captured_stdout():
+        _, info = p.solve(np.array([0.5]))
+    return info["status"] in (0, 1)
+
+
+def _range(spec: OptionSpec) -> str:
+    lo = ("(" if spec.lower_strict else "[") + f"{spec.lower:g}"
+    hi = f"{spec.upper:g}" + (")" if spec.upper_strict else "]")
+    return f"{lo}, {hi}"
+
+
+def check(name: str, value: Any) -> Any:
+    """``value`` as Ipopt expects it for option ``name`` (an integer given for a real option
+    becomes a float; True/False become "yes"/"no"), or `IpoptOptionError`."""
+    specs = catalog()
+    if name not in specs:
+        close = difflib.get_close_matches(name, specs, n=3)
+        hint = f"did you mean {', '.join(close)}?" if close else "see Ipopt's option list (print_options_documentation=yes)"
+        raise IpoptOptionError(name, value, f"unknown Ipopt option; {hint}")
+    spec = specs[name]
+    if spec.kind == "string":
+        if isinstance(value, bool):
+            value = "yes" if value else "no"
+        if not isinstance(value, str):
+            expected = f"one of {list(spec.values)}" if spec.values else "a string"
+            raise IpoptOptionError(name, value, f"expected {expected}")
+        if spec.values is not None and value.lower() not in spec.values:
+            raise IpoptOptionError(name, value, f"expected one of {list(spec.values)}")
+        if name == "linear_solver" and not linear_solver_available(value.lower()):
+            raise IpoptOptionError(name, value, "not available in this Ipopt build (its library is not installed); expected mumps")
+        return value
+    real = _is_real(name)
+    number_types = (int, float, np.integer, np.floating) if real else (int, np.integer)
+    if isinstance(value, bool) or not isinstance(value, number_types):
+        raise IpoptOptionError(name, value, f"expected {'a real number' if real else 'an integer'} in {_range(spec)}")
+    x = float(value)
+    below = x <= spec.lower if spec.lower_strict else x < spec.lower
+    above = x >= spec.upper if spec.upper_strict else x > spec.upper
+    if below or above or math.isnan(x):
+        raise IpoptOptionError(name, value, f"expected {'a real number' if real else 'an integer'} in {_range(spec)}")
+    return x if real else int(value)
+
+
+def check_all(options: dict[str, Any]) -> dict[str, Any]:
+    """`check` every entry; the options with Ipopt's value types."""
+    return {name: check(name, value) for name, value in options.items()}

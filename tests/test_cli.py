@@ -1,0 +1,99 @@
+"""The command line's input checks: every bad input ends with exit status 2 and one line
+naming the field, the value and what was expected, before anything compiles or solves."""
+
+import types
+
+import pytest
+
+from jtraj import cli
+
+GOOD_TOML = 'name = "x"\nrobot = "go2"\ntimestep = 0.05\n[[phases]]\ncontacts = ["FL_foot", "FR_foot", "RL_foot", "RR_foot"]\nduration = 0.2\n'
+
+
+@pytest.fixture
+def no_solve(monkeypatch):
+    """Fail the test if a bad input reached the solver or a compile."""
+    import jtraj.experiments
+    import jtraj.solver
+
+    def boom(*args, **kwargs):
+        raise AssertionError("a solve started despite a bad input")
+
+    for module, name in ((jtraj.solver, "solve"), (jtraj.solver, "prepare"), (jtraj.experiments, "robustness"), (jtraj.experiments, "compare")):
+        monkeypatch.setattr(module, name, boom)
+
+
+def _run(argv, capsys):
+    code = cli.main(argv)
+    err = capsys.readouterr().err
+    return code, err
+
+
+@pytest.mark.parametrize(
+    "argv, line",
+    [
+        (["solve", "moonwalk"], "jtraj solve: task: 'moonwalk': unknown task; expected one of ['backflip', 'big_jump'"),
+        (["robustness", "--tasks", "walk,jump"], "jtraj robustness: --tasks: 'jump': unknown task; expected some of backflip"),
+        (["compare", "--params", "se3,quat9"], "jtraj compare: --params: 'quat9': unknown parameterization; expected some of se3, quat1"),
+        (["robustness", "--tasks", "big_jump", "--params", "euler,se4"], "jtraj robustness: --params: 'se4': unknown parameterization"),
+        (["robustness", "--tasks", "big_jump", "--sigmas", "abc"], "jtraj robustness: --sigmas: 'abc': expected comma-separated noise levels >= 0"),
+        (["robustness", "--tasks", "big_jump", "--sigmas", "0.1,-1"], "jtraj robustness: --sigmas: '-1': expected"),
+        (["robustness", "--tasks", "big_jump", "--replicates", "0"], "jtraj robustness: --replicates: 0: expected an integer >= 1"),
+        (["robustness", "--tasks", "big_jump", "--replicates", "two"], "jtraj robustness: argument --replicates: invalid int value: 'two'"),
+        (["solve", "big_jump", "--noise", "-1"], "jtraj solve: --noise: -1.0: expected a standard deviation >= 0"),
+        (["solve", "big_jump", "--ipopt", "tol"], "jtraj solve: --ipopt: 'tol': expected NAME=VALUE"),
+        (["solve", "big_jump", "--ipopt", "tol=abc"], "jtraj solve: --ipopt tol: 'abc': expected a real number in (0, inf)"),
+        (["solve", "big_jump", "--ipopt", "max_itr=3"], "jtraj solve: --ipopt max_itr: 3: unknown Ipopt option; did you mean max_iter"),
+        (["solve", "big_jump", "--ipopt", "max_iter=2.5"], "jtraj solve: --ipopt max_iter: 2.5: expected an integer in [0, inf)"),
+        (["solve", "big_jump", "--ipopt", "mu_strategy=fast"], "jtraj solve: --ipopt mu_strategy: 'fast': expected one of ['monotone', 'adaptive']"),
+        (["solve", "big_jump", "--ipopt", "linear_solver=ma27"], "jtraj solve: --ipopt linear_solver: 'ma27': not available in this Ipopt build"),
+    ],
+)
+def test_bad_command_lines(argv, line, capsys, no_solve):
+    try:
+        code, err = _run(argv, capsys)
+    except SystemExit as e:  # argparse's own errors
+        code, err = e.code, capsys.readouterr().err
+    assert code == 2
+    assert err.startswith(line), err
+    assert err.count("\n") == 1
+
+
+def test_out_must_be_a_writable_folder(tmp_path, capsys, no_solve):
+    afile = tmp_path / "notes.txt"
+    afile.write_text("x")
+    code, err = _run(["robustness", "--tasks", "big_jump", "--out", str(afile)], capsys)
+    assert code == 2 and err == f"jtraj robustness: --out: {str(afile)!r}: is a file; expected a folder (existing or to be created)\n"
+    code, err = _run(["compare", "--tasks", "big_jump", "--out", str(afile / "sub")], capsys)
+    assert code == 2 and "is a file; expected a folder" in err
+    code, err = _run(["compare", "--tasks", "big_jump", "--out", "/proc/jtraj-out"], capsys)
+    assert code == 2 and err.startswith("jtraj compare: --out: '/proc/jtraj-out': cannot write in /proc")
+
+
+def test_bad_task_file_is_one_line(tmp_path, capsys, no_solve):
+    path = tmp_path / "t.toml"
+    path.write_text(GOOD_TOML.replace("timestep = 0.05", "timestep = 0.05\n[costs]\nconfigration = 1.0"))
+    code, err = _run(["solve", str(path)], capsys)
+    assert code == 2 and err == f"jtraj solve: {path}: costs.configration: unknown key: expected one of ['configuration', 'acceleration']\n"
+    path.write_text(GOOD_TOML.replace('"FL_foot"', '"FL_paw"'))
+    code, err = _run(["solve", str(path)], capsys)
+    assert code == 2 and err.startswith("jtraj solve: phases[0].contacts: 'FL_paw': expected a contact of robot 'go2'")
+
+
+def test_real_options_accept_integers():
+    options = cli._check_ipopt(["tol=1", "max_wall_time=100", "max_iter=5", "print_level=0", "mu_strategy=adaptive"])
+    assert options == {"tol": 1.0, "max_wall_time": 100.0, "max_iter": 5, "print_level": 0, "mu_strategy": "adaptive"}
+    assert type(options["tol"]) is float and type(options["max_iter"]) is int
+
+
+@pytest.mark.parametrize("converged, success, code", [(True, True, 0), (True, False, cli.EXIT_TASK_FAILED), (False, False, cli.EXIT_NOT_CONVERGED)])
+def test_solve_exit_status_says_what_happened(converged, success, code, monkeypatch, tmp_path, capsys):
+    import jtraj.plots
+    import jtraj.solver
+
+    fake = types.SimpleNamespace(converged=converged, success=success)
+    monkeypatch.setattr(jtraj.solver, "solve", lambda *a, **k: fake)
+    monkeypatch.setattr(jtraj.plots, "plot_result", lambda *a, **k: None)
+    monkeypatch.setattr(jtraj.plots, "plot_convergence", lambda *a, **k: None)
+    assert cli.main(["solve", "big_jump", "--out", str(tmp_path / "r")]) == code
+    assert len({0, cli.EXIT_BAD_INPUT, cli.EXIT_TASK_FAILED, cli.EXIT_NOT_CONVERGED}) == 4
