@@ -1,0 +1,106 @@
+"""Where the groups of a sweep run: worker processes on this machine, or Ray tasks on a cluster.
+
+A sweep (`jtraj compare`, `jtraj robustness`) is a list of independent groups, one per (task,
+parameterization): each group compiles its NLP once and solves its runs. An executor runs
+``fn(*args)`` for every ``args`` of the list and yields ``(index, result)`` pairs as groups
+finish, in completion order, so the caller can checkpoint each group's rows as it arrives.
+
+    for i, rows in executor_for("local", workers=2).map(fn, arg_list):
+        ...
+
+``fn`` must be importable (a module-level function) and its arguments and results picklable:
+both executors ship them to other processes.
+
+- `LocalExecutor`: ``workers`` fresh Python processes (spawn: JAX is not fork-safe); with
+  ``workers <= 1`` the groups run in this process, one after the other.
+- `RayExecutor`: one Ray task per group on the cluster ``ray.init(address=...)`` connects to
+  (``None`` starts a local Ray instance, ``"auto"`` joins the cluster of this node). Needs the
+  optional extra ``pip install "jtraj[ray]"``.
+"""
+
+from __future__ import annotations
+
+import abc
+import dataclasses
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any
+
+__all__ = ["AbstractExecutor", "LocalExecutor", "RayExecutor", "EXECUTORS", "executor_for"]
+
+#: Names accepted by `executor_for` and the command line's ``--executor``.
+EXECUTORS = ("local", "ray")
+
+
+class AbstractExecutor(abc.ABC):
+    """Runs independent groups of a sweep; see the module docstring."""
+
+    @abc.abstractmethod
+    def map(self, fn: Callable[..., Any], arg_list: Sequence[tuple]) -> Iterator[tuple[int, Any]]:
+        """Yield ``(i, fn(*arg_list[i]))`` for every i, in the order the groups finish."""
+
+
+@dataclasses.dataclass(frozen=True)
+class LocalExecutor(AbstractExecutor):
+    """``workers`` worker processes on this machine (1: in this process)."""
+
+    workers: int = 1
+
+    def map(self, fn, arg_list):
+        if self.workers <= 1 or len(arg_list) <= 1:
+            for i, args in enumerate(arg_list):
+                yield i, fn(*args)
+            return
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        # JAX is not fork-safe: workers start fresh interpreters
+        with ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+            futures = {pool.submit(fn, *args): i for i, args in enumerate(arg_list)}
+            for f in as_completed(futures):
+                yield futures[f], f.result()
+
+
+@dataclasses.dataclass(frozen=True)
+class RayExecutor(AbstractExecutor):
+    """One Ray task per group.
+
+    Attributes:
+        address: passed to ``ray.init``: ``None`` starts a local instance (or reuses the one
+            this process already started), ``"auto"`` joins a running cluster, or
+            ``"ray://host:10001"`` connects a client to a remote cluster.
+        num_cpus: CPUs each group reserves on the cluster (its JAX evaluation and Ipopt run
+            mostly on one core).
+    """
+
+    address: str | None = None
+    num_cpus: float = 1.0
+
+    def map(self, fn, arg_list):
+        ray = _import_ray()
+        if not ray.is_initialized():
+            # the workers import jtraj from their own environment: the cluster's nodes must have
+            # jtraj installed (or use a runtime_env); a local instance shares this one
+            ray.init(address=self.address, include_dashboard=False, log_to_driver=False)
+        remote = ray.remote(num_cpus=self.num_cpus, max_retries=0)(fn)
+        pending = {remote.remote(*args): i for i, args in enumerate(arg_list)}
+        while pending:
+            ready, _ = ray.wait(list(pending), num_returns=1)
+            for ref in ready:
+                yield pending.pop(ref), ray.get(ref)
+
+
+def _import_ray():
+    try:
+        import ray
+    except ImportError:
+        raise ImportError('the Ray executor needs Ray: pip install "jtraj[ray]" (or pip install ray), or use --executor local') from None
+    return ray
+
+
+def executor_for(name: str = "local", workers: int = 1, ray_address: str | None = None) -> AbstractExecutor:
+    """The executor called ``name`` (one of `EXECUTORS`)."""
+    if name == "local":
+        return LocalExecutor(workers)
+    if name == "ray":
+        return RayExecutor(ray_address)
+    raise ValueError(f"unknown executor {name!r}; expected one of {', '.join(EXECUTORS)}")

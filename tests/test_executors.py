@@ -1,0 +1,83 @@
+"""Executors of sweeps: every group runs once, results come back with their index.
+
+The Ray executor is checked against a stand-in `ray` module (init / remote / wait / get with
+Ray's semantics, completion out of submission order): starting a real Ray instance takes
+minutes on a loaded 2-core CI machine and timed out there.
+"""
+
+from __future__ import annotations
+
+import operator
+import sys
+import types
+
+import pytest
+
+from jtraj.executors import EXECUTORS, LocalExecutor, RayExecutor, executor_for
+
+
+def test_local_in_process_keeps_order():
+    out = list(LocalExecutor(workers=1).map(operator.add, [(1, 2), (3, 4), (5, 6)]))
+    assert out == [(0, 3), (1, 7), (2, 11)]
+
+
+def test_local_workers_return_every_group():
+    out = dict(LocalExecutor(workers=2).map(operator.mul, [(2, 3), (4, 5), (6, 7)]))
+    assert out == {0: 6, 1: 20, 2: 42}
+
+
+def _fake_ray(calls: dict) -> types.ModuleType:
+    """A `ray` stand-in: tasks run when submitted, ``wait`` hands them back last-first."""
+    ray = types.ModuleType("ray")
+    state = {"initialized": False}
+
+    class Ref:
+        def __init__(self, value):
+            self.value = value
+
+    def init(address=None, **kwargs):
+        calls["address"] = address
+        state["initialized"] = True
+
+    def remote(**options):
+        calls["options"] = options
+
+        def wrap(fn):
+            return types.SimpleNamespace(remote=lambda *args: Ref(fn(*args)))
+
+        return wrap
+
+    def wait(refs, num_returns=1):
+        return refs[-num_returns:], refs[:-num_returns]
+
+    ray.init = init
+    ray.is_initialized = lambda: state["initialized"]
+    ray.remote = remote
+    ray.wait = wait
+    ray.get = lambda ref: ref.value
+    return ray
+
+
+def test_ray_executor_submits_one_task_per_group(monkeypatch):
+    calls = {}
+    monkeypatch.setitem(sys.modules, "ray", _fake_ray(calls))
+    out = list(RayExecutor(address="ray://head:10001").map(operator.sub, [(10, 1), (10, 2), (10, 3)]))
+    assert calls["address"] == "ray://head:10001"
+    assert calls["options"]["num_cpus"] == 1.0
+    assert [i for i, _ in out] == [2, 1, 0]  # completion order, not submission order
+    assert dict(out) == {0: 9, 1: 8, 2: 7}
+
+
+def test_ray_missing_says_how_to_install(monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray -> ImportError
+    with pytest.raises(ImportError, match=r"jtraj\[ray\]"):
+        list(RayExecutor().map(operator.add, [(1, 2)]))
+
+
+def test_executor_for_names():
+    assert isinstance(executor_for("local", workers=3), LocalExecutor)
+    assert executor_for("local", workers=3).workers == 3
+    assert executor_for("ray", ray_address="auto").address == "auto"
+    assert set(EXECUTORS) == {"local", "ray"}
+    with pytest.raises(ValueError, match="unknown executor 'dask'"):
+        executor_for("dask")
