@@ -125,7 +125,17 @@ def _cmd_attitude(args: argparse.Namespace) -> int:
         rows = benchmarks.compare_benchmarks(args.out, n_knots=args.knots, solver=args.solver)
         return 0 if all(r["status"] == "solved" for r in rows) else 2
     result = benchmarks.main_attitude(args.bench, args.variant, args.out, n_knots=args.knots, solver=args.solver)
+    if args.render:
+        _render_benchmark(result, args.out)
     return 0 if result.success else 2
+
+
+def _render_benchmark(result, out: str) -> None:
+    """``attitude --render``: the body along its path, as a video and a keyframe image."""
+    from jtraj.render import render_benchmark
+
+    for path in render_benchmark(result, out):
+        print(f"wrote {path}")
 
 
 def _render_options(args: argparse.Namespace):
@@ -261,6 +271,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="runs/attitude")
     p.add_argument("--knots", type=int, default=None, help="number of knots (default: the paper's)")
     p.add_argument("--solver", default="ipopt", choices=_solver_names(), help="NLP solver backend (default ipopt)")
+    p.add_argument("--render", action="store_true", help="also write OUT/BENCH_VARIANT.mp4 and OUT/BENCH_VARIANT_keyframes.png (not with 'all')")
     p.set_defaults(func=_cmd_attitude)
     _add_render_parsers(sub)
     return parser

@@ -46,7 +46,11 @@ __all__ = [
     "interpolate",
     "write_video",
     "write_image",
+    "show",
     "render_directory",
+    "render_rigid_body",
+    "render_benchmark",
+    "rigid_body_model",
 ]
 
 
@@ -129,9 +133,9 @@ def _renderer(model, width: int, height: int):
 # Scene
 
 
-def add_scenery(spec: mujoco.MjSpec, *, checker_size: float = 0.5) -> None:
-    """Adds a checker ground plane (squares of ``checker_size`` m), a sky and a light that
-    casts shadows to a MuJoCo spec."""
+def add_scenery(spec: mujoco.MjSpec, *, checker_size: float = 0.5, ground: bool = True) -> None:
+    """Adds a checker ground plane (squares of ``checker_size`` m; none if not ``ground``), a
+    sky and a light that casts shadows to a MuJoCo spec."""
     mujoco = _mujoco()
     spec.add_texture(
         name="jtraj_sky", type=mujoco.mjtTexture.mjTEXTURE_SKYBOX, builtin=mujoco.mjtBuiltin.mjBUILTIN_GRADIENT,
@@ -141,13 +145,14 @@ def add_scenery(spec: mujoco.MjSpec, *, checker_size: float = 0.5) -> None:
         name="jtraj_checker", type=mujoco.mjtTexture.mjTEXTURE_2D, builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER,
         rgb1=[0.82, 0.84, 0.86], rgb2=[0.64, 0.67, 0.7], width=256, height=256,
     )
-    ground = spec.add_material(name="jtraj_ground", texrepeat=[1.0 / (2 * checker_size)] * 2, texuniform=True)
-    ground.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = "jtraj_checker"
+    material = spec.add_material(name="jtraj_ground", texrepeat=[1.0 / (2 * checker_size)] * 2, texuniform=True)
+    material.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = "jtraj_checker"
     # A plane of size 0 is drawn to the horizon.
-    spec.worldbody.add_geom(
-        name="jtraj_ground", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 0.05], material="jtraj_ground",
-        contype=0, conaffinity=0, group=2,
-    )
+    if ground:
+        spec.worldbody.add_geom(
+            name="jtraj_ground", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 0.05], material="jtraj_ground",
+            contype=0, conaffinity=0, group=2,
+        )
     spec.worldbody.add_light(
         name="jtraj_sun", type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL, pos=[0, 0, 6], dir=[0.3, 0.2, -1],
         diffuse=[0.6, 0.6, 0.6], specular=[0.1, 0.1, 0.1], castshadow=True,
@@ -248,23 +253,32 @@ def interpolate(trajectory: Trajectory, times: np.ndarray) -> Frames:
 
 
 class _Painter:
-    """One robot, one offscreen renderer; draws a pose with its forces from a camera."""
+    """One model, one offscreen renderer; draws a pose (with forces, a path) from a camera.
 
-    def __init__(self, robot_name: str, options: RenderOptions):
-        from jtraj import robot as robots
+    ``scale`` (m) sizes the arrows: a force equal to ``weight`` (N) is ``2 scale`` long
+    unless `RenderOptions.force_length` says otherwise.
+    """
 
+    def __init__(self, model, options: RenderOptions, *, weight: float = 1.0, scale: float = 1.0):
         self.mujoco = _mujoco()
-        self.robot = robots.load(robot_name)
-        self.model = scene_model(robot_name)
+        self.model = model
         self.data = self.mujoco.MjData(self.model)
         self.options = options
         self.renderer = _renderer(self.model, options.width, options.height)
         self.vopt = _options(self.mujoco)
         self.renderer.scene.flags[self.mujoco.mjtRndFlag.mjRND_SHADOW] = options.shadows
-        self.weight = self.robot.total_mass * self.robot.gravity
-        height = float(self.robot.base_xyz_wxyz_standing[2])
-        self.force_length = options.force_length if options.force_length is not None else 2.0 * height
-        self.arrow_width = 0.04 * height
+        self.weight = weight
+        self.force_length = options.force_length if options.force_length is not None else 2.0 * scale
+        self.arrow_width = 0.04 * scale
+
+    @classmethod
+    def for_robot(cls, robot_name: str, options: RenderOptions) -> _Painter:
+        from jtraj import robot as robots
+
+        robot = robots.load(robot_name)
+        painter = cls(scene_model(robot_name), options, weight=robot.total_mass * robot.gravity, scale=float(robot.base_xyz_wxyz_standing[2]))
+        painter.robot = robot
+        return painter
 
     def close(self):
         self.renderer.close()
@@ -284,16 +298,30 @@ class _Painter:
         self.mujoco.mj_kinematics(self.model, data)
         return data
 
-    def draw(self, qpos, forces, points, in_contact, camera, extra_poses: Sequence[np.ndarray] = ()) -> np.ndarray:
+    def draw(self, qpos, forces, points, in_contact, camera, extra_poses: Sequence[np.ndarray] = (), path: np.ndarray | None = None) -> np.ndarray:
+        """The image of ``qpos`` (plus copies at ``extra_poses``), force arrows at ``points``
+        where ``in_contact``, and ``path`` (M, 3) as a line."""
         mj = self.mujoco
         self.renderer.update_scene(self.pose(qpos), camera=camera, scene_option=self.vopt)
         scene = self.renderer.scene
         for q in extra_poses:
-            # More copies of the robot in the same scene: MuJoCo sorts them by depth.
+            # More copies of the body in the same scene: MuJoCo sorts them by depth.
             mj.mjv_addGeoms(self.model, self.pose(q, mj.MjData(self.model)), self.vopt, mj.MjvPerturb(), mj.mjtCatBit.mjCAT_DYNAMIC, scene)
-        if self.options.forces:
+        if self.options.forces and forces is not None:
             self._arrows(scene, forces, points, in_contact)
+        if path is not None:
+            self._line(scene, path)
         return self.renderer.render().copy()
+
+    def _line(self, scene, path):
+        mj = self.mujoco
+        for a, b in zip(path[:-1], path[1:]):
+            if scene.ngeom >= scene.maxgeom:
+                break
+            geom = scene.geoms[scene.ngeom]
+            mj.mjv_initGeom(geom, mj.mjtGeom.mjGEOM_LINE, np.zeros(3), np.zeros(3), np.eye(3).ravel(), np.array([0.1, 0.3, 0.8, 1.0], np.float32))
+            mj.mjv_connector(geom, mj.mjtGeom.mjGEOM_LINE, 3.0, a, b)  # width in pixels
+            scene.ngeom += 1
 
     def _arrows(self, scene, forces, points, in_contact):
         mj = self.mujoco
@@ -362,7 +390,7 @@ def render(result: Result | str | Path, options: RenderOptions | None = None, **
     duration = float(traj.t[-1] - traj.t[0])
     n = max(2, int(round(duration / options.speed * options.fps)) + 1)
     frames = interpolate(traj, np.linspace(traj.t[0], traj.t[-1], n))
-    painter = _Painter(result.robot, options)
+    painter = _Painter.for_robot(result.robot, options)
     try:
         lookat, distance = _follow(frames, painter.robot)
         distance = options.distance or distance
@@ -433,7 +461,7 @@ def keyframe_strip(
     else:
         raise ValueError(f"spacing must be 'motion' or 'time', got {spacing!r}")
     frames = interpolate(traj, times)
-    painter = _Painter(result.robot, options)
+    painter = _Painter.for_robot(result.robot, options)
     try:
         lookat, distance = _follow(frames, painter.robot)
         distance = options.distance or distance
@@ -461,6 +489,136 @@ def keyframe_strip(
     finally:
         painter.close()
     return np.concatenate(panels[:-1], axis=1)
+
+
+# ----------------------------------------------------------------------------------------
+# Rigid bodies (the attitude benchmarks)
+
+#: Simple bodies for the attitude benchmarks, by benchmark name.
+BENCHMARK_SHAPES = {"quadflip": "quadrotor", "barrelroll": "airplane", "satellite": "satellite"}
+
+
+def rigid_body_model(shape: str, size: float = 1.0) -> mujoco.MjModel:
+    """A free body drawn as a simple ``shape`` about ``size`` m across, on the checker ground
+    (``quadrotor``, ``airplane``) or in an empty sky (``satellite``); body x forward, z up.
+
+    quadrotor: two crossed arms and four rotors (the front two red); airplane: fuselage along
+    +x, wing, tail plane and fin; satellite: a bus, two solar panels along y and an instrument
+    pointing along +z.
+    """
+    if shape not in ("quadrotor", "airplane", "satellite"):
+        raise ValueError(f"shape must be 'quadrotor', 'airplane' or 'satellite', got {shape!r}")
+    mujoco = _mujoco()
+    spec = mujoco.MjSpec()
+    add_scenery(spec, checker_size=max(0.5, size), ground=shape != "satellite")
+    if shape == "satellite":
+        spec.visual.headlight.ambient = [0.5, 0.5, 0.5]
+    body = spec.worldbody.add_body(name="body")
+    body.add_freejoint()
+    box, cyl, capsule = mujoco.mjtGeom.mjGEOM_BOX, mujoco.mjtGeom.mjGEOM_CYLINDER, mujoco.mjtGeom.mjGEOM_CAPSULE
+    grey, dark, red, blue, gold = [0.75, 0.77, 0.8, 1], [0.25, 0.27, 0.3, 1], [0.85, 0.2, 0.15, 1], [0.15, 0.25, 0.6, 1], [0.85, 0.7, 0.3, 1]
+    s = 0.5 * size
+    if shape == "quadrotor":
+        body.add_geom(type=box, size=[0.2 * s, 0.2 * s, 0.06 * s], rgba=dark)
+        for angle in (45.0, -45.0):
+            body.add_geom(type=box, size=[s, 0.04 * s, 0.025 * s], euler=[0, 0, angle], rgba=grey)
+        for x in (1, -1):
+            for y in (1, -1):
+                pos = [x * s / np.sqrt(2), y * s / np.sqrt(2), 0.06 * s]
+                body.add_geom(type=cyl, size=[0.3 * s, 0.01 * s, 0], pos=pos, rgba=red if x > 0 else dark)
+    elif shape == "airplane":
+        body.add_geom(type=capsule, fromto=[-s, 0, 0, s, 0, 0], size=[0.08 * s, 0, 0], rgba=grey)
+        body.add_geom(type=box, size=[0.18 * s, s, 0.015 * s], pos=[0.1 * s, 0, 0], rgba=blue)
+        body.add_geom(type=box, size=[0.1 * s, 0.35 * s, 0.012 * s], pos=[-0.9 * s, 0, 0], rgba=blue)
+        body.add_geom(type=box, size=[0.12 * s, 0.012 * s, 0.2 * s], pos=[-0.9 * s, 0, 0.2 * s], rgba=red)
+    else:
+        body.add_geom(type=box, size=[0.3 * s, 0.3 * s, 0.3 * s], rgba=gold)
+        for y in (1, -1):
+            body.add_geom(type=box, size=[0.25 * s, 0.35 * s, 0.01 * s], pos=[0, y * 0.68 * s, 0], rgba=blue)
+        body.add_geom(type=cyl, size=[0.08 * s, 0.12 * s, 0], pos=[0, 0, 0.42 * s], rgba=dark)
+    return spec.compile()
+
+
+def _rigid_qpos(xyz: np.ndarray, wxyz: np.ndarray, t: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """Poses (T, 7) at ``times``, interpolated on SE(3) between the knots (as `interpolate`)."""
+    from jaxlie import SE3
+
+    k = np.clip(np.searchsorted(t, times, side="right") - 1, 0, len(t) - 2)
+    s = (np.clip(times, t[0], t[-1]) - t[k]) / (t[k + 1] - t[k])
+    wxyz = wxyz / np.linalg.norm(wxyz, axis=1, keepdims=True)
+    T = np.concatenate([wxyz, xyz], axis=1)
+    Ta, Tb = SE3(T[k]), SE3(T[k + 1])
+    pose = np.asarray((Ta @ SE3.exp((Ta.inverse() @ Tb).log() * s[:, None])).wxyz_xyz)
+    return np.concatenate([pose[:, 4:], pose[:, :4]], axis=1)
+
+
+def render_rigid_body(
+    t: np.ndarray,
+    xyz: np.ndarray,
+    wxyz: np.ndarray,
+    shape: str,
+    *,
+    strip: int | None = None,
+    options: RenderOptions | None = None,
+    **kwargs,
+) -> np.ndarray:
+    """A rigid body moving along its path: video frames (T, H, W, 3) with the camera following
+    the body, or with ``strip=n`` one image of ``n`` copies along the path from a fixed camera
+    (side by side for the satellite, which turns in place). The path is drawn as a blue line.
+
+    ``t`` (N,) knot times (s), ``xyz`` (N, 3) positions (m), ``wxyz`` (N, 4) attitudes.
+    """
+    options = dataclasses.replace(options or RenderOptions(), **kwargs)
+    t, xyz, wxyz = (np.asarray(a, float) for a in (t, xyz, wxyz))
+    extent = float(np.max(np.ptp(xyz, axis=0)))
+    size = 1.0 if extent < 1e-6 else float(np.clip(0.2 * extent, 0.3, 2.0))
+    travel = xyz[-1, :2] - xyz[0, :2]
+    if np.linalg.norm(travel) > 1e-6 and options.azimuth == RenderOptions.azimuth:
+        # seen from the side of its travel (MuJoCo's camera looks along (cos az, sin az))
+        options = dataclasses.replace(options, azimuth=float(np.degrees(np.arctan2(travel[1], travel[0]))) + 90.0)
+    painter = _Painter(rigid_body_model(shape, size), options, scale=size)
+    path = xyz if extent > 1e-6 else None
+    try:
+        if strip is not None:
+            times = np.linspace(t[0], t[-1], strip)
+            qpos = _rigid_qpos(xyz, wxyz, t, times)
+            if path is None:  # turning in place: one panel per keyframe
+                panels = []
+                for q, tk in zip(qpos, times):
+                    image = painter.draw(q, None, None, None, painter.camera(q[:3], options.distance or 2.2 * size))
+                    panels += [_label(image, f"t = {tk:.3g} s", False) if options.label else image, np.full((options.height, 2, 3), 255, np.uint8)]
+                return np.concatenate(panels[:-1], axis=1)
+            center = 0.5 * (xyz.min(axis=0) + xyz.max(axis=0))
+            cam = painter.camera(center, options.distance or 1.1 * extent + 2 * size)
+            return painter.draw(qpos[-1], None, None, None, cam, extra_poses=list(qpos[:-1]), path=path)
+        n = max(2, int(round((t[-1] - t[0]) / options.speed * options.fps)) + 1)
+        times = np.linspace(t[0], t[-1], n)
+        qpos = _rigid_qpos(xyz, wxyz, t, times)
+        images = []
+        for q, tk in zip(qpos, times):
+            image = painter.draw(q, None, None, None, painter.camera(q[:3], options.distance or 4 * size), path=path)
+            images.append(_label(image, f"t = {tk:.3g} s", False) if options.label else image)
+        return np.stack(images)
+    finally:
+        painter.close()
+
+
+def render_benchmark(result, out_dir: str | Path, *, options: RenderOptions | None = None, keyframes: int = 8) -> list[Path]:
+    """``jtraj attitude ... --render``: ``{name}_{variant}.mp4`` and ``{name}_{variant}_keyframes.png``
+    of an attitude benchmark result (its ``name``, ``variant``, ``t`` and states ``X`` whose
+    first 7 columns are position and wxyz attitude) in ``out_dir``."""
+    shape = BENCHMARK_SHAPES.get(result.name)
+    if shape is None:
+        raise ValueError(f"no body to draw for benchmark {result.name!r}; expected one of: {', '.join(BENCHMARK_SHAPES)}")
+    options = options or RenderOptions()
+    X = np.asarray(result.X)
+    stem = Path(out_dir) / f"{result.name}_{result.variant}"
+    # the satellite slews for minutes: show it faster than real time
+    speed = options.speed * (10.0 if result.t[-1] - result.t[0] > 30 else 1.0)
+    video = render_rigid_body(result.t, X[:, :3], X[:, 3:7], shape, options=dataclasses.replace(options, speed=speed))
+    strip_options = dataclasses.replace(options, width=min(options.width, 320) if shape == "satellite" else options.width)
+    strip = render_rigid_body(result.t, X[:, :3], X[:, 3:7], shape, strip=keyframes, options=strip_options)
+    return [write_video(video, stem.with_suffix(".mp4"), fps=options.fps), write_image(strip, Path(f"{stem}_keyframes.png"))]
 
 
 # ----------------------------------------------------------------------------------------
@@ -496,6 +654,31 @@ def write_video(frames: np.ndarray, path: str | Path, fps: float = 30.0) -> Path
     else:
         raise ValueError(f"{path}: expected a .mp4 or .gif file name")
     return path
+
+
+def show(frames: np.ndarray, fps: float = 30.0, **kwargs) -> None:
+    """Shows a video (T, H, W, 3) or an image (H, W, 3) inline in a notebook with mediapy.
+
+    mediapy encodes videos with ``ffmpeg``; when none is on the PATH it is pointed at the
+    binary that imageio-ffmpeg ships (both in the ``render`` extra).
+    """
+    try:
+        import mediapy
+    except ImportError:
+        raise RenderError("showing frames inline needs mediapy: pip install 'jtraj[render]'") from None
+    frames = np.asarray(frames)
+    if frames.ndim == 3:
+        mediapy.show_image(frames, **kwargs)
+        return
+    import shutil
+
+    if shutil.which("ffmpeg") is None:
+        import imageio_ffmpeg
+
+        mediapy.set_ffmpeg(imageio_ffmpeg.get_ffmpeg_exe())
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="os.fork", category=RuntimeWarning)  # see write_video
+        mediapy.show_video(frames, fps=fps, **kwargs)
 
 
 def write_image(image: np.ndarray, path: str | Path) -> Path:

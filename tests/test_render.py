@@ -1,6 +1,7 @@
 """Rendering and plots of a solution, on a Go2 motion made up (no solve): a base that turns
 half a back-flip at a constant body twist while the feet push off, then flies."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -191,3 +192,31 @@ def test_render_and_plot_commands(result, tmp_path, capsys):
     assert "solution.png" in capsys.readouterr().out
     with pytest.raises(SystemExit, match="no trajectory.npz"):
         main(["render", str(tmp_path / "empty"), "--out", str(tmp_path / "x.gif")])
+
+
+def test_attitude_bodies_along_their_paths(tmp_path):
+    from types import SimpleNamespace
+
+    from jtraj.render import render_benchmark, render_rigid_body
+
+    # a quadrotor rolling once about x while it climbs and comes back down along y
+    t = np.linspace(0.0, 1.0, 9)
+    angle = np.linspace(0.0, 2 * np.pi, 9)
+    xyz = np.column_stack([np.zeros(9), np.linspace(0.0, 2.0, 9), 1.0 + np.sin(angle / 2)])
+    wxyz = np.column_stack([np.cos(angle / 2), np.sin(angle / 2), np.zeros(9), np.zeros(9)])
+    frames = render_rigid_body(t, xyz, wxyz, "quadrotor", options=SMALL, fps=4)
+    assert frames.shape == (5, H, W, 3) and all(f.std() > 10 for f in frames)
+    strip = render_rigid_body(t, xyz, wxyz, "quadrotor", strip=4, options=SMALL)
+    assert strip.shape == (H, W, 3)
+    # the path is drawn: blue pixels (the line) only where a path is given
+    blue = lambda im: np.sum((im[..., 2].astype(int) - im[..., 0] > 100) & (im[..., 1] < 150))
+    assert blue(strip) > 20
+    # a satellite turns in place: one panel per keyframe, no ground
+    still = render_rigid_body(t, np.zeros((9, 3)), wxyz, "satellite", strip=3, options=SMALL)
+    assert still.shape == (H, 3 * W + 4, 3)
+    result = SimpleNamespace(name="quadflip", variant="attitude", t=t, X=np.concatenate([xyz, wxyz, np.zeros((9, 6))], axis=1))
+    paths = render_benchmark(result, tmp_path, options=dataclasses.replace(SMALL, fps=4), keyframes=3)
+    assert [p.name for p in paths] == ["quadflip_attitude.mp4", "quadflip_attitude_keyframes.png"]
+    assert all(p.stat().st_size > 1000 for p in paths)
+    with pytest.raises(ValueError, match="shape must be"):
+        render_rigid_body(t, xyz, wxyz, "blimp", options=SMALL)
