@@ -152,14 +152,32 @@ def _render_after_solve(out: str) -> None:
         print(f"wrote {path}")
 
 
+def _check_render_args(args: argparse.Namespace) -> None:
+    """``jtraj render``'s values, checked before anything is drawn."""
+    if args.out is None and args.strip is None:
+        raise InputError("--out", None, "give --out FILE.mp4|FILE.gif and/or --strip FILE.png")
+    if not (Path(args.dir) / "trajectory.npz").is_file():
+        raise InputError("DIR", args.dir, "expected a folder written by `jtraj solve` (with trajectory.npz)")
+    if args.out is not None and Path(args.out).suffix.lower() not in (".mp4", ".gif"):
+        raise InputError("--out", args.out, "expected a .mp4 or .gif file name")
+    if args.strip is not None and Path(args.strip).suffix.lower() not in (".png", ".jpg", ".jpeg"):
+        raise InputError("--strip", args.strip, "expected a .png (or .jpg) file name")
+    for field, value in (("--speed", args.speed), ("--fps", args.fps)):
+        if not (math.isfinite(value) and value > 0):
+            raise InputError(field, value, "expected a positive number")
+    for field, value in (("--width", args.width), ("--height", args.height)):
+        if value < 16:
+            raise InputError(field, value, "expected at least 16 pixels")
+    _check_positive_int("--keyframes", args.keyframes, 2)
+
+
 def _cmd_render(args: argparse.Namespace) -> int:
     from jtraj.render import RenderError, render_directory
 
-    if args.out is None and args.strip is None:
-        raise SystemExit("jtraj render: give --out FILE.mp4|FILE.gif and/or --strip FILE.png")
+    _check_render_args(args)
     try:
         paths = render_directory(args.dir, args.out, args.strip, keyframes=args.keyframes, layout=args.layout, spacing=args.spacing, options=_render_options(args))
-    except (FileNotFoundError, RenderError, ValueError) as e:
+    except RenderError as e:  # no OpenGL here: the message says what to install
         raise SystemExit(f"jtraj render: {e}") from None
     for path in paths:
         print(f"wrote {path}")
@@ -169,11 +187,12 @@ def _cmd_render(args: argparse.Namespace) -> int:
 def _cmd_plot(args: argparse.Namespace) -> int:
     from jtraj.plots import plot_directory
 
-    try:
-        paths = plot_directory(args.dir, args.out)
-    except (FileNotFoundError, ValueError) as e:
-        raise SystemExit(f"jtraj plot: {e}") from None
-    for path in paths:
+    folder = Path(args.dir)
+    if not ((folder / "trajectory.npz").is_file() or (folder / "table_iv.json").is_file()):
+        raise InputError("DIR", args.dir, "expected a folder written by `jtraj solve` (trajectory.npz) or `jtraj compare` (table_iv.json)")
+    if args.out is not None:
+        _check_out(args.out)
+    for path in plot_directory(folder, args.out):
         print(f"wrote {path}")
     return 0
 

@@ -190,8 +190,12 @@ def test_render_and_plot_commands(result, tmp_path, capsys):
     assert (tmp_path / "m.gif").stat().st_size > 1000 and (tmp_path / "k.png").stat().st_size > 1000
     assert main(["plot", str(tmp_path)]) == 0
     assert "solution.png" in capsys.readouterr().out
-    with pytest.raises(SystemExit, match="no trajectory.npz"):
-        main(["render", str(tmp_path / "empty"), "--out", str(tmp_path / "x.gif")])
+    capsys.readouterr()
+    assert main(["render", str(tmp_path / "empty"), "--out", str(tmp_path / "x.gif")]) == 2
+    assert "jtraj render: DIR:" in capsys.readouterr().err
+    assert main(["render", str(tmp_path), "--out", str(tmp_path / "x.avi")]) == 2
+    assert "--out" in capsys.readouterr().err
+    assert main(["plot", str(tmp_path / "empty")]) == 2
 
 
 def test_attitude_bodies_along_their_paths(tmp_path):
