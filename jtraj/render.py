@@ -577,7 +577,8 @@ def render_rigid_body(
         # seen from the side of its travel (MuJoCo's camera looks along (cos az, sin az))
         options = dataclasses.replace(options, azimuth=float(np.degrees(np.arctan2(travel[1], travel[0]))) + 90.0)
     painter = _Painter(rigid_body_model(shape, size), options, scale=size)
-    path = xyz if extent > 1e-6 else None
+    # the path as flown between knots (constant twist), not straight chords
+    path = _rigid_qpos(xyz, wxyz, t, np.linspace(t[0], t[-1], min(2000, 8 * len(t))))[:, :3] if extent > 1e-6 else None
     try:
         if strip is not None:
             times = np.linspace(t[0], t[-1], strip)
