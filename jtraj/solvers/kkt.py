@@ -170,11 +170,9 @@ def factor_with_correction(
     Returns (factor, delta_w used, ok).
     """
     d = system.d0 + delta_c
-
-    def attempt(dw):
-        return factor(*condensed_blocks(system, d, dw))
-
-    fac0, ok0 = attempt(jnp.zeros(()))
+    n = system.sigma.shape[1]
+    # one factorization in the program (attempt 0 is delta_w = 0), to keep compile time low
+    empty = BlockFactor(jnp.zeros_like(system.H[:, :n, :n]), jnp.zeros_like(system.H[:, :n, :n]))
 
     def cond(state):
         _, ok, dw, i = state
@@ -184,11 +182,11 @@ def factor_with_correction(
         _, _, dw, i = state
         first = jnp.where(delta_w_last == 0.0, options.delta_w_first, jnp.maximum(options.delta_w_min, options.kappa_minus * delta_w_last))
         grow = jnp.where(delta_w_last == 0.0, options.kappa_plus_first, options.kappa_plus) * dw
-        dw_new = jnp.where(i == 0, first, grow)
-        fac, ok = attempt(dw_new)
+        dw_new = jnp.where(i == 0, 0.0, jnp.where(i == 1, first, grow))
+        fac, ok = factor(*condensed_blocks(system, d, dw_new))
         return fac, ok, dw_new, i + 1
 
-    fac, ok, dw, _ = lax.while_loop(cond, body, (fac0, ok0, jnp.zeros(()), jnp.zeros((), jnp.int32)))
+    fac, ok, dw, _ = lax.while_loop(cond, body, (empty, jnp.asarray(False), jnp.zeros(()), jnp.zeros((), jnp.int32)))
     return fac, dw, ok
 
 

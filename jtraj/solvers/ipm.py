@@ -1,0 +1,533 @@
+"""jtraj's own solver: a primal-dual interior-point method of Ipopt's family, in JAX.
+
+The NLP is a `jtraj.nlp.KnotNLP` seen knot by knot (`jtraj.solvers.stage.StageView`)::
+
+    min f(Z)   s.t.  c_lower <= C(Z) <= c_upper,   x_lower <= Z <= x_upper,
+
+Z (K, n), C (K, m) with row k reading knots k and k+1. As in Ipopt (Wächter & Biegler, Math.
+Prog. 106, 2006): inequality rows get slacks ``C - s = 0`` with the row bounds on s; the
+barrier subproblems ``min f - mu sum log(bound distances)`` are solved inexactly by primal-dual
+Newton steps, ``mu`` falls monotonically (``mu <- max(min(tol, compl_inf_tol)/(kappa_eps + 1), min(kappa_mu mu, mu^theta_mu))``
+once the barrier error is below ``kappa_eps mu``); steps keep a fraction ``tau = max(0.99,
+1 - mu)`` of the distance to the bounds; the bound multipliers stay within ``kappa_sigma``
+of their central values. Fixed variables (equal bounds) are removed from the step.
+
+Differences from Ipopt, and why:
+- Newton step: the block-tridiagonal factorization of `jtraj.solvers.kkt` (linear in the knots,
+  small dense blocks; inertia correction by ``delta_w`` when the condensed matrix is not
+  positive definite; a tiny dual regularization ``delta_c`` always, removed by iterative
+  refinement), instead of a general sparse LDL^T.
+- Hessian: by default a damped (Powell) BFGS approximation per *element* (the 2n x 2n
+  Hessian of the knot-k terms of the Lagrangian on (z_k, z_{k+1}), a partitioned
+  quasi-Newton update in the sense of Griewank and Toint), which keeps the block-tridiagonal
+  structure and costs nothing to evaluate; the exact Hessian is an option (it costs about
+  0.5 s per evaluation on a Talos task, measured, so it is for small problems and tests).
+- Globalization: backtracking on the l1 exact-penalty merit ``phi_mu + nu |C - t|_1`` (nu
+  above the largest multiplier) instead of a filter; no feasibility restoration phase: a
+  failed line search takes its last (tiny) step and the solve stops after several in a row.
+- Everything is one `jax.jit` program (`lax.while_loop`); `jax.vmap` of `IPM.solve` over
+  initial guesses (and parameters theta) runs replicates together, a converged replicate's
+  state no longer changes (the batched while loop only updates unfinished members).
+
+Convergence (Ipopt's test at the comparative study's settings): the scaled optimality error
+``max(dual_inf / s_d, constr_viol, compl / s_c) <= tol`` with Ipopt's ``s_d, s_c`` (s_max =
+100), and unscaled ``constr_viol <= 1e-4``, ``dual_inf <= 1``, ``compl <= 1e-4``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import lax
+
+from jtraj.solvers import kkt
+from jtraj.solvers.stage import StageView
+
+__all__ = ["IpmOptions", "IpmStatus", "IpmResult", "IPM"]
+
+
+class IpmStatus(enum.IntEnum):
+    """Termination of the interior-point loop (int codes, so they live in JAX arrays)."""
+
+    RUNNING = 0
+    CONVERGED = 1
+    MAX_ITER = 2
+    LINE_SEARCH_FAILED = 3  # several line searches in a row found no acceptable step
+    NUMERICAL_ERROR = 4  # NaN in the iterate, or no delta_w gave a positive-definite matrix
+
+
+@dataclasses.dataclass(frozen=True)
+class IpmOptions:
+    """Options of the interior-point method (names and defaults follow Ipopt's options).
+
+    Attributes:
+        tol: scaled optimality error for convergence (the study's Ipopt setting, 1e-3).
+        max_iter: iteration limit.
+        constr_viol_tol, dual_inf_tol, compl_inf_tol: unscaled limits at convergence.
+        hessian: ``"bfgs"`` (partitioned damped BFGS, default) or ``"exact"``.
+        mu_init, kappa_eps, kappa_mu, theta_mu, tau_min, kappa_sigma, s_max: Ipopt's barrier
+            and safeguard constants.
+        bound_push, bound_frac: how far the initial point is pushed inside its bounds.
+        delta_c: dual regularization of every row (removed by iterative refinement).
+        refine_steps: iterative-refinement steps per KKT solve.
+        max_line_search: backtracking steps per iteration.
+        armijo: sufficient-decrease constant of the merit line search.
+        max_line_search_failures: consecutive failed line searches before giving up.
+        bfgs_init: initial element Hessian scale of the BFGS approximation.
+    """
+
+    tol: float = 1e-3
+    max_iter: int = 200
+    constr_viol_tol: float = 1e-4
+    dual_inf_tol: float = 1.0
+    compl_inf_tol: float = 1e-4
+    hessian: str = "bfgs"
+    mu_init: float = 0.1
+    kappa_eps: float = 10.0
+    kappa_mu: float = 0.2
+    theta_mu: float = 1.5
+    tau_min: float = 0.99
+    kappa_sigma: float = 1e10
+    s_max: float = 100.0
+    bound_push: float = 1e-2
+    bound_frac: float = 1e-2
+    delta_c: float = 1e-9
+    refine_steps: int = 3
+    max_line_search: int = 30
+    armijo: float = 1e-4
+    max_line_search_failures: int = 5
+    bfgs_init: float = 1.0
+
+    def __post_init__(self):
+        if self.hessian not in ("bfgs", "exact"):
+            raise ValueError(f"hessian must be 'bfgs' or 'exact', got {self.hessian!r}")
+        if not self.tol > 0:
+            raise ValueError(f"tol must be positive, got {self.tol}")
+        if self.max_iter < 0:
+            raise ValueError(f"max_iter must be >= 0, got {self.max_iter}")
+
+
+class IpmResult(NamedTuple):
+    """Outcome of `IPM.solve` (arrays; a leading batch axis under vmap).
+
+    Attributes:
+        x: (K, n) primal solution.
+        y: (K, m) constraint multipliers in the stage layout (Ipopt's sign convention:
+            ``grad f + J^T y - z_L + z_U = 0``).
+        z_lower, z_upper: (K, n) bound multipliers.
+        status: `IpmStatus` code.
+        iterations, objective, constr_viol (unscaled, original bounds), dual_inf, compl,
+        error (scaled optimality error), mu.
+        history: (max_iter + 1, 5) per iteration: objective, constr_viol, dual_inf, log10 mu,
+            primal step size (NaN after the last iteration).
+    """
+
+    x: jax.Array
+    y: jax.Array
+    z_lower: jax.Array
+    z_upper: jax.Array
+    status: jax.Array
+    iterations: jax.Array
+    objective: jax.Array
+    constr_viol: jax.Array
+    dual_inf: jax.Array
+    compl: jax.Array
+    error: jax.Array
+    mu: jax.Array
+    history: jax.Array
+
+
+class _Problem(NamedTuple):
+    """Bounds and masks, fixed for one solve."""
+
+    xl: jax.Array
+    xu: jax.Array
+    cl: jax.Array
+    cu: jax.Array
+    free: jax.Array  # (K, n) bool
+    has_xl: jax.Array
+    has_xu: jax.Array
+    eq: jax.Array  # (K, m) bool active equality rows
+    ineq: jax.Array  # active inequality rows with at least one finite bound
+    has_sl: jax.Array
+    has_su: jax.Array
+
+
+class _State(NamedTuple):
+    """The loop's carry. Each pass of the loop evaluates the NLP once, at the trial point
+    ``x + alpha dx``: accepted, it becomes the iterate and the next direction is computed;
+    rejected, alpha is halved (so the program holds one copy of the NLP's functions)."""
+
+    # iterate and its first-order data
+    x: jax.Array
+    s: jax.Array
+    y: jax.Array
+    zl: jax.Array
+    zu: jax.Array
+    vl: jax.Array
+    vu: jax.Array
+    f: jax.Array
+    c: jax.Array
+    grad: jax.Array
+    A: jax.Array
+    B: jax.Array
+    # direction from the iterate, and the line search along it
+    dx: jax.Array
+    ds: jax.Array
+    dy: jax.Array
+    dzl: jax.Array
+    dzu: jax.Array
+    dvl: jax.Array
+    dvu: jax.Array
+    alpha: jax.Array
+    alpha_dual: jax.Array
+    trials: jax.Array
+    phi0: jax.Array
+    theta0: jax.Array
+    slope: jax.Array
+    # filter and barrier
+    filter: jax.Array  # (F, 2) (theta, phi) pairs, +inf where empty
+    n_filter: jax.Array
+    theta_min: jax.Array
+    theta_max: jax.Array
+    mu: jax.Array
+    H: jax.Array
+    delta_w: jax.Array
+    # bookkeeping
+    first: jax.Array
+    it: jax.Array
+    status: jax.Array
+    ls_fail: jax.Array
+    history: jax.Array
+
+
+def _safe(num, den, mask):
+    return jnp.where(mask, num / jnp.where(mask, den, 1.0), 0.0)
+
+
+class IPM:
+    """The interior-point solver for one `KnotNLP` (its shapes are static; bounds, initial
+    guess and parameters theta are inputs, so new values do not recompile).
+
+    ``IPM(nlp, options).solve(x0, theta)`` is jitted; ``jax.vmap(ipm.solve)`` batches it.
+    """
+
+    def __init__(self, nlp, options: IpmOptions | None = None):
+        self.options = options or IpmOptions()
+        self.view = StageView(nlp)
+        if self.options.hessian == "exact":
+            self.view.prepare_hessian()
+        self.solve = jax.jit(self._solve)
+
+    # ------------------------------------------------------------------ pieces
+    def _problem(self, theta) -> _Problem:
+        view = self.view
+        xl, xu, cl, cu = view.bounds(theta)
+        free = ~(xl == xu)
+        has_xl = free & jnp.isfinite(xl)
+        has_xu = free & jnp.isfinite(xu)
+        active = jnp.asarray(view.active)
+        eq = active & (cl == cu)
+        has_sl = active & ~eq & jnp.isfinite(cl)
+        has_su = active & ~eq & jnp.isfinite(cu)
+        ineq = has_sl | has_su
+        return _Problem(xl, xu, cl, cu, free, has_xl, has_xu, eq, ineq, has_sl, has_su)
+
+    @staticmethod
+    def _push(v, lo, hi, has_lo, has_hi, push, frac):
+        """Ipopt's initial-point rule: move v at least a little inside [lo, hi]."""
+        width = jnp.where(has_lo & has_hi, hi - lo, jnp.inf)
+        lo_f = jnp.where(has_lo, lo, 0.0)
+        hi_f = jnp.where(has_hi, hi, 0.0)
+        p_lo = jnp.minimum(push * jnp.maximum(1.0, jnp.abs(lo_f)), frac * width)
+        p_hi = jnp.minimum(push * jnp.maximum(1.0, jnp.abs(hi_f)), frac * width)
+        v = jnp.where(has_lo, jnp.maximum(v, lo_f + p_lo), v)
+        return jnp.where(has_hi, jnp.minimum(v, hi_f - p_hi), v)
+
+    def _residuals(self, p: _Problem, st: _State, mu):
+        """Dual infeasibility, primal infeasibility (C - t) and complementarities at st."""
+        A, B = st.A, st.B
+        jty = kkt._apply_JT(A, B, st.y)
+        r_x = jnp.where(p.free, st.grad + jty - st.zl + st.zu, 0.0)
+        r_s = jnp.where(p.ineq, -st.y - st.vl + st.vu, 0.0)
+        t = jnp.where(p.eq, p.cl, st.s)
+        r_c = jnp.where(p.eq | p.ineq, st.c - t, 0.0)
+        cl_x = jnp.where(p.has_xl, (st.x - p.xl) * st.zl - mu, 0.0)
+        cu_x = jnp.where(p.has_xu, (p.xu - st.x) * st.zu - mu, 0.0)
+        cl_s = jnp.where(p.has_sl, (st.s - p.cl) * st.vl - mu, 0.0)
+        cu_s = jnp.where(p.has_su, (p.cu - st.s) * st.vu - mu, 0.0)
+        return r_x, r_s, r_c, (cl_x, cu_x, cl_s, cu_s)
+
+    def _error(self, p: _Problem, st: _State, mu):
+        """(scaled error, dual_inf, primal_inf, compl) as in Ipopt's optimality test."""
+        o = self.options
+        r_x, r_s, r_c, compl = self._residuals(p, st, mu)
+        dual_inf = jnp.maximum(jnp.max(jnp.abs(r_x)), jnp.max(jnp.abs(r_s)))
+        primal_inf = jnp.max(jnp.abs(r_c))
+        compl_inf = jnp.max(jnp.stack([jnp.max(jnp.abs(c)) for c in compl]))
+        n_rows = jnp.sum(p.eq | p.ineq)
+        z_sum = sum(jnp.sum(jnp.abs(jnp.where(mask, z, 0.0))) for z, mask in ((st.zl, p.has_xl), (st.zu, p.has_xu), (st.vl, p.has_sl), (st.vu, p.has_su)))
+        n_bounds = jnp.sum(p.has_xl) + jnp.sum(p.has_xu) + jnp.sum(p.has_sl) + jnp.sum(p.has_su)
+        y_sum = jnp.sum(jnp.abs(jnp.where(p.eq | p.ineq, st.y, 0.0)))
+        s_d = jnp.maximum(o.s_max, (y_sum + z_sum) / jnp.maximum(n_rows + n_bounds, 1)) / o.s_max
+        s_c = jnp.maximum(o.s_max, z_sum / jnp.maximum(n_bounds, 1)) / o.s_max
+        err = jnp.maximum(jnp.maximum(dual_inf / s_d, primal_inf), compl_inf / s_c)
+        return err, dual_inf, primal_inf, compl_inf
+
+    def _constr_viol(self, p: _Problem, c):
+        """Unscaled violation of the original row bounds (Ipopt's constr_viol)."""
+        active = p.eq | p.ineq
+        v = jnp.maximum(jnp.maximum(jnp.where(active, p.cl - c, 0.0), jnp.where(active, c - p.cu, 0.0)), 0.0)
+        return jnp.max(jnp.where(active, v, 0.0))
+
+    def _barrier(self, p: _Problem, x, s, mu):
+        def logs(v, b, mask, sign):
+            return jnp.sum(jnp.where(mask, jnp.log(jnp.where(mask, sign * (v - b), 1.0)), 0.0))
+
+        return -mu * (logs(x, p.xl, p.has_xl, 1.0) + logs(x, p.xu, p.has_xu, -1.0) + logs(s, p.cl, p.has_sl, 1.0) + logs(s, p.cu, p.has_su, -1.0))
+
+    def _infeasibility_l1(self, p: _Problem, c, s):
+        t = jnp.where(p.eq, p.cl, s)
+        return jnp.sum(jnp.where(p.eq | p.ineq, jnp.abs(c - t), 0.0))
+
+    @staticmethod
+    def _max_step(v, dv, lo, hi, has_lo, has_hi, tau):
+        """Largest alpha in (0, 1] with v + alpha dv keeping a fraction tau of the distances."""
+        a_lo = jnp.where(has_lo & (dv < 0), -tau * (v - lo) / jnp.where(dv < 0, dv, -1.0), jnp.inf)
+        a_hi = jnp.where(has_hi & (dv > 0), tau * (hi - v) / jnp.where(dv > 0, dv, 1.0), jnp.inf)
+        return jnp.minimum(1.0, jnp.minimum(jnp.min(a_lo), jnp.min(a_hi)))
+
+    @staticmethod
+    def _max_dual_step(z, dz, mask, tau):
+        a = jnp.where(mask & (dz < 0), -tau * z / jnp.where(dz < 0, dz, -1.0), jnp.inf)
+        return jnp.minimum(1.0, jnp.min(a))
+
+    def _element_grad(self, grad, A, B, y):
+        """(K, 2n) gradient of each element's Lagrangian terms: the cost's gradient at knot k
+        (costs are assigned to the knot they are differentiated by) and y_k . C_k."""
+        return jnp.concatenate([grad + jnp.einsum("kmn,km->kn", A, y), jnp.einsum("kmn,km->kn", B, y)], axis=1)
+
+    def _bfgs(self, H, s_el, y_el):
+        """Damped BFGS update of each element Hessian (Powell: s^T y >= 0.2 s^T H s keeps H
+        positive definite); elements whose step is (numerically) zero are unchanged."""
+
+        def one(Hk, sk, yk):
+            Hs = Hk @ sk
+            sHs = sk @ Hs
+            sy = sk @ yk
+            theta = jnp.where(sy >= 0.2 * sHs, 1.0, 0.8 * sHs / jnp.where(sHs - sy != 0, sHs - sy, 1.0))
+            r = theta * yk + (1.0 - theta) * Hs
+            sr = sk @ r
+            ok = (sHs > 1e-14 * (1.0 + jnp.sum(jnp.abs(Hk)))) & (sr > 0) & jnp.isfinite(sr)
+            Hn = Hk - jnp.outer(Hs, Hs) / jnp.where(ok, sHs, 1.0) + jnp.outer(r, r) / jnp.where(ok, sr, 1.0)
+            return jnp.where(ok, 0.5 * (Hn + Hn.T), Hk)
+
+        return jax.vmap(one)(H, s_el, y_el)
+
+    # ------------------------------------------------------------------ the solve
+    def _solve(self, x0: jax.Array, theta: Any = None) -> IpmResult:
+        o = self.options
+        view = self.view
+        K, n, m = view.K, view.n, view.m
+        p = self._problem(theta)
+        Z = jnp.asarray(x0, jnp.float64).reshape(K, n)
+        Z = jnp.where(p.free, Z, jnp.where(jnp.isfinite(p.xl), p.xl, Z))
+        Z = self._push(Z, p.xl, p.xu, p.has_xl, p.has_xu, o.bound_push, o.bound_frac)
+        zx, zc = jnp.zeros((K, n)), jnp.zeros((K, m))
+        ones_x, ones_c = jnp.ones((K, n)), jnp.ones((K, m))
+        zero = jnp.zeros(())
+        st = _State(
+            x=Z, s=zc, y=zc,
+            zl=jnp.where(p.has_xl, ones_x, 0.0), zu=jnp.where(p.has_xu, ones_x, 0.0),
+            vl=jnp.where(p.has_sl, ones_c, 0.0), vu=jnp.where(p.has_su, ones_c, 0.0),
+            f=zero, c=zc, grad=zx, A=jnp.zeros((K, m, n)), B=jnp.zeros((K, m, n)),
+            dx=zx, ds=zc, dy=zc, dzl=zx, dzu=zx, dvl=zc, dvu=zc,
+            alpha=zero, alpha_dual=zero, trials=jnp.zeros((), jnp.int32), phi0=zero, theta0=zero, slope=zero,
+            filter=jnp.full((self.FILTER_SIZE, 2), jnp.inf), n_filter=jnp.zeros((), jnp.int32),
+            theta_min=zero, theta_max=zero, mu=jnp.asarray(o.mu_init),
+            H=jnp.broadcast_to(o.bfgs_init * jnp.eye(2 * n), (K, 2 * n, 2 * n)), delta_w=zero,
+            first=jnp.asarray(True), it=jnp.zeros((), jnp.int32),
+            status=jnp.asarray(int(IpmStatus.RUNNING), jnp.int32), ls_fail=jnp.zeros((), jnp.int32),
+            history=jnp.full((o.max_iter + 1, 5), jnp.nan),
+        )
+        max_passes = (o.max_iter + 1) * (o.max_line_search + 1)
+
+        def cond(carry):
+            st, passes = carry
+            return (st.status == int(IpmStatus.RUNNING)) & (passes < max_passes)
+
+        def body(carry):
+            st, passes = carry
+            return self._pass(p, st, theta), passes + 1
+
+        st, _ = lax.while_loop(cond, body, (st, jnp.zeros((), jnp.int32)))
+        err, dual_inf, _, compl = self._error(p, st, 0.0)
+        return IpmResult(
+            x=st.x, y=st.y, z_lower=st.zl, z_upper=st.zu, status=st.status, iterations=st.it,
+            objective=st.f, constr_viol=self._constr_viol(p, st.c), dual_inf=dual_inf, compl=compl,
+            error=err, mu=st.mu, history=st.history,
+        )
+
+    FILTER_SIZE = 64
+    # Ipopt's filter line-search constants (Wächter & Biegler 2006, section 2.3 and Table 1)
+    GAMMA_THETA, GAMMA_PHI, DELTA, S_THETA, S_PHI, ETA_PHI = 1e-5, 1e-8, 1.0, 1.1, 2.3, 1e-8
+
+    def _measures(self, p: _Problem, x, s, f, c, mu):
+        """(theta, phi): l1 infeasibility and barrier objective."""
+        return self._infeasibility_l1(p, c, s), f + self._barrier(p, x, s, mu)
+
+    def _pass(self, p: _Problem, st: _State, theta) -> _State:
+        """One evaluation at the trial point; accept (advance) or halve the step."""
+        o = self.options
+        xt = st.x + st.alpha * st.dx
+        s_t = st.s + st.alpha * st.ds
+        ft, ct, gt, At, Bt = self.view.evaluate(xt, theta)
+        # the first pass only evaluates the initial point; its slacks start inside their bounds
+        s_first = jnp.where(p.ineq, self._push(ct, p.cl, p.cu, p.has_sl, p.has_su, o.bound_push, o.bound_frac), 0.0)
+        s_t = jnp.where(st.first, s_first, s_t)
+        th_t, ph_t = self._measures(p, xt, s_t, ft, ct, st.mu)
+        finite = jnp.isfinite(th_t) & jnp.isfinite(ph_t)
+        switching = (st.slope < 0) & (st.alpha * (-st.slope) ** self.S_PHI > self.DELTA * st.theta0 ** self.S_THETA)
+        armijo = ph_t <= st.phi0 + self.ETA_PHI * st.alpha * st.slope
+        f_type = switching & (st.theta0 <= st.theta_min)
+        sufficient = jnp.where(f_type, armijo, (th_t <= (1.0 - self.GAMMA_THETA) * st.theta0) | (ph_t <= st.phi0 - self.GAMMA_PHI * st.theta0))
+        in_filter = jnp.any((th_t >= st.filter[:, 0]) & (ph_t >= st.filter[:, 1]))
+        accept = finite & (th_t <= st.theta_max) & sufficient & ~in_filter
+        give_up = finite & ~accept & (st.trials + 1 >= o.max_line_search)
+        advance = st.first | accept | give_up
+        trial = (xt, s_t, ft, ct, gt, At, Bt, th_t)
+
+        def on_advance(st):
+            return self._advance(p, st, trial, f_type & armijo, give_up & ~st.first, theta)
+
+        def on_reject(st):
+            status = jnp.where(finite | (st.trials + 1 < o.max_line_search), st.status, int(IpmStatus.NUMERICAL_ERROR))
+            return st._replace(alpha=0.5 * st.alpha, trials=st.trials + 1, status=status.astype(jnp.int32))
+
+        return lax.cond(advance, on_advance, on_reject, st)
+
+    def _advance(self, p: _Problem, st: _State, trial, f_step, failed, theta) -> _State:
+        """Accept the trial point: update multipliers, Hessian, filter, barrier; test
+        convergence; compute the next direction."""
+        o = self.options
+        xt, s_t, ft, ct, gt, At, Bt, th_t = trial
+        first = st.first
+        alpha, a_dual = st.alpha, st.alpha_dual
+        mu = st.mu
+        y = st.y + alpha * st.dy
+        zl, zu = st.zl + a_dual * st.dzl, st.zu + a_dual * st.dzu
+        vl, vu = st.vl + a_dual * st.dvl, st.vu + a_dual * st.dvu
+        rows = (p.eq | p.ineq)[:, :, None]
+        At, Bt = At * rows, Bt * rows
+        H = st.H
+        if o.hessian == "bfgs":
+            # partitioned BFGS: element gradient differences at the new multipliers
+            step = jnp.where(p.free, xt - st.x, 0.0)
+            nxt = lambda a: jnp.concatenate([a[1:], jnp.zeros_like(a[:1])], axis=0)  # noqa: E731
+            s_el = jnp.concatenate([step, nxt(step)], axis=1)
+            free2 = jnp.concatenate([p.free, nxt(p.free)], axis=1)
+            y_el = jnp.where(free2, self._element_grad(gt, At, Bt, y) - self._element_grad(st.grad, st.A, st.B, y), 0.0)
+            H = jnp.where(first, H, self._bfgs(H, s_el, y_el))
+
+        def clamp(z, dist, mask):
+            dist = jnp.where(mask, dist, 1.0)
+            return jnp.where(mask, jnp.clip(z, mu / (o.kappa_sigma * dist), o.kappa_sigma * mu / dist), 0.0)
+
+        zl = clamp(zl, xt - p.xl, p.has_xl)
+        zu = clamp(zu, p.xu - xt, p.has_xu)
+        vl = clamp(vl, s_t - p.cl, p.has_sl)
+        vu = clamp(vu, p.cu - s_t, p.has_su)
+        # filter: a step that was not an Armijo step on phi adds the old point's envelope
+        add = (~first) & (~f_step)
+        entry = jnp.stack([(1.0 - self.GAMMA_THETA) * st.theta0, st.phi0 - self.GAMMA_PHI * st.theta0])
+        filt = jnp.where(add, st.filter.at[st.n_filter % self.FILTER_SIZE].set(entry), st.filter)
+        n_filter = st.n_filter + add.astype(jnp.int32)
+        theta_min = jnp.where(first, 1e-4 * jnp.maximum(1.0, th_t), st.theta_min)
+        theta_max = jnp.where(first, 1e4 * jnp.maximum(1.0, th_t), st.theta_max)
+        it = st.it + (~first).astype(jnp.int32)
+        new = st._replace(
+            x=xt, s=s_t, y=y, zl=zl, zu=zu, vl=vl, vu=vu, f=ft, c=ct, grad=gt, A=At, B=Bt, H=H,
+            filter=filt, n_filter=n_filter, theta_min=theta_min, theta_max=theta_max,
+            first=jnp.asarray(False), it=it, trials=jnp.zeros((), jnp.int32),
+            ls_fail=jnp.where(failed, st.ls_fail + 1, 0).astype(jnp.int32),
+        )
+
+        # barrier update (monotone) while the barrier problem is solved well enough; a new mu
+        # starts a new filter
+        # Ipopt's floor: complementarity at mu must pass the unscaled compl_inf_tol test
+        mu_floor = min(o.tol, o.compl_inf_tol) / (o.kappa_eps + 1.0)
+
+        def mu_body(_, mu):
+            err_mu = self._error(p, new, mu)[0]
+            smaller = jnp.maximum(mu_floor, jnp.minimum(o.kappa_mu * mu, mu ** o.theta_mu))
+            return jnp.where(err_mu <= o.kappa_eps * mu, smaller, mu)
+
+        mu_new = lax.fori_loop(0, 4, mu_body, mu)
+        reset = (mu_new != mu) | failed
+        new = new._replace(
+            mu=mu_new,
+            filter=jnp.where(reset, jnp.full_like(filt, jnp.inf), filt),
+            n_filter=jnp.where(reset, 0, n_filter).astype(jnp.int32),
+        )
+        # convergence and limits at the new iterate
+        err, dual_inf, _, compl = self._error(p, new, 0.0)
+        viol = self._constr_viol(p, ct)
+        history = st.history.at[it].set(jnp.stack([ft, viol, dual_inf, jnp.log10(mu_new), jnp.where(first, jnp.nan, alpha)]))
+        converged = (err <= o.tol) & (viol <= o.constr_viol_tol) & (dual_inf <= o.dual_inf_tol) & (compl <= o.compl_inf_tol)
+        finite = jnp.isfinite(err) & jnp.all(jnp.isfinite(xt))
+        status = jnp.where(
+            converged, int(IpmStatus.CONVERGED),
+            jnp.where(~finite, int(IpmStatus.NUMERICAL_ERROR),
+            jnp.where(new.ls_fail >= o.max_line_search_failures, int(IpmStatus.LINE_SEARCH_FAILED),
+            jnp.where(it >= o.max_iter, int(IpmStatus.MAX_ITER), int(IpmStatus.RUNNING)))))
+        new = new._replace(history=history, status=status.astype(jnp.int32))
+        return self._direction(p, new, theta)
+
+    def _direction(self, p: _Problem, st: _State, theta) -> _State:
+        """Newton direction at the iterate for the current mu, its step bounds, and the
+        line search's reference values."""
+        o = self.options
+        view = self.view
+        mu = st.mu
+        x, s = st.x, st.s
+        dxl = jnp.where(p.has_xl, x - p.xl, 1.0)
+        dxu = jnp.where(p.has_xu, p.xu - x, 1.0)
+        dsl = jnp.where(p.has_sl, s - p.cl, 1.0)
+        dsu = jnp.where(p.has_su, p.cu - s, 1.0)
+        sigma_x = _safe(st.zl, dxl, p.has_xl) + _safe(st.zu, dxu, p.has_xu)
+        sigma_s = _safe(st.vl, dsl, p.has_sl) + _safe(st.vu, dsu, p.has_su)
+        # barrier gradients: the bound multipliers replaced by mu / distance
+        grad_bar_x = jnp.where(p.free, st.grad - _safe(mu, dxl, p.has_xl) + _safe(mu, dxu, p.has_xu), 0.0)
+        grad_bar_s = jnp.where(p.ineq, -_safe(mu, dsl, p.has_sl) + _safe(mu, dsu, p.has_su), 0.0)
+        rhat_x = jnp.where(p.free, grad_bar_x + kkt._apply_JT(st.A, st.B, st.y), 0.0)
+        rhat_s = jnp.where(p.ineq, grad_bar_s - st.y, 0.0)
+        t = jnp.where(p.eq, p.cl, s)
+        r_c = jnp.where(p.eq | p.ineq, st.c - t, 0.0)
+        # slacks eliminated: ds = (dy - rhat_s) / sigma_s on inequality rows
+        sig_s = jnp.where(p.ineq, sigma_s, 1.0)
+        d0 = jnp.where(p.ineq, 1.0 / sig_s, jnp.where(p.eq, 0.0, 1.0))
+        rhs_c = -jnp.where(p.ineq, r_c + rhat_s / sig_s, r_c)
+        H = view.hessian(x, st.y, 1.0, theta) if o.hessian == "exact" else st.H
+        system = kkt.KKTSystem(H=H, sigma=sigma_x, A=st.A, B=st.B, d0=d0, free=p.free)
+        fac, delta_w, ok = kkt.factor_with_correction(system, jnp.asarray(o.delta_c), st.delta_w)
+        dx, dy = kkt.solve(system, fac, delta_w, jnp.asarray(o.delta_c), -rhat_x, rhs_c, o.refine_steps)
+        ds = jnp.where(p.ineq, (dy - rhat_s) / sig_s, 0.0)
+        dzl = jnp.where(p.has_xl, (mu - st.zl * dxl - st.zl * dx) / dxl, 0.0)
+        dzu = jnp.where(p.has_xu, (mu - st.zu * dxu + st.zu * dx) / dxu, 0.0)
+        dvl = jnp.where(p.has_sl, (mu - st.vl * dsl - st.vl * ds) / dsl, 0.0)
+        dvu = jnp.where(p.has_su, (mu - st.vu * dsu + st.vu * ds) / dsu, 0.0)
+        tau = jnp.maximum(o.tau_min, 1.0 - mu)
+        a_max = jnp.minimum(self._max_step(x, dx, p.xl, p.xu, p.has_xl, p.has_xu, tau), self._max_step(s, ds, p.cl, p.cu, p.has_sl, p.has_su, tau))
+        a_dual = jnp.min(jnp.stack([self._max_dual_step(z, dz, mk, tau) for z, dz, mk in ((st.zl, dzl, p.has_xl), (st.zu, dzu, p.has_xu), (st.vl, dvl, p.has_sl), (st.vu, dvu, p.has_su))]))
+        theta0, phi0 = self._measures(p, x, s, st.f, st.c, mu)
+        slope = jnp.sum(grad_bar_x * dx) + jnp.sum(grad_bar_s * ds)
+        status = jnp.where((st.status == int(IpmStatus.RUNNING)) & ~ok, int(IpmStatus.NUMERICAL_ERROR), st.status)
+        return st._replace(
+            dx=dx, ds=ds, dy=dy, dzl=dzl, dzu=dzu, dvl=dvl, dvu=dvu, alpha=a_max, alpha_dual=a_dual,
+            phi0=phi0, theta0=theta0, slope=slope, delta_w=jnp.where(ok, delta_w, st.delta_w), status=status.astype(jnp.int32),
+        )

@@ -1,0 +1,148 @@
+"""A stage view of a `jtraj.nlp.KnotNLP`: per knot, a fixed-size block of constraint rows.
+
+Every constraint row of a KnotNLP reads knots k and k+1 at most; it is assigned to knot k
+(its group's knot). Per knot, the active rows are packed into ``m`` slots, ``m`` the largest
+number of rows at any knot, with a mask; so every knot has the same shapes and the KKT system
+is block tridiagonal (`jtraj.solvers.kkt`). The values come from the NLP's own jitted
+functions (constraints, sparse Jacobian, gradient, Hessian), scattered by index arrays built
+once here, so the view stays exact for any group the NLP holds.
+
+Shapes: K knots, n = nz variables per knot, m rows per knot.
+- ``C`` (K, m): constraint values (0 on inactive slots);
+- ``A`` (K, m, n) = dC_k/dz_k, ``B`` (K, m, n) = dC_k/dz_{k+1} (B[K-1] = 0);
+- ``H`` (K, 2n, 2n): element Hessians on (z_k, z_{k+1}) whose sum is the Lagrangian's Hessian.
+"""
+
+from __future__ import annotations
+
+import inspect
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jtraj.nlp import KnotNLP
+
+__all__ = ["StageView", "INFINITY"]
+
+#: Bounds at or beyond this magnitude are absent (Ipopt's nlp_lower/upper_bound_inf).
+INFINITY = 1e19
+
+
+def _takes_theta(fn) -> bool:
+    try:
+        return len(inspect.signature(fn).parameters) >= 2
+    except (TypeError, ValueError):
+        return False
+
+
+class StageView:
+    """Knot-blocked values and derivatives of ``nlp`` (see the module docstring).
+
+    Attributes:
+        K, n, m: knots, variables per knot, row slots per knot.
+        row_flat: (nlp.m,) index of each NLP row in the flattened (K, m) stage array.
+        active: (K, m) bool, slots that hold a row.
+    """
+
+    def __init__(self, nlp: KnotNLP):
+        self.nlp = nlp
+        K, n = nlp.n_knots, nlp.nz
+        self.K, self.n = K, n
+        # knot of every NLP row, in the NLP's row order
+        knots = [g.knots[nlp.row_index[gi] // g.n_rows] for gi, g in enumerate(nlp.groups)]
+        row_knot = np.concatenate(knots).astype(np.int64) if knots else np.zeros(0, np.int64)
+        counts = np.bincount(row_knot, minlength=K)
+        self.m = m = max(int(counts.max(initial=0)), 1)
+        order = np.argsort(row_knot, kind="stable")
+        starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        slot = np.empty(row_knot.size, np.int64)
+        slot[order] = np.arange(row_knot.size) - starts[row_knot[order]]
+        self.row_flat = row_knot * m + slot
+        active = np.zeros(K * m, bool)
+        active[self.row_flat] = True
+        self.active = active.reshape(K, m)
+        # Jacobian nonzeros -> (K, m, 2n)
+        col_knot = nlp.jac_cols // n
+        off = col_knot - row_knot[nlp.jac_rows]
+        if off.size and (off.min() < 0 or off.max() > 1):
+            raise ValueError("a constraint row reads a knot other than its own and the next one; the stage view needs offsets 0 or 1")
+        self._jac_flat = self.row_flat[nlp.jac_rows] * (2 * n) + off * n + nlp.jac_cols % n
+        self._theta = _takes_theta(nlp.objective)
+
+    # ------------------------------------------------------------------ helpers
+    def _call(self, fn, *args, theta):
+        return fn(*args, theta) if self._theta else fn(*args)
+
+    def to_stage_rows(self, values: jax.Array, fill: float = 0.0) -> jax.Array:
+        """(nlp.m,) row values -> (K, m), ``fill`` on inactive slots."""
+        out = jnp.full(self.K * self.m, fill, dtype=values.dtype).at[self.row_flat].set(values)
+        return out.reshape(self.K, self.m)
+
+    def from_stage_rows(self, values: jax.Array) -> jax.Array:
+        """(K, m) -> (nlp.m,) in the NLP's row order."""
+        return values.reshape(-1)[self.row_flat]
+
+    # ------------------------------------------------------------------ problem data
+    def bounds(self, theta: Any = None) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
+        """(x_lower, x_upper) (K, n) and row bounds (c_lower, c_upper) (K, m); +-inf where absent
+        and on inactive slots (those are masked by ``active``)."""
+        nlp = self.nlp
+        if self._theta and hasattr(nlp, "bounds"):
+            xl, xu, gl, gu = nlp.bounds(theta)
+        else:
+            xl, xu, gl, gu = nlp.x_lower, nlp.x_upper, nlp.g_lower, nlp.g_upper
+        xl, xu, gl, gu = (jnp.asarray(b, jnp.float64) for b in (xl, xu, gl, gu))
+        clean = lambda b, s: jnp.where(jnp.abs(b) >= INFINITY, s * jnp.inf, b)  # noqa: E731
+        return (
+            clean(xl, -1).reshape(self.K, self.n),
+            clean(xu, 1).reshape(self.K, self.n),
+            self.to_stage_rows(clean(gl, -1), -jnp.inf),
+            self.to_stage_rows(clean(gu, 1), jnp.inf),
+        )
+
+    def values(self, Z: jax.Array, theta: Any = None) -> tuple[jax.Array, jax.Array]:
+        """Objective (scalar) and constraints C (K, m) at Z (K, n)."""
+        x = Z.reshape(-1)
+        f = self._call(self.nlp.objective, x, theta=theta)
+        c = self._call(self.nlp.constraints, x, theta=theta)
+        return f, self.to_stage_rows(c)
+
+    def derivatives(self, Z: jax.Array, theta: Any = None) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
+        """Objective gradient (K, n) and the Jacobian blocks A, B (K, m, n) at Z."""
+        x = Z.reshape(-1)
+        K, n, m = self.K, self.n, self.m
+        grad = self._call(self.nlp.gradient, x, theta=theta).reshape(K, n)
+        vals = self._call(self.nlp.jacobian, x, theta=theta)
+        J2 = jnp.zeros(K * m * 2 * n, vals.dtype).at[self._jac_flat].add(vals).reshape(K, m, 2 * n)
+        return grad, J2[..., :n], J2[..., n:]
+
+    def evaluate(self, Z: jax.Array, theta: Any = None) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array, jax.Array]:
+        """Everything first-order at Z: objective, C (K, m), gradient (K, n), A, B (K, m, n)."""
+        f, C = self.values(Z, theta)
+        return (f, C) + self.derivatives(Z, theta)
+
+    def prepare_hessian(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Build the NLP's Hessian structure (host work: call before tracing) and the scatter
+        of its lower-triangle entries into element blocks; returns that scatter."""
+        if not hasattr(self, "_hess_index"):
+            nlp, n = self.nlp, self.n
+            nlp.build_hessian()
+            r, c = nlp.hess_rows, nlp.hess_cols  # lower triangle, r >= c
+            kr, kc = r // n, c // n
+            if (kr - kc).max(initial=0) > 1:
+                raise ValueError("the Hessian couples knots further apart than one; the stage view needs offsets 0 or 1")
+            # element kc holds every entry, in (z_k, z_{k+1}) coordinates
+            self._hess_index = (kc, (kr - kc) * n + r % n, c % n)
+        return self._hess_index
+
+    def hessian(self, Z: jax.Array, Y: jax.Array, obj_factor: float | jax.Array = 1.0, theta: Any = None) -> jax.Array:
+        """Element Hessians (K, 2n, 2n) of ``obj_factor f + Y . C`` (exact, from the NLP's
+        Hessian; expensive on big robots)."""
+        kc, i, j = self.prepare_hessian()
+        vals = self._call(self.nlp.hessian, Z.reshape(-1), self.from_stage_rows(Y), obj_factor, theta=theta)
+        H = jnp.zeros((self.K, 2 * self.n, 2 * self.n), vals.dtype)
+        H = H.at[kc, i, j].add(vals)
+        off = jnp.where(i != j, vals, 0.0)
+        return H.at[kc, j, i].add(off)

@@ -1,0 +1,105 @@
+"""jtraj's own interior-point solver on small knot problems and on a small Go2 hop."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jtraj.ipopt import solve_nlp
+from jtraj.nlp import ConstraintGroup, CostGroup, Dep, KnotNLP, Layout
+from jtraj.solvers.ipm import IPM, IpmOptions, IpmStatus
+
+K = 16
+H_STEP = 0.25
+U_MAX = 0.6
+V_MAX = 0.35
+
+
+def double_integrator() -> KnotNLP:
+    """Move a unit mass from p=0 to p=1 at rest in (K-1) h seconds with least effort,
+    |u| <= U_MAX (a variable bound) and v <= V_MAX (an inequality row): both become active."""
+    layout = Layout((("p", 1), ("v", 1), ("u", 1)))
+    pairs = np.arange(K - 1)
+
+    def step(data, p, v, u, p1, v1):
+        return jnp.concatenate([p1 - p - H_STEP * v1, v1 - v - H_STEP * u])
+
+    groups = [
+        ConstraintGroup("dynamics", (Dep("p"), Dep("v"), Dep("u"), Dep("p", 1), Dep("v", 1)), step, pairs,
+                        np.zeros((K - 1, 2)), np.zeros((K - 1, 2)), np.ones((K - 1, 2), bool)),
+        ConstraintGroup("speed", (Dep("v"),), lambda data, v: v, np.arange(K),
+                        np.full((K, 1), -np.inf), np.full((K, 1), V_MAX), np.ones((K, 1), bool)),
+    ]
+    costs = [CostGroup("effort", (Dep("u"),), lambda data, u: 0.5 * jnp.sum(u**2), np.arange(K))]
+    lower = np.tile([-np.inf, -np.inf, -U_MAX], (K, 1))
+    upper = np.tile([np.inf, np.inf, U_MAX], (K, 1))
+    lower[0] = upper[0] = [0.0, 0.0, 0.0]
+    lower[-1, :2] = upper[-1, :2] = [1.0, 0.0]
+    lower[-1, 2] = upper[-1, 2] = 0.0
+    return KnotNLP(layout, K, costs, groups, lower, upper)
+
+
+@pytest.fixture(scope="module")
+def toy():
+    nlp = double_integrator()
+    return nlp, IPM(nlp, IpmOptions(tol=1e-8, compl_inf_tol=1e-8, constr_viol_tol=1e-8, max_iter=100))
+
+
+def test_active_bound_and_inequality(toy):
+    nlp, ipm = toy
+    r = ipm.solve(jnp.zeros((K, 3)), None)
+    assert int(r.status) == IpmStatus.CONVERGED
+    x = np.asarray(r.x)
+    assert nlp.violation(x.reshape(-1)) < 1e-7
+    assert abs(x[:, 2].max() - U_MAX) < 1e-6 and abs(x[:, 1].max() - V_MAX) < 1e-6  # both active
+    ref = solve_nlp(nlp, np.zeros(nlp.n), {"tol": 1e-10, "hessian_approximation": "exact"}, progress=None)
+    assert ref.converged
+    np.testing.assert_allclose(float(r.objective), ref.objective, rtol=1e-6)
+    np.testing.assert_allclose(x.reshape(-1), ref.x, atol=1e-4)
+
+
+def test_vmap_equals_one_by_one_and_no_recompile(toy):
+    nlp, ipm = toy
+    x0s = 0.3 * np.random.default_rng(0).standard_normal((3, K, 3))
+    batched = jax.jit(jax.vmap(ipm.solve, in_axes=(0, None)))(jnp.asarray(x0s), None)
+    for i, x0 in enumerate(x0s):
+        one = ipm.solve(jnp.asarray(x0), None)
+        assert int(one.iterations) == int(batched.iterations[i])  # a finished replicate is frozen
+        np.testing.assert_allclose(np.asarray(batched.x[i]), np.asarray(one.x), atol=1e-9)
+    assert ipm.solve._cache_size() == 1  # new initial guesses did not recompile
+
+
+def test_negative_curvature_goes_through_inertia_correction():
+    """max |z|^2 in a box: the exact Hessian is -I, so the first Newton matrix has the wrong
+    inertia; uncorrected, Newton would jump to the stationary point z = 0 (a maximum of the
+    cost). With delta_w the method walks out to a vertex (an asymmetric start, so that it does
+    not stop at the saddle (0.75, 0.75) either)."""
+    layout = Layout((("z", 2),))
+    nk = 3
+    costs = [CostGroup("concave", (Dep("z"),), lambda data, z: -0.5 * jnp.sum(z**2), np.arange(nk))]
+    groups = [ConstraintGroup("sum", (Dep("z"),), lambda data, z: z[:1] + z[1:], np.arange(nk),
+                              np.full((nk, 1), -1.5), np.full((nk, 1), 1.5), np.ones((nk, 1), bool))]
+    nlp = KnotNLP(layout, nk, costs, groups, -np.ones((nk, 2)), np.ones((nk, 2)))
+    ipm = IPM(nlp, IpmOptions(hessian="exact", tol=1e-6, max_iter=100))
+    r = ipm.solve(jnp.tile(jnp.array([0.05, 0.02]), (nk, 1)), None)
+    assert int(r.status) == IpmStatus.CONVERGED
+    x = np.asarray(r.x)
+    # local minimizers are vertices of {|z_i| <= 1, |z_1 + z_2| <= 1.5}: (1, -1)-like with cost
+    # -1 or (1, 0.5)-like with cost -0.625 per knot; the stationary point z = 0 costs 0
+    assert float(r.objective) <= -0.625 * nk + 1e-6
+    assert np.all(np.max(np.abs(x), axis=1) > 1.0 - 1e-5)
+    assert nlp.violation(x.reshape(-1)) < 1e-8
+
+
+@pytest.mark.slow
+def test_converges_on_small_go2_hop():
+    from jtraj import solver
+    from jtraj.task import Phase, Task
+
+    feet = ("FL_foot", "FR_foot", "RL_foot", "RR_foot")
+    hop = Task(name="hop", robot="go2", timestep=0.05, phases=(Phase(feet, 0.15), Phase((), 0.1), Phase(feet, 0.15)), target_translation=(0.1, 0.0, 0.0))
+    prep = solver.prepare(hop, "se3")
+    ipm = IPM(prep.nlp, IpmOptions(max_iter=100))
+    r = ipm.solve(jnp.asarray(prep.transcription.warm_start()), None)
+    assert int(r.status) == IpmStatus.CONVERGED
+    assert prep.nlp.violation(np.asarray(r.x).reshape(-1)) < 1e-4
