@@ -40,19 +40,8 @@ def plot_result(result: Result, path: str | Path) -> Path:
     fig, axes = plt.subplots(2, 2, figsize=(11, 6.5), sharex=True)
     touching = t.in_contact.any(axis=1)
     for ax in axes.ravel():
-        for k in np.flatnonzero(~touching):
-            ax.axvspan(t.t[k] - 0.5 * (t.t[1] - t.t[0]), t.t[k] + 0.5 * (t.t[1] - t.t[0]), color="0.92", lw=0)
-    ax = axes[0, 0]
-    for i, name in enumerate("xyz"):
-        ax.plot(t.t, t.base_xyz_wxyz[:, i], label=name)
-    ax.set_ylabel("base position (m)")
-    ax.legend(fontsize=8)
-    ax = axes[0, 1]
-    angles = _rpy_unwrapped(t.base_xyz_wxyz)
-    for i, name in enumerate(("about x", "about y", "about z")):
-        ax.plot(t.t, np.degrees(angles[:, i]), label=name)
-    ax.set_ylabel("base rotation (deg, accumulated)")
-    ax.legend(fontsize=8)
+        _flight_shading(ax, t.t, touching)
+    _base_pose_panels(axes[0, 0], axes[0, 1], t)
     ax = axes[1, 0]
     fz = t.forces[:, :, 2]
     for j, name in enumerate(t.contact_names):
@@ -90,6 +79,19 @@ def plot_convergence(result: Result, path: str | Path) -> Path:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def _base_pose_panels(ax_position, ax_rotation, t) -> None:
+    """Base position (m) and base rotation about the world axes (deg, accumulated)."""
+    for i, name in enumerate("xyz"):
+        ax_position.plot(t.t, t.base_xyz_wxyz[:, i], label=name)
+    ax_position.set_ylabel("base position (m)")
+    ax_position.legend(fontsize=8)
+    angles = _rpy_unwrapped(t.base_xyz_wxyz)
+    for i, name in enumerate(("about x", "about y", "about z")):
+        ax_rotation.plot(t.t, np.degrees(angles[:, i]), label=name)
+    ax_rotation.set_ylabel("base rotation (deg, accumulated)")
+    ax_rotation.legend(fontsize=8)
 
 
 def _flight_shading(ax, t, touching) -> None:
@@ -143,18 +145,7 @@ def plot_solution(result: Result, path: str | Path | None = None, *, friction: f
     for ax in axes.ravel():
         _flight_shading(ax, t.t, touching)
 
-    ax = axes[0, 0]
-    for i, name in enumerate("xyz"):
-        ax.plot(t.t, t.base_xyz_wxyz[:, i], label=name)
-    ax.set_ylabel("base position (m)")
-    ax.legend(fontsize=8)
-
-    ax = axes[0, 1]
-    angles = _rpy_unwrapped(t.base_xyz_wxyz)
-    for i, name in enumerate(("about x", "about y", "about z")):
-        ax.plot(t.t, np.degrees(angles[:, i]), label=name)
-    ax.set_ylabel("base rotation (deg, accumulated)")
-    ax.legend(fontsize=8)
+    _base_pose_panels(axes[0, 0], axes[0, 1], t)
 
     ax = axes[1, 0]
     span = robot.q_upper - robot.q_lower

@@ -214,30 +214,37 @@ class Frames:
     in_contact: np.ndarray
 
 
+def _interpolate_poses(t: np.ndarray, xyz: np.ndarray, wxyz: np.ndarray, times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Poses (T, 7) ``[xyz, wxyz]`` at ``times`` (clipped to the knots ``t``), moving at a
+    constant body twist between knots: ``T_k Exp(s Log(T_k^-1 T_k+1))``; also the knot ``k``
+    (T,) before each time and the fraction ``s`` (T,) of the interval."""
+    from jaxlie import SE3
+
+    times = np.clip(np.asarray(times, float), t[0], t[-1])
+    k = np.clip(np.searchsorted(t, times, side="right") - 1, 0, len(t) - 2)
+    s = (times - t[k]) / (t[k + 1] - t[k])
+    wxyz = wxyz / np.linalg.norm(wxyz, axis=1, keepdims=True)
+    T = np.concatenate([wxyz, xyz], axis=1)  # jaxlie stores wxyz_xyz
+    Ta, Tb = SE3(T[k]), SE3(T[k + 1])
+    pose = np.asarray((Ta @ SE3.exp((Ta.inverse() @ Tb).log() * s[:, None])).wxyz_xyz)
+    return np.concatenate([pose[:, 4:], pose[:, :4]], axis=1), k, s
+
+
 def interpolate(trajectory: Trajectory, times: np.ndarray) -> Frames:
     """The trajectory at ``times`` (s, clipped to its span): base pose on SE(3)
     (``T_k Exp(s Log(T_k^-1 T_k+1))``, constant body twist between knots), joints, forces and
     contact points linearly, contact flags from the nearest knot."""
-    from jaxlie import SE3
-
     t = np.asarray(trajectory.t, float)
-    times = np.clip(np.asarray(times, float), t[0], t[-1])
-    k = np.clip(np.searchsorted(t, times, side="right") - 1, 0, len(t) - 2)
-    s = (times - t[k]) / (t[k + 1] - t[k])
     xyz_wxyz = np.asarray(trajectory.base_xyz_wxyz, float)
-    T = SE3(np.concatenate([xyz_wxyz[:, 3:7], xyz_wxyz[:, :3]], axis=1))  # jaxlie stores wxyz_xyz
-    Ta = SE3(T.wxyz_xyz[k])
-    Tb = SE3(T.wxyz_xyz[k + 1])
-    twist = (Ta.inverse() @ Tb).log()
-    pose = Ta @ SE3.exp(twist * s[:, None])
-    wxyz_xyz = np.asarray(pose.wxyz_xyz)
+    base, k, s = _interpolate_poses(t, xyz_wxyz[:, :3], xyz_wxyz[:, 3:7], times)
+    times = np.clip(np.asarray(times, float), t[0], t[-1])
 
     def lerp(a):
         a = np.asarray(a, float)
         w = s.reshape((-1,) + (1,) * (a.ndim - 1))
         return (1 - w) * a[k] + w * a[k + 1]
 
-    qpos = np.concatenate([wxyz_xyz[:, 4:], wxyz_xyz[:, :4], lerp(trajectory.q_joints)], axis=1)
+    qpos = np.concatenate([base, lerp(trajectory.q_joints)], axis=1)
     nearest = np.where(s < 0.5, k, k + 1)
     return Frames(
         t=times,
@@ -313,6 +320,16 @@ class _Painter:
             self._line(scene, path)
         return self.renderer.render().copy()
 
+    def draw_frames(self, frames: Frames, lookat: np.ndarray, distance: float) -> list[np.ndarray]:
+        """One image per time of ``frames``, the camera at ``lookat[i]``, labelled if asked."""
+        images = []
+        for i in range(len(frames.t)):
+            image = self.draw(frames.qpos[i], frames.forces[i], frames.contact_positions[i], frames.in_contact[i], self.camera(lookat[i], distance))
+            if self.options.label:
+                image = _label(image, f"t = {frames.t[i]:.2f} s", not frames.in_contact[i].any())
+            images.append(image)
+        return images
+
     def _line(self, scene, path):
         mj = self.mujoco
         for a, b in zip(path[:-1], path[1:]):
@@ -355,6 +372,13 @@ def _label(image: np.ndarray, text: str, flight: bool) -> np.ndarray:
     return np.asarray(img)
 
 
+def _side_by_side(images: Sequence[np.ndarray]) -> np.ndarray:
+    """Images of one height in a row, 2 white pixels apart."""
+    gap = np.full((images[0].shape[0], 2, 3), 255, np.uint8)
+    row = [part for image in images for part in (image, gap)][:-1]
+    return np.concatenate(row, axis=1)
+
+
 def _as_result(result) -> Result:
     from jtraj.result import Result
 
@@ -394,15 +418,9 @@ def render(result: Result | str | Path, options: RenderOptions | None = None, **
     try:
         lookat, distance = _follow(frames, painter.robot)
         distance = options.distance or distance
-        images = []
-        for i in range(n):
-            image = painter.draw(frames.qpos[i], frames.forces[i], frames.contact_positions[i], frames.in_contact[i], painter.camera(lookat[i], distance))
-            if options.label:
-                image = _label(image, f"t = {frames.t[i]:.2f} s", not frames.in_contact[i].any())
-            images.append(image)
+        return np.stack(painter.draw_frames(frames, lookat, distance))
     finally:
         painter.close()
-    return np.stack(images)
 
 
 def keyframe_times(trajectory: Trajectory, n: int, length: float = 1.0) -> np.ndarray:
@@ -479,16 +497,9 @@ def keyframe_strip(
                 cam,
                 extra_poses=list(frames.qpos[:-1]),
             )
-        panels = []
-        for i in range(n):
-            image = painter.draw(frames.qpos[i], frames.forces[i], frames.contact_positions[i], frames.in_contact[i], painter.camera(lookat[i], distance))
-            if options.label:
-                image = _label(image, f"t = {frames.t[i]:.2f} s", not frames.in_contact[i].any())
-            panels.append(image)
-            panels.append(np.full((options.height, 2, 3), 255, np.uint8))
+        return _side_by_side(painter.draw_frames(frames, lookat, distance))
     finally:
         painter.close()
-    return np.concatenate(panels[:-1], axis=1)
 
 
 # ----------------------------------------------------------------------------------------
@@ -539,19 +550,6 @@ def rigid_body_model(shape: str, size: float = 1.0) -> mujoco.MjModel:
     return spec.compile()
 
 
-def _rigid_qpos(xyz: np.ndarray, wxyz: np.ndarray, t: np.ndarray, times: np.ndarray) -> np.ndarray:
-    """Poses (T, 7) at ``times``, interpolated on SE(3) between the knots (as `interpolate`)."""
-    from jaxlie import SE3
-
-    k = np.clip(np.searchsorted(t, times, side="right") - 1, 0, len(t) - 2)
-    s = (np.clip(times, t[0], t[-1]) - t[k]) / (t[k + 1] - t[k])
-    wxyz = wxyz / np.linalg.norm(wxyz, axis=1, keepdims=True)
-    T = np.concatenate([wxyz, xyz], axis=1)
-    Ta, Tb = SE3(T[k]), SE3(T[k + 1])
-    pose = np.asarray((Ta @ SE3.exp((Ta.inverse() @ Tb).log() * s[:, None])).wxyz_xyz)
-    return np.concatenate([pose[:, 4:], pose[:, :4]], axis=1)
-
-
 def render_rigid_body(
     t: np.ndarray,
     xyz: np.ndarray,
@@ -578,23 +576,23 @@ def render_rigid_body(
         options = dataclasses.replace(options, azimuth=float(np.degrees(np.arctan2(travel[1], travel[0]))) + 90.0)
     painter = _Painter(rigid_body_model(shape, size), options, scale=size)
     # the path as flown between knots (constant twist), not straight chords
-    path = _rigid_qpos(xyz, wxyz, t, np.linspace(t[0], t[-1], min(2000, 8 * len(t))))[:, :3] if extent > 1e-6 else None
+    path = _interpolate_poses(t, xyz, wxyz, np.linspace(t[0], t[-1], min(2000, 8 * len(t))))[0][:, :3] if extent > 1e-6 else None
     try:
         if strip is not None:
             times = np.linspace(t[0], t[-1], strip)
-            qpos = _rigid_qpos(xyz, wxyz, t, times)
+            qpos = _interpolate_poses(t, xyz, wxyz, times)[0]
             if path is None:  # turning in place: one panel per keyframe
                 panels = []
                 for q, tk in zip(qpos, times):
                     image = painter.draw(q, None, None, None, painter.camera(q[:3], options.distance or 2.2 * size))
-                    panels += [_label(image, f"t = {tk:.3g} s", False) if options.label else image, np.full((options.height, 2, 3), 255, np.uint8)]
-                return np.concatenate(panels[:-1], axis=1)
+                    panels.append(_label(image, f"t = {tk:.3g} s", False) if options.label else image)
+                return _side_by_side(panels)
             center = 0.5 * (xyz.min(axis=0) + xyz.max(axis=0))
             cam = painter.camera(center, options.distance or 1.1 * extent + 2 * size)
             return painter.draw(qpos[-1], None, None, None, cam, extra_poses=list(qpos[:-1]), path=path)
         n = max(2, int(round((t[-1] - t[0]) / options.speed * options.fps)) + 1)
         times = np.linspace(t[0], t[-1], n)
-        qpos = _rigid_qpos(xyz, wxyz, t, times)
+        qpos = _interpolate_poses(t, xyz, wxyz, times)[0]
         images = []
         for q, tk in zip(qpos, times):
             image = painter.draw(q, None, None, None, painter.camera(q[:3], options.distance or 4 * size), path=path)
