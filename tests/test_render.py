@@ -83,8 +83,11 @@ def test_video_frames_have_the_size_are_not_blank_and_move(frames, result):
 
 
 def test_speed_sets_the_number_of_frames(result):
-    slow = render(result, SMALL, speed=0.5, fps=4, label=False)
-    assert len(slow) == round(0.5 / 0.5 * 4) + 1
+    import jtraj
+
+    # jtraj.render is the module and, called, its render()
+    slow = jtraj.render(result, SMALL, speed=0.5, fps=4, label=False)
+    assert len(slow) == round(0.5 / 0.5 * 4) + 1 and slow.shape[1:] == (H, W, 3)
 
 
 def test_flight_is_marked_and_forces_are_drawn(result, frames):
