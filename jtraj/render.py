@@ -109,7 +109,7 @@ def _mujoco():
     if getattr(gl_context, "GLContext", None) is None:
         raise RenderError(
             f"MuJoCo has no OpenGL backend (MUJOCO_GL={os.environ.get('MUJOCO_GL')!r}); on a machine without "
-            "display set MUJOCO_GL=egl (Mesa's libEGL: apt-get install libegl1 libgl1-mesa-dri) or "
+            "display set MUJOCO_GL=egl (Mesa's libEGL: apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri) or "
             "MUJOCO_GL=osmesa (apt-get install libosmesa6) before importing mujoco"
         )
     return mujoco
@@ -124,7 +124,7 @@ def _renderer(model, width: int, height: int):
     except Exception as err:  # the GL backends raise their own error types
         raise RenderError(
             f"MuJoCo could not open an offscreen OpenGL context with MUJOCO_GL={os.environ.get('MUJOCO_GL')!r}: {err}. "
-            "Without display or GPU use MUJOCO_GL=egl with Mesa (apt-get install libegl1 libgl1-mesa-dri) or "
+            "Without display or GPU use MUJOCO_GL=egl with Mesa (apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri) or "
             "MUJOCO_GL=osmesa (apt-get install libosmesa6)"
         ) from err
 
@@ -368,7 +368,7 @@ def _label(image: np.ndarray, text: str, flight: bool) -> np.ndarray:
     if flight:
         # An orange bar along the top marks the flight phases.
         draw.rectangle([0, 0, image.shape[1] - 1, max(2, image.shape[0] // 60)], fill=(235, 120, 20))
-        draw.text((image.shape[1] - 5 * size // 2 * 2, 2), "flight", fill=(200, 80, 0), font=font)
+        draw.text((image.shape[1] - 6 - draw.textlength("flight", font=font), 2), "flight", fill=(200, 80, 0), font=font)
     return np.asarray(img)
 
 
