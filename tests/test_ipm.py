@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jtraj.ipopt import solve_nlp
+from jtraj import solvers
 from jtraj.nlp import ConstraintGroup, CostGroup, Dep, KnotNLP, Layout
 from jtraj.solvers.ipm import IPM, IpmOptions, IpmStatus
 
@@ -52,7 +52,7 @@ def test_active_bound_and_inequality(toy):
     x = np.asarray(r.x)
     assert nlp.violation(x.reshape(-1)) < 1e-7
     assert abs(x[:, 2].max() - U_MAX) < 1e-6 and abs(x[:, 1].max() - V_MAX) < 1e-6  # both active
-    ref = solve_nlp(nlp, np.zeros(nlp.n), {"tol": 1e-10, "hessian_approximation": "exact"}, progress=None)
+    ref = solvers.get("ipopt").solve(nlp, np.zeros(nlp.n), None, {"tol": 1e-10, "hessian": "exact"})
     assert ref.converged
     np.testing.assert_allclose(float(r.objective), ref.objective, rtol=1e-6)
     np.testing.assert_allclose(x.reshape(-1), ref.x, atol=1e-4)
@@ -103,3 +103,19 @@ def test_converges_on_small_go2_hop():
     r = ipm.solve(jnp.asarray(prep.transcription.warm_start()), None)
     assert int(r.status) == IpmStatus.CONVERGED
     assert prep.nlp.violation(np.asarray(r.x).reshape(-1)) < 1e-4
+
+
+def test_registered_backend_returns_the_shared_solution(toy):
+    nlp, _ = toy
+    backend = solvers.get("jtraj")
+    opts = backend.options({"tol": 1e-8, "compl_inf_tol": 1e-8, "constr_viol_tol": 1e-8, "max_iter": 100})
+    sol = backend.solve(nlp, np.zeros(nlp.n), None, opts)
+    assert sol.status is solvers.Status.SOLVED and sol.converged
+    assert sol.constraint_violation < 1e-7 and sol.stats.iterations == len(sol.history) - 1
+    assert sol.mult_g.shape == (nlp.m,)
+    # the multipliers satisfy stationarity: grad f + J^T y - z_L + z_U = 0 on the free variables
+    r = np.asarray(nlp.gradient(sol.x)) + nlp.dense_jacobian(sol.x).T @ sol.mult_g - sol.mult_x_lower + sol.mult_x_upper
+    free = nlp.x_lower < nlp.x_upper
+    assert np.abs(r[free]).max() < 1e-6
+    with pytest.raises(solvers.InvalidOptionError, match="hessian"):
+        backend.options({"hessian": "lbfgs"})

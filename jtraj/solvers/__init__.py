@@ -21,6 +21,7 @@ from jtraj.solvers.base import (
     Status,
     resolve_progress,
 )
+from jtraj.solvers.ipm import IpmOptions, JtrajSolver
 from jtraj.solvers.ipopt import IpoptOptions, IpoptSolver
 
 __all__ = [
@@ -40,10 +41,12 @@ __all__ = [
     "resolve_progress",
     "IpoptOptions",
     "IpoptSolver",
+    "IpmOptions",
+    "JtrajSolver",
 ]
 
 #: Solver backends by name (``jtraj.solve(..., solver=NAME)``, ``jtraj solve --solver NAME``).
-SOLVERS: dict[str, type[AbstractSolver]] = {"ipopt": IpoptSolver}
+SOLVERS: dict[str, type[AbstractSolver]] = {"ipopt": IpoptSolver, "jtraj": JtrajSolver}
 
 
 def get(solver: str | AbstractSolver) -> AbstractSolver:

@@ -38,7 +38,9 @@ from __future__ import annotations
 
 import dataclasses
 import enum
-from typing import Any, NamedTuple
+import time
+import weakref
+from typing import Any, ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -46,9 +48,22 @@ import numpy as np
 from jax import lax
 
 from jtraj.solvers import kkt
+from jtraj.solvers.base import (
+    AbstractCallback,
+    AbstractOptions,
+    AbstractSolver,
+    InvalidOptionError,
+    Iteration,
+    Solution,
+    Stats,
+    Status,
+    _positive,
+    bind,
+    max_violation,
+)
 from jtraj.solvers.stage import StageView
 
-__all__ = ["IpmOptions", "IpmStatus", "IpmResult", "IPM"]
+__all__ = ["IpmOptions", "IpmStatus", "IpmResult", "IPM", "JtrajSolver"]
 
 
 class IpmStatus(enum.IntEnum):
@@ -61,8 +76,8 @@ class IpmStatus(enum.IntEnum):
     NUMERICAL_ERROR = 4  # NaN in the iterate, or no delta_w gave a positive-definite matrix
 
 
-@dataclasses.dataclass(frozen=True)
-class IpmOptions:
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class IpmOptions(AbstractOptions):
     """Options of the interior-point method (names and defaults follow Ipopt's options).
 
     Attributes:
@@ -103,13 +118,16 @@ class IpmOptions:
     max_line_search_failures: int = 5
     bfgs_init: float = 1.0
 
-    def __post_init__(self):
+    solver_name: ClassVar[str] = "jtraj"
+
+    def __check__(self) -> None:
         if self.hessian not in ("bfgs", "exact"):
-            raise ValueError(f"hessian must be 'bfgs' or 'exact', got {self.hessian!r}")
-        if not self.tol > 0:
-            raise ValueError(f"tol must be positive, got {self.tol}")
-        if self.max_iter < 0:
-            raise ValueError(f"max_iter must be >= 0, got {self.max_iter}")
+            raise InvalidOptionError(f"jtraj option hessian={self.hessian!r}: expected 'bfgs' or 'exact'")
+        _positive(self, "tol", "constr_viol_tol", "dual_inf_tol", "compl_inf_tol", "mu_init", "delta_c")
+        for name in ("max_iter", "refine_steps", "max_line_search", "max_line_search_failures"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+                raise InvalidOptionError(f"jtraj option {name}={value!r}: expected an integer >= 0")
 
 
 class IpmResult(NamedTuple):
@@ -122,7 +140,8 @@ class IpmResult(NamedTuple):
         z_lower, z_upper: (K, n) bound multipliers.
         status: `IpmStatus` code.
         iterations, objective, constr_viol (unscaled, original bounds), dual_inf, compl,
-        error (scaled optimality error), mu.
+        error (scaled optimality error), mu, passes (NLP evaluations: iterations plus
+        backtracking steps).
         history: (max_iter + 1, 5) per iteration: objective, constr_viol, dual_inf, log10 mu,
             primal step size (NaN after the last iteration).
     """
@@ -139,6 +158,7 @@ class IpmResult(NamedTuple):
     compl: jax.Array
     error: jax.Array
     mu: jax.Array
+    passes: jax.Array
     history: jax.Array
 
 
@@ -365,12 +385,12 @@ class IPM:
             st, passes = carry
             return self._pass(p, st, theta), passes + 1
 
-        st, _ = lax.while_loop(cond, body, (st, jnp.zeros((), jnp.int32)))
+        st, passes = lax.while_loop(cond, body, (st, jnp.zeros((), jnp.int32)))
         err, dual_inf, _, compl = self._error(p, st, 0.0)
         return IpmResult(
             x=st.x, y=st.y, z_lower=st.zl, z_upper=st.zu, status=st.status, iterations=st.it,
             objective=st.f, constr_viol=self._constr_viol(p, st.c), dual_inf=dual_inf, compl=compl,
-            error=err, mu=st.mu, history=st.history,
+            error=err, mu=st.mu, passes=passes, history=st.history,
         )
 
     FILTER_SIZE = 64
@@ -531,3 +551,83 @@ class IPM:
             dx=dx, ds=ds, dy=dy, dzl=dzl, dzu=dzu, dvl=dvl, dvu=dvu, alpha=a_max, alpha_dual=a_dual,
             phi0=phi0, theta0=theta0, slope=slope, delta_w=jnp.where(ok, delta_w, st.delta_w), status=status.astype(jnp.int32),
         )
+
+
+#: IpmStatus -> the shared enumeration
+_STATUS = {
+    IpmStatus.RUNNING: Status.INTERNAL_ERROR,
+    IpmStatus.CONVERGED: Status.SOLVED,
+    IpmStatus.MAX_ITER: Status.MAX_ITER,
+    IpmStatus.LINE_SEARCH_FAILED: Status.RESTORATION_FAILED,
+    IpmStatus.NUMERICAL_ERROR: Status.NUMERICAL_ERROR,
+}
+_MESSAGES = {
+    IpmStatus.CONVERGED: "converged (Ipopt's optimality test)",
+    IpmStatus.MAX_ITER: "iteration limit reached",
+    IpmStatus.LINE_SEARCH_FAILED: "the filter line search failed several times in a row (this solver has no restoration phase)",
+    IpmStatus.NUMERICAL_ERROR: "NaN/Inf in the iterate, or no regularization made the KKT matrix's inertia right",
+}
+
+
+class JtrajSolver(AbstractSolver):
+    """jtraj's own interior-point solver (`IPM`) as a backend of `jtraj.solvers.SOLVERS`.
+
+    One compiled program per NLP and options (kept while the NLP lives): later solves with
+    other initial guesses or parameters do not compile again. The solve runs inside one
+    `jax.jit` call, so the callback receives the iterations after it ends, and the time is
+    not split between evaluations and the solver's own work (``time_evaluations`` is 0).
+    For batches, use `IPM` directly: ``jax.vmap(IPM(nlp).solve)``.
+    """
+
+    name: ClassVar[str] = "jtraj"
+    Options: ClassVar[type[AbstractOptions]] = IpmOptions
+    _compiled: ClassVar[weakref.WeakKeyDictionary] = weakref.WeakKeyDictionary()
+
+    @classmethod
+    def ipm(cls, nlp: Any, options: IpmOptions) -> IPM:
+        """The (cached) `IPM` of ``nlp`` with ``options``."""
+        per_nlp = cls._compiled.setdefault(nlp, {})
+        if options not in per_nlp:
+            per_nlp[options] = IPM(nlp, options)
+        return per_nlp[options]
+
+    def solve(self, nlp: Any, x0: np.ndarray, theta: Any = None, options: AbstractOptions | dict[str, Any] | None = None, callback: AbstractCallback | None = None) -> Solution:
+        opts = self.options(options)
+        ipm = self.ipm(nlp, opts)
+        if callback is not None:
+            callback.on_start(nlp)
+        view = ipm.view
+        f = bind(nlp, theta)
+        x0 = np.clip(np.asarray(x0, float).reshape(-1), f.x_lower, f.x_upper).reshape(view.K, view.n)
+        t0 = time.perf_counter()
+        r = jax.block_until_ready(ipm.solve(jnp.asarray(x0), theta))
+        total = time.perf_counter() - t0
+        code = IpmStatus(int(r.status))
+        x = np.asarray(r.x).reshape(-1)
+        iterations = int(r.iterations)
+        history = tuple(
+            Iteration(iter=i, objective=float(h[0]), inf_pr=float(h[1]), inf_du=float(h[2]), mu=float(10.0 ** h[3]), alpha_pr=0.0 if np.isnan(h[4]) else float(h[4]))
+            for i, h in enumerate(np.asarray(r.history)[: iterations + 1])
+        )
+        status = _STATUS[code]
+        if callback is not None:
+            for it in history:
+                if callback.on_iteration(it) is False:
+                    break
+        g = np.asarray(f.constraints(jnp.asarray(x)))
+        passes = int(r.passes)
+        solution = Solution(
+            x=x,
+            status=status,
+            message=_MESSAGES.get(code, code.name),
+            objective=float(r.objective),
+            constraint_violation=max_violation(g, f.g_lower, f.g_upper, x, f.x_lower, f.x_upper),
+            mult_g=np.asarray(view.from_stage_rows(r.y)),
+            mult_x_lower=np.asarray(r.z_lower).reshape(-1),
+            mult_x_upper=np.asarray(r.z_upper).reshape(-1),
+            stats=Stats(iterations, passes, passes, passes, passes, iterations if opts.hessian == "exact" else 0, total, 0.0),
+            history=history,
+        )
+        if callback is not None:
+            callback.on_end(solution)
+        return solution

@@ -15,7 +15,6 @@ Shapes: K knots, n = nz variables per knot, m rows per knot.
 
 from __future__ import annotations
 
-import inspect
 from typing import Any
 
 import jax
@@ -28,13 +27,6 @@ __all__ = ["StageView", "INFINITY"]
 
 #: Bounds at or beyond this magnitude are absent (Ipopt's nlp_lower/upper_bound_inf).
 INFINITY = 1e19
-
-
-def _takes_theta(fn) -> bool:
-    try:
-        return len(inspect.signature(fn).parameters) >= 2
-    except (TypeError, ValueError):
-        return False
 
 
 class StageView:
@@ -69,7 +61,8 @@ class StageView:
         if off.size and (off.min() < 0 or off.max() > 1):
             raise ValueError("a constraint row reads a knot other than its own and the next one; the stage view needs offsets 0 or 1")
         self._jac_flat = self.row_flat[nlp.jac_rows] * (2 * n) + off * n + nlp.jac_cols % n
-        self._theta = _takes_theta(nlp.objective)
+        # an NLP with parameters has bounds(theta) and functions of (x, theta) (`jtraj.solvers.base.bind`)
+        self._theta = callable(getattr(nlp, "bounds", None))
 
     # ------------------------------------------------------------------ helpers
     def _call(self, fn, *args, theta):
@@ -89,7 +82,7 @@ class StageView:
         """(x_lower, x_upper) (K, n) and row bounds (c_lower, c_upper) (K, m); +-inf where absent
         and on inactive slots (those are masked by ``active``)."""
         nlp = self.nlp
-        if self._theta and hasattr(nlp, "bounds"):
+        if self._theta:
             xl, xu, gl, gu = nlp.bounds(theta)
         else:
             xl, xu, gl, gu = nlp.x_lower, nlp.x_upper, nlp.g_lower, nlp.g_upper
