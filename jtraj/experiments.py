@@ -9,8 +9,11 @@ Markdown tables and a figure.
 
 from __future__ import annotations
 
+import hashlib
 import json
+import os
 import sys
+import zlib
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TextIO
@@ -19,11 +22,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jtraj import io as jio
 from jtraj.parameterization import PARAMETERIZATIONS
 from jtraj.task import Task, load as load_task
 from jtraj.solver import prepare, solve
+from jtraj.success import FEASIBILITY_TOL
 
-__all__ = ["compare", "robustness", "noisy_warm_starts", "TABLE_IV_PAPER_SE3"]
+__all__ = ["compare", "robustness", "noisy_warm_starts", "noise_key", "run_key", "read_runs", "summarize_robustness", "TABLE_IV_PAPER_SE3"]
 
 #: Iterations of the SE(3) tangent parameterization in the paper's Table IV.
 TABLE_IV_PAPER_SE3 = {"walk": 14, "hopscotch": 10, "big_jump": 11, "handstand": 88, "backflip": 28, "sideflip": 29}
@@ -64,7 +69,7 @@ def compare(
 
 def _write_table_iv(rows: list[dict], out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
-    (out / "table_iv.json").write_text(json.dumps(rows, indent=2))
+    jio.write_json(out / "table_iv.json", rows)
     lines = [
         "| task | parameterization | status | iterations (paper, SE(3)) | obj evals | jac evals | cost | violation | turns | time (s) |",
         "|---|---|---|---|---|---|---|---|---|---|",
@@ -77,45 +82,96 @@ def _write_table_iv(rows: list[dict], out: Path) -> None:
             + (f" ({paper})" if paper else "")
             + f" | {r['obj_evals']} | {r['jac_evals']} | {r['cost']:.3g} | {r['constraint_violation']:.1e} | {turns} | {r['time_s']:.1f} |"
         )
-    (out / "table_iv.md").write_text("\n".join(lines) + "\n")
+    jio.write_text(out / "table_iv.md", "\n".join(lines) + "\n")
 
 
-def noisy_warm_starts(x0: np.ndarray, sigmas: Sequence[float], replicates: int, seed: int = 0) -> np.ndarray:
-    """Warm starts plus zero-mean Gaussian noise, (len(sigmas), replicates, *x0.shape), drawn
-    with one vmapped call over PRNG keys."""
-    keys = jax.random.split(jax.random.PRNGKey(seed), len(sigmas) * replicates).reshape(len(sigmas), replicates, -1)
+def _sigma_bits(sigma: float) -> int:
+    return zlib.crc32(repr(float(sigma)).encode())  # fold_in takes 32-bit data
+
+
+def noise_key(seed: int, sigma: float, replicate: int) -> jax.Array:
+    """PRNG key of replicate ``replicate`` at noise level ``sigma``: folded from (seed, sigma,
+    replicate) alone, so a run's noise does not change when the lists of noise levels or
+    replicates change (adding a sigma or more replicates keeps every earlier run valid)."""
+    return jax.random.fold_in(jax.random.fold_in(jax.random.PRNGKey(seed), _sigma_bits(sigma)), replicate)
+
+
+def noisy_warm_starts(x0: np.ndarray, sigmas: Sequence[float], replicates: int | Sequence[int], seed: int = 0) -> np.ndarray:
+    """Warm starts plus zero-mean Gaussian noise, (len(sigmas), n_replicates, *x0.shape): the
+    keys of `noise_key` and the draws in one vmapped call. ``replicates`` is a count (0..n-1)
+    or the replicate numbers themselves."""
+    reps = np.arange(replicates) if isinstance(replicates, int) else np.asarray(list(replicates), int)
     base = jnp.asarray(x0)
+    bits = jnp.asarray([_sigma_bits(s) for s in sigmas], jnp.uint32)
+    root = jax.random.PRNGKey(seed)
 
-    def one(key, sigma):
+    def one(sigma_bits, sigma, r):
+        key = jax.random.fold_in(jax.random.fold_in(root, sigma_bits), r)
         return base + sigma * jax.random.normal(key, base.shape, base.dtype)
 
-    draw = jax.vmap(jax.vmap(one, in_axes=(0, None)), in_axes=(0, 0))
-    return np.asarray(draw(keys, jnp.asarray(sigmas, base.dtype)))
+    draw = jax.vmap(jax.vmap(one, in_axes=(None, None, 0)), in_axes=(0, 0, None))
+    return np.asarray(draw(bits, jnp.asarray(sigmas, base.dtype), jnp.asarray(reps, jnp.uint32)))
 
 
-def _robustness_group(task, p, sigmas, replicates, seed, layout, exact_hessian, done, progress=None, on_sigma=None) -> list[dict]:
-    """One (task, parameterization) of the study: one compile, then every noisy replicate not in
-    ``done``. ``on_sigma(rows)`` is called after each noise level (checkpoints)."""
+#: the fields of a run's key, beside its task's name (kept for the tables)
+RUN_KEY = ("task_hash", "parameterization", "layout", "hessian", "options_hash", "seed", "sigma", "replicate")
+RUNS_FILE = "runs.jsonl"
+
+
+def _options_hash(options: dict | None) -> str:
+    text = json.dumps(jio.to_jsonable(options or {}), sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def run_key(row: dict) -> tuple:
+    """The identity of a robustness run: (task content hash, parameterization, layout, Hessian
+    mode, solver-options hash, seed, sigma, replicate)."""
+    return tuple(row.get(k) for k in RUN_KEY)
+
+
+def read_runs(path: str | Path, progress: TextIO | None = sys.stderr) -> list[dict]:
+    """Runs of a runs.jsonl file, first of each key kept. A file with lines that do not parse
+    (a kill during a write, damage) is moved aside to ``runs.jsonl.corrupt-N`` with a warning,
+    and the good lines are written back."""
+    path = Path(path)
+    records, bad = jio.read_jsonl(path)
+    if bad:
+        n = 1
+        while path.with_name(f"{path.name}.corrupt-{n}").exists():
+            n += 1
+        aside = path.with_name(f"{path.name}.corrupt-{n}")
+        os.replace(path, aside)
+        jio.write_text(path, "".join(jio.dumps(r, indent=None) + "\n" for r in records if isinstance(r, dict)))
+        print(f"warning: {path}: line(s) {bad[:5]} did not parse; the file was moved to {aside} and its {len(records)} good runs kept", file=progress or sys.stderr, flush=True)
+    seen: dict[tuple, dict] = {}
+    for r in records:
+        if isinstance(r, dict) and all(k in r for k in RUN_KEY):
+            seen.setdefault(run_key(r), r)
+    return list(seen.values())
+
+
+def _robustness_group(task, p, sigmas, replicates, seed, layout, exact_hessian, options, done, runs_path, progress=None) -> int:
+    """One (task, parameterization) of the study: one compile, then every noisy replicate whose
+    key is not in ``done``, each appended to ``runs_path`` as soon as it is solved (also from a
+    worker process: a kill loses only the solve in flight). Returns the number solved."""
+    task = load_task(task)
+    base = dict(task_hash=task.content_hash(), parameterization=p, layout=layout, hessian="exact" if exact_hessian else "limited-memory", options_hash=_options_hash(options), seed=seed)
+    todo = [(s, r) for s in sigmas for r in range(replicates) if run_key(base | {"sigma": float(s), "replicate": r}) not in done]
+    if not todo:
+        return 0
     prep = prepare(task, p, layout)
-    name = prep.transcription.task.name
-    starts = noisy_warm_starts(prep.transcription.warm_start(), sigmas, replicates, seed)
-    rows = []
-    for si, sigma in enumerate(sigmas):
-        new = []
-        for r in range(replicates):
-            if (name, p, float(sigma), r) in done:
-                continue
-            res = solve(task, p, layout=layout, warm_start=starts[si, r], exact_hessian=exact_hessian, progress=None, keep_trajectory=False)
-            new.append(_row(res) | {"sigma": float(sigma), "replicate": r, "seed": seed, "layout": layout})
-            if progress is not None:
-                print(f"{name:10s} {p:6s} sigma={sigma:<7g} #{r}: {res.status.value:26s} {res.iterations:4d} it  {res.time_s:6.1f} s", file=progress, flush=True)
-        rows += new
-        if on_sigma is not None:
-            on_sigma(new)
-    return rows
+    x0 = prep.transcription.warm_start()
+    for sigma, r in todo:
+        start = noisy_warm_starts(x0, [sigma], [r], seed)[0, 0]
+        res = solve(task, p, layout=layout, warm_start=start, exact_hessian=exact_hessian, ipopt_options=dict(options or {}), progress=None, keep_trajectory=False)
+        row = base | {"sigma": float(sigma), "replicate": r} | _row(res)
+        jio.append_jsonl(runs_path, row)
+        if progress is not None:
+            print(f"{task.name:10s} {p:6s} sigma={sigma:<7g} #{r}: {res.status.value:26s} {res.iterations:4d} it  {res.time_s:6.1f} s", file=progress, flush=True)
+    return len(todo)
 
 
-def _robustness_group_in_worker(*args, verbose: bool) -> list[dict]:
+def _robustness_group_in_worker(*args, verbose: bool) -> int:
     # a stream does not cross processes: a worker prints to its own stdout
     return _robustness_group(*args, progress=sys.stdout if verbose else None)
 
@@ -132,48 +188,39 @@ def robustness(
     progress: TextIO | None = sys.stdout,
     workers: int = 1,
     resume: bool = True,
+    ipopt_options: dict | None = None,
 ) -> list[dict]:
-    """Table III and Fig. 2: success rate and iterations under warm-start noise.
+    """Table III and Fig. 2: converged and task-success rates and iterations under warm-start noise.
 
-    Success follows the paper's Table III: the solve converged to a feasible point; rows
-    also count how many of those converged without doing the task (e.g. no flip: the
-    paper's asterisk).
+    Every finished solve is appended at once to ``out/runs.jsonl``, one JSON line keyed by
+    `run_key` (task content, parameterization, layout, Hessian mode, Ipopt options, seed, sigma,
+    replicate). With ``resume`` (default) runs already there are not solved again, so a study
+    stopped or killed at any point goes on where it ended; runs of other settings in the file
+    are kept and left out of this call's tables. Without ``resume`` this call's runs are solved
+    again and appended (the first of each key is the one read). The noise of replicate r at
+    level sigma depends only on (seed, sigma, r) (`noise_key`).
 
-    ``workers > 1`` solves (task, parameterization) groups in that many processes. With
-    ``resume`` (default), runs already in ``out/runs.json`` with the same seed and layout are
-    kept and not solved again, so a stopped study goes on where it ended.
+    ``workers > 1`` solves (task, parameterization) groups in that many processes, each
+    appending to the same file. Returns this call's runs; writes table_iii.{json,md} and fig2.png.
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    runs: list[dict] = []
-    if resume and (out / "runs.json").exists():
-        old = json.loads((out / "runs.json").read_text())
-        runs = [r for r in old if r.get("seed") == seed and r.get("layout") == layout]
-        if progress is not None and runs:
-            print(f"resuming: {len(runs)} runs already in {out / 'runs.json'}", file=progress, flush=True)
-    done = {(r["task"], r["parameterization"], r["sigma"], r["replicate"]) for r in runs}
-    groups = [(task, p) for task in tasks for p in params]
-
-    def checkpoint(rows: list[dict]) -> None:
-        runs.extend(rows)
-        (out / "runs.json").write_text(json.dumps(runs, indent=2))
-
-    def write_tables() -> None:
-        # after every (task, parameterization): a long study can be stopped
-        summary = summarize_robustness(runs)
-        (out / "table_iii.json").write_text(json.dumps(summary, indent=2))
-        (out / "table_iii.md").write_text(_table_iii_markdown(summary, sigmas))
-
-    def complete(task, p) -> bool:
-        name = load_task(task).name
-        return all((name, p, float(s), r) in done for s in sigmas for r in range(replicates))
-
-    # groups already complete are not compiled again
-    args = [(task, p, tuple(sigmas), replicates, seed, layout, exact_hessian, done) for task, p in groups if not complete(task, p)]
+    runs_path = out / RUNS_FILE
+    tasks = [load_task(t) for t in tasks]
+    sigmas = [float(s) for s in sigmas]
+    if not tasks or not params or not sigmas or replicates < 1:
+        raise ValueError("robustness: no runs (empty tasks, parameterizations or sigmas, or replicates < 1)")
+    before = read_runs(runs_path, progress) if resume else []
+    if not resume and runs_path.exists():
+        os.replace(runs_path, runs_path.with_name(runs_path.name + ".previous"))
+    done = {run_key(r) for r in before}
+    if progress is not None and done:
+        print(f"resuming: {len(done)} runs already in {runs_path}", file=progress, flush=True)
+    args = [(t, p, tuple(sigmas), replicates, seed, layout, exact_hessian, ipopt_options, done, runs_path) for t in tasks for p in params]
     if workers <= 1:
         for a in args:
-            _robustness_group(*a, progress=progress, on_sigma=checkpoint)
-            write_tables()
+            _robustness_group(*a, progress=progress)
+            _write_robustness_outputs(_select(read_runs(runs_path, progress), *a[:8]), sigmas, out, figure=False)
     else:
         import multiprocessing
         from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -182,17 +229,42 @@ def robustness(
         with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
             futures = [pool.submit(_robustness_group_in_worker, *a, verbose=progress is not None) for a in args]
             for f in as_completed(futures):
-                checkpoint(f.result())
-                write_tables()
-    if not runs:
-        raise ValueError("robustness: no runs (empty tasks, parameterizations or sigmas)")
-    if not args:
-        write_tables()  # every run was already there: the tables all the same
-    plot_iterations(runs, out / "fig2.png")
+                f.result()
+    runs = [r for a in args for r in _select(read_runs(runs_path, progress), *a[:8])]
+    _write_robustness_outputs(runs, sigmas, out)
     return runs
 
 
+def _select(runs: list[dict], task: Task, p: str, sigmas, replicates: int, seed: int, layout: str, exact_hessian: bool, options) -> list[dict]:
+    """The runs of one group of this call's settings, in (sigma, replicate) order."""
+    keys = {
+        (task.content_hash(), p, layout, "exact" if exact_hessian else "limited-memory", _options_hash(options), seed, float(s), r): (i, r)
+        for i, s in enumerate(sigmas)
+        for r in range(replicates)
+    }
+    sel = [(keys[run_key(r)], r) for r in runs if run_key(r) in keys]
+    return [r for _, r in sorted(sel, key=lambda x: x[0])]
+
+
+def _write_robustness_outputs(runs: list[dict], sigmas: Sequence[float], out: Path, figure: bool = True) -> None:
+    summary = summarize_robustness(runs)
+    jio.write_json(out / "table_iii.json", summary)
+    jio.write_text(out / "table_iii.md", _table_iii_markdown(summary, sigmas))
+    if figure and runs:
+        plot_iterations(runs, out / "fig2.png")
+
+
+def _converged(run: dict) -> bool:
+    # the paper's Table III success: the solver converged to a feasible point
+    violation = run.get("constraint_violation")
+    return bool(run["converged"]) and violation is not None and violation < FEASIBILITY_TOL
+
+
 def summarize_robustness(runs: list[dict]) -> list[dict]:
+    """Per (task, parameterization, sigma): the rate of runs that converged to a feasible point
+    (Ipopt success and largest constraint violation below `jtraj.success.FEASIBILITY_TOL`, the
+    paper's Table III success), the rate that moreover did the task (`jtraj.success`: e.g. a
+    flip with the right sign, count and axis), and iterations of the converged runs."""
     # the paper's order: tasks as in Table III, parameterizations as in Table I, then others
     task_rank = {t: i for i, t in enumerate(("walk", "big_jump", "backflip", "sideflip", "hopscotch", "handstand"))}
     param_rank = {p: i for i, p in enumerate(PARAMETERIZATIONS)}
@@ -203,7 +275,7 @@ def summarize_robustness(runs: list[dict]) -> list[dict]:
     rows = []
     for task, p, sigma in keys:
         sel = [r for r in runs if (r["task"], r["parameterization"], r["sigma"]) == (task, p, sigma)]
-        conv = [r for r in sel if r["converged"]]
+        conv = [r for r in sel if _converged(r)]
         its = np.array([r["iterations"] for r in conv]) if conv else np.array([])
         rows.append(
             dict(
@@ -211,8 +283,8 @@ def summarize_robustness(runs: list[dict]) -> list[dict]:
                 parameterization=p,
                 sigma=sigma,
                 runs=len(sel),
-                success_rate=len(conv) / len(sel),
-                task_success_rate=sum(r["success"] for r in sel) / len(sel),
+                converged_rate=len(conv) / len(sel),
+                task_success_rate=sum(1 for r in conv if r["success"]) / len(sel),
                 converged_without_task=sum(1 for r in conv if not r["success"]),
                 iterations_median=float(np.median(its)) if its.size else None,
                 iterations_p25=float(np.percentile(its, 25)) if its.size else None,
@@ -223,20 +295,22 @@ def summarize_robustness(runs: list[dict]) -> list[dict]:
 
 
 def _table_iii_markdown(summary: list[dict], sigmas: Sequence[float]) -> str:
-    lines = ["| task | parameterization | " + " | ".join(f"sigma={s:g}" for s in sigmas) + " |", "|---|---|" + "---|" * len(sigmas)]
+    lines = [
+        "Each cell: converged / task done, in % of the runs (converged: Ipopt success with the largest "
+        f"constraint violation below {FEASIBILITY_TOL:g}, the paper's success; task done: converged and "
+        "the motion does the task, e.g. a flip with the expected sign, count and axis; where the two "
+        "differ the paper marks the cell with *).",
+        "",
+        "| task | parameterization | " + " | ".join(f"sigma={s:g}" for s in sigmas) + " |",
+        "|---|---|" + "---|" * len(sigmas),
+    ]
     for task in dict.fromkeys(r["task"] for r in summary):
         for p in dict.fromkeys(r["parameterization"] for r in summary if r["task"] == task):
             cells = []
             for s in sigmas:
                 match = [r for r in summary if r["task"] == task and r["parameterization"] == p and r["sigma"] == s]
-                if not match:
-                    cells.append("")
-                    continue
-                r = match[0]
-                star = "*" if r["converged_without_task"] else ""
-                cells.append(f"{100 * r['success_rate']:.0f}%{star}")
+                cells.append(f"{100 * match[0]['converged_rate']:.0f}% / {100 * match[0]['task_success_rate']:.0f}%" if match else "")
             lines.append(f"| {task} | {p} | " + " | ".join(cells) + " |")
-    lines.append("\n\\* some runs converged without doing the task (e.g. a jump instead of a flip).")
     return "\n".join(lines) + "\n"
 
 
@@ -265,5 +339,5 @@ def plot_iterations(runs: list[dict], path: str | Path) -> None:
         ax.set_ylabel("iterations to convergence")
     axes[0][0].legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    jio.save_figure(fig, path, dpi=120)
     plt.close(fig)

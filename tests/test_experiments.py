@@ -2,10 +2,16 @@
 the Table IV writer, and the plots."""
 
 import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import numpy as np
 
-from jtraj.experiments import compare, noisy_warm_starts, robustness
+from jtraj.experiments import RUNS_FILE, compare, noisy_warm_starts, read_runs, robustness, run_key
 from jtraj.plots import plot_convergence, plot_result
 from jtraj.result import Result
 from test_transcription import HOP
@@ -29,8 +35,8 @@ def test_robustness_study_writes_tables_and_figure(tmp_path):
     assert len(runs) == 4
     summary = json.loads((tmp_path / "table_iii.json").read_text())
     assert [(r["sigma"], r["runs"]) for r in summary] == [(1e-6, 2), (1e-2, 2)]
-    assert all(r["success_rate"] == 1.0 for r in summary)
-    assert "| test_hop | se3 | 100% | 100% |" in (tmp_path / "table_iii.md").read_text()
+    assert all(r["converged_rate"] == 1.0 and r["task_success_rate"] == 1.0 for r in summary)
+    assert "| test_hop | se3 | 100% / 100% | 100% / 100% |" in (tmp_path / "table_iii.md").read_text()
     assert (tmp_path / "fig2.png").stat().st_size > 1000
 
 
@@ -43,10 +49,73 @@ def test_robustness_resumes_a_stopped_study(tmp_path):
     # a complete study solves nothing and still writes its tables
     (tmp_path / "table_iii.md").unlink()
     assert robustness([HOP], ["se3"], sigmas=[1e-3], replicates=2, seed=5, out=tmp_path, progress=None) == more
-    assert "| test_hop | se3 | 100% |" in (tmp_path / "table_iii.md").read_text()
+    assert "| test_hop | se3 | 100% / 100% |" in (tmp_path / "table_iii.md").read_text()
     # another seed is another study: nothing is reused
     other = robustness([HOP], ["se3"], sigmas=[1e-3], replicates=1, seed=6, out=tmp_path, progress=None)
     assert len(other) == 1 and other[0]["seed"] == 6 and other[0]["time_s"] != first[0]["time_s"]
+    # ... and the runs of seed 5 are still in the file
+    assert {r["seed"] for r in read_runs(tmp_path / RUNS_FILE)} == {5, 6}
+
+
+def test_noise_of_a_run_does_not_depend_on_the_other_runs():
+    x0 = np.zeros(5)
+    a = noisy_warm_starts(x0, [1e-3, 0.1], replicates=2, seed=4)
+    b = noisy_warm_starts(x0, [0.5, 0.1, 1e-3], replicates=3, seed=4)
+    np.testing.assert_array_equal(a[1], b[1, :2])  # sigma 0.1, replicates 0 and 1
+    np.testing.assert_array_equal(a[0], b[2, :2])
+    np.testing.assert_array_equal(b[1, 2], noisy_warm_starts(x0, [0.1], replicates=[2], seed=4)[0, 0])
+    assert not np.allclose(a[1, 0] / 0.1, a[0, 0] / 1e-3)  # levels are not one draw rescaled
+
+
+def test_corrupt_runs_file_is_moved_aside(tmp_path, capsys):
+    path = tmp_path / RUNS_FILE
+    good = {"task_hash": "h", "parameterization": "se3", "layout": "paper", "hessian": "limited-memory", "options_hash": "o", "seed": 0, "sigma": 0.1, "replicate": 0, "task": "t"}
+    path.write_text(json.dumps(good) + "\n" + json.dumps(good | {"replicate": 0, "cost": 2.0}) + "\n" + '{"task_hash": "h", "param')
+    runs = read_runs(path, progress=sys.stderr)
+    assert runs == [good]  # the duplicate key is read once, the torn line dropped
+    assert "line(s) [3] did not parse" in capsys.readouterr().err
+    assert (tmp_path / f"{RUNS_FILE}.corrupt-1").read_text().endswith('"param')
+    assert read_runs(path) == [good] and not (tmp_path / f"{RUNS_FILE}.corrupt-2").exists()
+
+
+_SWEEP = """
+import sys
+sys.path.insert(0, {tests!r})
+from test_transcription import HOP
+from jtraj.experiments import robustness
+robustness([HOP], ["se3"], sigmas=[1e-3, 1e-2], replicates=2, seed=7, out={out!r}, progress=None)
+"""
+
+
+def _table(out):
+    return (Path(out) / "table_iii.md").read_text(), json.loads((Path(out) / "table_iii.json").read_text())
+
+
+def test_sweep_killed_midway_resumes_without_losing_or_repeating_runs(tmp_path):
+    kw = dict(sigmas=[1e-3, 1e-2], replicates=2, seed=7, progress=None)
+    whole = robustness([HOP], ["se3"], out=tmp_path / "whole", **kw)  # compiles; fills the cache
+    out = tmp_path / "killed"
+    runs_path = out / RUNS_FILE
+    proc = subprocess.Popen([sys.executable, "-c", _SWEEP.format(tests=str(Path(__file__).parent), out=str(out))])
+    try:
+        deadline = time.time() + 300
+        while time.time() < deadline and proc.poll() is None:
+            if runs_path.exists() and runs_path.read_bytes().count(b"\n") >= 1:
+                break
+            time.sleep(0.02)
+        os.kill(proc.pid, signal.SIGKILL)
+    finally:
+        proc.wait()
+    at_kill = read_runs(runs_path)
+    assert 1 <= len(at_kill) < 4, "the kill should land in the middle of the sweep"
+    resumed = robustness([HOP], ["se3"], out=out, **kw)
+    keys = [run_key(r) for r in resumed]
+    assert len(keys) == len(set(keys)) == 4
+    assert {run_key(r) for r in at_kill} <= set(keys)
+    assert [run_key(r) for r in resumed] == [run_key(r) for r in whole]
+    assert _table(out) == _table(tmp_path / "whole")
+    lines = runs_path.read_text().splitlines()
+    assert len(lines) == 4  # each run written once
 
 
 def test_robustness_with_worker_processes_matches_in_process(tmp_path):
@@ -66,3 +135,12 @@ def test_compare_writes_table_iv_and_plots(tmp_path):
     result = Result.load(tmp_path / "test_hop_se3")
     assert plot_result(result, tmp_path / "t.png").stat().st_size > 1000
     assert plot_convergence(result, tmp_path / "c.png").stat().st_size > 1000
+
+
+def test_vmapped_draw_uses_the_key_of_each_run():
+    from jtraj.experiments import noise_key
+    import jax
+
+    x0 = np.ones(4)
+    draw = noisy_warm_starts(x0, [0.25], replicates=[3], seed=9)[0, 0]
+    np.testing.assert_allclose(draw, x0 + 0.25 * np.asarray(jax.random.normal(noise_key(9, 0.25, 3), (4,))), rtol=1e-15)
