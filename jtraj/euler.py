@@ -10,7 +10,11 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-__all__ = ["rotation_matrix", "from_rotation_matrix", "rate_matrix"]
+__all__ = ["GIMBAL_MARGIN", "rotation_matrix", "from_rotation_matrix", "rate_matrix", "away_from_gimbal_lock"]
+
+#: Smallest distance (rad) of a pitch from +-pi/2 that `away_from_gimbal_lock` allows: there
+#: |W| <= 1 / sin(margin) ~ 1e3 instead of ~1e16 at the singularity in floating point.
+GIMBAL_MARGIN = 1e-3
 
 
 def _rx(a: jax.Array) -> jax.Array:
@@ -53,3 +57,10 @@ def rate_matrix(rpy: jax.Array) -> jax.Array:
             [0.0, sp / ct, cp / ct],
         ]
     )
+
+
+def away_from_gimbal_lock(rpy: jax.Array, margin: float = GIMBAL_MARGIN) -> jax.Array:
+    """``rpy`` with the pitch (in [-pi/2, pi/2], as `from_rotation_matrix` returns it) clipped
+    to [-pi/2 + margin, pi/2 - margin]; a rotation at most ``margin`` rad away."""
+    half = jnp.pi / 2 - margin
+    return rpy.at[1].set(jnp.clip(rpy[1], -half, half))

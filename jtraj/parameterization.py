@@ -36,6 +36,7 @@ __all__ = [
     "Quaternion3",
     "EulerRPY",
     "PARAMETERIZATIONS",
+    "QUATERNION_FLOOR",
     "get",
     "body_twist_to_qvel",
     "qvel_to_body_twist",
@@ -99,8 +100,21 @@ class AbstractParameterization(abc.ABC):
         return f"{type(self).__name__}()"
 
 
+#: Smallest quaternion norm the charts divide by. Noise on a warm start (or a wild iterate)
+#: can drive rho to zero, where rho / |rho| and its derivatives are NaN; below the floor the
+#: quaternion is first moved by ``QUATERNION_FLOOR`` along its scalar part (away from zero, so
+#: its norm stays >= the floor), which keeps values and derivatives finite (derivatives of
+#: size ~1 / floor) and leaves every quaternion of norm >= the floor untouched.
+QUATERNION_FLOOR = 1e-6
+
+
 def _unit(rho: jax.Array) -> jax.Array:
-    return rho / jnp.linalg.norm(rho)
+    sq = rho @ rho
+    small = sq < QUATERNION_FLOOR**2
+    # one branch only: where() would pass NaN gradients of the untaken rho / |rho| at zero
+    away = jnp.where(rho[0] >= 0, 1.0, -1.0) * QUATERNION_FLOOR
+    safe = jnp.where(small, rho.at[0].add(away), rho)
+    return safe / jnp.sqrt(safe @ safe)
 
 
 def _pose_from_xyz_wxyz(q: jax.Array) -> SE3:
@@ -259,8 +273,12 @@ class EulerRPY(AbstractParameterization):
         return SE3.from_rotation_and_translation(rotation, q[:3])
 
     def from_pose(self, T_world_base):
+        """Coordinates with pitch in [-pi/2 + m, pi/2 - m], m = `euler.GIMBAL_MARGIN`: at
+        gimbal lock W(theta) is infinite (|W| ~ 1e16 at pitch = pi/2 in floating point), so a
+        pose there (e.g. a flip's warm start passing pitch -pi/2 at a knot) gets the pitch m
+        rad short of it; every other pose round-trips exactly."""
         rpy = euler.from_rotation_matrix(T_world_base.rotation().as_matrix())
-        return jnp.concatenate([T_world_base.translation(), rpy])
+        return jnp.concatenate([T_world_base.translation(), euler.away_from_gimbal_lock(rpy)])
 
     def integrate(self, q, V_b, h):
         rpy = q[3:6]

@@ -176,3 +176,77 @@ def test_velocity_conversion_to_mjx(rng):
     np.testing.assert_allclose(qvel[:3], T.rotation().as_matrix() @ V[:3], atol=1e-14)
     np.testing.assert_allclose(qvel[3:], V[3:])
     np.testing.assert_allclose(qvel_to_body_twist(T, qvel), V, atol=1e-14)
+
+
+QUATS = [p for p in PARAMS if p.nq == 7]
+
+
+@pytest.mark.parametrize("param", QUATS, ids=[p.name for p in QUATS])
+@pytest.mark.parametrize("rho", [[0.0, 0.0, 0.0, 0.0], [1e-12, 0.0, 0.0, 0.0], [-3e-7, 0.0, 2e-7, 0.0], [0.0, 1e-9, -1e-9, 0.0]], ids=["zero", "tiny_w", "below_floor", "tiny_v"])
+def test_quaternion_charts_finite_near_zero_norm(param, rho):
+    """Regression: noise drove rho to zero, where rho / |rho| gave NaN values and Jacobians."""
+    q = jnp.concatenate([jnp.array([0.1, 0.2, 0.3]), jnp.asarray(rho)])
+    q_other = jnp.array([0.1, 0.2, 0.3, 0.9, 0.1, 0.0, 0.1])
+    V = jnp.array([0.1, -0.2, 0.3, 0.4, -0.5, 0.6])
+
+    def f(q):
+        return jnp.concatenate([param.integrate(q, V, 0.05), param.difference(q, q_other), param.difference(q_other, q), param.to_qpos(q)])
+
+    assert np.all(np.isfinite(f(q)))
+    for J in (jax.jacfwd(f)(q), jax.jacrev(f)(q)):
+        assert np.all(np.isfinite(J))
+    # the pose is still a rotation
+    np.testing.assert_allclose(np.linalg.norm(param.to_qpos(q)[3:]), 1.0, atol=1e-12)
+
+
+def test_quaternion_floor_leaves_normal_quaternions_exact():
+    from jtraj.parameterization import QUATERNION_FLOOR, _unit
+
+    for rho in ([0.6, 0.0, 0.8, 0.0], [2 * QUATERNION_FLOOR, 0.0, 0.0, 0.0], [0.0, -QUATERNION_FLOOR, 0.0, 0.0]):
+        rho = jnp.asarray(rho)
+        np.testing.assert_array_equal(_unit(rho), rho / jnp.linalg.norm(rho))
+
+
+@pytest.mark.parametrize("pitch", [np.pi / 2, -np.pi / 2, np.pi / 2 - 1e-9])
+def test_euler_from_pose_keeps_off_gimbal_lock(pitch):
+    """Regression: a flip's warm start passing pitch -pi/2 at a knot gave |W| ~ 1e16."""
+    p = get("euler")
+    T = SE3.from_rotation_and_translation(SO3.from_rpy_radians(0.0, pitch, 0.0), jnp.zeros(3))
+    q = p.from_pose(T)
+    assert np.pi / 2 - abs(float(q[4])) >= euler.GIMBAL_MARGIN * (1 - 1e-9)
+    W = euler.rate_matrix(q[3:6])
+    assert np.abs(W).max() < 1.01 / np.sin(euler.GIMBAL_MARGIN)
+    # the pose moved by at most the margin
+    err = lie.minus(p.to_pose(q), T)
+    assert float(jnp.linalg.norm(err[3:])) <= euler.GIMBAL_MARGIN * (1 + 1e-9)
+    V = jnp.array([0.1, -0.2, 0.3, 0.4, -0.5, 0.6])
+    # d(W omega h)/d pitch ~ |omega| h / sin(margin)^2: large, but ~1e31 at the lock itself
+    bound = 2 * float(jnp.linalg.norm(V[3:])) * 0.05 / np.sin(euler.GIMBAL_MARGIN) ** 2
+    for J in jax.jacfwd(lambda q, V: p.integrate(q, V, 0.05), argnums=(0, 1))(q, V):
+        assert np.all(np.isfinite(J)) and np.abs(J).max() < bound
+
+
+def test_euler_integration_near_gimbal_lock_follows_table_1():
+    """Within the margin of pitch +-pi/2 the Table I relation still holds exactly, and the
+    first-order step still matches the manifold step for small h (W is large, not wrong)."""
+    p = get("euler")
+    V = jnp.array([0.1, -0.2, 0.3, 0.0, 0.02, 0.0])
+    for pitch in (np.pi / 2 - 2 * euler.GIMBAL_MARGIN, -np.pi / 2 + 2 * euler.GIMBAL_MARGIN):
+        q = jnp.array([0.0, 0.0, 0.0, 0.3, pitch, -0.2])
+        h = 1e-5
+        rpy = q[3:6]
+        np.testing.assert_allclose(p.difference(q, p.integrate(q, V, h)), jnp.concatenate([euler.rotation_matrix(rpy) @ V[:3], euler.rate_matrix(rpy) @ V[3:]]) * h, rtol=1e-9, atol=1e-15)
+        step = lie.minus(p.to_pose(p.integrate(q, V, h)), lie.plus(p.to_pose(q), V * h))
+        assert float(jnp.linalg.norm(step)) < 1e-7
+
+
+def test_euler_warm_start_of_the_backflip_avoids_gimbal_lock():
+    from jtraj import task as tasks
+
+    (axis, angles), = tasks.load("backflip").warm_start_angles()
+    assert np.any(np.isclose(angles, -np.pi / 2)) and np.any(np.isclose(angles, -3 * np.pi / 2))  # the ramp passes the lock
+    p = get("euler")
+    poses = jax.vmap(lambda a: SE3.from_rotation_and_translation(SO3.exp(jnp.asarray(axis) * a), jnp.zeros(3)))(jnp.asarray(angles))
+    q = jax.vmap(p.from_pose)(poses)
+    W = jax.vmap(euler.rate_matrix)(q[:, 3:6])
+    assert np.all(np.isfinite(W)) and np.abs(W).max() < 1.01 / np.sin(euler.GIMBAL_MARGIN)
