@@ -35,7 +35,9 @@ system matrix ``K = dr/dz``::
     inactive row j         lam_j
 
 so ``dz/dtheta = -K^{-1} dr/dtheta`` and ``dx/dtheta`` is its first n rows (`residual` gives
-``r`` in JAX for the tangent ``dr/dtheta . dtheta`` and its transpose).
+``r`` in JAX for the tangent ``dr/dtheta . dtheta`` and its transpose). Linearly dependent
+active rows (which a trajectory's fixed end state creates) leave dx unique but not the
+multipliers; `KKTSystem.solve` regularizes and refines so that dx is exact.
 
 What is not differentiated: the active set itself. Where strict complementarity fails (a
 constraint or bound at its limit with a multiplier of about zero: weakly active) the solution
@@ -76,6 +78,8 @@ class ParametricNLP(Protocol):
     hess_cols: np.ndarray
 
     def objective(self, x, theta): ...
+
+    def gradient(self, x, theta): ...  # (n,)
 
     def constraints(self, x, theta): ...
 
@@ -175,7 +179,7 @@ def active_set(
     g = np.asarray(nlp.constraints(jnp.asarray(x), theta))
     J = np.asarray(nlp.jacobian(jnp.asarray(x), theta)) if jac_values is None else jac_values
     # bound multipliers from stationarity: z_L - z_U = grad f + J^T lam
-    z = np.asarray(jax.grad(nlp.objective)(jnp.asarray(x), theta)).copy()
+    z = np.asarray(nlp.gradient(jnp.asarray(x), theta)).copy()
     np.add.at(z, nlp.jac_cols, J * lam[nlp.jac_rows])
     scale = max(1.0, float(np.abs(lam).max(initial=0.0)), float(np.abs(z).max(initial=0.0)))
     tol = weak_tol * scale
@@ -253,25 +257,41 @@ class KKTSystem:
     def degenerate(self) -> bool:
         return self.active.degenerate
 
-    def solve(self, rhs: np.ndarray, transpose: bool = False) -> np.ndarray:
-        """K^{-1} rhs (or K^{-T} rhs); rhs (n + m,) or (batch, n + m)."""
+    def solve(self, rhs: np.ndarray, transpose: bool = False, refinements: int = 3) -> np.ndarray:
+        """K^{-1} rhs (or K^{-T} rhs); rhs (n + m,) or (batch, n + m).
+
+        Active rows may be linearly dependent (a trajectory's last knots: v_N = 0 and a fixed
+        q_N fix q_{N-1} through the integration rows, which makes that knot's contact rows
+        redundant). dx is still unique, the multipliers of such rows are not: the LU is of
+        K with ``-delta`` on the active rows' diagonal (``delta = 1e-10 max|K|``), and
+        iterative refinement against K itself removes the regularization's error from dx.
+        """
         if self._lu is None:
+            n = self.active.at_bound.size
+            delta = 1e-10 * max(1.0, float(np.abs(self.matrix.data).max(initial=0.0)))
+            reg = np.zeros(self.matrix.shape[0])
+            reg[n:][self.active.row_active] = -delta
             try:
-                self._lu = spla.splu(self.matrix.tocsc())
+                self._lu = spla.splu((self.matrix + sp.diags(reg)).tocsc())
             except RuntimeError as e:  # "Factor is exactly singular"
                 raise SingularKKTError(
-                    f"the sensitivity system is singular ({e}): the active constraints are linearly dependent "
-                    f"at this solution ({self.active.summary()}); the solution is not differentiable here"
+                    f"the sensitivity system is singular ({e}) at this solution ({self.active.summary()}): the reduced "
+                    f"Hessian is singular on the active constraints' null space (the optimum is not unique)"
                 ) from None
         rhs = np.asarray(rhs, float)
+        K = self.matrix.T if transpose else self.matrix
         trans = "T" if transpose else "N"
-        if rhs.ndim == 1:
-            out = self._lu.solve(rhs, trans=trans)
-        else:
-            out = self._lu.solve(np.ascontiguousarray(rhs.T), trans=trans).T
-        if not np.all(np.isfinite(out)):
-            raise SingularKKTError(f"the sensitivity system is numerically singular at this solution ({self.active.summary()})")
-        return out
+        B = np.atleast_2d(rhs).T  # (N, batch)
+        Z = self._lu.solve(np.ascontiguousarray(B), trans=trans)
+        for _ in range(refinements):
+            Z = Z + self._lu.solve(np.ascontiguousarray(B - K @ Z), trans=trans)
+        residual = np.abs(B - K @ Z).max(initial=0.0)
+        if not (np.all(np.isfinite(Z)) and residual <= 1e-6 * max(1.0, np.abs(B).max(initial=0.0))):
+            raise SingularKKTError(
+                f"the sensitivity system could not be solved at this solution (residual {residual:.1e}; {self.active.summary()}): "
+                f"the solution is not differentiable here"
+            )
+        return Z.T.reshape(rhs.shape)
 
 
 def kkt_system(nlp: ParametricNLP, x: np.ndarray, lam: np.ndarray, theta: Any, *, weak_tol: float = 1e-6) -> KKTSystem:
