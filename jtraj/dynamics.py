@@ -25,7 +25,14 @@ rigid motion of the subtree of dof k (which leaves J_i^T F_i unchanged where bot
 the change of the velocities and accelerations it induces, so both Jacobians come out as a
 handful of dense products instead of forward-mode autodiff through the recursion.
 
-The model arrays are read from ``robot.mjx_model`` once per robot and baked in as constants.
+The model arrays are read from ``robot.mjx_model`` once per robot and baked in as constants,
+except the body masses: every function that uses inertias takes an optional ``masses``
+(nbody,) in kg, one per MuJoCo body (``robot.mj_model.body_mass`` order, the world body 0
+first), a traced array (so a change does not recompile and derivatives with respect to it
+exist). A body of mass ``m`` keeps the model's centre of mass and scales its rotational
+inertia by ``m / m_model`` (the link's shape and density distribution are kept: the
+spatial inertia of the body is the model's times ``m / m_model``). ``masses=None`` is the
+model's masses.
 """
 
 from __future__ import annotations
@@ -54,6 +61,7 @@ __all__ = [
     "inverse_dynamics_derivatives",
     "inverse_dynamics_jacobians",
     "InverseDynamicsJacobians",
+    "model_masses",
     "to_mujoco",
     "tau_from_mujoco",
 ]
@@ -94,6 +102,11 @@ class _Tree:
     contact_incidence: np.ndarray  # (nbody, ncontact)
     contact_dofs: np.ndarray  # (ncontact, nv): 1 where the dof moves the contact point
     gravity: np.ndarray  # (3,) world gravity vector
+
+
+def model_masses(robot: Robot) -> np.ndarray:
+    """The model's body masses (nbody,) in kg, world body first: the default ``masses``."""
+    return np.array(_tree(robot).mass)
 
 
 def _quat_to_mat(wxyz: np.ndarray) -> np.ndarray:
@@ -388,11 +401,26 @@ class _Inertia(NamedTuple):
         return jnp.concatenate([top, jnp.concatenate([H, self.Io], -1)], -2)
 
 
-def _spatial_inertias(tree: _Tree, kin: _Kinematics) -> _Inertia:
+def _body_inertias(tree: _Tree, masses: jax.Array | None) -> tuple[jax.Array, jax.Array]:
+    """Body masses (nbody,) and rotational inertias about the com in body axes (nbody, 3, 3):
+    the model's, or for ``masses`` the model's inertias scaled by ``masses / model mass``."""
+    if masses is None:
+        return jnp.asarray(tree.mass), jnp.asarray(tree.inertia_body)
+    masses = jnp.asarray(masses)
+    if masses.shape != tree.mass.shape:
+        raise ValueError(f"masses must have shape {tree.mass.shape} (one per MuJoCo body, world first), got {masses.shape}")
+    positive = tree.mass > 0
+    # massless bodies (the world) keep their (zero) inertia; m / m_model is exactly 1 at the
+    # model's masses, so the default masses give the constants' results bit for bit
+    scale = jnp.where(positive, masses / np.where(positive, tree.mass, 1.0), 1.0)
+    return masses, scale[:, None, None] * jnp.asarray(tree.inertia_body)
+
+
+def _spatial_inertias(tree: _Tree, kin: _Kinematics, masses: jax.Array | None = None) -> _Inertia:
     """World-frame spatial inertia of each body about the world origin."""
-    m = jnp.asarray(tree.mass)
+    m, inertia_body = _body_inertias(tree, masses)
     c = kin.p + _matvec(kin.R, jnp.asarray(tree.com_body))
-    Ic = _matmul(_matmul(kin.R, jnp.asarray(tree.inertia_body)), jnp.swapaxes(kin.R, -1, -2))
+    Ic = _matmul(_matmul(kin.R, inertia_body), jnp.swapaxes(kin.R, -1, -2))
     # Io = Ic - m [c][c] = Ic + m (|c|^2 1 - c c^T)
     cc = jnp.sum(c * c, axis=-1)[..., None, None] * jnp.eye(3) - c[..., :, None] * c[..., None, :]
     return _Inertia(m, m[:, None] * c, Ic + m[:, None, None] * cc)
@@ -413,7 +441,7 @@ class _Rnea(NamedTuple):
     tau: jax.Array  # (nv,)
 
 
-def _rnea(robot, param, q, v, a, forces) -> _Rnea:
+def _rnea(robot, param, q, v, a, forces, masses=None) -> _Rnea:
     tree = _tree(robot)
     nv, nc = tree.nv, robot.ncontact
     if v.shape != (nv,) or a.shape != (nv,):
@@ -429,7 +457,7 @@ def _rnea(robot, param, q, v, a, forces) -> _Rnea:
     Jdot_t = _motion_cross(ov[tree.dof_body], Jt)  # (nv, 6)
     minus_g = jnp.concatenate([-jnp.asarray(tree.gravity), jnp.zeros(3)])
     oa = minus_g + anc @ (Jt * a[:, None] + Jdot_t * v[:, None])
-    I = _spatial_inertias(tree, kin)
+    I = _spatial_inertias(tree, kin, masses)
     h = I.apply(ov)
     f = I.apply(oa) + _force_cross(ov, h)
     points = _contact_points(tree, kin)
@@ -447,6 +475,7 @@ def inverse_dynamics(
     v: jax.Array,
     a: jax.Array,
     forces: jax.Array,
+    masses: jax.Array | None = None,
 ) -> jax.Array:
     """``tau = M(q) a + b(q, v) - sum_j J_j(q)^T f_j``, shape (nv,).
 
@@ -456,19 +485,21 @@ def inverse_dynamics(
         a: (nv,) time derivative of ``v``.
         forces: (ncontact, 3) world-frame forces (N) at all contact points of the robot
             (zeros for inactive ones).
+        masses: (nbody,) body masses (kg), default the model's (see the module docstring).
 
     Returns:
         tau (nv,): base wrench in the base frame (N, N m), then joint torques (N m); equal
         to Pinocchio's ``rnea`` with the external forces.
     """
-    return _rnea(robot, param, q, v, a, forces).tau
+    return _rnea(robot, param, q, v, a, forces, masses).tau
 
 
-def mass_matrix(robot: Robot, param: AbstractParameterization, q: jax.Array) -> jax.Array:
-    """Joint-space inertia matrix ``M(q)`` (nv, nv), body-twist convention for the base."""
+def mass_matrix(robot: Robot, param: AbstractParameterization, q: jax.Array, masses: jax.Array | None = None) -> jax.Array:
+    """Joint-space inertia matrix ``M(q)`` (nv, nv), body-twist convention for the base;
+    ``masses`` (nbody,) as in `inverse_dynamics`."""
     tree = _tree(robot)
     kin = _kinematics(robot, param, q)
-    return _mass_matrix(tree, kin, _spatial_inertias(tree, kin))
+    return _mass_matrix(tree, kin, _spatial_inertias(tree, kin, masses))
 
 
 def _mass_matrix(tree: _Tree, kin: _Kinematics, I: _Inertia) -> jax.Array:
@@ -480,14 +511,14 @@ def _mass_matrix(tree: _Tree, kin: _Kinematics, I: _Inertia) -> jax.Array:
 
 
 def acceleration_force_jacobians(
-    robot: Robot, param: AbstractParameterization, q: jax.Array
+    robot: Robot, param: AbstractParameterization, q: jax.Array, masses: jax.Array | None = None
 ) -> tuple[jax.Array, jax.Array]:
     """``(dtau/da, dtau/dforces)`` without autodiff: ``M(q)`` (nv, nv) and ``-J_c^T``
     (nv, ncontact * 3), the force columns ordered contact point major, xyz minor (the order
     of ``forces.reshape(-1)``)."""
     tree = _tree(robot)
     kin = _kinematics(robot, param, q)
-    M = _mass_matrix(tree, kin, _spatial_inertias(tree, kin))
+    M = _mass_matrix(tree, kin, _spatial_inertias(tree, kin, masses))
     Jc = _point_jacobians(tree, kin, _contact_points(tree, kin))
     return M, -Jc.reshape(-1, tree.nv).T
 
@@ -533,6 +564,7 @@ def inverse_dynamics_derivatives(
     v: jax.Array,
     a: jax.Array,
     forces: jax.Array,
+    masses: jax.Array | None = None,
 ) -> InverseDynamicsJacobians:
     """`inverse_dynamics` and its Jacobians for one knot, analytically.
 
@@ -557,7 +589,7 @@ def inverse_dynamics_derivatives(
     """
     tree = _tree(robot)
     nv = tree.nv
-    r = _rnea(robot, param, q, v, a, forces)
+    r = _rnea(robot, param, q, v, a, forces, masses)
     J = r.kin.J  # (6, nv)
     Jt = J.T  # (nv, 6): rows are the dofs' world motion vectors
     db, dp = tree.dof_body, tree.dof_parent
@@ -635,15 +667,17 @@ def inverse_dynamics_jacobians(
     V: jax.Array,
     A: jax.Array,
     F: jax.Array,
+    masses: jax.Array | None = None,
 ) -> InverseDynamicsJacobians:
     """`inverse_dynamics_derivatives` for a batch of knots (leading axis K), jitted.
 
-    Args: Q (K, param.nq + nj), V (K, nv), A (K, nv), F (K, ncontact, 3).
+    Args: Q (K, param.nq + nj), V (K, nv), A (K, nv), F (K, ncontact, 3); masses (nbody,)
+    shared by the knots (default the model's).
     Returns: tau (K, nv), dq (K, nv, nq), dv (K, nv, nv), da = M (K, nv, nv),
     df (K, nv, ncontact * 3).
     """
-    per_knot = jax.vmap(inverse_dynamics_derivatives, in_axes=(None, None, 0, 0, 0, 0))
-    return per_knot(robot, param, Q, V, A, F)
+    per_knot = jax.vmap(inverse_dynamics_derivatives, in_axes=(None, None, 0, 0, 0, 0, None))
+    return per_knot(robot, param, Q, V, A, F, masses)
 
 
 # ----------------------------------------------------------------------------------------

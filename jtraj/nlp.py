@@ -1,22 +1,46 @@
-"""Sparse nonlinear programs with knot structure, assembled from per-knot JAX functions.
+"""Sparse nonlinear programs with knot structure and parameters, assembled from per-knot JAX functions.
 
-A trajectory NLP has one block of variables per knot, ``z_k`` (the same layout, a tuple of
-named slots, at every knot) stacked as ``Z`` of shape (n_knots, nz); the Ipopt vector is
-``Z.ravel()``. Costs and constraints come in groups. A group is written for ONE knot: it reads
-some slots of knot k and possibly of knot k+1 (its dependencies) and returns a fixed number of
-rows; it is vmapped over the knots it applies to. Per knot, a boolean mask selects which rows
-are real constraints (a contact that is not active drops its rows); masks, knots and bounds
-are numpy data fixed when the NLP is built.
+A trajectory NLP has one block of variables per knot, ``z_k`` (the same `Layout`, a tuple of
+named slots, at every knot) stacked as ``Z`` of shape (n_knots, nz); the solver's vector is
+``x = Z.ravel()``. Costs and constraints come in groups. A group is written for ONE knot: it
+reads some slots of knot k and possibly of knot k+1 (its dependencies) and returns a fixed
+number of rows; it is vmapped over the knots it applies to. Per knot, a boolean mask selects
+which rows are real constraints (a contact that is not active drops its rows); masks and
+knots are numpy data fixed when the NLP is built.
+
+Parameters. Every number a user may vary or differentiate enters as a parameter pytree
+``theta`` (any pytree of float arrays; the whole-body problem's is
+`jtraj.transcription.TaskParams`), an explicit argument of every function:
+
+    objective(x, theta) -> ()                 gradient(x, theta) -> (n,)
+    constraints(x, theta) -> (m,)             jacobian(x, theta) -> (nnz_jac,) COO values
+    hessian(x, lam, obj_factor, theta) -> (nnz_hess,) lower-triangle COO values
+    bounds(theta) -> (x_lower (n,), x_upper (n,), g_lower (m,), g_upper (m,))
+
+A group's function is ``fn(theta, data_k, *deps_k)`` (a cost's likewise); its row bounds and
+the variable bounds are arrays or callables of theta. ``theta`` is traced: all functions are
+jitted once per shape, changing its values never recompiles, and ``jax.vmap`` over theta (or
+over x) works for all of them (give its leaves as float64 arrays: a Python scalar is weakly
+typed, another signature, and compiles once more). ``nlp.theta`` holds the default parameters the builder gave;
+``x_lower``, ``x_upper``, ``g_lower``, ``g_upper`` are numpy copies of the bounds there.
+An NLP without parameters passes ``theta=None``.
 
 The sparse constraint Jacobian:
 - structure: once, from the dependencies of each group (a dense block per knot, rows x
-  dependency columns) thinned to the entries that are nonzero at random probe points; the
-  COO (row, col) arrays then follow from the knot indices and the slot offsets;
+  dependency columns) thinned to the entries that are nonzero at random probe points (random
+  variables, and parameters perturbed randomly from the default so that an entry scaled by a
+  parameter that is zero by default, a weight say, stays in the structure); the COO (row,
+  col) arrays then follow from the knot indices and the slot offsets;
 - values: one jitted function evaluates every group's block Jacobian at every knot
   (``vmap(jacfwd)`` or the group's own batched Jacobian) and gathers the nonzeros in COO
   order.
 The Hessian of the Lagrangian is assembled the same way from per-knot blocks (lower
 triangle), for the exact-Hessian option.
+
+Knot structure. `KnotStructure` (``nlp.structure`` where the builder gives one) says which
+slots of a knot are the state ``x_k`` and which the controls ``u_k``, and gives the explicit
+step ``x_{k+1} = step(x_k, u_k, theta)`` that the equality rows between two knots encode, for
+a solver that eliminates the dynamics (Riccati recursions, iLQR).
 
 This module is pure JAX + numpy and knows nothing of robots or of Ipopt.
 """
@@ -31,7 +55,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["Layout", "Dep", "ConstraintGroup", "CostGroup", "KnotNLP"]
+__all__ = ["Layout", "Dep", "ConstraintGroup", "CostGroup", "KnotStructure", "KnotNLP"]
+
+#: Bounds given as an array or as a function of the parameters theta.
+Bound = Any  # np.ndarray | Callable[[theta], array]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -59,6 +86,10 @@ class Layout:
         off = self.offset(name)
         return slice(off, off + self.size(name))
 
+    def columns(self, names: Sequence[str]) -> np.ndarray:
+        """Columns of z_k holding the slots ``names``, concatenated in that order."""
+        return np.concatenate([np.arange(self.offset(n), self.offset(n) + self.size(n)) for n in names]) if names else np.zeros(0, int)
+
     def split(self, z: jax.Array) -> dict[str, jax.Array]:
         """Slots of one knot (or of a stack of knots along the leading axes)."""
         return {name: z[..., self.slice(name)] for name, _ in self.slots}
@@ -81,20 +112,21 @@ class Dep:
 
 @dataclasses.dataclass(eq=False)
 class ConstraintGroup:
-    """Rows ``lower <= fn(data_k, *deps_k) <= upper`` at each knot k of ``knots``.
+    """Rows ``lower <= fn(theta, data_k, *deps_k) <= upper`` at each knot k of ``knots``.
 
     Attributes:
         name: for reports.
         deps: the slots the group reads, in the order ``fn`` takes them.
-        fn: ``fn(data, *deps) -> (n_rows,)`` for one knot; ``data`` is this knot's slice of
-            ``data`` (any pytree with a leading knot axis, or None).
+        fn: ``fn(theta, data, *deps) -> (n_rows,)`` for one knot; ``theta`` the NLP's
+            parameters (shared by all knots), ``data`` this knot's slice of ``data`` (any
+            pytree with a leading knot axis, or None).
         knots: (K,) knot indices where the group applies.
-        lower, upper: (K, n_rows) bounds (equal for equalities).
+        lower, upper: (K, n_rows) bounds (equal for equalities), or callables
+            ``theta -> array`` broadcastable to (K, n_rows).
         active: (K, n_rows) rows that exist (False rows are dropped from the NLP).
-        data: per-knot data pytree with leading axis K (traced: changing values does not
-            recompile).
-        batched_jacobian: optional ``(data, *deps) -> (K, n_rows, sum dep sizes)`` with
-            leading knot axes, replacing ``vmap(jacfwd(fn))``.
+        data: per-knot data pytree with leading axis K.
+        batched_jacobian: optional ``(theta, data, *deps) -> (K, n_rows, sum dep sizes)``
+            with leading knot axes, replacing ``vmap(jacfwd(fn))``.
         dense: skip probing, keep the full dependency block in the structure.
     """
 
@@ -102,8 +134,8 @@ class ConstraintGroup:
     deps: tuple[Dep, ...]
     fn: Callable[..., jax.Array]
     knots: np.ndarray
-    lower: np.ndarray
-    upper: np.ndarray
+    lower: Bound
+    upper: Bound
     active: np.ndarray
     data: Any = None
     batched_jacobian: Callable[..., jax.Array] | None = None
@@ -111,18 +143,72 @@ class ConstraintGroup:
 
     @property
     def n_rows(self) -> int:
-        return self.lower.shape[1]
+        return self.active.shape[1]
+
+    def row_bounds(self, theta: Any) -> tuple[jax.Array, jax.Array]:
+        """(K, n_rows) lower and upper bounds at ``theta``."""
+        lo = self.lower(theta) if callable(self.lower) else self.lower
+        hi = self.upper(theta) if callable(self.upper) else self.upper
+        shape = self.active.shape
+        return jnp.broadcast_to(jnp.asarray(lo, float), shape), jnp.broadcast_to(jnp.asarray(hi, float), shape)
 
 
 @dataclasses.dataclass(eq=False)
 class CostGroup:
-    """Cost ``sum_k fn(data_k, *deps_k)`` over ``knots`` (scalar per knot)."""
+    """Cost ``sum_k fn(theta, data_k, *deps_k)`` over ``knots`` (scalar per knot)."""
 
     name: str
     deps: tuple[Dep, ...]
     fn: Callable[..., jax.Array]
     knots: np.ndarray
     data: Any = None
+
+
+@dataclasses.dataclass(frozen=True)
+class KnotStructure:
+    """State and controls of a knot, and the explicit step between knots.
+
+    ``z_k[state_columns]`` is the state ``x_k`` (the slots ``state`` concatenated in that
+    order), ``z_k[control_columns]`` the controls ``u_k``; every column of z_k is one or the
+    other. ``step(x_k, u_k, theta) -> x_{k+1}`` (one knot, vmap for many) is the dynamics
+    that the NLP's equality rows between knots k and k+1 encode: those rows vanish exactly
+    when ``x_{k+1} = step(x_k, u_k, theta)``.
+    """
+
+    layout: Layout
+    state: tuple[str, ...]
+    control: tuple[str, ...]
+    step: Callable[[jax.Array, jax.Array, Any], jax.Array]
+
+    def __post_init__(self):
+        names = [s for s, _ in self.layout.slots]
+        if sorted(self.state + self.control) != sorted(names):
+            raise ValueError(f"state {self.state} and control {self.control} must split the slots {names} exactly")
+
+    @property
+    def state_columns(self) -> np.ndarray:
+        return self.layout.columns(self.state)
+
+    @property
+    def control_columns(self) -> np.ndarray:
+        return self.layout.columns(self.control)
+
+    @property
+    def nx(self) -> int:
+        return self.state_columns.size
+
+    @property
+    def nu(self) -> int:
+        return self.control_columns.size
+
+    def split(self, z: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """(x, u) of one knot's (or stacked knots') variables z (…, nz)."""
+        return z[..., self.state_columns], z[..., self.control_columns]
+
+    def join(self, x: jax.Array, u: jax.Array) -> jax.Array:
+        """z (…, nz) from state x (…, nx) and controls u (…, nu)."""
+        z = jnp.zeros(x.shape[:-1] + (self.layout.nz,), jnp.result_type(x, u))
+        return z.at[..., self.state_columns].set(x).at[..., self.control_columns].set(u)
 
 
 def _gather_deps(layout: Layout, Z: jax.Array, knots: np.ndarray, deps: Sequence[Dep]) -> list[jax.Array]:
@@ -140,13 +226,34 @@ def _dep_columns(layout: Layout, deps: Sequence[Dep]) -> tuple[np.ndarray, np.nd
     return np.concatenate(offs), np.concatenate(cols)
 
 
+def _per_knot(fn, theta, data, deps):
+    """``fn(theta, data_k, *deps_k)`` at every knot: theta shared, data and deps batched."""
+    in_axes = (None, None if data is None else 0) + (0,) * len(deps)
+    return jax.vmap(fn, in_axes=in_axes)(theta, data, *deps)
+
+
+def _probe_thetas(theta: Any, rng: np.random.Generator, n: int) -> list[Any]:
+    """``n`` parameter sets near ``theta``: each leaf scaled by U(0.5, 1.5) and shifted by
+    U(0.05, 0.15), so that no entry vanishes because a parameter happens to be 0 or 1."""
+    leaves, treedef = jax.tree.flatten(theta)
+    out = []
+    for _ in range(n):
+        new = [
+            jnp.asarray(np.asarray(leaf) * rng.uniform(0.5, 1.5, np.shape(leaf)) + rng.uniform(0.05, 0.15, np.shape(leaf)))
+            for leaf in leaves
+        ]
+        out.append(jax.tree.unflatten(treedef, new))
+    return out
+
+
 class KnotNLP:
-    """An NLP over ``Z`` (n_knots, nz) with costs and constraint groups.
+    """An NLP over ``Z`` (n_knots, nz) with costs, constraint groups and parameters theta.
 
     Builds, once, the row layout (which rows of which group at which knot), the Jacobian
-    and Hessian sparsity, and jitted functions ``objective``, ``gradient``, ``constraints``,
-    ``jacobian`` (COO values) and ``hessian`` (lower-triangle COO values) of the flat
-    variable vector. Functions close over the group data passed at construction.
+    and Hessian sparsity, and jitted functions of the flat variable vector and theta (see
+    the module docstring). ``lower`` and ``upper`` are the variable bounds (n_knots, nz), as
+    arrays or callables of theta; ``theta`` the default parameters; ``structure`` an optional
+    `KnotStructure`.
     """
 
     def __init__(
@@ -155,10 +262,13 @@ class KnotNLP:
         n_knots: int,
         costs: Sequence[CostGroup],
         constraints: Sequence[ConstraintGroup],
-        lower: np.ndarray,
-        upper: np.ndarray,
+        lower: Bound,
+        upper: Bound,
         probe_seed: int = 0,
         n_probes: int = 3,
+        *,
+        theta: Any = None,
+        structure: KnotStructure | None = None,
     ):
         self.layout = layout
         self.n_knots = n_knots
@@ -166,18 +276,23 @@ class KnotNLP:
         self.n = n_knots * layout.nz
         self.costs = list(costs)
         self.groups = list(constraints)
-        self.x_lower = np.asarray(lower, float).reshape(self.n)
-        self.x_upper = np.asarray(upper, float).reshape(self.n)
+        self.theta = theta
+        self.structure = structure
+        self._lower, self._upper = lower, upper
         for g in self.groups:
             for d in g.deps:
                 if d.offset not in (0, 1):
                     raise ValueError(f"group {g.name}: dependency offsets must be 0 or 1, got {d.offset}")
             if g.knots.size and (g.knots.max() + max(d.offset for d in g.deps) >= n_knots):
                 raise ValueError(f"group {g.name}: knots reach past the last knot {n_knots - 1}")
-            if g.lower.shape != g.active.shape or g.upper.shape != g.active.shape:
-                raise ValueError(f"group {g.name}: lower, upper and active must share one shape (K, rows)")
+            for name in ("lower", "upper"):
+                b = getattr(g, name)
+                if not callable(b) and np.shape(b) != g.active.shape:
+                    raise ValueError(f"group {g.name}: {name} has shape {np.shape(b)}; expected the shape of active {g.active.shape} (K, rows)")
 
         self._build_rows()
+        self.bounds = jax.jit(self._bounds)
+        self.x_lower, self.x_upper, self.g_lower, self.g_upper = (np.asarray(b) for b in self.bounds(theta))
         self._build_jacobian_structure(probe_seed, n_probes)
         self._hessian_built = False
         self._compile()
@@ -187,48 +302,63 @@ class KnotNLP:
         self.row_index = []  # per group: flat indices (into the group's (K, rows) array) of active rows
         offsets = []
         m = 0
-        g_lower, g_upper, names = [], [], []
+        names = []
         for g in self.groups:
             flat = np.flatnonzero(g.active.reshape(-1))
             self.row_index.append(flat)
             offsets.append(m)
             m += flat.size
-            g_lower.append(g.lower.reshape(-1)[flat])
-            g_upper.append(g.upper.reshape(-1)[flat])
             names.extend([g.name] * flat.size)
         self.m = m
         self.group_row_offset = offsets
-        self.g_lower = np.concatenate(g_lower) if g_lower else np.zeros(0)
-        self.g_upper = np.concatenate(g_upper) if g_upper else np.zeros(0)
         self.row_group = np.array(names)
+
+    def _bounds(self, theta: Any) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
+        def variable(b):
+            b = b(theta) if callable(b) else b
+            return jnp.broadcast_to(jnp.asarray(b, float), (self.n_knots, self.nz)).reshape(self.n)
+
+        g_lower, g_upper = [], []
+        for g, idx in zip(self.groups, self.row_index):
+            lo, hi = g.row_bounds(theta)
+            g_lower.append(lo.reshape(-1)[idx])
+            g_upper.append(hi.reshape(-1)[idx])
+        empty = jnp.zeros(0)
+        return (
+            variable(self._lower),
+            variable(self._upper),
+            jnp.concatenate(g_lower) if g_lower else empty,
+            jnp.concatenate(g_upper) if g_upper else empty,
+        )
 
     # ------------------------------------------------------------------ jacobian structure
     def _group_block_jacobian(self, g: ConstraintGroup):
-        """(Z) -> (K, rows, ndep) block Jacobians of group g."""
+        """(Z, theta) -> (K, rows, ndep) block Jacobians of group g."""
         layout = self.layout
 
-        def blocks(Z):
+        def blocks(Z, theta):
             deps = _gather_deps(layout, Z, g.knots, g.deps)
             if g.batched_jacobian is not None:
-                return g.batched_jacobian(g.data, *deps)
+                return g.batched_jacobian(theta, g.data, *deps)
             sizes = [d.shape[-1] for d in deps]
 
-            def one(data, flat):
+            def one(theta, data, flat):
                 parts = jnp.split(flat, np.cumsum(sizes)[:-1])
-                return g.fn(data, *parts)
+                return g.fn(theta, data, *parts)
 
             flat = jnp.concatenate(deps, axis=-1)
-            in_axes = (None if g.data is None else 0, 0)
-            return jax.vmap(jax.jacfwd(one, argnums=1), in_axes=in_axes)(g.data, flat)
+            in_axes = (None, None if g.data is None else 0, 0)
+            return jax.vmap(jax.jacfwd(one, argnums=2), in_axes=in_axes)(theta, g.data, flat)
 
         return blocks
 
     def _build_jacobian_structure(self, seed: int, n_probes: int) -> None:
         rng = np.random.default_rng(seed)
+        thetas = _probe_thetas(self.theta, np.random.default_rng(seed + 1000), n_probes)
         block_fns = [self._group_block_jacobian(g) for g in self.groups]
         # One jitted function evaluates every group's blocks; it serves the probes here
         # and every later Jacobian evaluation (one compile).
-        self._all_blocks = jax.jit(lambda x: [fn(x.reshape(self.n_knots, self.nz)) for fn in block_fns])
+        self._all_blocks = jax.jit(lambda x, theta: [fn(x.reshape(self.n_knots, self.nz), theta) for fn in block_fns])
         patterns = [
             np.ones((g.n_rows, _dep_columns(self.layout, g.deps)[1].size), bool)
             if g.dense
@@ -236,9 +366,9 @@ class KnotNLP:
             for g in self.groups
         ]
         if any(not g.dense for g in self.groups):
-            for _ in range(n_probes):
+            for theta in thetas:
                 Z = rng.uniform(0.2, 1.0, size=(self.n_knots, self.nz)) * rng.choice([-1.0, 1.0], size=(self.n_knots, self.nz))
-                for g, pattern, B in zip(self.groups, patterns, self._all_blocks(jnp.asarray(Z.reshape(-1)))):
+                for g, pattern, B in zip(self.groups, patterns, self._all_blocks(jnp.asarray(Z.reshape(-1)), theta)):
                     if not g.dense:
                         pattern |= np.any(np.asarray(B) != 0.0, axis=0)
         rows, cols, self._jac_gather = [], [], []
@@ -270,22 +400,20 @@ class KnotNLP:
         def unflatten(x):
             return x.reshape(n_knots, nz)
 
-        def objective(x):
+        def objective(x, theta):
             Z = unflatten(x)
             total = jnp.zeros((), x.dtype)
             for c in self.costs:
                 deps = _gather_deps(layout, Z, c.knots, c.deps)
-                in_axes = (None if c.data is None else 0,) + (0,) * len(deps)
-                total = total + jnp.sum(jax.vmap(c.fn, in_axes=in_axes)(c.data, *deps))
+                total = total + jnp.sum(_per_knot(c.fn, theta, c.data, deps))
             return total
 
-        def constraints(x):
+        def constraints(x, theta):
             Z = unflatten(x)
             out = []
             for gi, g in enumerate(self.groups):
                 deps = _gather_deps(layout, Z, g.knots, g.deps)
-                in_axes = (None if g.data is None else 0,) + (0,) * len(deps)
-                vals = jax.vmap(g.fn, in_axes=in_axes)(g.data, *deps)
+                vals = _per_knot(g.fn, theta, g.data, deps)
                 out.append(vals.reshape(-1)[self.row_index[gi]])
             return jnp.concatenate(out) if out else jnp.zeros(0, x.dtype)
 
@@ -298,8 +426,9 @@ class KnotNLP:
         gather_jit = jax.jit(gather)
         all_blocks = self._all_blocks
 
-        def jacobian(x):
-            return gather_jit(all_blocks(x))
+        def jacobian(x, theta):
+            """COO values (nnz_jac,) of the constraint Jacobian at (x, theta)."""
+            return gather_jit(all_blocks(x, theta))
 
         self._objective_py = objective
         self._constraints_py = constraints
@@ -308,15 +437,19 @@ class KnotNLP:
         self.constraints = jax.jit(constraints)
         self.jacobian = jacobian
 
-    def dense_jacobian(self, x: jax.Array) -> np.ndarray:
+    def _theta_or_default(self, theta: Any) -> Any:
+        return self.theta if theta is None else theta
+
+    def dense_jacobian(self, x: jax.Array, theta: Any = None) -> np.ndarray:
         """Dense Jacobian assembled from the sparse values (for tests and debugging)."""
         J = np.zeros((self.m, self.n))
-        np.add.at(J, (self.jac_rows, self.jac_cols), np.asarray(self.jacobian(x)))
+        np.add.at(J, (self.jac_rows, self.jac_cols), np.asarray(self.jacobian(x, self._theta_or_default(theta))))
         return J
 
     # ------------------------------------------------------------------ hessian
     def build_hessian(self, seed: int = 1, n_probes: int = 2) -> None:
-        """Structure and jitted values of the Hessian of the Lagrangian (lower triangle).
+        """Structure and jitted values of the Hessian of the Lagrangian (lower triangle):
+        ``hessian(x, lam, obj_factor, theta)``.
 
         Per group and knot, the Hessian of ``lambda_k . g_k`` (and of each cost term) with
         respect to the group's dependency vector is a dense block; entries are kept where
@@ -327,19 +460,20 @@ class KnotNLP:
             return
         layout, n_knots, nz = self.layout, self.n_knots, self.nz
         rng = np.random.default_rng(seed)
+        thetas = _probe_thetas(self.theta, np.random.default_rng(seed + 1000), n_probes)
 
-        def term_blocks(fn, deps, knots, data, weights):
-            """(K, ndep, ndep) Hessians of weights_k . fn(data_k, deps_k)."""
+        def term_blocks(fn, deps, knots, data, weights, theta):
+            """(K, ndep, ndep) Hessians of weights_k . fn(theta, data_k, deps_k)."""
             sizes = [layout.size(d.slot) for d in deps]
 
-            def one(d, flat, w):
+            def one(theta, d, flat, w):
                 parts = jnp.split(flat, np.cumsum(sizes)[:-1])
-                return jnp.sum(w * fn(d, *parts))
+                return jnp.sum(w * fn(theta, d, *parts))
 
             def blocks(Z):
                 flat = jnp.concatenate(_gather_deps(layout, Z, knots, deps), axis=-1)
-                in_axes = (None if data is None else 0, 0, 0)
-                return jax.vmap(jax.hessian(one, argnums=1), in_axes=in_axes)(data, flat, weights)
+                in_axes = (None, None if data is None else 0, 0, 0)
+                return jax.vmap(jax.hessian(one, argnums=2), in_axes=in_axes)(theta, data, flat, weights)
 
             return blocks
 
@@ -355,17 +489,17 @@ class KnotNLP:
         terms = [(c.fn, c.deps, c.knots, c.data) for c in self.costs]
         terms += [(g.fn, g.deps, g.knots, g.data) for g in self.groups]
 
-        def all_blocks(x, lam, obj_factor):
+        def all_blocks(x, lam, obj_factor, theta):
             Z = x.reshape(n_knots, nz)
             weights = [jnp.full((c.knots.size,), obj_factor) for c in self.costs] + lam_to_groups(lam)
-            return [term_blocks(fn, deps, knots, data, w)(Z) for (fn, deps, knots, data), w in zip(terms, weights)]
+            return [term_blocks(fn, deps, knots, data, w, theta)(Z) for (fn, deps, knots, data), w in zip(terms, weights)]
 
         all_blocks_jit = jax.jit(all_blocks)
         patterns = [np.zeros((_dep_columns(layout, t[1])[1].size,) * 2, bool) for t in terms]
-        for _ in range(n_probes):
+        for theta in thetas:
             Z = rng.uniform(0.2, 1.0, size=(n_knots, nz)) * rng.choice([-1.0, 1.0], size=(n_knots, nz))
             lam = rng.normal(size=self.m)
-            for pattern, B in zip(patterns, all_blocks_jit(jnp.asarray(Z.reshape(-1)), jnp.asarray(lam), 1.0)):
+            for pattern, B in zip(patterns, all_blocks_jit(jnp.asarray(Z.reshape(-1)), jnp.asarray(lam), 1.0, theta)):
                 pattern |= np.any(np.asarray(B) != 0.0, axis=0)
 
         rows, cols, gathers = [], [], []
@@ -401,8 +535,9 @@ class KnotNLP:
                 out = out.at[inv].add(B.reshape(-1)[gather])
             return out
 
-        def hessian(x, lam, obj_factor):
-            return scatter(all_blocks_jit(x, lam, obj_factor))
+        def hessian(x, lam, obj_factor, theta):
+            """Lower-triangle COO values (nnz_hess,) of obj_factor * Hess f + sum lam_i Hess g_i."""
+            return scatter(all_blocks_jit(x, lam, obj_factor, theta))
 
         self.hessian = hessian
         self._hessian_built = True
@@ -412,17 +547,23 @@ class KnotNLP:
         names, counts = np.unique(self.row_group, return_counts=True)
         return dict(zip(names.tolist(), counts.tolist()))
 
-    def violation_by_group(self, x: np.ndarray) -> dict[str, float]:
-        """Max violation of each constraint group's rows, and of the variable bounds, at x."""
-        g = np.asarray(self.constraints(jnp.asarray(x)))
-        viol = np.maximum(np.maximum(self.g_lower - g, g - self.g_upper), 0.0)
+    def _violations(self, x: np.ndarray, theta: Any) -> tuple[np.ndarray, np.ndarray]:
+        theta = self._theta_or_default(theta)
+        x_lower, x_upper, g_lower, g_upper = (np.asarray(b) for b in self.bounds(theta))
+        g = np.asarray(self.constraints(jnp.asarray(x), theta))
+        viol = np.maximum(np.maximum(g_lower - g, g - g_upper), 0.0)
+        bviol = np.maximum(np.maximum(x_lower - x, x - x_upper), 0.0)
+        return viol, bviol
+
+    def violation_by_group(self, x: np.ndarray, theta: Any = None) -> dict[str, float]:
+        """Max violation of each constraint group's rows, and of the variable bounds, at x
+        (and theta, default `theta`)."""
+        viol, bviol = self._violations(x, theta)
         out = {name: float(viol[self.row_group == name].max(initial=0.0)) for name in dict.fromkeys(self.row_group.tolist())}
-        out["bounds"] = float(np.maximum(np.maximum(self.x_lower - x, x - self.x_upper), 0.0).max(initial=0.0))
+        out["bounds"] = float(bviol.max(initial=0.0))
         return out
 
-    def violation(self, x: np.ndarray) -> float:
-        """Max violation of the constraint rows and variable bounds at x."""
-        g = np.asarray(self.constraints(jnp.asarray(x)))
-        viol = np.maximum(np.maximum(self.g_lower - g, g - self.g_upper), 0.0)
-        bviol = np.maximum(np.maximum(self.x_lower - x, x - self.x_upper), 0.0)
+    def violation(self, x: np.ndarray, theta: Any = None) -> float:
+        """Max violation of the constraint rows and variable bounds at x (and theta)."""
+        viol, bviol = self._violations(x, theta)
         return float(max(viol.max(initial=0.0), bviol.max(initial=0.0)))

@@ -17,7 +17,7 @@ from jtraj import solvers
 from jtraj.result import Result, Status
 from jtraj.success import FEASIBILITY_TOL
 from jtraj.success import evaluate as check_motion
-from jtraj.transcription import COMPACT_LAYOUT, LEAN_LAYOUT, PAPER_LAYOUT, Transcription, TranscriptionOptions
+from jtraj.transcription import COMPACT_LAYOUT, LEAN_LAYOUT, PAPER_LAYOUT, TaskParams, Transcription, TranscriptionOptions
 
 LAYOUTS = {"paper": PAPER_LAYOUT, "compact": COMPACT_LAYOUT, "lean": LEAN_LAYOUT}
 
@@ -65,7 +65,7 @@ def prepare(
     # compile every callback once, on the warm start, before Ipopt runs
     x = jnp.asarray(tr.warm_start().reshape(-1))
     for fn in (nlp.objective, nlp.gradient, nlp.constraints, nlp.jacobian):
-        np.asarray(fn(x))
+        np.asarray(fn(x, nlp.theta))
     prep = Prepared(tr, time.perf_counter() - t0)
     prep.nlp = nlp
     _CACHE[key] = prep
@@ -88,6 +88,7 @@ def solve(
     progress_every: int = 1,
     out: str | None = None,
     keep_trajectory: bool = True,
+    theta: TaskParams | dict[str, Any] | None = None,
 ) -> Result:
     """Solve a task with one of `jtraj.solvers.SOLVERS` (Ipopt by default).
 
@@ -113,9 +114,13 @@ def solve(
             ``sys.stdout`` of the moment; a text stream prints there; False or None is quiet;
             a `jtraj.solvers.AbstractCallback` receives the iterations instead.
         out: directory to write ``result.json`` and ``trajectory.npz`` into.
+        theta: the task's parameters (`jtraj.transcription.TaskParams`), or a dict
+            overriding some of them (``{"friction": 0.5, "timestep": 0.04}``); other values
+            of theta reuse the compiled NLP.
     """
     prep = prepare(task, parameterization, layout)
     tr, nlp = prep.transcription, prep.nlp
+    theta = tr.resolve_theta(theta)
     compile_time = prep.time_compile
     prep.time_compile = 0.0  # counted once per process
     x0 = tr.warm_start() if warm_start is None else np.asarray(warm_start, float)
@@ -131,9 +136,9 @@ def solve(
             f"{nlp.m} constraints, {nlp.nnz_jac} Jacobian nonzeros, {tr.N + 1} knots"
             + (f" (compiled in {compile_time:.1f} s)" if compile_time else "")
         )
-    solution = backend.solve(nlp, x0.reshape(-1), None, opts, callback)
-    traj = tr.decode(solution.x)
-    result = evaluate(tr, solution, traj, compile_time, {"solver": backend.name, **opts.as_dict(), "layout": dataclasses.asdict(tr.options)}, nlp.nnz_jac, nlp.violation_by_group(solution.x))
+    solution = backend.solve(nlp, x0.reshape(-1), theta, opts, callback)
+    traj = tr.decode(solution.x, theta)
+    result = evaluate(tr, solution, traj, compile_time, {"solver": backend.name, **opts.as_dict(), "layout": dataclasses.asdict(tr.options)}, nlp.nnz_jac, nlp.violation_by_group(solution.x, theta), theta)
     if not keep_trajectory:
         result.trajectory = None
     if say is not None:
@@ -166,13 +171,13 @@ def _solver_options(
     return backend.options(merged)
 
 
-def evaluate(tr: Transcription, outcome: solvers.Solution, traj, compile_time: float, options: dict[str, Any], nnz_jacobian: int = 0, violation_by_group: dict[str, float] | None = None) -> Result:
+def evaluate(tr: Transcription, outcome: solvers.Solution, traj, compile_time: float, options: dict[str, Any], nnz_jacobian: int = 0, violation_by_group: dict[str, float] | None = None, theta: TaskParams | None = None) -> Result:
     """Task-success check (`jtraj.success`): converged, feasible to `FEASIBILITY_TOL`, and the
     base motion does the task (a flip with the expected sign, count and axis; no unplanned
     somersault otherwise). The final position error is reported but not tested: the variable
     bounds fix the final pose, so it cannot fail."""
     task = tr.task
-    target = tr.target_xyz_wxyz[:3]
+    target = tr.target_xyz_wxyz[:3] if theta is None else tr.target_xyz_wxyz_of(theta)[:3]
     final_error = float(np.linalg.norm(traj.base_xyz_wxyz[-1, :3] - target))
     feasible = outcome.converged and outcome.constraint_violation < FEASIBILITY_TOL
     check = check_motion(traj.base_xyz_wxyz, task.flip_axis, task.flip_turns)

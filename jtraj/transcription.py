@@ -9,9 +9,10 @@ use, and Ipopt removes fixed variables):
     f  (3 P)             world-frame forces at the task's P contact points (0 when not touching)
     c  (3 P)             contact positions (0 when not touching)
 
-Constraint groups, each written for ONE knot and vmapped (rows of inactive contacts dropped):
+Constraint groups, each written for ONE knot and vmapped (rows of inactive contacts dropped),
+each made by one stage builder (`dynamics_stage`, ...; `CONSTRAINT_STAGES` in row order):
 
-    dynamics      tau(q, v, a, f): base rows = 0, joint rows within the effort limits
+    dynamics      tau(q, v, a, f; masses): base rows = 0, joint rows within the effort limits
     integration   v' = v + a h;  param.difference(param.integrate(q_b, V_b', h), q_b') = 0;
                   q_j' = q_j + qd_j' h                    (semi-implicit Euler, Table I)
     contact       FK_j(q) = c_j for touching points; c_z is the terrain height (a bound)
@@ -21,16 +22,32 @@ Constraint groups, each written for ONE knot and vmapped (rows of inactive conta
     force_rate    |f_j' - f_j| <= max_delta_force per component (tasks that set it)
     chart         the parameterization's own constraint (e.g. unit quaternion norm), if any
 
-Costs: 1/2 w_q |q_j - q_j,standing|^2 and 1/2 w_a |a_j|^2 per knot. Boundary conditions are
-bounds: knot 0 at the standing pose at rest, the last knot at the target pose at rest, a = 0.
+Costs (`cost_terms`): 1/2 w_q |q_j - q_j,standing|^2 and 1/2 w_a |a_j|^2 per knot. Boundary
+conditions are bounds: knot 0 at the standing pose at rest, the last knot at the target pose
+at rest, a = 0.
 
-Nothing here imports cyipopt; `build_nlp` returns a `jtraj.nlp.KnotNLP`.
+Parameters. Every number of the task a user may vary or differentiate is a field of
+`TaskParams`, the ``theta`` of the NLP's functions (`jtraj.nlp`): the target, the timestep
+(the knot count stays the task's), friction, force bounds, cost weights, the body masses
+(they enter inverse dynamics and its analytical Jacobians, see `jtraj.dynamics`) and the
+standing pose. `Transcription.default_theta` gives the task's values; changing theta never
+recompiles.
+
+Knot structure (layouts with accelerations, "compact" and "paper"): the state of knot k is
+``x_k = (q_k, v_k)``, the controls ``u_k = (a_k, f_k)`` (and ``c_k`` in the paper layout), and
+the integration rows encode the explicit step ``x_{k+1} = F(x_k, u_k, theta)``:
+``v' = v + a h``, ``q_b' = param.integrate(q_b, v'_b, h)``, ``q_j' = q_j + v'_j h``
+(`Transcription.step`, `KnotNLP.structure`).
+
+Nothing here imports cyipopt; `Transcription.build_nlp` returns a `jtraj.nlp.KnotNLP`.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable, Mapping
 from functools import cached_property
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -38,11 +55,28 @@ import numpy as np
 from jaxlie import SE3, SO3
 
 from jtraj import dynamics, lie
-from jtraj.nlp import ConstraintGroup, CostGroup, Dep, KnotNLP, Layout
+from jtraj.nlp import ConstraintGroup, CostGroup, Dep, KnotNLP, KnotStructure, Layout
 from jtraj.parameterization import AbstractParameterization
 from jtraj.task import Task
 
-__all__ = ["Transcription", "TranscriptionOptions", "PAPER_LAYOUT", "COMPACT_LAYOUT", "LEAN_LAYOUT", "Trajectory"]
+__all__ = [
+    "Transcription",
+    "TranscriptionOptions",
+    "TaskParams",
+    "PAPER_LAYOUT",
+    "COMPACT_LAYOUT",
+    "LEAN_LAYOUT",
+    "Trajectory",
+    "CONSTRAINT_STAGES",
+    "dynamics_stage",
+    "integration_stage",
+    "contact_stage",
+    "clearance_stage",
+    "friction_stage",
+    "force_rate_stage",
+    "chart_stage",
+    "cost_terms",
+]
 
 GRAVITY = 9.81
 
@@ -72,6 +106,59 @@ PAPER_LAYOUT = TranscriptionOptions()
 COMPACT_LAYOUT = TranscriptionOptions(contact_variables=False, acceleration_variables=True)
 #: Contact positions and accelerations substituted: (q, v, f) at every knot.
 LEAN_LAYOUT = TranscriptionOptions(contact_variables=False, acceleration_variables=False)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class TaskParams:
+    """The parameters theta of a whole-body task: a pytree of float64 arrays.
+
+    Attributes (units SI, frames as in `jtraj.task.Task`):
+        target_translation: (3,) base displacement from the standing pose, world frame (m).
+        target_rotation_rpy: (3,) base rotation from the standing pose (rad): roll, pitch,
+            yaw, composed about world axes as Rz Ry Rx.
+        timestep: () h (s); the knot count stays the task's.
+        friction: () coefficient mu of the friction pyramid.
+        force_limit_factor: () |f_i| <= factor * (sum of body_masses) * g per component.
+        max_delta_force: () N per knot and component; inf (and no rows) for a task without.
+        configuration_weight, acceleration_weight: () cost weights.
+        body_masses: (nbody,) kg, one per MuJoCo body, world first (`dynamics.model_masses`).
+        base_xyz_wxyz_standing: (7,) standing base pose (before it is lowered so the first
+            phase's contact points touch the terrain).
+        q_joints_standing: (nj,) standing joint positions (rad), also the configuration
+            cost's reference and the target joints of tasks that set none.
+
+    Build one with `Transcription.default_theta` and change it with `replace` (which checks
+    names and shapes): passing values of another shape or dtype would compile again.
+    """
+
+    target_translation: jax.Array
+    target_rotation_rpy: jax.Array
+    timestep: jax.Array
+    friction: jax.Array
+    force_limit_factor: jax.Array
+    max_delta_force: jax.Array
+    configuration_weight: jax.Array
+    acceleration_weight: jax.Array
+    body_masses: jax.Array
+    base_xyz_wxyz_standing: jax.Array
+    q_joints_standing: jax.Array
+
+    def replace(self, **overrides: Any) -> "TaskParams":
+        """A copy with some fields replaced, as float64 arrays of the same shapes."""
+        names = [f.name for f in dataclasses.fields(self)]
+        values = {}
+        for name, value in overrides.items():
+            if name not in names:
+                raise ValueError(f"unknown task parameter {name!r}; expected one of {names}")
+            old = getattr(self, name)
+            new = jnp.asarray(value, dtype=jnp.float64)
+            if new.shape != old.shape:
+                raise ValueError(f"task parameter {name!r} must have shape {old.shape}, got {new.shape}")
+            values[name] = new
+        return dataclasses.replace(self, **values)
+
+
+jax.tree_util.register_dataclass(TaskParams, data_fields=[f.name for f in dataclasses.fields(TaskParams)], meta_fields=[])
 
 
 @dataclasses.dataclass
@@ -117,54 +204,111 @@ class Transcription:
         self.layout = Layout(tuple(slots))
         self.contact_names = tuple(robot.contact_names[i] for i in self.points)
 
+    # -------------------------------------------------------------------- parameters
+    def default_theta(self) -> TaskParams:
+        """The task's and the robot's values of the parameters, as float64 arrays."""
+        task, robot = self.task, self.robot
+
+        def arr(x):
+            return jnp.asarray(np.asarray(x, float))
+
+        return TaskParams(
+            target_translation=arr(task.target_translation),
+            target_rotation_rpy=arr(task.target_rotation_rpy),
+            timestep=arr(task.timestep),
+            friction=arr(task.friction),
+            force_limit_factor=arr(task.force_limit_factor),
+            max_delta_force=arr(np.inf if task.max_delta_force is None else task.max_delta_force),
+            configuration_weight=arr(task.configuration_weight),
+            acceleration_weight=arr(task.acceleration_weight),
+            body_masses=arr(dynamics.model_masses(robot)),
+            base_xyz_wxyz_standing=arr(robot.base_xyz_wxyz_standing),
+            q_joints_standing=arr(robot.q_joints_standing),
+        )
+
+    def resolve_theta(self, theta: TaskParams | Mapping[str, Any] | None = None) -> TaskParams:
+        """``theta`` as `TaskParams`: None is `default_theta`, a mapping overrides some of its
+        fields (``{"friction": 0.5}``), a `TaskParams` is checked against the default's shapes."""
+        default = self.default_theta()
+        if theta is None:
+            return default
+        if isinstance(theta, TaskParams):
+            return default.replace(**{f.name: getattr(theta, f.name) for f in dataclasses.fields(theta)})
+        if isinstance(theta, Mapping):
+            if "max_delta_force" in theta and self.task.max_delta_force is None:
+                raise ValueError(f"task {self.task.name!r} sets no max_delta_force, so it has no force-rate rows to bound; set it in the task")
+            return default.replace(**theta)
+        raise TypeError(f"theta must be None, a mapping of parameter overrides or a TaskParams, got {type(theta).__name__}")
+
     # -------------------------------------------------------------------- host-side helpers
     # Poses on the host are numpy xyz_wxyz arrays and every JAX computation here is jitted
     # and batched over knots: evaluated op by op, each primitive would compile on its own
     # (measured: 235 compilations, half a minute, for the warm start of big_jump).
     @cached_property
     def _host(self):
-        param = self.param
-
-        def coords(xyz_wxyz, qj):
-            """Configuration q of base poses (K, 7) and joint positions (K, nj)."""
-            T = SE3.from_rotation_and_translation(SO3(xyz_wxyz[..., 3:]), xyz_wxyz[..., :3])
-            return jnp.concatenate([jax.vmap(param.from_pose)(T), qj], axis=-1)
-
         def rotate(axis_angle, wxyz):
             """Rotations Exp(axis_angle) R about world axes, batched."""
             return jax.vmap(lambda w, R: (lie.exp(SO3, w) @ SO3(R)).wxyz)(axis_angle, wxyz)
 
-        return dict(coords=jax.jit(coords), rotate=jax.jit(rotate), fk=jax.jit(jax.vmap(self._fk)))
+        return dict(
+            coords=jax.jit(self._coords),
+            rotate=jax.jit(rotate),
+            fk=jax.jit(jax.vmap(self._fk)),
+            initial=jax.jit(self._initial_xyz_wxyz),
+            target=jax.jit(self._target_xyz_wxyz),
+        )
+
+    def _coords(self, xyz_wxyz: jax.Array, qj: jax.Array) -> jax.Array:
+        """Configuration q of base poses (K, 7) and joint positions (K, nj)."""
+        T = SE3.from_rotation_and_translation(SO3(xyz_wxyz[..., 3:]), xyz_wxyz[..., :3])
+        return jnp.concatenate([jax.vmap(self.param.from_pose)(T), qj], axis=-1)
+
+    def _initial_xyz_wxyz(self, theta: TaskParams) -> jax.Array:
+        """(7,) standing base pose of theta, shifted vertically so that the first phase's
+        contact points touch the terrain (on average)."""
+        xyz_wxyz = theta.base_xyz_wxyz_standing
+        q = self._coords(xyz_wxyz[None], theta.q_joints_standing[None])[0]
+        p_z = self._fk(q)[:, 2]
+        touching = np.flatnonzero(self.schedule.in_contact[0])
+        return xyz_wxyz.at[2].add(-(jnp.mean(p_z[touching]) - self.task.terrain_height))
+
+    def _target_xyz_wxyz(self, theta: TaskParams) -> jax.Array:
+        """(7,) target base pose: theta's displacement and rotation applied to the initial pose."""
+        T0 = self._initial_xyz_wxyz(theta)
+        R = SO3(T0[3:])
+        for axis in range(3):  # Rz(yaw) Ry(pitch) Rx(roll), composed about world axes
+            R = lie.exp(SO3, jnp.zeros(3).at[axis].set(theta.target_rotation_rpy[axis])) @ R
+        return jnp.concatenate([T0[:3] + theta.target_translation, R.wxyz])
+
+    def _q_joints_target(self, theta: TaskParams) -> jax.Array:
+        if self.task.target_joints is not None:
+            return jnp.asarray(self.task.target_joints, float)
+        return theta.q_joints_standing
 
     @cached_property
     def initial_xyz_wxyz(self) -> np.ndarray:
         """Standing base pose, lowered/raised so the first phase's contact points touch the terrain."""
         robot = self.robot
-        xyz_wxyz = np.array(robot.base_xyz_wxyz_standing, float)
-        q = self._host["coords"](xyz_wxyz[None], np.asarray(robot.q_joints_standing)[None])
+        q = self._host["coords"](np.asarray(robot.base_xyz_wxyz_standing, float)[None], np.asarray(robot.q_joints_standing)[None])
         p = np.asarray(self._host["fk"](q))[0]
-        touching = self.schedule.in_contact[0]
-        spread = float(np.ptp(p[touching, 2]))
+        spread = float(np.ptp(p[self.schedule.in_contact[0], 2]))
         if spread > 5e-3:
             raise ValueError(
                 f"the standing pose of {robot.name!r} does not put the contact points of phase 0 on flat "
                 f"ground (heights differ by {spread * 1000:.1f} mm)"
             )
-        xyz_wxyz[2] -= float(np.mean(p[touching, 2])) - self.task.terrain_height
-        return xyz_wxyz
+        return np.asarray(self._host["initial"](self.default_theta()))
 
     @cached_property
     def target_xyz_wxyz(self) -> np.ndarray:
         """Target base pose: the task's displacement and rotation applied to the initial pose."""
-        T0 = self.initial_xyz_wxyz
-        rpy = np.asarray(self.task.target_rotation_rpy, float)
-        # rotate by Rz(yaw) Ry(pitch) Rx(roll), composed about world axes
-        wxyz = T0[3:][None]
-        for axis, angle in ((0, rpy[0]), (1, rpy[1]), (2, rpy[2])):
-            aa = np.zeros((1, 3))
-            aa[0, axis] = angle
-            wxyz = self._host["rotate"](aa, wxyz)
-        return np.concatenate([T0[:3] + np.asarray(self.task.target_translation), np.asarray(wxyz)[0]])
+        return self.target_xyz_wxyz_of(None)
+
+    def target_xyz_wxyz_of(self, theta: TaskParams | None) -> np.ndarray:
+        """Target base pose (7,) for parameters ``theta`` (None: the task's)."""
+        if theta is None:
+            self.initial_xyz_wxyz  # checks the standing pose
+        return np.asarray(self._host["target"](self.resolve_theta(theta)))
 
     @property
     def initial_pose(self) -> SE3:
@@ -178,9 +322,7 @@ class Transcription:
 
     @cached_property
     def q_joints_target(self) -> np.ndarray:
-        if self.task.target_joints is not None:
-            return np.asarray(self.task.target_joints, float)
-        return np.asarray(self.robot.q_joints_standing, float)
+        return np.asarray(self._q_joints_target(self.default_theta()))
 
     # -------------------------------------------------------------------- functions of one knot
     # Jitted so that the groups which call them (and vmap / jacfwd of those) reuse one traced
@@ -191,202 +333,56 @@ class Transcription:
 
     @cached_property
     def _tau(self):
-        return jax.jit(lambda q, v, a, f: dynamics.inverse_dynamics(self.robot, self.param, q, v, a, self._forces_all(f)))
+        """``tau(q, v, a, f, masses)`` (nv,) for the task's contact forces f (3 P,)."""
+        return jax.jit(lambda q, v, a, f, masses: dynamics.inverse_dynamics(self.robot, self.param, q, v, a, self._forces_all(f), masses))
 
     @cached_property
     def _fk(self):
         return jax.jit(lambda q: dynamics.contact_positions(self.robot, self.param, q)[self.points])
 
+    def step(self, x: jax.Array, u: jax.Array, theta: TaskParams) -> jax.Array:
+        """The semi-implicit Euler step ``x_{k+1} = F(x_k, u_k, theta)`` of one knot.
+
+        Args:
+            x: (nq + nv,) state (q_k, v_k).
+            u: (nv + 3 P [+ 3 P],) controls (a_k, f_k[, c_k]); only a_k enters.
+            theta: the parameters (the timestep h).
+        Returns:
+            (nq + nv,) state ``(q_{k+1}, v_{k+1})`` with ``v' = v + a h``,
+            ``q_b' = param.integrate(q_b, v'_b, h)`` and ``q_j' = q_j + v'_j h``.
+        """
+        if not self.options.acceleration_variables:
+            raise ValueError("the step x' = F(x, u) needs the accelerations as controls; this layout substitutes them")
+        nq, nv, nqb, h = self.nq, self.nv, self.param.nq, theta.timestep
+        q, v, a = x[:nq], x[nq:], u[:nv]
+        v1 = v + a * h
+        q1 = jnp.concatenate([self.param.integrate(q[:nqb], v1[:6], h), q[nqb:] + v1[6:] * h])
+        return jnp.concatenate([q1, v1])
+
+    @property
+    def structure(self) -> KnotStructure | None:
+        """State (q, v), controls and `step` of a knot; None for the layout without accelerations."""
+        if not self.options.acceleration_variables:
+            return None
+        control = tuple(name for name, _ in self.layout.slots if name not in ("q", "v"))
+        return KnotStructure(self.layout, ("q", "v"), control, self.step)
+
     # -------------------------------------------------------------------- the NLP
-    def build_nlp(self) -> KnotNLP:
-        robot, task, param = self.robot, self.task, self.param
-        n_knots, N, P, nj, nv = self.N + 1, self.N, self.P, self.nj, self.nv
-        nqb = param.nq
-        h = self.h
-        contact = self.schedule.in_contact  # (K, P)
-        knots = np.arange(n_knots)
-        pairs = np.arange(N)
-        groups: list[ConstraintGroup] = []
-
-        # dynamics ------------------------------------------------------------
-        effort = np.asarray(robot.tau_max, float)
-        lo = np.concatenate([np.zeros(6), -effort])
-        hi = np.concatenate([np.zeros(6), effort])
-
-        points = self.points
-        ncp = len(robot.contact_names)
-        acc_vars = self.options.acceleration_variables
-
-        def derivatives(Q, V, A, Fv):
-            # analytical RNEA derivatives; d tau / d a = M and d tau / d f = -J^T need no autodiff
-            K = Q.shape[0]
-            F = jnp.zeros((K, ncp, 3), Q.dtype).at[:, points].set(Fv.reshape(K, P, 3))
-            d = dynamics.inverse_dynamics_jacobians(robot, param, Q, V, A, F)
-            df = d.df.reshape(K, nv, ncp, 3)[:, :, points, :].reshape(K, nv, 3 * P)
-            return d, df
-
-        if acc_vars:
-
-            def dyn(data, q, v, a, f):
-                return self._tau(q, v, a, f)
-
-            def dyn_jac(data, Q, V, A, Fv):
-                d, df = derivatives(Q, V, A, Fv)
-                return jnp.concatenate([d.dq, d.dv, d.da, df], axis=-1)
-
-            groups.append(
-                ConstraintGroup(
-                    "dynamics", (Dep("q"), Dep("v"), Dep("a"), Dep("f")), dyn, knots,
-                    np.tile(lo, (n_knots, 1)), np.tile(hi, (n_knots, 1)), np.ones((n_knots, nv), bool),
-                    batched_jacobian=dyn_jac,
-                )
-            )
-        else:
-            # a_k = (v_{k+1} - v_k) / h at k < N; a_N = 0 (the final knot is at rest)
-            def dyn_pair(data, q, v, f, v1):
-                return self._tau(q, v, (v1 - v) / h, f)
-
-            def dyn_pair_jac(data, Q, V, Fv, V1):
-                d, df = derivatives(Q, V, (V1 - V) / h, Fv)
-                return jnp.concatenate([d.dq, d.dv - d.da / h, df, d.da / h], axis=-1)
-
-            def dyn_last(data, q, v, f):
-                return self._tau(q, v, jnp.zeros_like(v), f)
-
-            def dyn_last_jac(data, Q, V, Fv):
-                d, df = derivatives(Q, V, jnp.zeros_like(V), Fv)
-                return jnp.concatenate([d.dq, d.dv, df], axis=-1)
-
-            groups.append(
-                ConstraintGroup(
-                    "dynamics", (Dep("q"), Dep("v"), Dep("f"), Dep("v", 1)), dyn_pair, pairs,
-                    np.tile(lo, (N, 1)), np.tile(hi, (N, 1)), np.ones((N, nv), bool),
-                    batched_jacobian=dyn_pair_jac,
-                )
-            )
-            groups.append(
-                ConstraintGroup(
-                    "dynamics", (Dep("q"), Dep("v"), Dep("f")), dyn_last, np.array([N]),
-                    lo[None], hi[None], np.ones((1, nv), bool), batched_jacobian=dyn_last_jac,
-                )
-            )
-
-        # integration -----------------------------------------------------------
-        def position_step(hk, q, q1, v1):
-            r_base = param.difference(param.integrate(q[:nqb], v1[:6], hk), q1[:nqb])
-            r_j = q1[nqb:] - q[nqb:] - v1[6:] * hk
-            return jnp.concatenate([r_base, r_j])
-
-        if acc_vars:
-
-            def integ(hk, q, v, a, q1, v1):
-                return jnp.concatenate([v1 - v - a * hk, position_step(hk, q, q1, v1)])
-
-            deps = (Dep("q"), Dep("v"), Dep("a"), Dep("q", 1), Dep("v", 1))
-            n_int = nv + param.ndiff + nj
-        else:
-
-            def integ(hk, q, q1, v1):
-                return position_step(hk, q, q1, v1)
-
-            deps = (Dep("q"), Dep("q", 1), Dep("v", 1))
-            n_int = param.ndiff + nj
-        groups.append(
-            ConstraintGroup(
-                "integration", deps, integ, pairs,
-                np.zeros((N, n_int)), np.zeros((N, n_int)), np.ones((N, n_int), bool),
-                data=jnp.full((N,), h),
-            )
+    def build_nlp(self, stages: tuple[Callable[[Transcription], list[ConstraintGroup]], ...] | None = None) -> KnotNLP:
+        """The NLP of the task: the groups of ``stages`` (default `CONSTRAINT_STAGES`, in
+        that row order), `cost_terms`, the variable `bounds`, parameters `default_theta`."""
+        self.initial_xyz_wxyz  # checks that the standing pose stands on the terrain
+        groups = [g for stage in (CONSTRAINT_STAGES if stages is None else stages) for g in stage(self)]
+        return KnotNLP(
+            self.layout, self.N + 1, cost_terms(self), groups,
+            lambda theta: self.bounds(theta)[0], lambda theta: self.bounds(theta)[1],
+            theta=self.default_theta(), structure=self.structure,
         )
 
-        if P:
-            both = contact[:-1] & contact[1:]
-            if self.options.contact_variables:
-                # contact kinematics FK = c; c_z is the terrain height (a bound) ----------
-                groups.append(
-                    ConstraintGroup(
-                        "contact", (Dep("q"), Dep("c")), lambda data, q, c: (self._fk(q) - c.reshape(P, 3)).reshape(-1), knots,
-                        np.zeros((n_knots, 3 * P)), np.zeros((n_knots, 3 * P)), np.repeat(contact, 3, axis=1),
-                    )
-                )
-                # stationarity: x, y of a touching point stay put ---------------------
-                groups.append(
-                    ConstraintGroup(
-                        "stationary", (Dep("c"), Dep("c", 1)),
-                        lambda data, c, c1: (c1.reshape(P, 3)[:, :2] - c.reshape(P, 3)[:, :2]).reshape(-1), pairs,
-                        np.zeros((N, 2 * P)), np.zeros((N, 2 * P)), np.repeat(both, 2, axis=1),
-                    )
-                )
-            else:
-                groups.append(
-                    ConstraintGroup(
-                        "contact", (Dep("q"),), lambda data, q: self._fk(q)[:, 2], knots,
-                        np.full((n_knots, P), task.terrain_height), np.full((n_knots, P), task.terrain_height), contact,
-                    )
-                )
-                groups.append(
-                    ConstraintGroup(
-                        "stationary", (Dep("q"), Dep("q", 1)),
-                        lambda data, q, q1: (self._fk(q1)[:, :2] - self._fk(q)[:, :2]).reshape(-1), pairs,
-                        np.zeros((N, 2 * P)), np.zeros((N, 2 * P)), np.repeat(both, 2, axis=1),
-                    )
-                )
-            # swing points above the terrain ----------------------------------------
-            groups.append(
-                ConstraintGroup(
-                    "clearance", (Dep("q"),), lambda data, q: self._fk(q)[:, 2], knots,
-                    np.full((n_knots, P), task.terrain_height), np.full((n_knots, P), np.inf), ~contact,
-                )
-            )
-            # friction pyramid -------------------------------------------------------
-            mu = task.friction
-
-            def friction(data, f):
-                f = f.reshape(P, 3)
-                fx, fy, fz = f[:, 0], f[:, 1], f[:, 2]
-                return jnp.stack([mu * fz - fx, mu * fz + fx, mu * fz - fy, mu * fz + fy], axis=1).reshape(-1)
-
-            groups.append(
-                ConstraintGroup(
-                    "friction", (Dep("f"),), friction, knots,
-                    np.zeros((n_knots, 4 * P)), np.full((n_knots, 4 * P), np.inf), np.repeat(contact, 4, axis=1),
-                )
-            )
-            if task.max_delta_force is not None:
-                d = float(task.max_delta_force)
-                groups.append(
-                    ConstraintGroup(
-                        "force_rate", (Dep("f"), Dep("f", 1)), lambda data, f, f1: f1 - f, pairs,
-                        np.full((N, 3 * P), -d), np.full((N, 3 * P), d), np.repeat(both, 3, axis=1),
-                    )
-                )
-        if param.ncon:
-            groups.append(
-                ConstraintGroup(
-                    "chart", (Dep("q"),), lambda data, q: param.constraint(q[:nqb]), knots,
-                    np.zeros((n_knots, param.ncon)), np.zeros((n_knots, param.ncon)), np.ones((n_knots, param.ncon), bool),
-                )
-            )
-
-        # costs ---------------------------------------------------------------------
-        costs = []
-        q_ref = jnp.asarray(robot.q_joints_standing, float)
-        if task.configuration_weight > 0:
-            w = task.configuration_weight
-            costs.append(CostGroup("configuration", (Dep("q"),), lambda data, q: 0.5 * w * jnp.sum((q[nqb:] - q_ref) ** 2), knots))
-        if task.acceleration_weight > 0:
-            w = task.acceleration_weight
-            if acc_vars:
-                costs.append(CostGroup("acceleration", (Dep("a"),), lambda data, a: 0.5 * w * jnp.sum(a[6:] ** 2), knots))
-            else:  # a_N = 0 adds nothing
-                costs.append(CostGroup("acceleration", (Dep("v"), Dep("v", 1)), lambda data, v, v1: 0.5 * w * jnp.sum(((v1 - v)[6:] / h) ** 2), pairs))
-
-        lower, upper = self.bounds()
-        return KnotNLP(self.layout, n_knots, costs, groups, lower, upper)
-
-    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """Variable bounds (n_knots, nz): limits, contacts, boundary conditions."""
-        robot, task, param, L = self.robot, self.task, self.param, self.layout
+    def bounds(self, theta: TaskParams | None = None) -> tuple[jax.Array, jax.Array]:
+        """Variable bounds (n_knots, nz): limits, contacts, boundary conditions (jit-able in theta)."""
+        theta = self.default_theta() if theta is None else theta
+        robot, param, L = self.robot, self.param, self.layout
         n_knots, P, nqb = self.N + 1, self.P, param.nq
         lower = np.full((n_knots, L.nz), -np.inf)
         upper = np.full((n_knots, L.nz), np.inf)
@@ -396,30 +392,30 @@ class Transcription:
         upper[:, sq.start + nqb : sq.stop] = robot.q_upper
         lower[:, sv.start + 6 : sv.stop] = -np.asarray(robot.v_max)
         upper[:, sv.start + 6 : sv.stop] = np.asarray(robot.v_max)
-        # forces: touching points f_z in [0, F], |f_x|, |f_y| <= F; others 0
-        F = task.force_limit_factor * robot.total_mass * GRAVITY
         contact = self.schedule.in_contact
-        fl = np.where(contact[:, :, None], np.array([-F, -F, 0.0]), 0.0).reshape(n_knots, 3 * P)
-        fu = np.where(contact[:, :, None], np.array([F, F, F]), 0.0).reshape(n_knots, 3 * P)
-        lower[:, sf], upper[:, sf] = fl, fu
         if self.options.contact_variables:
             # contact positions: touching points on the terrain (z fixed), others unused (0)
-            cz = task.terrain_height
+            cz = self.task.terrain_height
             sc = L.slice("c")
             lower[:, sc] = np.where(contact[:, :, None], np.array([-np.inf, -np.inf, cz]), 0.0).reshape(n_knots, 3 * P)
             upper[:, sc] = np.where(contact[:, :, None], np.array([np.inf, np.inf, cz]), 0.0).reshape(n_knots, 3 * P)
-        # boundary conditions
-        q0, qN = np.asarray(
-            self._host["coords"](
-                np.stack([self.initial_xyz_wxyz, self.target_xyz_wxyz]),
-                np.stack([robot.q_joints_standing, self.q_joints_target]),
-            )
-        )
-        for k, q in ((0, q0), (n_knots - 1, qN)):
-            lower[k, sq] = upper[k, sq] = q
-            lower[k, sv] = upper[k, sv] = 0.0
         if self.options.acceleration_variables:
             lower[-1, L.slice("a")] = upper[-1, L.slice("a")] = 0.0
+        lower[[0, -1], sv] = upper[[0, -1], sv] = 0.0
+        lower, upper = jnp.asarray(lower), jnp.asarray(upper)
+        # forces: touching points f_z in [0, F], |f_x|, |f_y| <= F; others 0
+        F = theta.force_limit_factor * jnp.sum(theta.body_masses) * GRAVITY
+        touching = np.repeat(contact, 3, axis=1)
+        lateral = touching & np.tile([True, True, False], P)[None]
+        lower = lower.at[:, sf].set(jnp.where(lateral, -F, 0.0))
+        upper = upper.at[:, sf].set(jnp.where(touching, F, 0.0))
+        # boundary conditions: at rest (above) at the standing and the target pose
+        q0, qN = self._coords(
+            jnp.stack([self._initial_xyz_wxyz(theta), self._target_xyz_wxyz(theta)]),
+            jnp.stack([theta.q_joints_standing, self._q_joints_target(theta)]),
+        )
+        lower = lower.at[0, sq].set(q0).at[-1, sq].set(qN)
+        upper = upper.at[0, sq].set(q0).at[-1, sq].set(qN)
         return lower, upper
 
     # -------------------------------------------------------------------- warm start
@@ -463,15 +459,19 @@ class Transcription:
     @cached_property
     def _decode_arrays(self):
         @jax.jit
-        def arrays(q, v, a, f):
-            tau = jax.vmap(self._tau)(q, v, a, f)
+        def arrays(q, v, a, f, masses):
+            tau = jax.vmap(self._tau, in_axes=(0, 0, 0, 0, None))(q, v, a, f, masses)
             fk = jax.vmap(self._fk)(q)
             qpos = jax.vmap(self.param.to_qpos)(q[:, : self.param.nq])
             return tau, fk, qpos
 
         return arrays
 
-    def decode(self, x: np.ndarray) -> Trajectory:
+    def decode(self, x: np.ndarray, theta: TaskParams | None = None) -> Trajectory:
+        """The trajectory of the solution ``x`` (n,) of the NLP at parameters ``theta``
+        (default the task's)."""
+        theta = self.default_theta() if theta is None else theta
+        h = float(theta.timestep)
         L, param = self.layout, self.param
         Z = jnp.asarray(np.asarray(x).reshape(self.N + 1, L.nz))
         s = L.split(Z)
@@ -479,10 +479,10 @@ class Transcription:
         if self.options.acceleration_variables:
             a = s["a"]
         else:
-            a = jnp.concatenate([(v[1:] - v[:-1]) / self.h, jnp.zeros_like(v[:1])])
-        tau, fk, qpos = self._decode_arrays(q, v, a, f)
+            a = jnp.concatenate([(v[1:] - v[:-1]) / h, jnp.zeros_like(v[:1])])
+        tau, fk, qpos = self._decode_arrays(q, v, a, f, theta.body_masses)
         return Trajectory(
-            t=np.arange(self.N + 1) * self.h,
+            t=np.arange(self.N + 1) * h,
             base_xyz_wxyz=np.asarray(qpos),
             q_base=np.asarray(q[:, : param.nq]),
             q_joints=np.asarray(q[:, param.nq :]),
@@ -494,3 +494,222 @@ class Transcription:
             in_contact=self.schedule.in_contact.copy(),
             contact_names=self.contact_names,
         )
+
+
+# ------------------------------------------------------------------------ stage builders
+# Each builder returns the constraint groups of one stage of ``tr``'s NLP, written for one
+# knot; a group's function takes ``(theta, data, *deps)`` (`jtraj.nlp.ConstraintGroup`).
+
+
+def _all_forces(tr: Transcription, Fv: jax.Array) -> jax.Array:
+    """(K, 3 P) task forces -> (K, ncontact, 3) forces at all the robot's contact points."""
+    K = Fv.shape[0]
+    return jnp.zeros((K, len(tr.robot.contact_names), 3), Fv.dtype).at[:, tr.points].set(Fv.reshape(K, tr.P, 3))
+
+
+def _dynamics_derivatives(tr: Transcription, theta: TaskParams, Q, V, A, Fv):
+    """Analytical RNEA Jacobians at K knots; d tau / d a = M and d tau / d f = -J^T need no
+    autodiff. Returns them and d tau / d f restricted to the task's points (K, nv, 3 P)."""
+    nv, P = tr.nv, tr.P
+    d = dynamics.inverse_dynamics_jacobians(tr.robot, tr.param, Q, V, A, _all_forces(tr, Fv), theta.body_masses)
+    df = d.df.reshape(Q.shape[0], nv, -1, 3)[:, :, tr.points, :].reshape(Q.shape[0], nv, 3 * P)
+    return d, df
+
+
+def dynamics_stage(tr: Transcription) -> list[ConstraintGroup]:
+    """Inverse dynamics: base rows 0 (no actuation), joint rows within the effort limits."""
+    n_knots, N, nv = tr.N + 1, tr.N, tr.nv
+    effort = np.asarray(tr.robot.tau_max, float)
+    lo = np.concatenate([np.zeros(6), -effort])
+    hi = np.concatenate([np.zeros(6), effort])
+    tau = tr._tau
+
+    if tr.options.acceleration_variables:
+
+        def dyn(theta, data, q, v, a, f):
+            return tau(q, v, a, f, theta.body_masses)
+
+        def dyn_jac(theta, data, Q, V, A, Fv):
+            d, df = _dynamics_derivatives(tr, theta, Q, V, A, Fv)
+            return jnp.concatenate([d.dq, d.dv, d.da, df], axis=-1)
+
+        return [
+            ConstraintGroup(
+                "dynamics", (Dep("q"), Dep("v"), Dep("a"), Dep("f")), dyn, np.arange(n_knots),
+                np.tile(lo, (n_knots, 1)), np.tile(hi, (n_knots, 1)), np.ones((n_knots, nv), bool),
+                batched_jacobian=dyn_jac,
+            )
+        ]
+
+    # a_k = (v_{k+1} - v_k) / h at k < N; a_N = 0 (the final knot is at rest)
+    def dyn_pair(theta, data, q, v, f, v1):
+        return tau(q, v, (v1 - v) / theta.timestep, f, theta.body_masses)
+
+    def dyn_pair_jac(theta, data, Q, V, Fv, V1):
+        h = theta.timestep
+        d, df = _dynamics_derivatives(tr, theta, Q, V, (V1 - V) / h, Fv)
+        return jnp.concatenate([d.dq, d.dv - d.da / h, df, d.da / h], axis=-1)
+
+    def dyn_last(theta, data, q, v, f):
+        return tau(q, v, jnp.zeros_like(v), f, theta.body_masses)
+
+    def dyn_last_jac(theta, data, Q, V, Fv):
+        d, df = _dynamics_derivatives(tr, theta, Q, V, jnp.zeros_like(V), Fv)
+        return jnp.concatenate([d.dq, d.dv, df], axis=-1)
+
+    return [
+        ConstraintGroup(
+            "dynamics", (Dep("q"), Dep("v"), Dep("f"), Dep("v", 1)), dyn_pair, np.arange(N),
+            np.tile(lo, (N, 1)), np.tile(hi, (N, 1)), np.ones((N, nv), bool),
+            batched_jacobian=dyn_pair_jac,
+        ),
+        ConstraintGroup(
+            "dynamics", (Dep("q"), Dep("v"), Dep("f")), dyn_last, np.array([N]),
+            lo[None], hi[None], np.ones((1, nv), bool), batched_jacobian=dyn_last_jac,
+        ),
+    ]
+
+
+def integration_stage(tr: Transcription) -> list[ConstraintGroup]:
+    """Semi-implicit Euler between knots k and k+1 (see `Transcription.step`)."""
+    param, N, nqb, nj, nv = tr.param, tr.N, tr.param.nq, tr.nj, tr.nv
+
+    def position_step(h, q, q1, v1):
+        r_base = param.difference(param.integrate(q[:nqb], v1[:6], h), q1[:nqb])
+        r_j = q1[nqb:] - q[nqb:] - v1[6:] * h
+        return jnp.concatenate([r_base, r_j])
+
+    if tr.options.acceleration_variables:
+
+        def integ(theta, data, q, v, a, q1, v1):
+            h = theta.timestep
+            return jnp.concatenate([v1 - v - a * h, position_step(h, q, q1, v1)])
+
+        deps = (Dep("q"), Dep("v"), Dep("a"), Dep("q", 1), Dep("v", 1))
+        n_rows = nv + param.ndiff + nj
+    else:
+
+        def integ(theta, data, q, q1, v1):
+            return position_step(theta.timestep, q, q1, v1)
+
+        deps = (Dep("q"), Dep("q", 1), Dep("v", 1))
+        n_rows = param.ndiff + nj
+    zeros = np.zeros((N, n_rows))
+    return [ConstraintGroup("integration", deps, integ, np.arange(N), zeros, zeros, np.ones((N, n_rows), bool))]
+
+
+def contact_stage(tr: Transcription) -> list[ConstraintGroup]:
+    """Touching points on the terrain, and their x, y kept while they keep touching."""
+    n_knots, N, P, fk = tr.N + 1, tr.N, tr.P, tr._fk
+    if not P:
+        return []
+    contact = tr.schedule.in_contact
+    both = contact[:-1] & contact[1:]
+    knots, pairs = np.arange(n_knots), np.arange(N)
+    stay = np.zeros((N, 2 * P))
+    if tr.options.contact_variables:
+        # FK = c; c_z is the terrain height (a bound)
+        return [
+            ConstraintGroup(
+                "contact", (Dep("q"), Dep("c")), lambda theta, data, q, c: (fk(q) - c.reshape(P, 3)).reshape(-1), knots,
+                np.zeros((n_knots, 3 * P)), np.zeros((n_knots, 3 * P)), np.repeat(contact, 3, axis=1),
+            ),
+            ConstraintGroup(
+                "stationary", (Dep("c"), Dep("c", 1)),
+                lambda theta, data, c, c1: (c1.reshape(P, 3)[:, :2] - c.reshape(P, 3)[:, :2]).reshape(-1), pairs,
+                stay, stay, np.repeat(both, 2, axis=1),
+            ),
+        ]
+    terrain = np.full((n_knots, P), tr.task.terrain_height)
+    return [
+        ConstraintGroup("contact", (Dep("q"),), lambda theta, data, q: fk(q)[:, 2], knots, terrain, terrain, contact),
+        ConstraintGroup(
+            "stationary", (Dep("q"), Dep("q", 1)), lambda theta, data, q, q1: (fk(q1)[:, :2] - fk(q)[:, :2]).reshape(-1), pairs,
+            stay, stay, np.repeat(both, 2, axis=1),
+        ),
+    ]
+
+
+def clearance_stage(tr: Transcription) -> list[ConstraintGroup]:
+    """Points in the air stay above the terrain."""
+    n_knots, P, fk = tr.N + 1, tr.P, tr._fk
+    if not P:
+        return []
+    return [
+        ConstraintGroup(
+            "clearance", (Dep("q"),), lambda theta, data, q: fk(q)[:, 2], np.arange(n_knots),
+            np.full((n_knots, P), tr.task.terrain_height), np.full((n_knots, P), np.inf), ~tr.schedule.in_contact,
+        )
+    ]
+
+
+def friction_stage(tr: Transcription) -> list[ConstraintGroup]:
+    """The 4-facet friction pyramid ``|f_x|, |f_y| <= mu f_z`` of touching points."""
+    n_knots, P = tr.N + 1, tr.P
+    if not P:
+        return []
+
+    def friction(theta, data, f):
+        mu = theta.friction
+        f = f.reshape(P, 3)
+        fx, fy, fz = f[:, 0], f[:, 1], f[:, 2]
+        return jnp.stack([mu * fz - fx, mu * fz + fx, mu * fz - fy, mu * fz + fy], axis=1).reshape(-1)
+
+    return [
+        ConstraintGroup(
+            "friction", (Dep("f"),), friction, np.arange(n_knots),
+            np.zeros((n_knots, 4 * P)), np.full((n_knots, 4 * P), np.inf), np.repeat(tr.schedule.in_contact, 4, axis=1),
+        )
+    ]
+
+
+def force_rate_stage(tr: Transcription) -> list[ConstraintGroup]:
+    """``|f_j' - f_j| <= max_delta_force`` per component while a point keeps touching."""
+    if not tr.P or tr.task.max_delta_force is None:
+        return []
+    contact = tr.schedule.in_contact
+    return [
+        ConstraintGroup(
+            "force_rate", (Dep("f"), Dep("f", 1)), lambda theta, data, f, f1: f1 - f, np.arange(tr.N),
+            lambda theta: -theta.max_delta_force, lambda theta: theta.max_delta_force,
+            np.repeat(contact[:-1] & contact[1:], 3, axis=1),
+        )
+    ]
+
+
+def chart_stage(tr: Transcription) -> list[ConstraintGroup]:
+    """The parameterization's own constraint (a unit quaternion norm), if it has one."""
+    param, n_knots = tr.param, tr.N + 1
+    if not param.ncon:
+        return []
+    zeros = np.zeros((n_knots, param.ncon))
+    return [
+        ConstraintGroup(
+            "chart", (Dep("q"),), lambda theta, data, q: param.constraint(q[: param.nq]), np.arange(n_knots),
+            zeros, zeros, np.ones((n_knots, param.ncon), bool),
+        )
+    ]
+
+
+#: The constraint stages of a transcription, in the order of the NLP's rows.
+CONSTRAINT_STAGES = (dynamics_stage, integration_stage, contact_stage, clearance_stage, friction_stage, force_rate_stage, chart_stage)
+
+
+def cost_terms(tr: Transcription) -> list[CostGroup]:
+    """1/2 w_q |q_j - q_j,standing|^2 and 1/2 w_a |a_j|^2 per knot; both are kept when a
+    weight is 0, so that theta can make it positive."""
+    nqb, knots = tr.param.nq, np.arange(tr.N + 1)
+
+    def configuration(theta, data, q):
+        return 0.5 * theta.configuration_weight * jnp.sum((q[nqb:] - theta.q_joints_standing) ** 2)
+
+    costs = [CostGroup("configuration", (Dep("q"),), configuration, knots)]
+    if tr.options.acceleration_variables:
+        costs.append(CostGroup("acceleration", (Dep("a"),), lambda theta, data, a: 0.5 * theta.acceleration_weight * jnp.sum(a[6:] ** 2), knots))
+    else:  # a_N = 0 adds nothing
+
+        def acceleration(theta, data, v, v1):
+            return 0.5 * theta.acceleration_weight * jnp.sum(((v1 - v)[6:] / theta.timestep) ** 2)
+
+        costs.append(CostGroup("acceleration", (Dep("v"), Dep("v", 1)), acceleration, np.arange(tr.N)))
+    return costs

@@ -4,6 +4,7 @@ Jacobians against jax.jacfwd; physical laws (free fall, Newton) and the conventi
 Inputs are a few random states per robot; compiled functions are module-level and shared.
 """
 
+import copy
 import functools
 
 import jax
@@ -267,6 +268,65 @@ def test_jacobians_do_not_recompile():
     states = random_states(robot, param, NSTATES, seed=4)
     dynamics.inverse_dynamics_jacobians(robot, param, *states)
     assert dynamics.inverse_dynamics_jacobians._cache_size() == before
+
+
+def test_body_masses_match_mujoco_with_the_same_masses():
+    """``masses`` scales each body (mass and rotational inertia) like a MuJoCo model with
+    those masses and inertias scaled alike; the model's masses give the default exactly."""
+    robot = robot_lib.load("go2")
+    Q, V, A, F = random_states(robot, QUAT1, 1, seed=8, quaternion_scale=1.3)
+    q, v, a, f = Q[0], V[0], A[0], F[0]
+    m0 = dynamics.model_masses(robot)
+    assert m0.shape == (robot.mj_model.nbody,) and abs(m0.sum() - robot.total_mass) < 1e-12
+    tau_masses = jax.jit(dynamics.inverse_dynamics, static_argnums=(0, 1))
+    np.testing.assert_array_equal(tau_masses(robot, QUAT1, q, v, a, f, jnp.asarray(m0)), _tau(robot, QUAT1, q, v, a, f))
+    scale = np.random.default_rng(9).uniform(0.5, 2.0, m0.shape)
+    model = copy.deepcopy(robot.mj_model)
+    model.body_mass[:] = m0 * scale
+    model.body_inertia[:] = robot.mj_model.body_inertia * scale[:, None]
+    d = mujoco.MjData(model)
+    qpos, qvel, qacc = (np.asarray(x) for x in dynamics.to_mujoco(robot, QUAT1, q, v, a))
+    d.qpos[:], d.qvel[:], d.qacc[:] = qpos, qvel, qacc
+    mujoco.mj_inverse(model, d)
+    qfrc = d.qfrc_inverse.copy()
+    points = np.asarray(dynamics.contact_positions(robot, QUAT1, q))
+    for c in range(robot.ncontact):
+        jacp = np.zeros((3, model.nv))
+        mujoco.mj_jac(model, d, jacp, None, points[c], robot.contact_body_ids[c])
+        qfrc -= jacp.T @ np.asarray(f[c])
+    tau = tau_masses(robot, QUAT1, q, v, a, f, jnp.asarray(m0 * scale))
+    assert rel_err(tau, dynamics.tau_from_mujoco(qpos, qfrc)) < 1e-10
+    assert rel_err(tau, _tau(robot, QUAT1, q, v, a, f)) > 1e-3  # the masses did change tau
+
+
+def test_jacobians_with_masses_equal_jacfwd():
+    """The analytical Jacobians at other masses, and d tau / d masses exists (autodiff)."""
+    robot = robot_lib.load("go2")
+    param = PARAMETERIZATIONS["se3"]
+    Q, V, A, F = random_states(robot, param, NSTATES, seed=10)
+    masses = jnp.asarray(dynamics.model_masses(robot) * np.random.default_rng(11).uniform(0.5, 2.0, robot.mj_model.nbody))
+    fast = dynamics.inverse_dynamics_jacobians(robot, param, Q, V, A, F, masses)
+    jac = jax.jit(
+        jax.vmap(jax.jacfwd(dynamics.inverse_dynamics, argnums=(2, 3, 4, 5, 6)), in_axes=(None, None, 0, 0, 0, 0, None)),
+        static_argnums=(0, 1),
+    )
+    dq, dv, da, df, dm = jac(robot, param, Q, V, A, F, masses)
+    assert rel_err(fast.dq, dq) < 1e-10
+    assert rel_err(fast.dv, dv) < 1e-10
+    assert rel_err(fast.da, da) < 1e-10
+    assert rel_err(fast.df, df.reshape(*fast.df.shape)) < 1e-10
+    # tau without contact forces is linear and homogeneous in the masses: tau = dtau/dm m
+    @jax.jit
+    def free(Q, V, A, masses):
+        def tau(q, v, a, m):
+            return dynamics.inverse_dynamics(robot, param, q, v, a, jnp.zeros((robot.ncontact, 3)), m)
+
+        per_knot = jax.vmap(lambda q, v, a: (tau(q, v, a, masses), jax.jacfwd(tau, argnums=3)(q, v, a, masses)))
+        return per_knot(Q, V, A)
+
+    tau_free, dm_free = free(Q, V, A, masses)
+    assert rel_err(jnp.einsum("kvb,b->kv", dm_free, masses), tau_free) < 1e-10
+    assert dm.shape == (NSTATES, robot.nv, robot.mj_model.nbody)
 
 
 # ----------------------------------------------------------------------------------------

@@ -24,13 +24,13 @@ def walk_nlp():
     step = ConstraintGroup(
         name="step",
         deps=(Dep("x"), Dep("u"), Dep("x", 1)),
-        fn=lambda data, x, u, x_next: x_next - x - u,
+        fn=lambda theta, data, x, u, x_next: x_next - x - u,
         knots=np.arange(N - 1),
         lower=np.zeros((N - 1, 1)),
         upper=np.zeros((N - 1, 1)),
         active=np.ones((N - 1, 1), bool),
     )
-    cost = CostGroup(name="track", deps=(Dep("x"), Dep("u")), fn=lambda data, x, u: (x[0] - 1.0) ** 2 + u[0] ** 2, knots=np.arange(N))
+    cost = CostGroup(name="track", deps=(Dep("x"), Dep("u")), fn=lambda theta, data, x, u: (x[0] - 1.0) ** 2 + u[0] ** 2, knots=np.arange(N))
     lower = np.full((N, 2), -np.inf)
     upper = np.full((N, 2), np.inf)
     upper[:, 1] = 0.3
@@ -106,7 +106,7 @@ def test_ipopt_solution_multipliers_satisfy_stationarity(walk_nlp):
     # grad f + J^T mult_g - mult_x_lower + mult_x_upper = 0 (Ipopt's sign convention)
     x = jnp.asarray(sol.x)
     J = walk_nlp.dense_jacobian(x)
-    residual = np.asarray(walk_nlp.gradient(x)) + J.T @ sol.mult_g - sol.mult_x_lower + sol.mult_x_upper
+    residual = np.asarray(walk_nlp.gradient(x, None)) + J.T @ sol.mult_g - sol.mult_x_lower + sol.mult_x_upper
     np.testing.assert_allclose(residual, 0.0, atol=1e-7)
     assert sol.mult_x_upper[1] > 1e-3  # the active bound carries a multiplier
     s = sol.stats

@@ -45,7 +45,7 @@ def test_sparse_jacobian_equals_dense_jacfwd(prepared):
     nlp = prepared.nlp
     rng = np.random.default_rng(0)
     x = prepared.transcription.warm_start().reshape(-1) + 0.05 * rng.standard_normal(nlp.n)
-    dense = np.asarray(jax.jacfwd(nlp._constraints_py)(jnp.asarray(x)))
+    dense = np.asarray(jax.jacfwd(nlp._constraints_py)(jnp.asarray(x), nlp.theta))
     sparse = nlp.dense_jacobian(jnp.asarray(x))
     np.testing.assert_allclose(sparse, dense, atol=1e-9 * max(1.0, np.abs(dense).max()))
 
@@ -97,7 +97,7 @@ def test_constraints_vanish_on_dynamically_consistent_rollout(prepared):
     tau_j = jnp.asarray(rng.uniform(-0.5, 0.5, size=12))
     f0 = jnp.tile(jnp.array([0.5, -0.3, 2.0]), (4, 1))
     Z = _rollout(tr, tau_j, f0)
-    g = np.asarray(nlp.constraints(jnp.asarray(Z.reshape(-1))))
+    g = np.asarray(nlp.constraints(jnp.asarray(Z.reshape(-1)), nlp.theta))
     scale = max(1.0, float(np.abs(Z).max()))
     np.testing.assert_allclose(g[nlp.row_group == "integration"], 0.0, atol=1e-12 * scale)
     tau = g[nlp.row_group == "dynamics"].reshape(tr.N + 1, tr.nv)
@@ -140,6 +140,97 @@ def test_second_solve_does_not_recompile():
     assert r.time_compile == 0.0
     assert {name: getattr(nlp, name)._cache_size() for name in sizes} == sizes
     assert nlp._all_blocks._cache_size() == blocks
+
+
+def test_theta_changes_values_without_recompiling_and_vmaps():
+    """New parameter values reuse the compiled NLP; vmap over theta equals a loop; the
+    masses reach the dynamics rows (tau is linear in the masses when no force acts)."""
+    prep = prepare(HOP, "se3", "compact")
+    tr, nlp = prep.transcription, prep.nlp
+    theta0 = nlp.theta
+    Z = tr.warm_start()
+    L = tr.layout
+    noise = 0.01 * np.random.default_rng(4).standard_normal(Z.shape)
+    for slot in ("q", "v", "a"):  # not f: the warm start's forces are 0 in the air
+        Z[:, L.slice(slot)] += noise[:, L.slice(slot)]
+    x = jnp.asarray(Z.reshape(-1))
+    fns = {"objective": nlp.objective, "gradient": nlp.gradient, "constraints": nlp.constraints, "blocks": nlp._all_blocks, "bounds": nlp.bounds}
+    for fn in fns.values():
+        fn(x, theta0) if fn is not nlp.bounds else fn(theta0)
+    sizes = {name: fn._cache_size() for name, fn in fns.items()}
+    heavy = theta0.replace(
+        body_masses=2.0 * theta0.body_masses, friction=0.5, timestep=0.04, target_translation=[0.1, 0.02, 0.0],
+        configuration_weight=1.0, acceleration_weight=0.5, max_delta_force=60.0,
+    )
+    thetas = [theta0, heavy]
+    values = [(nlp.objective(x, t), nlp.constraints(x, t), nlp.jacobian(x, t), nlp.bounds(t)) for t in thetas]
+    assert {name: fn._cache_size() for name, fn in fns.items()} == sizes, "a new theta recompiled"
+
+    rows = nlp.row_group
+    g0, g1 = np.asarray(values[0][1]), np.asarray(values[1][1])
+    no_force = ~tr.schedule.in_contact.any(axis=1)  # the warm start puts no force in the air
+    tau0, tau1 = g0[rows == "dynamics"].reshape(tr.N + 1, -1), g1[rows == "dynamics"].reshape(tr.N + 1, -1)
+    assert no_force.any() and np.abs(tau0[no_force]).max() > 1.0
+    np.testing.assert_allclose(tau1[no_force], 2.0 * tau0[no_force], rtol=1e-12, atol=1e-9)
+    assert not np.allclose(g0[rows == "integration"], g1[rows == "integration"])  # h changed
+    assert not np.allclose(g0[rows == "friction"], g1[rows == "friction"])  # mu changed
+    assert float(values[1][0]) > float(values[0][0])  # the weights grew
+    # bounds: force limit doubles with the mass; the target moves; the force rate tightens
+    x_lo0, x_hi0, _, g_hi0 = (np.asarray(b) for b in values[0][3])
+    x_lo1, x_hi1, _, g_hi1 = (np.asarray(b) for b in values[1][3])
+    sf = tr.layout.slice("f")
+    np.testing.assert_allclose(x_hi1.reshape(tr.N + 1, -1)[:, sf], 2.0 * x_hi0.reshape(tr.N + 1, -1)[:, sf])
+    np.testing.assert_allclose(g_hi1[rows == "force_rate"], 60.0)
+    np.testing.assert_allclose(tr.target_xyz_wxyz_of(heavy)[:3] - tr.initial_xyz_wxyz[:3], [0.1, 0.02, 0.0], atol=1e-12)
+    np.testing.assert_array_equal(x_lo0, nlp.x_lower)
+
+    stacked = jax.tree.map(lambda *v: jnp.stack(v), *thetas)
+    for i, fn in enumerate((nlp.objective, nlp.constraints, nlp.jacobian)):
+        batched = jax.vmap(fn, in_axes=(None, 0))(x, stacked)
+        np.testing.assert_allclose(batched, np.stack([v[i] for v in values]), rtol=1e-11, atol=1e-9)
+
+
+def test_theta_overrides_are_checked():
+    tr = prepare(HOP, "se3", "compact").transcription
+    assert float(tr.resolve_theta({"friction": 0.3}).friction) == 0.3
+    with pytest.raises(ValueError, match="unknown task parameter 'mu'"):
+        tr.resolve_theta({"mu": 0.3})
+    with pytest.raises(ValueError, match=r"shape \(3,\)"):
+        tr.resolve_theta({"target_translation": [1.0, 0.0]})
+
+
+@pytest.mark.parametrize("layout", ["compact", "paper"])
+def test_step_is_the_integration_rows(layout):
+    """x_{k+1} = step(x_k, u_k, theta) makes the integration rows vanish, at any theta."""
+    prep = prepare(HOP, "quat1", layout)
+    tr, nlp = prep.transcription, prep.nlp
+    S = nlp.structure
+    assert S.state == ("q", "v") and S.control[:2] == ("a", "f") and S.nx + S.nu == tr.layout.nz
+    theta = nlp.theta.replace(timestep=0.03)
+    rng = np.random.default_rng(5)
+    Z = tr.warm_start() + 0.1 * rng.standard_normal((tr.N + 1, tr.layout.nz))
+    for k in range(tr.N):
+        x_k, u_k = S.split(jnp.asarray(Z[k]))
+        x_next = S.step(x_k, u_k, theta)
+        Z[k + 1] = np.asarray(S.join(x_next, S.split(jnp.asarray(Z[k + 1]))[1]))
+    g = np.asarray(nlp.constraints(jnp.asarray(Z.reshape(-1)), theta))
+    np.testing.assert_allclose(g[nlp.row_group == "integration"], 0.0, atol=1e-12 * np.abs(Z).max())
+    assert np.abs(g[nlp.row_group == "dynamics"]).max() > 1.0  # the other rows are not trivially 0
+    assert prepare(HOP, "se3", "lean").nlp.structure is None
+
+
+def test_solve_with_theta_override():
+    """A solve at other parameters reuses the compiled NLP and honours them."""
+    solve(HOP, "se3", progress=None)
+    nlp = prepare(HOP, "se3").nlp
+    sizes = {name: getattr(nlp, name)._cache_size() for name in ("objective", "gradient", "constraints")}
+    r = solve(HOP, "se3", progress=None, theta={"target_translation": [0.06, 0.0, 0.0], "friction": 0.7})
+    assert r.converged and r.success, r.status_msg
+    traj = r.trajectory
+    np.testing.assert_allclose(traj.base_xyz_wxyz[-1, :3] - traj.base_xyz_wxyz[0, :3], [0.06, 0.0, 0.0], atol=1e-8)
+    f = traj.forces[traj.in_contact]
+    assert np.all(np.abs(f[:, :2]) <= 0.7 * f[:, 2:3] + 1e-6)
+    assert {name: getattr(nlp, name)._cache_size() for name in sizes} == sizes
 
 
 def test_count_turns():

@@ -509,7 +509,7 @@ def build_nlp(bench: Benchmark, formulation: AbstractFormulation) -> KnotNLP:
     dynamics = model.dynamics
     fm = formulation
 
-    def defect(h, x, u, x_next):
+    def defect(theta, h, x, u, x_next):
         return fm.defect(x_next, M.rk4(dynamics, x, u, h))
 
     K = N - 1
@@ -533,7 +533,7 @@ def build_nlp(bench: Benchmark, formulation: AbstractFormulation) -> KnotNLP:
             ConstraintGroup(
                 name="attitude_target",
                 deps=(Dep("x"),),
-                fn=lambda q_ref, x: fm.attitude_error(x[M.QUAT], q_ref),
+                fn=lambda theta, q_ref, x: fm.attitude_error(x[M.QUAT], q_ref),
                 knots=knots,
                 lower=np.zeros((knots.size, nt)),
                 upper=np.zeros((knots.size, nt)),
@@ -547,7 +547,7 @@ def build_nlp(bench: Benchmark, formulation: AbstractFormulation) -> KnotNLP:
             ConstraintGroup(
                 name="unit_norm",
                 deps=(Dep("x"),),
-                fn=lambda data, x: jnp.atleast_1d(x[M.QUAT] @ x[M.QUAT] - 1.0),
+                fn=lambda theta, data, x: jnp.atleast_1d(x[M.QUAT] @ x[M.QUAT] - 1.0),
                 knots=knots,
                 lower=np.zeros((knots.size, 1)),
                 upper=np.zeros((knots.size, 1)),
@@ -562,7 +562,7 @@ def build_nlp(bench: Benchmark, formulation: AbstractFormulation) -> KnotNLP:
             ConstraintGroup(
                 name="keep_out",
                 deps=(Dep("x"),),
-                fn=lambda data, x: jnp.atleast_1d(sun @ quat.rotate(x[M.QUAT], cam)),
+                fn=lambda theta, data, x: jnp.atleast_1d(sun @ quat.rotate(x[M.QUAT], cam)),
                 knots=knots,
                 lower=np.full((knots.size, 1), -np.inf),
                 upper=np.full((knots.size, 1), math.cos(math.radians(ko.angle_deg))),
@@ -574,7 +574,7 @@ def build_nlp(bench: Benchmark, formulation: AbstractFormulation) -> KnotNLP:
     not_quat[M.QUAT] = 0.0
     Qm = bench.Q * not_quat
 
-    def stage_cost(data, x, u):
+    def stage_cost(theta, data, x, u):
         x_ref, Qk, wq, u_ref, Rk = data
         dx = x - x_ref
         du = u - u_ref
@@ -800,8 +800,8 @@ def solve_benchmark(
     x0 = jnp.asarray(z0)
     nlp.build_hessian()
     for fn in (nlp.objective, nlp.gradient, nlp.constraints, nlp.jacobian):
-        jax.block_until_ready(fn(x0))
-    jax.block_until_ready(nlp.hessian(x0, jnp.ones(nlp.m), 1.0))
+        jax.block_until_ready(fn(x0, nlp.theta))
+    jax.block_until_ready(nlp.hessian(x0, jnp.ones(nlp.m), 1.0, nlp.theta))
     time_compile = time.perf_counter() - t0
     backend = solvers.get(solver)
     options = _options(backend, ipopt_options)

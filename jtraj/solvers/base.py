@@ -353,8 +353,11 @@ class BoundNLP:
 
 def bind(nlp: Any, theta: Any = None) -> BoundNLP:
     """Fix ``theta`` in ``nlp``'s functions. An NLP with parameters has ``bounds(theta)`` and
-    functions of ``(x, theta)``; one without takes x alone (``theta`` must then be None)."""
+    functions of ``(x, theta)``; one without takes x alone (``theta`` must then be None).
+    ``theta=None`` means the NLP's own default parameters ``nlp.theta`` where it has them."""
     if callable(getattr(nlp, "bounds", None)):
+        if theta is None:
+            theta = getattr(nlp, "theta", None)
         x_lower, x_upper, g_lower, g_upper = (np.asarray(b, float) for b in nlp.bounds(theta))
         return BoundNLP(
             objective=lambda x: nlp.objective(x, theta),
