@@ -328,6 +328,7 @@ class Transcription:
     # Jitted so that the groups which call them (and vmap / jacfwd of those) reuse one traced
     # jaxpr: tracing the unrolled kinematic tree costs about a second each time.
     def _forces_all(self, f: jax.Array) -> jax.Array:
+        """(3 P,) task forces -> (ncontact, 3) forces at all the robot's contact points."""
         F = jnp.zeros((len(self.robot.contact_names), 3), f.dtype)
         return F.at[self.points].set(f.reshape(self.P, 3))
 
@@ -501,17 +502,11 @@ class Transcription:
 # knot; a group's function takes ``(theta, data, *deps)`` (`jtraj.nlp.ConstraintGroup`).
 
 
-def _all_forces(tr: Transcription, Fv: jax.Array) -> jax.Array:
-    """(K, 3 P) task forces -> (K, ncontact, 3) forces at all the robot's contact points."""
-    K = Fv.shape[0]
-    return jnp.zeros((K, len(tr.robot.contact_names), 3), Fv.dtype).at[:, tr.points].set(Fv.reshape(K, tr.P, 3))
-
-
 def _dynamics_derivatives(tr: Transcription, theta: TaskParams, Q, V, A, Fv):
     """Analytical RNEA Jacobians at K knots; d tau / d a = M and d tau / d f = -J^T need no
     autodiff. Returns them and d tau / d f restricted to the task's points (K, nv, 3 P)."""
     nv, P = tr.nv, tr.P
-    d = dynamics.inverse_dynamics_jacobians(tr.robot, tr.param, Q, V, A, _all_forces(tr, Fv), theta.body_masses)
+    d = dynamics.inverse_dynamics_jacobians(tr.robot, tr.param, Q, V, A, jax.vmap(tr._forces_all)(Fv), theta.body_masses)
     df = d.df.reshape(Q.shape[0], nv, -1, 3)[:, :, tr.points, :].reshape(Q.shape[0], nv, 3 * P)
     return d, df
 
