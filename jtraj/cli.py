@@ -274,7 +274,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--layout", default="paper", choices=["paper", "compact", "lean"], help="default: the study's layout, for comparison with its tables")
     p.add_argument("--out", default="runs/robustness")
     p.add_argument("--workers", type=int, default=1, help="solve (task, parameterization) groups in this many processes")
-    p.add_argument("--no-resume", action="store_true", help="solve again the runs already in OUT/runs.json")
+    p.add_argument("--no-resume", action="store_true", help="solve again the runs already in OUT/runs.jsonl (the old file is kept as runs.jsonl.previous)")
     p.set_defaults(func=_cmd_robustness)
 
     p = sub.add_parser("wahba", help="Wahba's problem: projected vs multiplicative Gauss-Newton (writes OUT/wahba.{npz,json,png})")
@@ -335,13 +335,24 @@ def _check_names(field: str, text: str, known: list[str], what: str, allow_files
     return names
 
 
+def _load_valid_task(name: str):
+    """The task ``name`` with the checks that need its robot done; errors name its file."""
+    from jtraj import task as tasks
+
+    task = tasks.load(name)
+    try:
+        return task.validate()
+    except tasks.TaskError as e:
+        raise e.with_source(name if name.endswith(".toml") else f"tasks/{name}.toml") from None
+
+
 def _check_tasks(field: str, text: str) -> list[str]:
     """Every task named loads and passes the checks that need its robot, before any solve."""
     from jtraj import task as tasks
 
     names = _check_names(field, text, tasks.available(), "tasks", allow_files=True)
     for name in names:
-        tasks.load(name).validate()
+        _load_valid_task(name)
     return names
 
 
@@ -376,9 +387,7 @@ def _check_inputs(args: argparse.Namespace) -> None:
     """Every value of the command line that can be checked without compiling anything."""
     cmd = args.command
     if cmd == "solve":
-        from jtraj import task as tasks
-
-        tasks.load(args.task).validate()
+        _load_valid_task(args.task)
         _check_out(args.out)
         if not (math.isfinite(args.noise) and args.noise >= 0):
             raise InputError("--noise", args.noise, "expected a standard deviation >= 0")

@@ -174,13 +174,14 @@ def test_barrel_roll_short():
 @pytest.mark.slow
 def test_barrel_roll_naive_is_much_slower():
     """The naive barrel roll converges only after hundreds of iterations (365 at N = 21, none
-    within 1000 at N = 101, see the module docs of `benchmarks`); capped here to keep CI
-    short, it must still be far from the attitude formulation's count."""
+    within 1000 at N = 101, see the module docs of `benchmarks`). The attitude formulation must
+    converge; the naive one, given three times the attitude formulation's iterations, must
+    not (a cap that both hit would prove nothing, so the budget follows the measured count)."""
     att = solve("barrelroll", "attitude")
-    naive = solve("barrelroll", "naive", ipopt_options=(("max_iter", 60),))
-    assert att.iterations <= 30
-    assert not naive.converged or naive.iterations > 3 * att.iterations
-    assert naive.iterations >= 2 * att.iterations
+    assert att.converged and att.success, att.summary()
+    budget = 3 * att.iterations
+    naive = solve("barrelroll", "naive", ipopt_options=(("max_iter", budget),))
+    assert not naive.converged, f"the naive barrel roll converged within {budget} iterations: {naive.summary()}"
 
 
 @pytest.mark.slow

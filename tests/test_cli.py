@@ -77,7 +77,7 @@ def test_bad_task_file_is_one_line(tmp_path, capsys, no_solve):
     assert code == 2 and err == f"jtraj solve: {path}: costs.configration: unknown key: expected one of ['configuration', 'acceleration']\n"
     path.write_text(GOOD_TOML.replace('"FL_foot"', '"FL_paw"'))
     code, err = _run(["solve", str(path)], capsys)
-    assert code == 2 and err.startswith("jtraj solve: phases[0].contacts: 'FL_paw': expected a contact of robot 'go2'")
+    assert code == 2 and err.startswith(f"jtraj solve: {path}: phases[0].contacts: 'FL_paw': expected a contact of robot 'go2'")
 
 
 def test_real_options_accept_integers():

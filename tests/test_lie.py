@@ -4,6 +4,7 @@ differences and Pinocchio, and NaN-freedom at the identity and at angle pi."""
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pinocchio  # a test dependency: a missing pinocchio is an error, not a skip
 import pytest
 from conftest import central_difference, random_unit_vectors
 from hypothesis import given, settings
@@ -183,7 +184,7 @@ _jit_roundtrip = jax.jit(lambda x: Lg(E(SE3, x)))
 
 
 class TestPinocchioOracle:
-    pin = pytest.importorskip("pinocchio")
+    pin = pinocchio
 
     def test_exp6_log6_jexp6(self, rng):
         pin = self.pin
