@@ -118,22 +118,41 @@ def markdown(records: list[dict]) -> str:
                 f"| {rec['task']} | {v['variant']} | {v['status']} | {v['iterations']} | {v['time_s']:.2f} | {v['time_s'] / max(v['iterations'], 1):.3f} "
                 f"| {v['time_derivatives']:.2f} | {v['time_ipopt']:.2f} |"
             )
-            if with_peer:
-                row += f" {peer['iterations']} | {peer['time_s']:.2f} | {peer['time_s'] / v['time_s']:.1f}x |" if peer else " | | |"
+            if with_peer and peer:
+                # the public code stops at its own 600 s wall-time limit (Ipopt status -5): its
+                # time is then a lower bound, and so is the ratio
+                done = peer.get("status") in (0, 1)
+                bound = "" if done else ">= "
+                note = "" if done else f" (stopped, Ipopt status {peer.get('status')})"
+                row += f" {peer['iterations']}{note} | {bound}{peer['time_s']:.2f} | {bound}{peer['time_s'] / v['time_s']:.1f}x |"
+            elif with_peer:
+                row += " | | |"
             lines.append(row)
+    loads = [x for r in records for x in (r.get("machine", {}).get("load_1min"), r.get("load_1min_after")) if x is not None]
+    if loads:
+        cpus = records[0].get("machine", {}).get("cpus")
+        lines.append(f"\nMachine: {cpus} CPUs, 1-minute load average {min(loads):.1f} to {max(loads):.1f} during these runs (the public code and jtraj ran one after the other).")
     return "\n".join(lines) + "\n"
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("tasks", nargs="+")
+    ap.add_argument("tasks", nargs="*")
     ap.add_argument("--param", default="se3")
     ap.add_argument("--variants", default="paper,compact,lean")
     ap.add_argument("--ipopt", action="append", default=[], metavar="NAME=VALUE", help="extra Ipopt option for every variant")
     ap.add_argument("--peer", default=str(DEFAULT_PEER) if DEFAULT_PEER.exists() else None, help=f"command running the public code (default {DEFAULT_PEER} when it exists)")
     ap.add_argument("--no-peer", action="store_true", help="do not run the public code")
     ap.add_argument("--out", help="write DIR/speed.json and DIR/speed.md")
+    ap.add_argument("--table-only", action="store_true", help="rewrite OUT/speed.md from OUT/speed.json, solve nothing")
     args = ap.parse_args()
+    if args.table_only:
+        if not args.out:
+            ap.error("--table-only needs --out DIR")
+        jio.write_text(Path(args.out) / "speed.md", markdown(jio.read_json(Path(args.out) / "speed.json")))
+        return
+    if not args.tasks:
+        ap.error("give at least one task")
     variants = [v for v in args.variants.split(",") if v]
     for v in variants:
         if v not in VARIANTS:
