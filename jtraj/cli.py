@@ -81,23 +81,34 @@ def _cmd_solve(args: argparse.Namespace) -> int:
     return EXIT_TASK_FAILED if result.converged else EXIT_NOT_CONVERGED
 
 
+def _executor_arguments(p: argparse.ArgumentParser, workers: bool = True) -> None:
+    p.add_argument("--executor", default="local", choices=["local", "ray"], help="local worker processes (default) or one Ray task per (task, parameterization) group (pip install 'jtraj[ray]')")
+    p.add_argument("--ray-address", default=None, help="cluster for --executor ray, passed to ray.init (default: start a local Ray instance; 'auto': this node's cluster)")
+    if workers:
+        p.add_argument("--workers", type=int, default=1, help="with --executor local: solve in this many processes")
+
+
 def _split(text: str) -> list[str]:
     return [x for x in text.split(",") if x]
 
 
 def _cmd_compare(args: argparse.Namespace) -> int:
     from jtraj.experiments import compare
+    from jtraj.provenance import write_provenance
 
-    rows = compare(_split(args.tasks), _split(args.params), out=args.out, layout=args.layout, exact_hessian=args.exact_hessian)
+    rows = compare(_split(args.tasks), _split(args.params), out=args.out, layout=args.layout, exact_hessian=args.exact_hessian, save_trajectories=not args.no_trajectories, executor=args.executor, workers=args.workers, ray_address=args.ray_address)
+    write_provenance(args.out)
     print((__import__("pathlib").Path(args.out) / "table_iv.md").read_text())
     return 0 if rows else 1
 
 
 def _cmd_robustness(args: argparse.Namespace) -> int:
     from jtraj.experiments import robustness
+    from jtraj.provenance import write_provenance
 
     sigmas = args.sigmas_checked
-    robustness(_split(args.tasks), _split(args.params), sigmas, replicates=args.replicates, seed=args.seed, out=args.out, layout=args.layout, workers=args.workers, resume=not args.no_resume)
+    robustness(_split(args.tasks), _split(args.params), sigmas, replicates=args.replicates, seed=args.seed, out=args.out, layout=args.layout, workers=args.workers, resume=not args.no_resume, executor=args.executor, ray_address=args.ray_address)
+    write_provenance(args.out)
     print((__import__("pathlib").Path(args.out) / "table_iii.md").read_text())
     return 0
 
@@ -263,6 +274,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--layout", default="paper", choices=["paper", "compact", "lean"], help="default: the study's layout, for comparison with its tables")
     p.add_argument("--exact-hessian", action="store_true")
     p.add_argument("--out", default="runs/table_iv")
+    p.add_argument("--no-trajectories", action="store_true", help="write only the tables (for results/)")
+    _executor_arguments(p)
     p.set_defaults(func=_cmd_compare)
 
     p = sub.add_parser("robustness", help="Table III and Fig. 2: success and iterations under warm-start noise")
@@ -275,6 +288,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="runs/robustness")
     p.add_argument("--workers", type=int, default=1, help="solve (task, parameterization) groups in this many processes")
     p.add_argument("--no-resume", action="store_true", help="solve again the runs already in OUT/runs.jsonl (the old file is kept as runs.jsonl.previous)")
+    _executor_arguments(p, workers=False)
     p.set_defaults(func=_cmd_robustness)
 
     p = sub.add_parser("wahba", help="Wahba's problem: projected vs multiplicative Gauss-Newton (writes OUT/wahba.{npz,json,png})")
@@ -396,6 +410,7 @@ def _check_inputs(args: argparse.Namespace) -> None:
     elif cmd == "compare":
         _check_tasks("--tasks", args.tasks)
         _check_params("--params", args.params)
+        _check_positive_int("--workers", args.workers)
         _check_out(args.out)
     elif cmd == "robustness":
         _check_tasks("--tasks", args.tasks)

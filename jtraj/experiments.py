@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jtraj import io as jio
+from jtraj.executors import executor_for
 from jtraj.parameterization import PARAMETERIZATIONS
 from jtraj.task import Task, load as load_task
 from jtraj.solver import prepare, solve
@@ -54,17 +55,36 @@ def compare(
     exact_hessian: bool = False,
     progress: TextIO | None = sys.stdout,
     save_trajectories: bool = True,
+    executor: str = "local",
+    workers: int = 1,
+    ray_address: str | None = None,
 ) -> list[dict]:
-    """Table IV: solve every task with every parameterization; write table_iv.{json,md}."""
+    """Table IV: solve every task with every parameterization; write table_iv.{json,md}.
+
+    ``executor`` (`jtraj.executors`): ``"local"`` solves in this process (``workers`` > 1: in
+    that many worker processes), ``"ray"`` one Ray task per solve on the cluster at
+    ``ray_address``. Rows keep the order of ``tasks`` x ``params`` whatever the executor.
+    """
     out = Path(out)
-    rows = []
-    for task in tasks:
-        name = task if isinstance(task, str) else task.name
-        for p in params:
-            r = solve(task, p, layout=layout, exact_hessian=exact_hessian, progress=progress, progress_every=10, out=out / f"{name}_{p}" if save_trajectories else None)
-            rows.append(_row(r))
+    jobs = [(task, p, layout, exact_hessian, str(out / f"{task if isinstance(task, str) else task.name}_{p}") if save_trajectories else None) for task in tasks for p in params]
+    if executor == "local" and workers <= 1:
+        rows = []
+        for job in jobs:
+            rows.append(_compare_one(*job, progress=progress))
             _write_table_iv(rows, out)
-    return rows
+        return rows
+    done: dict[int, dict] = {}
+    for i, row in executor_for(executor, workers, ray_address).map(_compare_one, jobs):
+        done[i] = row
+        if progress is not None:
+            print(f"{row['task']:10s} {row['parameterization']:6s}: {row['status']:26s} {row['iterations']:4d} it", file=progress, flush=True)
+        _write_table_iv([done[k] for k in sorted(done)], out)
+    return [done[k] for k in sorted(done)]
+
+
+def _compare_one(task, p, layout, exact_hessian, out, progress=None) -> dict:
+    """One cell of Table IV (a module-level function: executors ship it to other processes)."""
+    return _row(solve(task, p, layout=layout, exact_hessian=exact_hessian, progress=progress, progress_every=10, out=out))
 
 
 def _write_table_iv(rows: list[dict], out: Path) -> None:
@@ -171,9 +191,23 @@ def _robustness_group(task, p, sigmas, replicates, seed, layout, exact_hessian, 
     return len(todo)
 
 
-def _robustness_group_in_worker(*args, verbose: bool) -> int:
-    # a stream does not cross processes: a worker prints to its own stdout
+def _robustness_group_in_worker(*args) -> int:
+    """`_robustness_group` in a local worker process, appending to the shared runs file; the
+    last argument says whether to print (a stream does not cross processes: a worker prints to
+    its own stdout)."""
+    *args, verbose = args
     return _robustness_group(*args, progress=sys.stdout if verbose else None)
+
+
+def _robustness_group_rows(*args) -> list[dict]:
+    """`_robustness_group` on a machine that may not see the study's folder (a Ray node): it
+    solves into a file of its own and returns the rows, which the caller appends to runs.jsonl."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / RUNS_FILE
+        _robustness_group(*args, path, progress=None)
+        return jio.read_jsonl(path)[0] if path.exists() else []
 
 
 def robustness(
@@ -189,6 +223,8 @@ def robustness(
     workers: int = 1,
     resume: bool = True,
     ipopt_options: dict | None = None,
+    executor: str = "local",
+    ray_address: str | None = None,
 ) -> list[dict]:
     """Table III and Fig. 2: converged and task-success rates and iterations under warm-start noise.
 
@@ -201,7 +237,9 @@ def robustness(
     level sigma depends only on (seed, sigma, r) (`noise_key`).
 
     ``workers > 1`` solves (task, parameterization) groups in that many processes, each
-    appending to the same file. Returns this call's runs; writes table_iii.{json,md} and fig2.png.
+    appending to the same file. ``executor="ray"`` makes each group a Ray task on the cluster
+    at ``ray_address`` (`jtraj.executors`); its rows come back when the group finishes and are
+    appended here, under the same keys and resume rules. Returns this call's runs; writes table_iii.{json,md} and fig2.png.
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -217,19 +255,17 @@ def robustness(
     if progress is not None and done:
         print(f"resuming: {len(done)} runs already in {runs_path}", file=progress, flush=True)
     args = [(t, p, tuple(sigmas), replicates, seed, layout, exact_hessian, ipopt_options, done, runs_path) for t in tasks for p in params]
-    if workers <= 1:
+    if executor == "local" and workers <= 1:
         for a in args:
             _robustness_group(*a, progress=progress)
             _write_robustness_outputs(_select(read_runs(runs_path, progress), *a[:8]), sigmas, out, figure=False)
+    elif executor == "local":
+        for _ in executor_for("local", workers).map(_robustness_group_in_worker, [(*a, progress is not None) for a in args]):
+            pass
     else:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor, as_completed
-
-        # JAX is not fork-safe: workers start fresh interpreters
-        with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-            futures = [pool.submit(_robustness_group_in_worker, *a, verbose=progress is not None) for a in args]
-            for f in as_completed(futures):
-                f.result()
+        for _, rows in executor_for(executor, workers, ray_address).map(_robustness_group_rows, [a[:-1] for a in args]):
+            for row in rows:
+                jio.append_jsonl(runs_path, row)
     runs = [r for a in args for r in _select(read_runs(runs_path, progress), *a[:8])]
     _write_robustness_outputs(runs, sigmas, out)
     return runs

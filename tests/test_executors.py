@@ -81,3 +81,17 @@ def test_executor_for_names():
     assert set(EXECUTORS) == {"local", "ray"}
     with pytest.raises(ValueError, match="unknown executor 'dask'"):
         executor_for("dask")
+
+
+def test_robustness_table_with_ray_executor_equals_local(tmp_path, monkeypatch):
+    from jtraj.experiments import robustness
+    from test_transcription import HOP
+
+    calls = {}
+    monkeypatch.setitem(sys.modules, "ray", _fake_ray(calls))
+    kw = dict(sigmas=[1e-2], replicates=2, seed=2, progress=None, resume=False)
+    local = robustness([HOP], ["se3"], out=tmp_path / "local", **kw)
+    ray_runs = robustness([HOP], ["se3"], out=tmp_path / "ray", executor="ray", ray_address="auto", **kw)
+    assert calls["address"] == "auto"
+    assert [(r["replicate"], r["status"], r["iterations"]) for r in ray_runs] == [(r["replicate"], r["status"], r["iterations"]) for r in local]
+    assert (tmp_path / "ray" / "table_iii.md").read_text() == (tmp_path / "local" / "table_iii.md").read_text()
