@@ -14,12 +14,14 @@ each made by one stage builder (`dynamics_stage`, ...; `CONSTRAINT_STAGES` in ro
 
     dynamics      tau(q, v, a, f; masses): base rows = 0, joint rows within the effort limits
     integration   v' = v + a h;  param.difference(param.integrate(q_b, V_b', h), q_b') = 0;
-                  q_j' = q_j + qd_j' h                    (semi-implicit Euler, Table I)
+                  q_j' = q_j + qd_j' h                    (semi-implicit Euler, Table I;
+                  `position_step="stepped"` writes V' as v + a h, as the study's code)
     contact       FK_j(q) = c_j for touching points; c_z is the terrain height (a bound)
     stationary    (c_j')_xy = (c_j)_xy while a point keeps touching
     clearance     FK_j(q)_z >= terrain height for points in the air
     friction      4-facet pyramid |f_x|, |f_y| <= mu f_z (f_z >= 0 and |f_i| <= 1.5 m g are bounds)
-    force_rate    |f_j' - f_j| <= max_delta_force per component (tasks that set it)
+    force_rate    |f_j' - f_j| <= max_delta_force per component (tasks that set it; with
+                  `liftoff_force_rate` also where a point lifts off, f_j' = 0)
     chart         the parameterization's own constraint (e.g. unit quaternion norm), if any
 
 Costs (`cost_terms`): 1/2 w_q |q_j - q_j,standing|^2 and 1/2 w_a |a_j|^2 per knot. Boundary
@@ -92,16 +94,36 @@ class TranscriptionOptions:
             FK_j(q_k)_xy``.
         acceleration_variables: keep a_k as variables with ``v_{k+1} = v_k + a_k h`` (the
             paper). False substitutes ``a_k = (v_{k+1} - v_k) / h`` (and a_N = 0).
+        position_step: which velocity the position row is written with. ``"next"``:
+            ``difference(integrate(q_k, v_{k+1}, h), q_{k+1})``. ``"stepped"`` (the study's
+            public code, `SemiEulerIntegration`): ``v_k + a_k h`` in place of ``v_{k+1}``, so
+            the row reads q_k, v_k, a_k and q_{k+1}. Equal on the feasible set (the velocity
+            row makes ``v_{k+1} = v_k + a_k h``), different linearizations off it: measured on
+            the walk with the code's configuration cost, 39 Ipopt iterations with ``"next"``,
+            27 with ``"stepped"`` (docs/reproduction.md). Needs ``acceleration_variables``.
+        liftoff_force_rate: the force-change bound ``|f_{k+1} - f_k| <= max_delta_force``
+            also where a point lifts off (``f_{k+1} = 0``): the push-off force must end below
+            the bound, as in the study's code (`TerrainGridFrictionConstraints`). False bounds
+            only knots where the point touches at k and k+1.
     Both substitutions eliminate equality constraints exactly: the feasible trajectories are
     the same, the NLP is smaller.
     """
 
     contact_variables: bool = True
     acceleration_variables: bool = True
+    position_step: str = "next"
+    liftoff_force_rate: bool = False
+
+    def __post_init__(self):
+        if self.position_step not in ("next", "stepped"):
+            raise ValueError(f"position_step={self.position_step!r}: expected 'next' or 'stepped'")
+        if self.position_step == "stepped" and not self.acceleration_variables:
+            raise ValueError("position_step='stepped' writes the position row with a_k: it needs acceleration_variables=True")
 
 
-#: The study's variable layout (q, v, a, f, c at every knot).
-PAPER_LAYOUT = TranscriptionOptions()
+#: The study's public code: its variables per knot (q, v, a, f, c), its position row and its
+#: force-change bound at lift-off (docs/reproduction.md lists what else differs and why).
+PAPER_LAYOUT = TranscriptionOptions(position_step="stepped", liftoff_force_rate=True)
 #: Contact positions substituted by forward kinematics: (q, v, a, f) at every knot.
 COMPACT_LAYOUT = TranscriptionOptions(contact_variables=False, acceleration_variables=True)
 #: Contact positions and accelerations substituted: (q, v, f) at every knot.
@@ -576,9 +598,12 @@ def integration_stage(tr: Transcription) -> list[ConstraintGroup]:
 
     if tr.options.acceleration_variables:
 
+        stepped = tr.options.position_step == "stepped"
+
         def integ(theta, data, q, v, a, q1, v1):
             h = theta.timestep
-            return jnp.concatenate([v1 - v - a * h, position_step(h, q, q1, v1)])
+            # "stepped": v_k + a_k h stands for v_{k+1} (equal where the velocity row holds)
+            return jnp.concatenate([v1 - v - a * h, position_step(h, q, q1, v + a * h if stepped else v1)])
 
         deps = (Dep("q"), Dep("v"), Dep("a"), Dep("q", 1), Dep("v", 1))
         n_rows = nv + param.ndiff + nj
@@ -659,15 +684,18 @@ def friction_stage(tr: Transcription) -> list[ConstraintGroup]:
 
 
 def force_rate_stage(tr: Transcription) -> list[ConstraintGroup]:
-    """``|f_j' - f_j| <= max_delta_force`` per component while a point keeps touching."""
+    """``|f_j' - f_j| <= max_delta_force`` per component while a point keeps touching (with
+    `TranscriptionOptions.liftoff_force_rate` also where it lifts off: f_j' is 0 there, fixed by
+    bounds, so the row bounds the last stance force)."""
     if not tr.P or tr.task.max_delta_force is None:
         return []
     contact = tr.schedule.in_contact
+    rated = contact[:-1] if tr.options.liftoff_force_rate else contact[:-1] & contact[1:]
     return [
         ConstraintGroup(
             "force_rate", (Dep("f"), Dep("f", 1)), lambda theta, data, f, f1: f1 - f, np.arange(tr.N),
             lambda theta: -theta.max_delta_force, lambda theta: theta.max_delta_force,
-            np.repeat(contact[:-1] & contact[1:], 3, axis=1),
+            np.repeat(rated, 3, axis=1),
         )
     ]
 

@@ -65,6 +65,18 @@ def test_layout_and_rows(prepared):
     assert rows["clearance"] == (n_knots - touching) * P
     assert rows["friction"] == touching * 4 * P
     assert rows["stationary"] == 3 * 2 * P  # pairs (0,1), (4,5), (5,6)
+    # the study's code also bounds the force change at lift-off (pair (1,2)): 4 pairs, not 3
+    assert rows["force_rate"] == (4 if tr.options.liftoff_force_rate else 3) * 3 * P
+
+
+def test_layout_options_are_checked():
+    from jtraj.transcription import PAPER_LAYOUT, TranscriptionOptions
+
+    assert PAPER_LAYOUT.position_step == "stepped" and PAPER_LAYOUT.liftoff_force_rate
+    with pytest.raises(ValueError, match="needs acceleration_variables"):
+        TranscriptionOptions(acceleration_variables=False, position_step="stepped")
+    with pytest.raises(ValueError, match="expected 'next' or 'stepped'"):
+        TranscriptionOptions(position_step="implicit")
 
 
 def _rollout(tr, tau_joints, f0):
