@@ -90,7 +90,7 @@ def run_variant(task: str, param: str, variant: str, extra: dict) -> dict:
         iterations=r.iterations,
         time_s=r.time_s,
         time_derivatives=r.time_derivatives,
-        time_ipopt=r.time_ipopt,
+        time_ipopt=r.time_solver,
         time_linear_solver=timing.get("StdAugSystemSolverMultiSolve"),
         cost=r.cost,
         constraint_violation=r.constraint_violation,

@@ -130,23 +130,9 @@ def _cmd_wahba(args: argparse.Namespace) -> int:
 
 
 def _cmd_attitude(args: argparse.Namespace) -> int:
-    from jtraj.attitude import benchmarks
+    from jtraj.attitude.cli import main as attitude_main
 
-    if args.bench == "all":
-        rows = benchmarks.compare_benchmarks(args.out, n_knots=args.knots, solver=args.solver)
-        return 0 if all(r["status"] == "solved" for r in rows) else 2
-    result = benchmarks.main_attitude(args.bench, args.variant, args.out, n_knots=args.knots, solver=args.solver)
-    if args.render:
-        _render_benchmark(result, args.out)
-    return 0 if result.success else 2
-
-
-def _render_benchmark(result, out: str) -> None:
-    """``attitude --render``: the body along its path, as a video and a keyframe image."""
-    from jtraj.render import render_benchmark
-
-    for path in render_benchmark(result, out):
-        print(f"wrote {path}")
+    return attitude_main(args.bench, args.variant, args.out, n_knots=args.knots, solver=args.solver, render=args.render)
 
 
 def _render_options(args: argparse.Namespace):

@@ -18,7 +18,7 @@ free of NaN in values and gradients at the identity and at rotation angle pi.
 
 from __future__ import annotations
 
-from typing import TypeVar
+from typing import TypeVar, cast
 
 import jax
 import jax.numpy as jnp
@@ -40,6 +40,7 @@ __all__ = [
     "left_jacobian",
     "right_jacobian_inv",
     "left_jacobian_inv",
+    "accumulated_rotation",
 ]
 
 Group = TypeVar("Group", SO3, SE3)
@@ -74,7 +75,7 @@ def exp(group: type[Group], tangent: jax.Array) -> Group:
     if group is SE3:
         rho, theta = tangent[..., :3], tangent[..., 3:]
         translation = jnp.einsum("...ij,...j->...i", _so3_left_jacobian(theta), rho)
-        return SE3.from_rotation_and_translation(SO3.exp(theta), translation)
+        return cast(Group, SE3.from_rotation_and_translation(SO3.exp(theta), translation))
     return group.exp(tangent)
 
 
@@ -267,3 +268,21 @@ def right_jacobian_inv(group: type[SO3] | type[SE3], tangent: jax.Array) -> jax.
     """
     _check_group(group)
     return _LEFT_INV[group](-tangent)
+
+
+def accumulated_rotation(wxyz: jax.Array, frame: str = "world") -> jax.Array:
+    """Rotation accumulated along a sequence of attitudes (rad): (N, 4) wxyz -> (N, 3).
+
+    Sums the increments ``Log(R_{k+1} R_k^T)`` (world frame, default) or ``Log(R_k^T R_{k+1})``
+    (``frame="body"``), starting from zero, so that a full flip about a fixed axis reads as the
+    axis times 2 pi where ``Log`` of the end attitude alone would read 0. Each step must stay
+    below pi for its direction to be seen. Inputs need not be unit quaternions (they are
+    normalized first).
+    """
+    if frame not in ("world", "body"):
+        raise ValueError(f"frame must be 'world' or 'body', got {frame!r}")
+    q = jnp.asarray(wxyz)
+    q = q / jnp.linalg.norm(q, axis=-1, keepdims=True)
+    a, b = SO3(q[1:]), SO3(q[:-1])
+    steps = log(a @ b.inverse()) if frame == "world" else log(b.inverse() @ a)
+    return jnp.concatenate([jnp.zeros((1, 3), steps.dtype), jnp.cumsum(steps, axis=0)])

@@ -27,6 +27,7 @@ from jaxlie import SE3, SO3
 
 from jtraj import euler, lie
 from jtraj import quaternion as quat
+from jtraj.registry import lookup
 
 __all__ = [
     "AbstractParameterization",
@@ -300,11 +301,7 @@ def get(name: str | AbstractParameterization) -> AbstractParameterization:
     """The parameterization called ``name`` (``se3``, ``quat1``, ``quat2``, ``quat3``, ``euler``)."""
     if isinstance(name, AbstractParameterization):
         return name
-    try:
-        return PARAMETERIZATIONS[name]
-    except KeyError:
-        choices = ", ".join(PARAMETERIZATIONS)
-        raise ValueError(f"unknown parameterization {name!r}; expected one of: {choices}") from None
+    return lookup(PARAMETERIZATIONS, name, "parameterization")
 
 
 def body_twist_to_qvel(T_world_base: SE3, V_b: jax.Array) -> jax.Array:

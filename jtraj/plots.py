@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from jtraj.lie import accumulated_rotation
 from jtraj.result import Result
 
 __all__ = ["plot_result", "plot_convergence", "plot_solution", "plot_comparison", "plot_directory", "friction_cone_ratio"]
@@ -18,16 +19,6 @@ def _pyplot():
     import matplotlib.pyplot as plt
 
     return plt
-
-
-def _rpy_unwrapped(xyz_wxyz: np.ndarray) -> np.ndarray:
-    """Roll, pitch, yaw accumulated from the relative rotations (so a flip reads as 2 pi)."""
-    from jtraj import lie
-    from jtraj.lie import SO3
-
-    R = SO3(xyz_wxyz[:, 3:7])
-    steps = np.asarray(lie.log(SO3(R.wxyz[1:]) @ SO3(R.wxyz[:-1]).inverse()))
-    return np.vstack([np.zeros(3), np.cumsum(steps, axis=0)])
 
 
 def plot_result(result: Result, path: str | Path) -> Path:
@@ -64,14 +55,14 @@ def plot_result(result: Result, path: str | Path) -> Path:
 
 
 def plot_convergence(result: Result, path: str | Path) -> Path:
-    """Primal and dual infeasibility against Ipopt iteration."""
+    """Primal and dual infeasibility against the solver's iterations."""
     plt = _pyplot()
     h = result.history
     fig, ax = plt.subplots(figsize=(5, 3.5))
     it = [r["iter"] for r in h]
     ax.semilogy(it, [r["inf_pr"] for r in h], label="primal infeasibility")
     ax.semilogy(it, [r["inf_du"] for r in h], label="dual infeasibility")
-    ax.set_xlabel("Ipopt iteration")
+    ax.set_xlabel(f"{result.solver} iteration")
     ax.legend()
     ax.set_title(f"{result.task} [{result.parameterization}]")
     fig.tight_layout()
@@ -87,7 +78,7 @@ def _base_pose_panels(ax_position, ax_rotation, t) -> None:
         ax_position.plot(t.t, t.base_xyz_wxyz[:, i], label=name)
     ax_position.set_ylabel("base position (m)")
     ax_position.legend(fontsize=8)
-    angles = _rpy_unwrapped(t.base_xyz_wxyz)
+    angles = np.asarray(accumulated_rotation(t.base_xyz_wxyz[:, 3:7]))
     for i, name in enumerate(("about x", "about y", "about z")):
         ax_rotation.plot(t.t, np.degrees(angles[:, i]), label=name)
     ax_rotation.set_ylabel("base rotation (deg, accumulated)")
@@ -230,7 +221,7 @@ def plot_comparison(directory: str | Path, path: str | Path | None = None):
                 _flight_shading(ax, t.t, touching)
             for k, name in enumerate("xyz"):
                 top.plot(t.t, t.base_xyz_wxyz[:, k], lw=0.9, label=name)
-            angles = np.degrees(_rpy_unwrapped(t.base_xyz_wxyz))
+            angles = np.degrees(np.asarray(accumulated_rotation(t.base_xyz_wxyz[:, 3:7])))
             for k, name in enumerate(("x", "y", "z")):
                 bottom.plot(t.t, angles[:, k], lw=0.9, label=f"about {name}")
             top.set_title(f"{task} [{param}]: {result.status.value}, {result.iterations} it", fontsize=8)

@@ -603,21 +603,20 @@ def render_rigid_body(
 
 
 def render_benchmark(result, out_dir: str | Path, *, options: RenderOptions | None = None, keyframes: int = 8) -> list[Path]:
-    """``jtraj attitude ... --render``: ``{name}_{variant}.mp4`` and ``{name}_{variant}_keyframes.png``
-    of an attitude benchmark result (its ``name``, ``variant``, ``t`` and states ``X`` whose
-    first 7 columns are position and wxyz attitude) in ``out_dir``."""
-    shape = BENCHMARK_SHAPES.get(result.name)
+    """``jtraj attitude ... --render``: ``motion.mp4`` and ``keyframes.png`` in ``out_dir`` (the
+    result's folder) of an attitude benchmark `jtraj.result.Result` (its ``problem`` and its
+    trajectory's ``t`` and states ``X``, whose first 7 columns are position and wxyz attitude)."""
+    shape = BENCHMARK_SHAPES.get(result.problem)
     if shape is None:
-        raise ValueError(f"no body to draw for benchmark {result.name!r}; expected one of: {', '.join(BENCHMARK_SHAPES)}")
+        raise ValueError(f"no body to draw for benchmark {result.problem!r}; expected one of: {', '.join(BENCHMARK_SHAPES)}")
     options = options or RenderOptions()
-    X = np.asarray(result.X)
-    stem = Path(out_dir) / f"{result.name}_{result.variant}"
+    t, X = np.asarray(result.trajectory.t), np.asarray(result.trajectory.X)
     # the satellite slews for minutes: show it faster than real time
-    speed = options.speed * (10.0 if result.t[-1] - result.t[0] > 30 else 1.0)
-    video = render_rigid_body(result.t, X[:, :3], X[:, 3:7], shape, options=dataclasses.replace(options, speed=speed))
+    speed = options.speed * (10.0 if t[-1] - t[0] > 30 else 1.0)
+    video = render_rigid_body(t, X[:, :3], X[:, 3:7], shape, options=dataclasses.replace(options, speed=speed))
     strip_options = dataclasses.replace(options, width=min(options.width, 320) if shape == "satellite" else options.width)
-    strip = render_rigid_body(result.t, X[:, :3], X[:, 3:7], shape, strip=keyframes, options=strip_options)
-    return [write_video(video, stem.with_suffix(".mp4"), fps=options.fps), write_image(strip, Path(f"{stem}_keyframes.png"))]
+    strip = render_rigid_body(t, X[:, :3], X[:, 3:7], shape, strip=keyframes, options=strip_options)
+    return [write_video(video, Path(out_dir) / "motion.mp4", fps=options.fps), write_image(strip, Path(out_dir) / "keyframes.png")]
 
 
 # ----------------------------------------------------------------------------------------

@@ -1,130 +1,306 @@
-"""Results of a solve: a dataclass with the Ipopt outcome, timings, the decoded trajectory and
-the task-success check; saved as ``result.json`` + ``trajectory.npz`` and loadable back."""
+"""One result type for every solve of jtraj: whole-body tasks and the attitude benchmarks.
+
+A `Result` holds what the solver returned (its `jtraj.solvers.Status`, counts and time split
+in `jtraj.solvers.Stats`, the per-iteration history), the problem's own task check (an
+`Outcome` and the ``metrics`` it computed: turns of a flip, a keep-out margin...) and the
+decoded trajectory (any dataclass of arrays: `jtraj.transcription.Trajectory` for a robot,
+`jtraj.attitude.transcription.StateTrajectory` for a rigid body).
+
+Files: ``save(DIR)`` writes ``DIR/result.json`` (strict JSON, atomically) and
+``DIR/trajectory.npz`` (atomically; removed when the result has no trajectory, so that an
+older one cannot be taken for this result's); `Result.load` reads them back and raises
+`jtraj.io.FileFormatError` naming the file when one is missing, empty or corrupt.
+
+This module imports neither MuJoCo nor the transcription: the trajectory's class is recorded
+by name in the NPZ file and imported when the file is loaded.
+"""
 
 from __future__ import annotations
 
 import dataclasses
 import enum
-import json
+import importlib
+import zipfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from jtraj import lie
-from jtraj.lie import SO3
-from jtraj.transcription import Trajectory
+from jtraj import io
+from jtraj.solvers.base import Solution, Stats, Status
 
-__all__ = ["Status", "Result", "count_turns"]
+__all__ = ["Outcome", "Result"]
 
-
-class Status(enum.Enum):
-    """Outcome of a solve, from Ipopt's status and the task-success check."""
-
-    SOLVED = "solved"  # Ipopt converged and the task succeeded
-    SOLVED_WRONG_MOTION = "converged_but_task_failed"  # e.g. a plain jump instead of a flip
-    NOT_CONVERGED = "not_converged"
+RESULT_FILE = "result.json"
+TRAJECTORY_FILE = "trajectory.npz"
+_KIND_KEY = "__trajectory_class__"
 
 
-def count_turns(base_xyz_wxyz: np.ndarray, axis: np.ndarray) -> float:
-    """Signed number of revolutions of the base about a world axis.
+class Outcome(enum.Enum):
+    """Did the solve do the task? From the solver's status, feasibility and the task check."""
 
-    Sums the world-frame rotation increments ``Log(R_{k+1} R_k^T)`` projected on the axis, so
-    a back-flip gives about -1 about +y and a plain jump about 0.
-    """
-    axis = np.asarray(axis, float) / np.linalg.norm(axis)
-    R = SO3(np.asarray(base_xyz_wxyz)[:, 3:7])
-    steps = np.asarray(lie.log(SO3(R.wxyz[1:]) @ SO3(R.wxyz[:-1]).inverse()))
-    return float(np.sum(steps @ axis) / (2 * np.pi))
+    SOLVED = ("solved", "the solver converged to a feasible point and the task check passed")
+    TASK_FAILED = ("converged_but_task_failed", "the solver converged to a feasible point that does not do the task (e.g. a jump instead of a flip)")
+    NOT_CONVERGED = ("not_converged", "the solver did not return a feasible solution; see solver_status")
+
+    def __new__(cls, value: str, message: str) -> Outcome:
+        member = object.__new__(cls)
+        member._value_ = value
+        member.message = message
+        return member
+
+    message: str
+
+    @classmethod
+    def of(cls, feasible: bool, task_ok: bool) -> Outcome:
+        """SOLVED when feasible (converged, and within the problem's violation tolerance) and
+        the task check passed; TASK_FAILED when only feasible; NOT_CONVERGED otherwise."""
+        if not feasible:
+            return cls.NOT_CONVERGED
+        return cls.SOLVED if task_ok else cls.TASK_FAILED
 
 
-@dataclasses.dataclass
+@dataclasses.dataclass(kw_only=True, eq=False)
 class Result:
-    task: str
-    robot: str
-    parameterization: str
-    status: Status
+    """A solve and its check.
+
+    Attributes:
+        problem: the task or benchmark name.
+        variant: how the attitude enters the NLP: the floating-base parameterization
+            (``"se3"``...) or the attitude formulation (``"naive"``, ``"attitude"``).
+        model: the robot or rigid-body model.
+        solver: the backend's registry name.
+        status: the `Outcome`.
+        solver_status: the backend's `Status`; ``status_msg`` its own wording.
+        stats: iterations, evaluation counts, time split (compilation excluded).
+        time_compile: seconds spent compiling before the solve (0 when cached).
+        cost: objective at the solution.
+        constraint_violation: max violation of the constraint rows and bounds.
+        violation_by_group: the same per constraint group (and ``"bounds"``).
+        metrics: the task check's numbers (e.g. ``turns``, ``min_sun_angle_deg``).
+        n_variables, n_constraints, nnz_jacobian: problem size.
+        options: the solver options and transcription settings used.
+        history: per iteration: iter, objective, inf_pr, inf_du, mu, alpha_pr.
+        trajectory: the decoded solution (a dataclass of arrays) or None.
+    """
+
+    problem: str
+    variant: str
+    model: str
+    solver: str
+    status: Outcome
+    solver_status: Status
     status_msg: str
-    converged: bool
-    success: bool
-    turns: float | None
-    iterations: int
-    obj_evals: int
-    grad_evals: int
-    con_evals: int
-    jac_evals: int
-    hess_evals: int
+    stats: Stats
+    time_compile: float
     cost: float
     constraint_violation: float
     violation_by_group: dict[str, float]
-    final_position_error: float
-    time_s: float  # time to solution, compile excluded
-    time_compile: float
-    time_derivatives: float  # JAX function and derivative evaluations inside Ipopt's callbacks
-    time_ipopt: float  # Ipopt's own work (linear algebra, line search, ...)
+    metrics: dict[str, Any]
     n_variables: int
     n_constraints: int
-    nnz_jacobian: int
-    options: dict[str, Any]
-    history: list[dict[str, float]]
-    trajectory: Trajectory | None = None
+    nnz_jacobian: int = 0
+    options: dict[str, Any] = dataclasses.field(default_factory=dict)
+    history: list[dict[str, float]] = dataclasses.field(default_factory=list)
+    trajectory: Any = None
+
+    @classmethod
+    def from_solution(
+        cls,
+        solution: Solution,
+        *,
+        feasibility_tol: float,
+        task_ok: bool,
+        violation_by_group: dict[str, float],
+        **fields: Any,
+    ) -> Result:
+        """The result of ``solution``: feasible when the solver converged with a constraint
+        violation of at most ``feasibility_tol`` (the problem's own units); ``task_ok`` is the
+        problem's task check; ``fields`` are the problem's descriptive fields."""
+        feasible = solution.converged and solution.constraint_violation <= feasibility_tol
+        return cls(
+            status=Outcome.of(feasible, task_ok),
+            solver_status=solution.status,
+            status_msg=solution.message,
+            stats=solution.stats,
+            cost=solution.objective,
+            constraint_violation=solution.constraint_violation,
+            violation_by_group=violation_by_group,
+            n_constraints=solution.mult_g.size,
+            history=[it.as_dict() for it in solution.history],
+            **fields,
+        )
+
+    # ------------------------------------------------------------------ derived
+    @property
+    def converged(self) -> bool:
+        """The solver reported convergence (solved or acceptable)."""
+        return self.solver_status.converged
+
+    @property
+    def success(self) -> bool:
+        """Converged, feasible and the task check passed."""
+        return self.status is Outcome.SOLVED
+
+    @property
+    def iterations(self) -> int:
+        return self.stats.iterations
+
+    @property
+    def obj_evals(self) -> int:
+        return self.stats.obj_evals
+
+    @property
+    def grad_evals(self) -> int:
+        return self.stats.grad_evals
+
+    @property
+    def con_evals(self) -> int:
+        return self.stats.con_evals
+
+    @property
+    def jac_evals(self) -> int:
+        return self.stats.jac_evals
+
+    @property
+    def hess_evals(self) -> int:
+        return self.stats.hess_evals
+
+    @property
+    def time_s(self) -> float:
+        """Time to solution (s), compilation excluded."""
+        return self.stats.time_total
+
+    @property
+    def time_derivatives(self) -> float:
+        """Seconds in the NLP's JAX functions and derivatives during the solve."""
+        return self.stats.time_evaluations
+
+    @property
+    def time_solver(self) -> float:
+        """Seconds of the solver's own work (linear algebra, line search...)."""
+        return self.stats.time_solver
+
+    # the whole-body names of the same fields
+    @property
+    def task(self) -> str:
+        return self.problem
+
+    @property
+    def parameterization(self) -> str:
+        return self.variant
+
+    @property
+    def robot(self) -> str:
+        return self.model
+
+    @property
+    def turns(self) -> float | None:
+        """Signed turns about a flip task's axis (None for other problems)."""
+        return self.metrics.get("turns")
 
     def summary(self) -> str:
         turns = "" if self.turns is None else f", turns {self.turns:+.2f}"
         return (
-            f"{self.task} [{self.parameterization}] {self.status.value}: {self.iterations} iterations, "
-            f"cost {self.cost:.4g}, violation {self.constraint_violation:.2e}{turns}, "
+            f"{self.problem} [{self.variant}] {self.status.value}: {self.iterations} iterations, "
+            f"cost {self.cost:.6g}, violation {self.constraint_violation:.2e}{turns}, "
             f"{self.time_s:.2f} s (compile {self.time_compile:.1f} s; derivatives {self.time_derivatives:.2f} s, "
-            f"Ipopt {self.time_ipopt:.2f} s)"
+            f"{self.solver} {self.time_solver:.2f} s)"
         )
 
-    def plot(self, path: str | Path | None = None, **kwargs):
-        """Base pose, joint angles and torques against their limits, contact forces and the
-        friction-cone use, contact phases shaded (`jtraj.plots.plot_solution`): the figure,
+    def plot(self, path: str | Path | None = None, **kwargs: Any) -> Any:
+        """The result's figure: the trajectory's own ``plot_result(result, path)`` where it has
+        one (the attitude benchmarks), else `jtraj.plots.plot_solution` (base pose, joints and
+        torques against their limits, contact forces, friction-cone use). Returns the figure,
         or the path when ``path`` is given."""
+        own = getattr(self.trajectory, "plot_result", None)
+        if own is not None:
+            return own(self, path, **kwargs)
         from jtraj.plots import plot_solution
 
         return plot_solution(self, path, **kwargs)
 
     # ------------------------------------------------------------------ files
     def to_json(self) -> dict[str, Any]:
-        out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "trajectory"}
+        """Everything but the trajectory, as JSON types; stats are flattened into the top level."""
+        out: dict[str, Any] = {}
+        for f in dataclasses.fields(self):
+            if f.name in ("trajectory", "stats"):
+                continue
+            out[f.name] = getattr(self, f.name)
         out["status"] = self.status.value
-        return out
+        out["solver_status"] = self.solver_status.value
+        out["converged"] = self.converged
+        out["success"] = self.success
+        out.update(dataclasses.asdict(self.stats))
+        out["time_solver"] = self.stats.time_solver
+        return io.to_jsonable(out)
 
     def save(self, directory: str | Path) -> Path:
-        """Write ``result.json`` and ``trajectory.npz`` into ``directory`` (created)."""
+        """Write ``result.json`` and ``trajectory.npz`` into ``directory`` (created); without
+        a trajectory, an older ``trajectory.npz`` there is removed."""
         d = Path(directory)
         d.mkdir(parents=True, exist_ok=True)
-        with open(d / "result.json", "w") as f:
-            json.dump(self.to_json(), f, indent=2, default=_json_default)
-        if self.trajectory is not None:
-            arrays = {k: v for k, v in dataclasses.asdict(self.trajectory).items() if k != "contact_names"}
-            np.savez_compressed(d / "trajectory.npz", contact_names=np.array(self.trajectory.contact_names), **arrays)
+        io.write_json(d / RESULT_FILE, self.to_json())
+        npz = d / TRAJECTORY_FILE
+        if self.trajectory is None:
+            npz.unlink(missing_ok=True)
+        else:
+            io.write_npz(npz, **_trajectory_arrays(self.trajectory))
         return d
 
     @classmethod
     def load(cls, directory: str | Path) -> Result:
+        """Read a result saved by `save`; `jtraj.io.FileFormatError` names the file that is
+        missing, empty or corrupt."""
         d = Path(directory)
-        with open(d / "result.json") as f:
-            data = json.load(f)
-        data["status"] = Status(data["status"])
-        fields = {f.name for f in dataclasses.fields(cls)}
-        data = {k: v for k, v in data.items() if k in fields}
-        traj = None
-        if (d / "trajectory.npz").exists():
-            with np.load(d / "trajectory.npz") as z:
-                arrays = {k: z[k] for k in z.files}
-            arrays["contact_names"] = tuple(str(s) for s in arrays["contact_names"])
-            traj = Trajectory(**arrays)
-        return cls(**data, trajectory=traj)
+        path = d / RESULT_FILE
+        data = io.read_json(path)
+        if not isinstance(data, dict):
+            raise io.FileFormatError(f"{path}: expected a JSON object, got {type(data).__name__}")
+        try:
+            stats = Stats(**{f.name: data[f.name] for f in dataclasses.fields(Stats)})
+            fields = {f.name: data[f.name] for f in dataclasses.fields(cls) if f.name not in ("stats", "trajectory")}
+            fields["status"] = _member(Outcome, data["status"])
+            fields["solver_status"] = _member(Status, data["solver_status"])
+        except KeyError as e:
+            raise io.FileFormatError(f"{path}: missing field {e.args[0]!r}; not a jtraj result") from None
+        except ValueError as e:
+            raise io.FileFormatError(f"{path}: {e}") from None
+        trajectory = _load_trajectory(d / TRAJECTORY_FILE) if (d / TRAJECTORY_FILE).exists() else None
+        return cls(**fields, stats=stats, trajectory=trajectory)
 
 
-def _json_default(obj: Any) -> Any:
-    if isinstance(obj, (np.floating, np.integer, np.bool_)):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, enum.Enum):
-        return obj.value
-    raise TypeError(f"cannot write {type(obj).__name__} to JSON")
+def _member(enum_cls: Any, value: Any) -> Any:
+    """The member of ``enum_cls`` with ``value`` (ValueError naming the values otherwise)."""
+    for member in enum_cls:
+        if member.value == value:
+            return member
+    raise ValueError(f"{value!r} is not a {enum_cls.__name__}; expected one of {[m.value for m in enum_cls]}")
+
+
+def _trajectory_arrays(trajectory: Any) -> dict[str, np.ndarray]:
+    if not dataclasses.is_dataclass(trajectory) or isinstance(trajectory, type):
+        raise TypeError(f"a result's trajectory must be a dataclass of arrays, got {type(trajectory).__name__}")
+    arrays = {f.name: np.asarray(getattr(trajectory, f.name)) for f in dataclasses.fields(trajectory)}
+    arrays[_KIND_KEY] = np.array(f"{type(trajectory).__module__}:{type(trajectory).__qualname__}")
+    return arrays
+
+
+def _load_trajectory(path: Path) -> Any:
+    try:
+        with np.load(path) as z:
+            arrays = {k: z[k] for k in z.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
+        raise io.FileFormatError(f"{path}: not a readable NPZ file ({e})") from None
+    kind = arrays.pop(_KIND_KEY, None)
+    if kind is None:
+        raise io.FileFormatError(f"{path}: no {_KIND_KEY} entry; not a jtraj trajectory")
+    module, _, name = str(kind).partition(":")
+    cls = getattr(importlib.import_module(module), name)
+    # string arrays (contact names) come back as tuples of str
+    values = {k: tuple(str(s) for s in v) if v.dtype.kind == "U" and v.ndim == 1 else v for k, v in arrays.items()}
+    try:
+        return cls(**values)
+    except TypeError as e:
+        raise io.FileFormatError(f"{path}: does not match {name} ({e})") from None

@@ -42,6 +42,8 @@ import mujoco
 import numpy as np
 from jaxlie import SE3, SO3
 
+from jtraj.constants import GRAVITY
+
 # MJX prints "Failed to import warp" (its optional GPU backend) on import: keep the command line
 # clean and pass on anything else it prints.
 with contextlib.redirect_stdout(io.StringIO()) as _mjx_import_output:
@@ -66,7 +68,6 @@ __all__ = [
 ]
 
 #: Magnitude of gravity (m/s^2); MuJoCo's default gravity vector is (0, 0, -GRAVITY).
-GRAVITY = 9.81
 
 _FREE_JOINT_NAME = "floating_base"
 # Mesh formats MuJoCo can read; Collada (.dae) is converted for rendering, others are skipped.

@@ -9,12 +9,13 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
-from jtraj import config
+from jtraj import config, solvers
 from jtraj import parameterization as params
 from jtraj import robot as robots
 from jtraj import task as tasks
-from jtraj import solvers
-from jtraj.result import Result, Status
+from jtraj.nlp import KnotNLP
+from jtraj.registry import lookup
+from jtraj.result import Result
 from jtraj.success import FEASIBILITY_TOL
 from jtraj.success import evaluate as check_motion
 from jtraj.transcription import COMPACT_LAYOUT, LEAN_LAYOUT, PAPER_LAYOUT, TaskParams, Transcription, TranscriptionOptions
@@ -25,10 +26,7 @@ LAYOUTS = {"paper": PAPER_LAYOUT, "compact": COMPACT_LAYOUT, "lean": LEAN_LAYOUT
 def _layout(layout: str | TranscriptionOptions) -> TranscriptionOptions:
     if isinstance(layout, TranscriptionOptions):
         return layout
-    try:
-        return LAYOUTS[layout]
-    except KeyError:
-        raise ValueError(f"unknown layout {layout!r}; expected one of {sorted(LAYOUTS)} or a TranscriptionOptions") from None
+    return lookup(LAYOUTS, layout, "layout", hint=" or a TranscriptionOptions")
 
 __all__ = ["solve", "prepare", "Prepared"]
 
@@ -36,9 +34,9 @@ __all__ = ["solve", "prepare", "Prepared"]
 class Prepared:
     """A transcription with its compiled NLP, reusable across solves (noise replicates...)."""
 
-    def __init__(self, transcription: Transcription, time_compile: float):
+    def __init__(self, transcription: Transcription, nlp: KnotNLP, time_compile: float):
         self.transcription = transcription
-        self.nlp = None
+        self.nlp = nlp
         self.time_compile = time_compile
 
 
@@ -66,8 +64,7 @@ def prepare(
     x = jnp.asarray(tr.warm_start().reshape(-1))
     for fn in (nlp.objective, nlp.gradient, nlp.constraints, nlp.jacobian):
         np.asarray(fn(x, nlp.theta))
-    prep = Prepared(tr, time.perf_counter() - t0)
-    prep.nlp = nlp
+    prep = Prepared(tr, nlp, time.perf_counter() - t0)
     _CACHE[key] = prep
     return prep
 
@@ -138,7 +135,7 @@ def solve(
         )
     solution = backend.solve(nlp, x0.reshape(-1), theta, opts, callback)
     traj = tr.decode(solution.x, theta)
-    result = evaluate(tr, solution, traj, compile_time, {"solver": backend.name, **opts.as_dict(), "layout": dataclasses.asdict(tr.options)}, nlp.nnz_jac, nlp.violation_by_group(solution.x, theta), theta)
+    result = evaluate(tr, solution, traj, compile_time, {"solver": backend.name, **opts.as_dict(), "layout": dataclasses.asdict(tr.options)}, nlp.nnz_jac, nlp.violation_by_group(solution.x, theta), theta, backend.name)
     if not keep_trajectory:
         result.trajectory = None
     if say is not None:
@@ -171,47 +168,28 @@ def _solver_options(
     return backend.options(merged)
 
 
-def evaluate(tr: Transcription, outcome: solvers.Solution, traj, compile_time: float, options: dict[str, Any], nnz_jacobian: int = 0, violation_by_group: dict[str, float] | None = None, theta: TaskParams | None = None) -> Result:
+def evaluate(tr: Transcription, solution: solvers.Solution, traj, compile_time: float, options: dict[str, Any], nnz_jacobian: int = 0, violation_by_group: dict[str, float] | None = None, theta: TaskParams | None = None, solver: str = "ipopt") -> Result:
     """Task-success check (`jtraj.success`): converged, feasible to `FEASIBILITY_TOL`, and the
     base motion does the task (a flip with the expected sign, count and axis; no unplanned
     somersault otherwise). The final position error is reported but not tested: the variable
     bounds fix the final pose, so it cannot fail."""
     task = tr.task
     target = tr.target_xyz_wxyz[:3] if theta is None else tr.target_xyz_wxyz_of(theta)[:3]
-    final_error = float(np.linalg.norm(traj.base_xyz_wxyz[-1, :3] - target))
-    feasible = outcome.converged and outcome.constraint_violation < FEASIBILITY_TOL
     check = check_motion(traj.base_xyz_wxyz, task.flip_axis, task.flip_turns)
-    turns = check.turns
-    success = feasible and check.ok
-    status = Status.SOLVED if success else (Status.SOLVED_WRONG_MOTION if feasible else Status.NOT_CONVERGED)
-    return Result(
-        task=task.name,
-        robot=tr.robot.name,
-        parameterization=tr.param.name,
-        status=status,
-        status_msg=outcome.message,
-        converged=outcome.converged,
-        success=success,
-        turns=turns,
-        iterations=outcome.stats.iterations,
-        obj_evals=outcome.stats.obj_evals,
-        grad_evals=outcome.stats.grad_evals,
-        con_evals=outcome.stats.con_evals,
-        jac_evals=outcome.stats.jac_evals,
-        hess_evals=outcome.stats.hess_evals,
-        cost=outcome.objective,
-        constraint_violation=outcome.constraint_violation,
+    metrics: dict[str, Any] = {"final_position_error": float(np.linalg.norm(traj.base_xyz_wxyz[-1, :3] - target)), "turns": check.turns, "task_check": check.reason}
+    return Result.from_solution(
+        solution,
+        feasibility_tol=FEASIBILITY_TOL,
+        task_ok=check.ok,
         violation_by_group=violation_by_group or {},
-        final_position_error=final_error,
-        time_s=outcome.stats.time_total,
+        problem=task.name,
+        variant=tr.param.name,
+        model=tr.robot.name,
+        solver=solver,
         time_compile=compile_time,
-        time_derivatives=outcome.stats.time_evaluations,
-        time_ipopt=outcome.stats.time_solver,
+        metrics=metrics,
         n_variables=tr.layout.nz * (tr.N + 1),
-        n_constraints=outcome.mult_g.size,
         nnz_jacobian=nnz_jacobian,
-        options={k: v for k, v in options.items()},
-        history=[it.as_dict() for it in outcome.history],
+        options=dict(options),
         trajectory=traj,
     )
-

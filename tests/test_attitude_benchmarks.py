@@ -1,10 +1,13 @@
-"""Benchmarks of "Planning with Attitude" (`jtraj.attitude.benchmarks`): the two formulations'
-contract, the problem definitions, and short-horizon solves of every benchmark in both
-formulations (N = 21 knots), including an active keep-out cone in the satellite slew."""
+"""Benchmarks of "Planning with Attitude" (`jtraj.attitude`): the two formulations' contract,
+the problem definitions, short-horizon solves of every benchmark in both formulations (N = 21
+knots), including an active keep-out cone in the satellite slew, and that the package stands
+without MuJoCo."""
 
 import functools
 import json
 import math
+import subprocess
+import sys
 
 import jax
 import jax.numpy as jnp
@@ -12,7 +15,10 @@ import numpy as np
 import pytest
 
 from jtraj import quaternion as Q
-from jtraj.attitude import benchmarks as B
+import jtraj.attitude as B
+from jtraj.attitude.cli import main_attitude
+from jtraj.lie import accumulated_rotation
+from jtraj.result import Result
 from jtraj.attitude import models as M
 
 SHORT = {"quadflip": {}, "barrelroll": {}, "satellite": {"tf": 25.0}}  # tf: 1.25 s steps keep RK4 stable
@@ -22,7 +28,7 @@ N_SHORT = 21
 @functools.cache
 def solve(name, variant, ipopt_options=(), **kwargs):
     kw = {**SHORT[name], **kwargs}
-    return B.solve_benchmark(name, variant, n_knots=N_SHORT, progress=None, ipopt_options=dict(ipopt_options), **kw)
+    return B.solve_benchmark(name, variant, n_knots=N_SHORT, progress=False, options=dict(ipopt_options), **kw)
 
 
 def random_quaternion(rng):
@@ -83,7 +89,7 @@ def test_quadrotor_flip_definition():
     np.testing.assert_allclose(b.x_lower[-1, :3], [0, 1, 1])  # 2 m along +y
     assert np.all(b.x_lower[:, 2] >= 0.0)  # floor
     # warm start turns a full revolution about x
-    turns = B.accumulated_rotation(b.x_init[:, 3:7])[-1] / (2 * np.pi)
+    turns = np.asarray(accumulated_rotation(b.x_init[:, 3:7]))[-1] / (2 * np.pi)
     np.testing.assert_allclose(turns, [1, 0, 0], atol=1e-12)
     # shorter horizons keep the waypoint times
     short = B.quadrotor_flip(N_SHORT)
@@ -147,7 +153,7 @@ def test_quadrotor_flip_short(variant):
     assert abs(r.metrics["roll_turns"] - 1.0) < 0.05  # a real flip
     assert max(r.metrics["target_errors_deg"].values()) < 1e-3
     assert r.metrics["min_altitude_m"] > -1e-6
-    np.testing.assert_allclose(r.X[-1, :3], [0, 1, 1], atol=1e-9)
+    np.testing.assert_allclose(r.trajectory.X[-1, :3], [0, 1, 1], atol=1e-9)
     if variant == "attitude":
         assert r.metrics["max_quaternion_norm_error"] < 1e-8
 
@@ -164,11 +170,11 @@ def test_naive_quaternions_drift_off_the_sphere():
 def test_barrel_roll_short():
     r = solve("barrelroll", "attitude")
     assert r.success, r.summary()
-    A = np.asarray(Q.rotation_matrix(jnp.asarray(r.X[-1, 3:7])))
+    A = np.asarray(Q.rotation_matrix(jnp.asarray(r.trajectory.X[-1, 3:7])))
     assert A[2, 2] < -0.9  # ends upside down
     assert abs(r.metrics["roll_deg"]) > 90
-    np.testing.assert_allclose(r.X[-1, :3], [3, 0, 1.5], atol=1e-9)
-    assert np.all(r.U[:, 0] >= -1e-8) and np.all(np.abs(r.U[:, 1:]) <= math.radians(60) + 1e-8)
+    np.testing.assert_allclose(r.trajectory.X[-1, :3], [3, 0, 1.5], atol=1e-9)
+    assert np.all(r.trajectory.U[:, 0] >= -1e-8) and np.all(np.abs(r.trajectory.U[:, 1:]) <= math.radians(60) + 1e-8)
 
 
 @pytest.mark.slow
@@ -192,7 +198,7 @@ def test_naive_constraint_jacobian_is_rank_deficient():
     formulation's Jacobian at the same point is well conditioned."""
     r = solve("quadflip", "attitude")
     bench = B.quadrotor_flip(N_SHORT)
-    z = jnp.asarray(np.concatenate([r.X, np.vstack([r.U, bench.u_lower[-1:]])], axis=1).reshape(-1))
+    z = jnp.asarray(np.concatenate([r.trajectory.X, np.vstack([r.trajectory.U, bench.u_lower[-1:]])], axis=1).reshape(-1))
     sigma_min = {}
     for variant in ("naive", "attitude"):
         nlp = B.build_nlp(bench, B.FORMULATIONS[variant])
@@ -220,19 +226,22 @@ def test_satellite_without_keep_out_crosses_the_cone():
     assert free.metrics["min_sun_angle_deg"] < 39.0
     assert "keep_out" not in free.violation_by_group
     # the constraint costs something
-    assert solve("satellite", "attitude").objective > free.objective
+    assert solve("satellite", "attitude").cost > free.cost
 
 
 @pytest.mark.slow
 def test_result_files_and_figure(tmp_path):
     r = solve("satellite", "attitude")
-    json_path, npz_path = r.save(tmp_path)
-    data = json.loads(json_path.read_text())
-    assert data["status"] == "solved" and data["iterations"] == r.iterations
+    folder = r.save(tmp_path / "satellite")
+    data = json.loads((folder / "result.json").read_text())
+    assert data["status"] == "solved" and data["iterations"] == r.iterations and data["solver_status"] == "solved"
     assert data["constraint_violation"] == r.constraint_violation
-    with np.load(npz_path) as z:
-        np.testing.assert_array_equal(z["X"], r.X)
+    with np.load(folder / "trajectory.npz") as z:
+        np.testing.assert_array_equal(z["X"], r.trajectory.X)
         assert z["U"].shape == (N_SHORT - 1, 4) and z["t"][-1] == 25.0
+    back = Result.load(folder)
+    np.testing.assert_array_equal(back.trajectory.U, r.trajectory.U)
+    assert back.metrics == json.loads(json.dumps(r.metrics))
     for name in ("quadflip", "barrelroll", "satellite"):
         fig = B.plot_benchmark(solve(name, "attitude"), tmp_path / f"{name}.png")
         assert fig.axes and (tmp_path / f"{name}.png").read_bytes()[:4] == b"\x89PNG"
@@ -240,11 +249,24 @@ def test_result_files_and_figure(tmp_path):
 
 @pytest.mark.slow
 def test_main_attitude_prints_and_saves(tmp_path, capsys):
-    r = B.main_attitude("quadflip", "attitude", tmp_path, n_knots=N_SHORT)
+    r = main_attitude("quadflip", "attitude", tmp_path, n_knots=N_SHORT)
     out = capsys.readouterr().out
-    assert "iterations" in out and "constraint violation" in out
-    for suffix in ("json", "npz", "png"):
-        assert (tmp_path / f"quadflip_attitude.{suffix}").stat().st_size > 0
+    assert "iterations" in out and "violation" in out and "inf_pr" in out
+    for name in ("result.json", "trajectory.npz", "plot.png"):
+        assert (tmp_path / "quadflip_attitude" / name).stat().st_size > 0
     # deterministic: the same problem gives the same iterations as the cached solve
     assert r.iterations == solve("quadflip", "attitude").iterations
-    np.testing.assert_allclose(r.X, solve("quadflip", "attitude").X, atol=1e-12)
+    np.testing.assert_allclose(r.trajectory.X, solve("quadflip", "attitude").X, atol=1e-12)
+
+
+def test_importing_attitude_loads_no_mujoco_robot_or_transcription():
+    code = "import sys, jtraj.attitude; print(sorted(m for m in ('mujoco', 'mujoco.mjx', 'jtraj.robot', 'jtraj.dynamics', 'jtraj.transcription') if m in sys.modules))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
+
+
+def test_every_benchmark_has_its_own_check_and_figure():
+    for name, cls in B.BENCHMARKS.items():
+        assert cls.name == name
+        for method in ("build", "task_metrics", "plot_curve"):
+            assert method in vars(cls), (name, method)  # its own, not dispatched on its name

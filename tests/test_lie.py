@@ -197,3 +197,18 @@ class TestPinocchioOracle:
             np.testing.assert_allclose(Lg(T), pin.log6(M).vector, atol=1e-10)
             np.testing.assert_allclose(lie.right_jacobian(SE3, jnp.asarray(xi)), pin.Jexp6(pin.Motion(xi)), atol=1e-10)
             np.testing.assert_allclose(lie.right_jacobian_inv(SE3, Lg(T)), pin.Jlog6(M), atol=1e-9)
+
+
+def test_accumulated_rotation_counts_full_turns():
+    """A back-flip about +y reads -2 pi about y (Log of the end attitude alone reads 0); the
+    body-frame sum of a roll about the body x axis of a pitched body stays on body x."""
+    angles = np.linspace(0, -2 * np.pi, 41)
+    wxyz = jnp.stack([SO3.from_y_radians(a).wxyz for a in angles])
+    np.testing.assert_allclose(lie.accumulated_rotation(wxyz)[-1], [0.0, -2 * np.pi, 0.0], atol=1e-9)
+    np.testing.assert_allclose(lie.accumulated_rotation(2.0 * wxyz)[-1], [0.0, -2 * np.pi, 0.0], atol=1e-9)  # not unit
+    pitch = SO3.from_y_radians(0.3)
+    rolled = jnp.stack([(pitch @ SO3.from_x_radians(a)).wxyz for a in np.linspace(0, np.pi, 21)])
+    np.testing.assert_allclose(lie.accumulated_rotation(rolled, "body")[-1], [np.pi, 0.0, 0.0], atol=1e-9)
+    assert abs(float(lie.accumulated_rotation(rolled)[-1, 0]) - np.pi * np.cos(0.3)) < 1e-9
+    with pytest.raises(ValueError, match="frame"):
+        lie.accumulated_rotation(wxyz, "space")

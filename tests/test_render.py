@@ -12,7 +12,9 @@ from jtraj import robot as robots
 from jtraj.cli import main
 from jtraj.plots import friction_cone_ratio, plot_comparison, plot_directory, plot_solution
 from jtraj.render import RenderOptions, interpolate, keyframe_strip, keyframe_times, render, write_image, write_video
-from jtraj.result import Result, Status
+from jtraj.result import Outcome, Result
+from jtraj.solvers import Stats
+from jtraj.solvers import Status as SolverStatus
 from jtraj.transcription import Trajectory
 
 W, H = 160, 120
@@ -40,12 +42,11 @@ def _result(n_knots=11, duration=0.5) -> Result:
         forces=forces, contact_positions=contact_positions, in_contact=np.arange(n_knots)[:, None].repeat(P, 1) < 3,
         contact_names=go2.contact_names,
     )
-    zeros = dict.fromkeys(("iterations", "obj_evals", "grad_evals", "con_evals", "jac_evals", "hess_evals", "n_variables", "n_constraints", "nnz_jacobian"), 0)
     return Result(
-        task="made_up_flip", robot="go2", parameterization="se3", status=Status.SOLVED, status_msg="", converged=True,
-        success=True, turns=-0.5, cost=0.0, constraint_violation=0.0, violation_by_group={}, final_position_error=0.0,
-        time_s=0.0, time_compile=0.0, time_derivatives=0.0, time_ipopt=0.0, options={},
-        history=[{"iter": 0, "inf_pr": 1.0, "inf_du": 1.0}, {"iter": 1, "inf_pr": 1e-9, "inf_du": 1e-7}], trajectory=traj, **zeros,
+        problem="made_up_flip", model="go2", variant="se3", solver="ipopt", status=Outcome.SOLVED, solver_status=SolverStatus.SOLVED,
+        status_msg="", stats=Stats(), metrics={"turns": -0.5}, cost=0.0, constraint_violation=0.0, violation_by_group={},
+        time_compile=0.0, n_variables=0, n_constraints=0, options={},
+        history=[{"iter": 0, "inf_pr": 1.0, "inf_du": 1.0}, {"iter": 1, "inf_pr": 1e-9, "inf_du": 1e-7}], trajectory=traj,
     )
 
 
@@ -221,9 +222,10 @@ def test_attitude_bodies_along_their_paths(tmp_path):
     # a satellite turns in place: one panel per keyframe, no ground
     still = render_rigid_body(t, np.zeros((9, 3)), wxyz, "satellite", strip=3, options=SMALL)
     assert still.shape == (H, 3 * W + 4, 3)
-    result = SimpleNamespace(name="quadflip", variant="attitude", t=t, X=np.concatenate([xyz, wxyz, np.zeros((9, 6))], axis=1))
+    trajectory = SimpleNamespace(t=t, X=np.concatenate([xyz, wxyz, np.zeros((9, 6))], axis=1))
+    result = SimpleNamespace(problem="quadflip", variant="attitude", trajectory=trajectory)
     paths = render_benchmark(result, tmp_path, options=dataclasses.replace(SMALL, fps=4), keyframes=3)
-    assert [p.name for p in paths] == ["quadflip_attitude.mp4", "quadflip_attitude_keyframes.png"]
+    assert [p.name for p in paths] == ["motion.mp4", "keyframes.png"]
     assert all(p.stat().st_size > 1000 for p in paths)
     with pytest.raises(ValueError, match="shape must be"):
         render_rigid_body(t, xyz, wxyz, "blimp", options=SMALL)

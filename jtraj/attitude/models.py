@@ -35,6 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jtraj import quaternion as quat
+from jtraj.constants import GRAVITY
 
 __all__ = [
     "POS",
@@ -173,7 +174,7 @@ class Quadrotor:
     arm: float = 0.175
     kf: float = 1.0
     km: float = 0.0245
-    gravity: float = 9.81
+    gravity: float = GRAVITY
 
     nx: ClassVar[int] = 13
     nu: ClassVar[int] = 4
@@ -264,7 +265,7 @@ class Airplane:
 
     mass: float = 0.075
     inertia: tuple[float, float, float] = (4.89e-4, 6.38e-4, 7.95e-4)
-    gravity: float = 9.81
+    gravity: float = GRAVITY
     air_density: float = 1.225
     surfaces: tuple[Surface, ...] = dataclasses.field(default_factory=_default_surfaces)
     fuselage_drag_area: float = 0.002

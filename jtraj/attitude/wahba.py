@@ -53,7 +53,6 @@ Fig. 2 (the SVD solution itself is about 1 degree from the true attitude).
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -64,6 +63,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jtraj import io
 from jtraj import quaternion as quat
 from jtraj.lie import SO3, skew
 
@@ -101,6 +101,11 @@ PAPER_FIG2_MEAN_DEG: dict[str, tuple[float, ...]] = {
     "projected": (10.0, 0.6328, 0.2856, 0.2828, 0.2827),
     "multiplicative": (10.0, 0.2573, 6.405e-3, 1.902e-4, 6.200e-6),
 }
+
+
+#: Default measurement noise (rad, standard deviation) and initial-guess offset (rad).
+NOISE_STD = math.radians(5.0)
+INIT_OFFSET = math.radians(10.0)
 
 
 class WahbaProblem(NamedTuple):
@@ -184,8 +189,8 @@ def angle_error(q: jax.Array, q_ref: jax.Array) -> jax.Array:
 def generate_problem(
     key: jax.Array,
     n_vectors: int = 20,
-    noise_std: float | jax.Array = math.radians(5.0),
-    init_offset: float | jax.Array = math.radians(10.0),
+    noise_std: float | jax.Array = NOISE_STD,
+    init_offset: float | jax.Array = INIT_OFFSET,
 ) -> WahbaProblem:
     """A random instance of Wahba's problem (see the module docstring for the noise model).
 
@@ -281,8 +286,8 @@ def solve_trial(
     key: jax.Array,
     iterations: int,
     n_vectors: int = 20,
-    noise_std: float | jax.Array = math.radians(5.0),
-    init_offset: float | jax.Array = math.radians(10.0),
+    noise_std: float | jax.Array = NOISE_STD,
+    init_offset: float | jax.Array = INIT_OFFSET,
 ) -> WahbaErrors:
     """One trial: generate a problem, run every method, measure the angle errors to the SVD
     solution. Each error history has shape (iterations + 1,)."""
@@ -440,9 +445,9 @@ def _first_below(e: np.ndarray, tol: float) -> int | None:
 def write_wahba_data(result: WahbaResult, npz_path: str | Path, json_path: str | Path) -> dict:
     """Write the error arrays to ``npz_path`` and `summarize` to ``json_path``; returns the summary."""
     meta = {k: v for k, v in asdict(result).items() if k not in _METHODS}
-    np.savez(npz_path, **result.methods(), **{k: np.asarray(v) for k, v in meta.items()})
+    io.write_npz(npz_path, **result.methods(), **{k: np.asarray(v) for k, v in meta.items()})
     summary = summarize(result)
-    Path(json_path).write_text(json.dumps(summary, indent=2) + "\n")
+    io.write_json(json_path, summary)
     return summary
 
 
@@ -486,7 +491,7 @@ def plot_wahba(result: WahbaResult, path: str | Path | None = None):
     axes[1].set_title("median and 10-90 % band")
     fig.tight_layout()
     if path is not None:
-        fig.savefig(path, dpi=150)
+        io.save_figure(fig, path, dpi=150)
     return fig
 
 

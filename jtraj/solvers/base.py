@@ -73,7 +73,7 @@ class Status(enum.Enum):
     def __new__(cls, value: str, message: str) -> Status:
         member = object.__new__(cls)
         member._value_ = value
-        member.message = message  # type: ignore[attr-defined]
+        member.message = message
         return member
 
     message: str

@@ -1,0 +1,49 @@
+"""The ``jtraj attitude`` command: one benchmark (solve, print, save its folder and figure) or
+all of them (`jtraj.attitude.solve.compare_benchmarks`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from jtraj.attitude.benchmarks import PAPER_ITERATIONS
+from jtraj.attitude.solve import compare_benchmarks, result_directory, solve_benchmark
+from jtraj.result import Result
+
+__all__ = ["main_attitude", "main"]
+
+PLOT_FILE = "plot.png"
+
+
+def main_attitude(bench: str, variant: str = "attitude", out_dir: str | Path | None = None, n_knots: int | None = None, solver: str = "ipopt") -> Result:
+    """``jtraj attitude BENCH``: solve with live progress, print iterations, time, constraint
+    violation and the benchmark's key numbers, save ``OUT/BENCH_VARIANT/`` (result.json,
+    trajectory.npz, plot.png)."""
+    out = Path(out_dir) if out_dir is not None else Path("runs") / "attitude"
+    result = solve_benchmark(bench, variant, out=out, n_knots=n_knots, progress=True, solver=solver)
+    folder = result_directory(out, result)
+    result.plot(folder / PLOT_FILE)
+    print(result.summary())
+    for key in ("min_sun_angle_deg", "roll_turns", "roll_deg", "max_quaternion_norm_error"):
+        if key in result.metrics:
+            print(f"  {key}: {result.metrics[key]:.6g}")
+    paper = PAPER_ITERATIONS.get(result.problem)
+    if paper is not None:
+        print(f"  paper (ALTRO) iterations naive/modified: {paper[0]}/{paper[1]}")
+    print(f"wrote {folder}/result.json, trajectory.npz, {PLOT_FILE}")
+    return result
+
+
+def main(bench: str, variant: str, out_dir: str | Path, n_knots: int | None = None, solver: str = "ipopt", render: bool = False) -> int:
+    """Exit status of ``jtraj attitude``: 0 when every solve did the task, 2 otherwise. With
+    ``render``, one benchmark's motion is also drawn (`jtraj.render.render_benchmark`, which
+    needs MuJoCo) into its folder."""
+    if bench == "all":
+        rows = compare_benchmarks(out_dir, n_knots=n_knots, solver=solver)
+        return 0 if all(r["status"] == "solved" for r in rows) else 2
+    result = main_attitude(bench, variant, out_dir, n_knots=n_knots, solver=solver)
+    if render:
+        from jtraj.render import render_benchmark
+
+        for path in render_benchmark(result, result_directory(out_dir, result)):
+            print(f"wrote {path}")
+    return 0 if result.success else 2

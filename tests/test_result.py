@@ -1,0 +1,125 @@
+"""`jtraj.result.Result`: every field survives save/load for both kinds of trajectory, a
+result without a trajectory removes an older trajectory file, and a bad folder fails with
+one message naming the file."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from jtraj.attitude.transcription import StateTrajectory
+from jtraj.io import FileFormatError
+from jtraj.result import Outcome, Result
+from jtraj.solvers import Stats, Status
+
+
+def make_result(trajectory, **changes):
+    fields = dict(
+        problem="quadflip",
+        variant="attitude",
+        model="Quadrotor",
+        solver="ipopt",
+        status=Outcome.TASK_FAILED,
+        solver_status=Status.ACCEPTABLE,
+        status_msg="Solved To Acceptable Level.",
+        stats=Stats(iterations=12, obj_evals=13, grad_evals=13, con_evals=14, jac_evals=13, hess_evals=12, time_total=0.75, time_evaluations=0.25),
+        time_compile=3.5,
+        cost=1.25,
+        constraint_violation=2e-9,
+        violation_by_group={"dynamics": 2e-9, "bounds": 0.0},
+        metrics={"roll_turns": 0.5, "target_errors_deg": {"goal@20": 1e-7}, "task_check": "half a turn"},
+        n_variables=357,
+        n_constraints=300,
+        nnz_jacobian=4000,
+        options={"solver": "ipopt", "tol": 1e-6, "extra": {}},
+        history=[{"iter": 0, "objective": 2.0, "inf_pr": 1.0, "inf_du": 0.5, "mu": 0.1, "alpha_pr": 0.0}],
+        trajectory=trajectory,
+    )
+    fields.update(changes)
+    return Result(**fields)
+
+
+def state_trajectory():
+    rng = np.random.default_rng(0)
+    return StateTrajectory(t=np.linspace(0, 1, 5), X=rng.normal(size=(5, 13)), U=rng.normal(size=(4, 4)))
+
+
+def assert_same(a: Result, b: Result):
+    for f in dataclasses.fields(Result):
+        if f.name == "trajectory":
+            continue
+        assert getattr(a, f.name) == getattr(b, f.name), f.name
+    assert (a.trajectory is None) == (b.trajectory is None)
+    if a.trajectory is not None:
+        assert type(a.trajectory) is type(b.trajectory)
+        for f in dataclasses.fields(a.trajectory):
+            x, y = getattr(a.trajectory, f.name), getattr(b.trajectory, f.name)
+            if isinstance(x, tuple):
+                assert x == y, f.name
+            else:
+                np.testing.assert_array_equal(x, y, err_msg=f.name)
+
+
+def test_round_trip_of_every_field(tmp_path):
+    r = make_result(state_trajectory())
+    back = Result.load(r.save(tmp_path / "r"))
+    assert_same(r, back)
+    assert back.converged and not back.success and back.iterations == 12 and back.time_solver == 0.5
+
+
+def test_round_trip_of_a_whole_body_trajectory(tmp_path):
+    from jtraj.transcription import Trajectory
+
+    K, P = 4, 2
+    rng = np.random.default_rng(1)
+    traj = Trajectory(
+        t=np.arange(K) * 0.05,
+        base_xyz_wxyz=rng.normal(size=(K, 7)),
+        q_base=rng.normal(size=(K, 6)),
+        q_joints=rng.normal(size=(K, 3)),
+        v=rng.normal(size=(K, 9)),
+        a=rng.normal(size=(K, 9)),
+        tau=rng.normal(size=(K, 9)),
+        forces=rng.normal(size=(K, P, 3)),
+        contact_positions=rng.normal(size=(K, P, 3)),
+        in_contact=rng.random((K, P)) > 0.5,
+        contact_names=("FL_foot", "FR_foot"),
+    )
+    r = make_result(traj, problem="hop", variant="se3", model="go2", metrics={"turns": None, "final_position_error": 0.0})
+    back = Result.load(r.save(tmp_path / "wb"))
+    assert_same(r, back)
+    assert back.task == "hop" and back.parameterization == "se3" and back.robot == "go2" and back.turns is None
+
+
+def test_saving_without_trajectory_removes_the_old_one(tmp_path):
+    make_result(state_trajectory()).save(tmp_path)
+    assert (tmp_path / "trajectory.npz").exists()
+    make_result(None).save(tmp_path)
+    assert not (tmp_path / "trajectory.npz").exists()
+    assert Result.load(tmp_path).trajectory is None
+
+
+def test_non_finite_numbers_are_written_as_strict_json(tmp_path):
+    r = make_result(None, cost=float("nan"))
+    text = (r.save(tmp_path) / "result.json").read_text()
+    assert "NaN" not in text
+    assert Result.load(tmp_path).cost is None
+
+
+@pytest.mark.parametrize("damage", ["missing", "empty", "corrupt", "not_a_result", "bad_npz"])
+def test_bad_folders_name_the_file(tmp_path, damage):
+    d = tmp_path / "r"
+    make_result(state_trajectory()).save(d)
+    name = "trajectory.npz" if damage == "bad_npz" else "result.json"
+    if damage == "missing":
+        (d / name).unlink()
+    elif damage == "empty":
+        (d / name).write_text("")
+    elif damage == "corrupt":
+        (d / name).write_text('{"problem": ')
+    elif damage == "not_a_result":
+        (d / name).write_text('{"problem": "x"}')
+    else:
+        (d / name).write_bytes(b"PK\x03\x04 not a zip")
+    with pytest.raises(FileFormatError, match=name):
+        Result.load(d)
