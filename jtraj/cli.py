@@ -238,7 +238,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser(
         "solve",
-        help="solve a task with Ipopt and write DIR/result.json and DIR/trajectory.npz",
+        help="solve a task (Ipopt by default) and write DIR/result.json and DIR/trajectory.npz",
         epilog=f"exit status: 0 the task succeeded, {EXIT_BAD_INPUT} bad input, {EXIT_TASK_FAILED} converged but the motion does not do the task, {EXIT_NOT_CONVERGED} not converged",
     )
     p.add_argument("task", help="a built-in task (walk, hopscotch, big_jump, handstand, backflip, sideflip) or a .toml file")
@@ -250,7 +250,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ipopt", action="append", metavar="NAME=VALUE", help="any solver option (Ipopt's names for ipopt), repeatable (e.g. --ipopt max_iter=50)")
     p.add_argument("--noise", type=float, default=0.0, help="std of Gaussian noise added to the warm start")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--every", type=int, default=1, help="print Ipopt progress every N iterations")
+    p.add_argument("--every", type=int, default=1, help="print the solver's progress every N iterations")
     p.add_argument("--render", action="store_true", help="also write DIR/motion.mp4 and DIR/keyframes.png")
     p.set_defaults(func=_cmd_solve)
 
@@ -284,7 +284,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(func=_cmd_wahba)
 
-    p = sub.add_parser("attitude", help="Planning with Attitude benchmarks with Ipopt, naive or attitude-aware (OUT/BENCH_VARIANT.{json,npz,png}; 'all' writes OUT/table.md)")
+    p = sub.add_parser("attitude", help="Planning with Attitude benchmarks, naive or attitude-aware (OUT/BENCH_VARIANT/{result.json,trajectory.npz,plot.png}; 'all' writes OUT/table.md)")
     p.add_argument("bench", choices=["quadflip", "barrelroll", "satellite", "all"])
     p.add_argument("--variant", default="attitude", choices=["naive", "attitude"])
     p.add_argument("--out", default="runs/attitude")

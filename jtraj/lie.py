@@ -18,7 +18,7 @@ free of NaN in values and gradients at the identity and at rotation angle pi.
 
 from __future__ import annotations
 
-from typing import TypeVar, cast
+from typing import TypeVar
 
 import jax
 import jax.numpy as jnp
@@ -75,7 +75,7 @@ def exp(group: type[Group], tangent: jax.Array) -> Group:
     if group is SE3:
         rho, theta = tangent[..., :3], tangent[..., 3:]
         translation = jnp.einsum("...ij,...j->...i", _so3_left_jacobian(theta), rho)
-        return cast(Group, SE3.from_rotation_and_translation(SO3.exp(theta), translation))
+        return SE3.from_rotation_and_translation(SO3.exp(theta), translation)  # type: ignore[return-value]  # Group is SE3 here
     return group.exp(tangent)
 
 

@@ -256,7 +256,7 @@ def test_main_attitude_prints_and_saves(tmp_path, capsys):
         assert (tmp_path / "quadflip_attitude" / name).stat().st_size > 0
     # deterministic: the same problem gives the same iterations as the cached solve
     assert r.iterations == solve("quadflip", "attitude").iterations
-    np.testing.assert_allclose(r.trajectory.X, solve("quadflip", "attitude").X, atol=1e-12)
+    np.testing.assert_allclose(r.trajectory.X, solve("quadflip", "attitude").trajectory.X, atol=1e-12)
 
 
 def test_importing_attitude_loads_no_mujoco_robot_or_transcription():
