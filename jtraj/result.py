@@ -18,7 +18,6 @@ by name in the NPZ file and imported when the file is loaded.
 from __future__ import annotations
 
 import dataclasses
-import enum
 import importlib
 import zipfile
 from pathlib import Path
@@ -27,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from jtraj import io
-from jtraj.solvers.base import Solution, Stats, Status
+from jtraj.solvers.base import MessageEnum, Solution, Stats, Status
 
 __all__ = ["Outcome", "Result"]
 
@@ -36,20 +35,12 @@ TRAJECTORY_FILE = "trajectory.npz"
 _KIND_KEY = "__trajectory_class__"
 
 
-class Outcome(enum.Enum):
+class Outcome(MessageEnum):
     """Did the solve do the task? From the solver's status, feasibility and the task check."""
 
     SOLVED = ("solved", "the solver converged to a feasible point and the task check passed")
     TASK_FAILED = ("converged_but_task_failed", "the solver converged to a feasible point that does not do the task (e.g. a jump instead of a flip)")
     NOT_CONVERGED = ("not_converged", "the solver did not return a feasible solution; see solver_status")
-
-    def __new__(cls, value: str, message: str) -> Outcome:
-        member = object.__new__(cls)
-        member._value_ = value
-        member.message = message
-        return member
-
-    message: str
 
     @classmethod
     def of(cls, feasible: bool, task_ok: bool) -> Outcome:

@@ -139,6 +139,10 @@ class Benchmark(abc.ABC):
         out.update(own)
         return out, bool(ok and own_ok)
 
+    def _flight_metrics(self, X: np.ndarray) -> dict[str, float]:
+        """Lowest altitude (m) and distance of the last position from the goal's (m)."""
+        return {"min_altitude_m": float(X[:, 2].min()), "final_position_error_m": float(np.linalg.norm(X[-1, M.POS] - self.x_lower[-1, M.POS]))}
+
     def __post_init__(self):
         N, nx, nu = self.n_knots, self.model.nx, self.model.nu
         shapes = {
@@ -275,11 +279,7 @@ class QuadrotorFlip(Benchmark):
     def task_metrics(self, X, U):
         """A full roll about x (within 0.05 turn), above the floor; final position error."""
         roll = np.asarray(accumulated_rotation(X[:, M.QUAT]))
-        out = {
-            "roll_turns": float(roll[-1, 0] / (2 * np.pi)),
-            "min_altitude_m": float(X[:, 2].min()),
-            "final_position_error_m": float(np.linalg.norm(X[-1, M.POS] - self.x_lower[-1, M.POS])),
-        }
+        out = {"roll_turns": float(roll[-1, 0] / (2 * np.pi)), **self._flight_metrics(X)}
         return out, abs(out["roll_turns"] - 1.0) < 0.05 and out["min_altitude_m"] > -1e-5
 
     @classmethod
@@ -367,11 +367,7 @@ class BarrelRoll(Benchmark):
     def task_metrics(self, X, U):
         """The inverted goal attitude is a hard target (checked by `metrics`); the body-axis
         roll, altitude and final position error are reported."""
-        out = {
-            "roll_deg": float(np.degrees(np.asarray(accumulated_rotation(X[:, M.QUAT], "body"))[-1, 0])),
-            "min_altitude_m": float(X[:, 2].min()),
-            "final_position_error_m": float(np.linalg.norm(X[-1, M.POS] - self.x_lower[-1, M.POS])),
-        }
+        out = {"roll_deg": float(np.degrees(np.asarray(accumulated_rotation(X[:, M.QUAT], "body"))[-1, 0])), **self._flight_metrics(X)}
         return out, True
 
     @classmethod

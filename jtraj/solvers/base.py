@@ -30,6 +30,7 @@ from typing import Any, ClassVar, TextIO
 import numpy as np
 
 __all__ = [
+    "MessageEnum",
     "Status",
     "Stats",
     "Iteration",
@@ -49,7 +50,20 @@ __all__ = [
 ]
 
 
-class Status(enum.Enum):
+class MessageEnum(enum.Enum):
+    """An enumeration whose members are ``(value, message)``: ``member.value`` is the short
+    name written to files, ``member.message`` says what it means and what to try."""
+
+    message: str
+
+    def __new__(cls, value: str, message: str) -> MessageEnum:
+        member = object.__new__(cls)
+        member._value_ = value
+        member.message = message
+        return member
+
+
+class Status(MessageEnum):
     """How a solve ended, one enumeration for every backend. ``status.message`` explains it."""
 
     SOLVED = ("solved", "converged to the requested tolerances")
@@ -69,14 +83,6 @@ class Status(enum.Enum):
     INVALID_PROBLEM = ("invalid_problem", "the problem is ill-posed (too few degrees of freedom or inconsistent bounds)")
     OUT_OF_MEMORY = ("out_of_memory", "the solver ran out of memory")
     INTERNAL_ERROR = ("internal_error", "the solver failed internally")
-
-    def __new__(cls, value: str, message: str) -> Status:
-        member = object.__new__(cls)
-        member._value_ = value
-        member.message = message
-        return member
-
-    message: str
 
     @property
     def converged(self) -> bool:
