@@ -91,8 +91,8 @@ def solve_benchmark(
     x0 = jnp.asarray(z0)
     nlp.build_hessian()
     for fn in (nlp.objective, nlp.gradient, nlp.constraints, nlp.jacobian):
-        jax.block_until_ready(fn(x0))
-    jax.block_until_ready(nlp.hessian(x0, jnp.ones(nlp.m), 1.0))
+        jax.block_until_ready(fn(x0, nlp.theta))
+    jax.block_until_ready(nlp.hessian(x0, jnp.ones(nlp.m), 1.0, nlp.theta))
     time_compile = time.perf_counter() - t0
     solution = backend.solve(nlp, z0, None, opts, solvers.resolve_progress(progress, 10))
     trajectory = decode(bench, solution.x)

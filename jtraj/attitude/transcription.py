@@ -58,7 +58,8 @@ def decode(bench: Benchmark, z: np.ndarray) -> StateTrajectory:
 
 
 def _equalities(name: str, deps: tuple[Dep, ...], fn: Any, knots: np.ndarray, rows: int, data: Any = None) -> ConstraintGroup:
-    """``fn(data_k, *deps_k) = 0`` (``rows`` rows) at every knot of ``knots``."""
+    """``fn(theta, data_k, *deps_k) = 0`` (``rows`` rows) at every knot of ``knots`` (the
+    benchmarks' numbers are constants: theta is None)."""
     K = knots.size
     return ConstraintGroup(name=name, deps=deps, fn=fn, knots=knots, lower=np.zeros((K, rows)), upper=np.zeros((K, rows)), active=np.ones((K, rows), bool), data=data)
 
@@ -67,7 +68,7 @@ def dynamics_group(bench: Benchmark, fm: AbstractFormulation) -> ConstraintGroup
     """The formulation's defect between knot k + 1 and the RK4 step from knot k (k < N - 1)."""
     dynamics = bench.model.dynamics
 
-    def defect(h, x, u, x_next):
+    def defect(theta, h, x, u, x_next):
         return fm.defect(x_next, M.rk4(dynamics, x, u, h))
 
     K = bench.n_knots - 1
@@ -78,12 +79,12 @@ def target_group(bench: Benchmark, fm: AbstractFormulation) -> ConstraintGroup:
     """The attitude targets in the formulation's error (``target_dim`` rows each)."""
     knots = np.array([t.knot for t in bench.targets])
     q_refs = jnp.asarray(np.array([t.q for t in bench.targets]))
-    return _equalities("attitude_target", (Dep("x"),), lambda q_ref, x: fm.attitude_error(x[M.QUAT], q_ref), knots, fm.target_dim, q_refs)
+    return _equalities("attitude_target", (Dep("x"),), lambda theta, q_ref, x: fm.attitude_error(x[M.QUAT], q_ref), knots, fm.target_dim, q_refs)
 
 
 def unit_norm_group(bench: Benchmark) -> ConstraintGroup:
     """``|q_k|^2 = 1`` at every knot after the first (whose state is fixed)."""
-    return _equalities("unit_norm", (Dep("x"),), lambda data, x: jnp.atleast_1d(x[M.QUAT] @ x[M.QUAT] - 1.0), np.arange(1, bench.n_knots), 1)
+    return _equalities("unit_norm", (Dep("x"),), lambda theta, data, x: jnp.atleast_1d(x[M.QUAT] @ x[M.QUAT] - 1.0), np.arange(1, bench.n_knots), 1)
 
 
 def keep_out_group(ko: KeepOut) -> ConstraintGroup:
@@ -93,7 +94,7 @@ def keep_out_group(ko: KeepOut) -> ConstraintGroup:
     return ConstraintGroup(
         name="keep_out",
         deps=(Dep("x"),),
-        fn=lambda data, x: jnp.atleast_1d(sun @ quat.rotate(x[M.QUAT], cam)),
+        fn=lambda theta, data, x: jnp.atleast_1d(sun @ quat.rotate(x[M.QUAT], cam)),
         knots=knots,
         lower=np.full((knots.size, 1), -np.inf),
         upper=np.full((knots.size, 1), math.cos(math.radians(ko.angle_deg))),
@@ -106,7 +107,7 @@ def stage_cost(bench: Benchmark, fm: AbstractFormulation) -> CostGroup:
     not_quat = np.ones(bench.model.nx)
     not_quat[M.QUAT] = 0.0
 
-    def cost(data, x, u):
+    def cost(theta, data, x, u):
         x_ref, Qk, wq, u_ref, Rk = data
         dx = x - x_ref
         du = u - u_ref
