@@ -25,9 +25,11 @@ import numpy as np
 from jtraj import io as jio
 from jtraj.executors import executor_for
 from jtraj.parameterization import PARAMETERIZATIONS
-from jtraj.task import Task, load as load_task
 from jtraj.solver import prepare, solve
 from jtraj.success import FEASIBILITY_TOL
+from jtraj.tables import markdown_table
+from jtraj.task import Task
+from jtraj.task import load as load_task
 
 __all__ = ["compare", "robustness", "noisy_warm_starts", "noise_key", "run_key", "read_runs", "summarize_robustness", "TABLE_IV_PAPER_SE3"]
 
@@ -90,19 +92,14 @@ def _compare_one(task, p, layout, exact_hessian, out, progress=None) -> dict:
 def _write_table_iv(rows: list[dict], out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
     jio.write_json(out / "table_iv.json", rows)
-    lines = [
-        "| task | parameterization | status | iterations (paper, SE(3)) | obj evals | jac evals | cost | violation | turns | time (s) |",
-        "|---|---|---|---|---|---|---|---|---|---|",
-    ]
+    header = ("task", "parameterization", "status", "iterations (paper, SE(3))", "obj evals", "jac evals", "cost", "violation", "turns", "time (s)")
+    cells = []
     for r in rows:
         paper = TABLE_IV_PAPER_SE3.get(r["task"]) if r["parameterization"] == "se3" else None
         turns = "" if r["turns"] is None else f"{r['turns']:+.2f}"
-        lines.append(
-            f"| {r['task']} | {r['parameterization']} | {r['status']} | {r['iterations']}"
-            + (f" ({paper})" if paper else "")
-            + f" | {r['obj_evals']} | {r['jac_evals']} | {r['cost']:.3g} | {r['constraint_violation']:.1e} | {turns} | {r['time_s']:.1f} |"
-        )
-    jio.write_text(out / "table_iv.md", "\n".join(lines) + "\n")
+        iterations = f"{r['iterations']}" + (f" ({paper})" if paper else "")
+        cells.append((r["task"], r["parameterization"], r["status"], iterations, r["obj_evals"], r["jac_evals"], f"{r['cost']:.3g}", f"{r['constraint_violation']:.1e}", turns, f"{r['time_s']:.1f}"))
+    jio.write_text(out / "table_iv.md", markdown_table(header, cells))
 
 
 def _sigma_bits(sigma: float) -> int:
@@ -336,18 +333,16 @@ def _table_iii_markdown(summary: list[dict], sigmas: Sequence[float]) -> str:
         f"constraint violation below {FEASIBILITY_TOL:g}, the paper's success; task done: converged and "
         "the motion does the task, e.g. a flip with the expected sign, count and axis; where the two "
         "differ the paper marks the cell with *).",
-        "",
-        "| task | parameterization | " + " | ".join(f"sigma={s:g}" for s in sigmas) + " |",
-        "|---|---|" + "---|" * len(sigmas),
     ]
+    rows = []
     for task in dict.fromkeys(r["task"] for r in summary):
         for p in dict.fromkeys(r["parameterization"] for r in summary if r["task"] == task):
             cells = []
             for s in sigmas:
                 match = [r for r in summary if r["task"] == task and r["parameterization"] == p and r["sigma"] == s]
                 cells.append(f"{100 * match[0]['converged_rate']:.0f}% / {100 * match[0]['task_success_rate']:.0f}%" if match else "")
-            lines.append(f"| {task} | {p} | " + " | ".join(cells) + " |")
-    return "\n".join(lines) + "\n"
+            rows.append((task, p, *cells))
+    return "\n".join(lines) + "\n\n" + markdown_table(("task", "parameterization", *(f"sigma={s:g}" for s in sigmas)), rows)
 
 
 def plot_iterations(runs: list[dict], path: str | Path) -> None:

@@ -503,7 +503,7 @@ class KnotNLP:
                 pattern |= np.any(np.asarray(B) != 0.0, axis=0)
 
         rows, cols, gathers = [], [], []
-        for (fn, deps, knots, data), pattern in zip(terms, patterns):
+        for (_fn, deps, knots, _data), pattern in zip(terms, patterns):
             knot_off, col_in_knot = _dep_columns(layout, deps)
             ndep = col_in_knot.size
             pattern = pattern | pattern.T

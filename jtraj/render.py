@@ -103,7 +103,6 @@ class RenderOptions:
 def _mujoco():
     """MuJoCo with an OpenGL context usable here, or a RenderError that says what to do."""
     import mujoco
-
     from mujoco import gl_context
 
     if getattr(gl_context, "GLContext", None) is None:

@@ -399,7 +399,7 @@ def _collada_geoms(geom: ET.Element, mesh: ET.Element, path: pathlib.Path) -> li
         copy = ET.fromstring(ET.tostring(geom))
         for material in copy.findall("material"):
             copy.remove(material)
-        material = ET.SubElement(copy, "material", name=f"{path.stem}_{i}_{'%02x%02x%02x' % rgba[:3]}")
+        material = ET.SubElement(copy, "material", name=f"{path.stem}_{i}_{rgba[0]:02x}{rgba[1]:02x}{rgba[2]:02x}")
         ET.SubElement(material, "color", rgba=" ".join(f"{c / 255:.3f}" for c in rgba))
         out.append(copy)
     return out

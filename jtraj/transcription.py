@@ -329,7 +329,7 @@ class Transcription:
     def target_xyz_wxyz_of(self, theta: TaskParams | None) -> np.ndarray:
         """Target base pose (7,) for parameters ``theta`` (None: the task's)."""
         if theta is None:
-            self.initial_xyz_wxyz  # checks the standing pose
+            _ = self.initial_xyz_wxyz  # checks the standing pose
         return np.asarray(self._host["target"](self.resolve_theta(theta)))
 
     @property
@@ -394,7 +394,7 @@ class Transcription:
     def build_nlp(self, stages: tuple[Callable[[Transcription], list[ConstraintGroup]], ...] | None = None) -> KnotNLP:
         """The NLP of the task: the groups of ``stages`` (default `CONSTRAINT_STAGES`, in
         that row order), `cost_terms`, the variable `bounds`, parameters `default_theta`."""
-        self.initial_xyz_wxyz  # checks that the standing pose stands on the terrain
+        _ = self.initial_xyz_wxyz  # checks that the standing pose stands on the terrain
         groups = [g for stage in (CONSTRAINT_STAGES if stages is None else stages) for g in stage(self)]
         return KnotNLP(
             self.layout, self.N + 1, cost_terms(self), groups,
