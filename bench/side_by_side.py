@@ -1,0 +1,117 @@
+"""Iterations of the study's public code and of jtraj on the same tasks, one after the other.
+
+    python bench/side_by_side.py --out results/side_by_side [--tasks walk,big_jump,...]
+        [--layouts paper] [--peer ../shared/peers/run-se3-trajopt] [--sigma 0.5 --seeds 0,1,2]
+
+For every task (and noise draw): the paper's code (SE(3) tangent, its own settings, through its
+runner script, which prints one JSON line), then ``jtraj.solve(task, "se3", layout=...)`` for
+each layout. Iterations are what is compared: on a shared machine the times are noisy. Writes
+``OUT/side_by_side.json`` (one row per solve), ``OUT/side_by_side.md`` (the table the README
+quotes) and ``OUT/provenance.json``. Rows already in the JSON are kept (resume).
+
+The noise of the paper's runner is numpy's ``default_rng(seed)`` on its own variable vector,
+jtraj's is ``numpy default_rng(seed)`` on jtraj's: same distribution, not the same draws (the
+two codes order and size their variables differently).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import jtraj
+from jtraj import io
+from jtraj.provenance import write_provenance
+
+#: The public code's runner: ../shared/peers/run-se3-trajopt beside the repository (pass
+#: --peer from a worktree elsewhere).
+DEFAULT_PEER = Path(__file__).resolve().parents[1].parent / "shared" / "peers" / "run-se3-trajopt"
+#: Iterations of the SE(3) tangent parameterization in the paper's Table IV.
+PAPER_TABLE_IV = {"walk": 14, "hopscotch": 10, "big_jump": 11, "handstand": 88, "backflip": 28, "sideflip": 29}
+TASKS = ("walk", "hopscotch", "big_jump", "handstand", "backflip", "sideflip")
+
+
+def run_peer(peer: Path, task: str, sigma: float, seed: int) -> dict:
+    """One solve of the paper's code: its runner's JSON line as a row."""
+    if not peer.exists():
+        raise FileNotFoundError(f"the paper code's runner {peer} does not exist: pass --peer PATH, or --peer '' to skip it")
+    cmd = [str(peer), task] + (["--sigma", repr(sigma), "--seed", str(seed)] if sigma else [])
+    out = subprocess.run(cmd, capture_output=True, text=True)
+    if out.returncode != 0:
+        return dict(code="paper", task=task, sigma=sigma, seed=seed, status="error", converged=False, iterations=None, error=out.stderr[-500:])
+    d = json.loads(out.stdout.strip().splitlines()[-1])
+    # Ipopt's status 0 (solved) and 1 (solved to acceptable level) count as converged
+    return dict(code="paper", task=task, sigma=sigma, seed=seed, status=int(d["status"]), converged=int(d["status"]) in (0, 1), iterations=int(d["iterations"]), cost=d.get("obj"), time_s=d.get("time_s"))
+
+
+def run_jtraj(task: str, layout: str, sigma: float, seed: int) -> dict:
+    r = jtraj.solve(task, "se3", layout=layout, noise=sigma, seed=seed, progress=None, keep_trajectory=False)
+    return dict(code=f"jtraj {layout}", task=task, sigma=sigma, seed=seed, status=r.status.value, converged=bool(r.converged), iterations=int(r.iterations), cost=float(r.cost), time_s=round(float(r.time_s), 3), turns=r.turns)
+
+
+def _cell(rows: list[dict]) -> str:
+    """'12' for one converged solve, '50, limit' when it stopped, 'k/n converged, median m' for draws."""
+    if not rows:
+        return ""
+    if len(rows) == 1:
+        r = rows[0]
+        if r["iterations"] is None:
+            return "error"
+        if not r["converged"]:
+            return f"{r['iterations']}, not conv."
+        # jtraj's own check: converged, but no flip (or no landing at the target)
+        return f"{r['iterations']}, task failed" if r.get("status") == "converged_but_task_failed" else f"{r['iterations']}"
+    conv = sorted(r["iterations"] for r in rows if r["converged"])
+    med = f", median {conv[len(conv) // 2]}" if conv else ""
+    return f"{len(conv)}/{len(rows)} conv.{med}"
+
+
+def render(rows: list[dict]) -> str:
+    """The Markdown table of ``rows``: one line per (task, sigma), one column per code."""
+    codes = sorted(dict.fromkeys(r["code"] for r in rows), key=lambda c: c != "paper")  # the paper's code first
+    keys = list(dict.fromkeys((r["task"], r["sigma"]) for r in rows))
+    lines = ["| task | sigma | paper's Table IV | " + " | ".join("paper's code" if c == "paper" else c for c in codes) + " |", "|---|---|---|" + "---|" * len(codes)]
+    for task, sigma in keys:
+        cells = [_cell([r for r in rows if (r["task"], r["sigma"], r["code"]) == (task, sigma, c)]) for c in codes]
+        paper = str(PAPER_TABLE_IV.get(task, "")) if sigma == 0 else ""
+        lines.append(f"| {task} | {sigma:g} | {paper} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--tasks", default=",".join(TASKS))
+    ap.add_argument("--layouts", default="paper")
+    ap.add_argument("--sigma", type=float, default=0.0)
+    ap.add_argument("--seeds", default="0")
+    ap.add_argument("--peer", default=str(DEFAULT_PEER), help="the paper code's runner script ('' to skip it)")
+    ap.add_argument("--out", default="results/side_by_side")
+    args = ap.parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "side_by_side.json"
+    rows = io.read_json(path) if path.exists() else []
+    done = {(r["code"], r["task"], r["sigma"], r["seed"]) for r in rows}
+    seeds = [int(s) for s in args.seeds.split(",")] if args.sigma else [0]
+    for task in args.tasks.split(","):
+        for seed in seeds:
+            jobs = ([("paper", lambda: run_peer(Path(args.peer), task, args.sigma, seed))] if args.peer else []) + [
+                (f"jtraj {lay}", lambda lay=lay: run_jtraj(task, lay, args.sigma, seed)) for lay in args.layouts.split(",") if lay
+            ]
+            for code, job in jobs:
+                if (code, task, args.sigma, seed) in done:
+                    continue
+                row = job()
+                print(json.dumps(row), flush=True)
+                rows.append(row)
+                io.write_json(path, rows)
+                io.write_text(out / "side_by_side.md", render(rows))
+    io.write_text(out / "side_by_side.md", render(rows))
+    write_provenance(out, ["python", "bench/side_by_side.py", *(sys.argv[1:] if argv is None else argv)])
+
+
+if __name__ == "__main__":
+    main()

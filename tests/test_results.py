@@ -1,0 +1,97 @@
+"""The README's result tables are the files in results/, and those files are what their command wrote.
+
+A table in README.md that quotes a result is preceded by a marker line
+``<!-- results: results/DIR/NAME.md -->``; the table under it must be that file's table, row for
+row. Each results folder holds the JSON its command wrote, the Markdown rendered from it and
+``provenance.json`` (command, date, machine, versions).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import re
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+MARKER = re.compile(r"<!--\s*results:\s*(\S+)\s*-->")
+
+
+def _table_after(lines: list[str], start: int) -> list[str]:
+    """The Markdown table (lines starting with '|') that begins at or after ``start``."""
+    i = start
+    while i < len(lines) and not lines[i].lstrip().startswith("|"):
+        if lines[i].strip() and not lines[i].lstrip().startswith("<!--"):
+            raise AssertionError(f"README.md line {i + 1}: expected a table after the results marker, found {lines[i]!r}")
+        i += 1
+    table = []
+    while i < len(lines) and lines[i].lstrip().startswith("|"):
+        table.append(lines[i].strip())
+        i += 1
+    return table
+
+
+def _quoted_tables() -> list[tuple[str, list[str]]]:
+    lines = (ROOT / "README.md").read_text().splitlines()
+    return [(m.group(1), _table_after(lines, i + 1)) for i, line in enumerate(lines) if (m := MARKER.search(line))]
+
+
+def _results_dirs() -> list[Path]:
+    return sorted(p.parent for p in (ROOT / "results").glob("*/provenance.json"))
+
+
+def test_readme_quotes_results_files():
+    quoted = _quoted_tables()
+    assert quoted, "README.md quotes no results/ table (marker <!-- results: results/DIR/NAME.md -->)"
+    for rel, table in quoted:
+        path = ROOT / rel
+        assert path.is_file(), f"README.md quotes {rel}, which does not exist"
+        file_table = [line.strip() for line in path.read_text().splitlines() if line.lstrip().startswith("|")]
+        assert table, f"README.md: no table under the marker for {rel}"
+        assert table == file_table, f"README.md's table for {rel} differs from the file:\nREADME:\n" + "\n".join(table) + "\nfile:\n" + "\n".join(file_table)
+
+
+@pytest.mark.parametrize("folder", _results_dirs(), ids=lambda p: p.name)
+def test_results_folder_has_provenance(folder):
+    prov = json.loads((folder / "provenance.json").read_text())
+    assert prov["command"].strip()
+    assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\dZ", prov["date_utc"])
+    assert int(prov["machine"]["cores"]) >= 1
+    assert prov["versions"]["jtraj"]
+    # no trajectories in results/: small tables only
+    assert not list(folder.rglob("*.npz"))
+
+
+def _side_by_side_module():
+    spec = importlib.util.spec_from_file_location("side_by_side", ROOT / "bench" / "side_by_side.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_side_by_side_markdown_is_rendered_from_its_json():
+    folders = [p for p in _results_dirs() if (p / "side_by_side.json").exists()]
+    assert folders, "results/ holds no side_by_side.json"
+    render = _side_by_side_module().render
+    for folder in folders:
+        rows = json.loads((folder / "side_by_side.json").read_text())
+        assert rows
+        assert (folder / "side_by_side.md").read_text() == render(rows), f"{folder}/side_by_side.md was not rendered from its JSON"
+
+
+def test_side_by_side_render_cells():
+    render = _side_by_side_module().render
+    rows = [
+        dict(code="jtraj paper", task="walk", sigma=0.0, seed=0, converged=False, iterations=50),
+        dict(code="paper", task="walk", sigma=0.0, seed=0, converged=True, iterations=12),
+        dict(code="jtraj paper", task="backflip", sigma=0.0, seed=0, converged=True, iterations=31, status="converged_but_task_failed"),
+        dict(code="paper", task="walk", sigma=0.5, seed=0, converged=True, iterations=38),
+        dict(code="paper", task="walk", sigma=0.5, seed=1, converged=False, iterations=50),
+    ]
+    lines = render(rows).splitlines()
+    assert lines[0] == "| task | sigma | paper's Table IV | paper's code | jtraj paper |"  # the paper's code first
+    assert lines[2] == "| walk | 0 | 14 | 12 | 50, not conv. |"
+    assert lines[3] == "| backflip | 0 | 28 |  | 31, task failed |"
+    assert lines[4] == "| walk | 0.5 |  | 1/2 conv., median 38 |  |"
