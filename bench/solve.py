@@ -19,7 +19,7 @@ excluded); the default is ``../shared/peers/run-se3-trajopt`` beside the reposit
 exists. It runs before jtraj's variants, one after the other (never concurrently), and the
 ratio column is its time over each variant's time to solution (compile excluded). Without a
 peer the table has no ratio column. ``--out DIR`` writes ``DIR/speed.json`` (every raw record)
-and ``DIR/speed.md`` (the table).
+and ``DIR/speed.md`` (the table) and ``DIR/provenance.json`` (command, date, machine, versions).
 """
 
 from __future__ import annotations
@@ -37,6 +37,7 @@ import time
 from pathlib import Path
 
 from jtraj import io as jio
+from jtraj.provenance import write_provenance
 from jtraj.solver import prepare, solve
 
 VARIANTS = {
@@ -180,6 +181,7 @@ def main() -> None:
         if args.out:
             jio.write_json(Path(args.out) / "speed.json", records)
             jio.write_text(Path(args.out) / "speed.md", markdown(records))
+            write_provenance(args.out, ["python", "bench/solve.py", *sys.argv[1:]])
 
 
 if __name__ == "__main__":
