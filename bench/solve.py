@@ -37,6 +37,7 @@ import time
 from pathlib import Path
 
 from jtraj import io as jio
+from jtraj.cli import _parse_value  # the command line's NAME=VALUE parsing
 from jtraj.provenance import write_provenance
 from jtraj.solver import prepare, solve
 
@@ -96,15 +97,6 @@ def run_variant(task: str, param: str, variant: str, extra: dict) -> dict:
         cost=r.cost,
         constraint_violation=r.constraint_violation,
     )
-
-
-def _parse_value(text: str):
-    for cast in (int, float):
-        try:
-            return cast(text)
-        except ValueError:
-            pass
-    return text
 
 
 def markdown(records: list[dict]) -> str:

@@ -393,14 +393,13 @@ def _check_inputs(args: argparse.Namespace) -> None:
             raise InputError("--noise", args.noise, "expected a standard deviation >= 0")
         _check_positive_int("--every", args.every)
         args.ipopt_checked = _check_ipopt(args.ipopt, getattr(args, "solver", "ipopt"))
-    elif cmd == "compare":
+    elif cmd in ("compare", "robustness"):
+        # sweeps: every name is checked before the first solve
         _check_tasks("--tasks", args.tasks)
         _check_params("--params", args.params)
         _check_positive_int("--workers", args.workers)
         _check_out(args.out)
-    elif cmd == "robustness":
-        _check_tasks("--tasks", args.tasks)
-        _check_params("--params", args.params)
+    if cmd == "robustness":
         sigmas = []
         for text in _split(args.sigmas) or [args.sigmas]:
             try:
@@ -412,8 +411,6 @@ def _check_inputs(args: argparse.Namespace) -> None:
             sigmas.append(sigma)
         args.sigmas_checked = sigmas
         _check_positive_int("--replicates", args.replicates)
-        _check_positive_int("--workers", args.workers)
-        _check_out(args.out)
     elif cmd == "wahba":
         _check_positive_int("--trials", args.trials)
         _check_positive_int("--iterations", args.iterations)
