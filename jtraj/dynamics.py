@@ -47,6 +47,7 @@ import mujoco
 import numpy as np
 from jaxlie import SO3
 
+from jtraj.lie import skew as _skew
 from jtraj.parameterization import AbstractParameterization, body_twist_to_qvel
 from jtraj.robot import Robot, mjx  # jtraj.robot imports MJX quietly
 
@@ -224,14 +225,6 @@ def _tree(robot: Robot) -> _Tree:
 _SYM6 = np.zeros((6, 6), dtype=int)
 _SYM6[np.triu_indices(6)] = np.arange(21)
 _SYM6 = np.maximum(_SYM6, _SYM6.T)
-
-
-def _skew(v: jax.Array) -> jax.Array:
-    x, y, z = v[..., 0], v[..., 1], v[..., 2]
-    zero = jnp.zeros_like(x)
-    return jnp.stack(
-        [jnp.stack([zero, -z, y], -1), jnp.stack([z, zero, -x], -1), jnp.stack([-y, x, zero], -1)], -2
-    )
 
 
 def _motion_cross(m1: jax.Array, m2: jax.Array) -> jax.Array:

@@ -41,6 +41,7 @@ __all__ = [
     "right_jacobian_inv",
     "left_jacobian_inv",
     "accumulated_rotation",
+    "rotation_steps",
 ]
 
 Group = TypeVar("Group", SO3, SE3)
@@ -279,10 +280,16 @@ def accumulated_rotation(wxyz: jax.Array, frame: str = "world") -> jax.Array:
     below pi for its direction to be seen. Inputs need not be unit quaternions (they are
     normalized first).
     """
+    steps = rotation_steps(wxyz, frame)
+    return jnp.concatenate([jnp.zeros((1, 3), steps.dtype), jnp.cumsum(steps, axis=0)])
+
+
+def rotation_steps(wxyz: jax.Array, frame: str = "world") -> jax.Array:
+    """The increments of `accumulated_rotation`: (N, 4) wxyz -> (N - 1, 3) rad,
+    ``Log(R_{k+1} R_k^T)`` (``"world"``) or ``Log(R_k^T R_{k+1})`` (``"body"``)."""
     if frame not in ("world", "body"):
         raise ValueError(f"frame must be 'world' or 'body', got {frame!r}")
     q = jnp.asarray(wxyz)
     q = q / jnp.linalg.norm(q, axis=-1, keepdims=True)
     a, b = SO3(q[1:]), SO3(q[:-1])
-    steps = log(a @ b.inverse()) if frame == "world" else log(b.inverse() @ a)
-    return jnp.concatenate([jnp.zeros((1, 3), steps.dtype), jnp.cumsum(steps, axis=0)])
+    return log(a @ b.inverse()) if frame == "world" else log(b.inverse() @ a)

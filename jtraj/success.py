@@ -35,6 +35,8 @@ import math
 
 import numpy as np
 
+from jtraj.lie import rotation_steps
+
 __all__ = ["TURN_TOLERANCE", "OFF_AXIS_SHARE", "MAX_STEP", "FEASIBILITY_TOL", "TaskCheck", "rotation_vector", "evaluate"]
 
 #: Largest distance, in turns, between the measured and the expected number of turns.
@@ -65,30 +67,6 @@ class TaskCheck:
     reason: str
 
 
-def _quat_to_matrix(wxyz: np.ndarray) -> np.ndarray:
-    w, x, y, z = np.moveaxis(wxyz / np.linalg.norm(wxyz, axis=-1, keepdims=True), -1, 0)
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        -2,
-    )
-
-
-def _log_so3(Rm: np.ndarray) -> np.ndarray:
-    """Rotation vectors of rotation matrices (..., 3, 3) -> (..., 3), angles in [0, pi]."""
-    cos = np.clip((np.trace(Rm, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
-    angle = np.arccos(cos)
-    vee = np.stack([Rm[..., 2, 1] - Rm[..., 1, 2], Rm[..., 0, 2] - Rm[..., 2, 0], Rm[..., 1, 0] - Rm[..., 0, 1]], -1)
-    sin = np.sin(angle)
-    small = angle < 1e-6
-    # angle / (2 sin angle) -> 1/2 as angle -> 0; steps near pi are refused by evaluate
-    scale = np.where(small, 0.5 + angle**2 / 12.0, angle / (2.0 * np.where(small, 1.0, sin)))
-    return vee * scale[..., None]
-
-
 def rotation_vector(base_xyz_wxyz: np.ndarray) -> tuple[np.ndarray, float]:
     """Accumulated world-frame rotation vector of a base trajectory, and its largest step.
 
@@ -102,8 +80,7 @@ def rotation_vector(base_xyz_wxyz: np.ndarray) -> tuple[np.ndarray, float]:
         raise ValueError(f"base_xyz_wxyz has shape {q.shape}; expected (n_knots, 7)")
     if q.shape[0] < 2:
         return np.zeros(3), 0.0
-    Rm = _quat_to_matrix(q[:, 3:7])
-    steps = _log_so3(Rm[1:] @ np.swapaxes(Rm[:-1], -1, -2))
+    steps = np.asarray(rotation_steps(q[:, 3:7]))
     return steps.sum(axis=0), float(np.max(np.linalg.norm(steps, axis=-1)))
 
 

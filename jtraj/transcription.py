@@ -57,6 +57,7 @@ import numpy as np
 from jaxlie import SE3, SO3
 
 from jtraj import dynamics, lie
+from jtraj.constants import GRAVITY
 from jtraj.nlp import ConstraintGroup, CostGroup, Dep, KnotNLP, KnotStructure, Layout
 from jtraj.parameterization import AbstractParameterization
 from jtraj.task import Task
@@ -80,7 +81,6 @@ __all__ = [
     "cost_terms",
 ]
 
-GRAVITY = 9.81
 
 
 @dataclasses.dataclass(frozen=True)
