@@ -203,7 +203,7 @@ def _robustness_group_rows(*args) -> list[dict]:
 
     with tempfile.TemporaryDirectory() as folder:
         path = Path(folder) / RUNS_FILE
-        _robustness_group(*args, path, progress=None)
+        _robustness_group(*args, runs_path=path, progress=None)
         return jio.read_jsonl(path)[0] if path.exists() else []
 
 
