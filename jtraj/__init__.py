@@ -26,7 +26,7 @@ from jtraj.parameterization import (  # noqa: E402
 
 __version__ = "0.1.0"
 
-_LAZY = {"solve": ("jtraj.solver", "solve"), "Result": ("jtraj.result", "Result"), "load_task": ("jtraj.task", "load"), "load_robot": ("jtraj.robot", "load")}
+_LAZY = {"solve": ("jtraj.solver", "solve"), "Result": ("jtraj.result", "Result"), "load_task": ("jtraj.task", "load"), "load_robot": ("jtraj.robot", "load"), "TaskParams": ("jtraj.transcription", "TaskParams")}
 
 
 def __getattr__(name: str):
@@ -58,5 +58,6 @@ __all__ = [
     "Result",
     "load_task",
     "load_robot",
+    "TaskParams",
     "render",
 ]
