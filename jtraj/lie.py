@@ -22,6 +22,7 @@ from typing import TypeVar
 
 import jax
 import jax.numpy as jnp
+from jax.typing import ArrayLike
 from jaxlie import SE3, SO3
 
 __all__ = [
@@ -271,7 +272,7 @@ def right_jacobian_inv(group: type[SO3] | type[SE3], tangent: jax.Array) -> jax.
     return _LEFT_INV[group](-tangent)
 
 
-def accumulated_rotation(wxyz: jax.Array, frame: str = "world") -> jax.Array:
+def accumulated_rotation(wxyz: ArrayLike, frame: str = "world") -> jax.Array:
     """Rotation accumulated along a sequence of attitudes (rad): (N, 4) wxyz -> (N, 3).
 
     Sums the increments ``Log(R_{k+1} R_k^T)`` (world frame, default) or ``Log(R_k^T R_{k+1})``
@@ -284,7 +285,7 @@ def accumulated_rotation(wxyz: jax.Array, frame: str = "world") -> jax.Array:
     return jnp.concatenate([jnp.zeros((1, 3), steps.dtype), jnp.cumsum(steps, axis=0)])
 
 
-def rotation_steps(wxyz: jax.Array, frame: str = "world") -> jax.Array:
+def rotation_steps(wxyz: ArrayLike, frame: str = "world") -> jax.Array:
     """The increments of `accumulated_rotation`: (N, 4) wxyz -> (N - 1, 3) rad,
     ``Log(R_{k+1} R_k^T)`` (``"world"``) or ``Log(R_k^T R_{k+1})`` (``"body"``)."""
     if frame not in ("world", "body"):
