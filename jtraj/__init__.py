@@ -26,7 +26,7 @@ from jtraj.parameterization import (  # noqa: E402
 
 __version__ = "0.1.0"
 
-_LAZY = {"solve": ("jtraj.solver", "solve"), "Result": ("jtraj.result", "Result"), "load_task": ("jtraj.task", "load"), "load_robot": ("jtraj.robot", "load"), "TaskParams": ("jtraj.transcription", "TaskParams")}
+_LAZY = {"solve": ("jtraj.solver", "solve"), "Result": ("jtraj.result", "Result"), "load_task": ("jtraj.task", "load"), "load_robot": ("jtraj.robot", "load"), "TaskParams": ("jtraj.transcription", "TaskParams"), "differentiable": ("jtraj.differentiate", "differentiable"), "OptimalMotion": ("jtraj.differentiate", "OptimalMotion")}
 
 
 def __getattr__(name: str):
@@ -59,5 +59,7 @@ __all__ = [
     "load_task",
     "load_robot",
     "TaskParams",
+    "differentiable",
+    "OptimalMotion",
     "render",
 ]

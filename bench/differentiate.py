@@ -1,0 +1,92 @@
+"""Cost of one backward pass through the solver against one solve (`jtraj.differentiable`).
+
+    python bench/differentiate.py [--knots-scale 1] [--repeat 3]
+
+On a Go2 hop (the task of tests/test_differentiable.py), after compiling everything once:
+- solve, cold: Ipopt from the task's warm start;
+- solve, warm: Ipopt re-solving from the solution (what an optax loop or a finite
+  difference does), through ``jax.jit(f)``;
+- sensitivity system: active set, assembly of K and its sparse LU (host, once per solve);
+- backward: ``jax.jit(jax.grad(loss))`` minus the warm solve it contains (the transposed
+  triangular solve and the JAX vector-Jacobian products of the residual and the motion).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import jtraj  # noqa: F401  (float64)
+from jtraj.differentiate import differentiable
+from jtraj.sensitivity import kkt_system
+from jtraj.task import Phase, Task
+
+FEET = ("FL_foot", "FR_foot", "RL_foot", "RR_foot")
+
+
+def hop(scale: int) -> Task:
+    return Task(
+        name="hop", robot="go2", timestep=0.05 / scale,
+        phases=(Phase(FEET, 0.15), Phase((), 0.1), Phase(FEET, 0.15)),
+        target_translation=(0.1, 0.0, 0.0), configuration_weight=1.0, acceleration_weight=1e-3,
+    )
+
+
+def best_of(fn, repeat):
+    times = []
+    for _ in range(repeat):
+        t = time.perf_counter()
+        jax.block_until_ready(fn())
+        times.append(time.perf_counter() - t)
+    return min(times)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--knots-scale", type=int, default=1, help="divide the timestep by this (more knots)")
+    ap.add_argument("--repeat", type=int, default=3)
+    args = ap.parse_args()
+    f = differentiable(hop(args.knots_scale))
+    theta = f.theta
+
+    def loss(th):
+        m = f(th)
+        return m.cost + jnp.max(jnp.abs(m.tau[:, 6:]))
+
+    solve = jax.jit(lambda th: f(th).cost)
+    grad = jax.jit(jax.grad(loss))
+    jax.block_until_ready(grad(theta))  # compile both, solve once
+    jax.block_until_ready(solve(theta))
+
+    def cold():
+        f.warm_start_from(None)
+        return solve(theta)
+
+    t_cold = best_of(cold, args.repeat)
+    cold_iters = f.last_solution.stats.iterations
+    jax.block_until_ready(solve(theta))
+    t_warm = best_of(lambda: solve(theta), args.repeat)
+    warm_iters = f.last_solution.stats.iterations
+    t_grad = best_of(lambda: grad(theta), args.repeat)
+    x, lam = f.last_solution.x, f.last_solution.mult_g
+
+    def system():
+        s = kkt_system(f.nlp, x, lam, theta)
+        s.solve(np.ones(s.matrix.shape[0]))
+        return s.matrix.nnz
+
+    t_system = best_of(system, args.repeat)
+    print(f"Go2 hop, {f.transcription.N + 1} knots: n = {f.nlp.n} variables, m = {f.nlp.m} constraints")
+    print(f"solve, cold (Ipopt from the task's warm start): {t_cold * 1e3:8.1f} ms ({cold_iters} iterations)")
+    print(f"solve, warm (re-solve from the solution):       {t_warm * 1e3:8.1f} ms ({warm_iters} iterations)")
+    print(f"sensitivity system (active set, K, sparse LU):  {t_system * 1e3:8.1f} ms (in the forward pass)")
+    print(f"backward pass (grad minus its warm solve):      {(t_grad - t_warm) * 1e3:8.1f} ms")
+    print(f"grad of a loss through the solver, total:       {t_grad * 1e3:8.1f} ms")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,219 @@
+"""Optimal motions as differentiable functions of the task's parameters.
+
+``f = jtraj.differentiable(task)`` returns ``f(theta) -> OptimalMotion``: a JAX function of
+the parameter pytree ``theta`` (`jtraj.transcription.TaskParams`: target, timestep, friction,
+force bounds, cost weights, link masses, standing pose) whose value is Ipopt's solution of the
+task at theta (any `jtraj.solvers` backend, Ipopt by default, through `jax.pure_callback`; warm-started from the previous solution) and whose
+derivatives come from the implicit function theorem at that solution (`jtraj.implicit`,
+`jtraj.sensitivity`). ``jax.grad``, ``jax.jacobian``, ``jax.jvp`` and ``jax.vjp`` work through
+it, and so does ``jax.jit`` around the user's own loss.
+
+Everything in `OptimalMotion` (base poses, joints, velocities, accelerations, torques, contact
+forces, cost) is a JAX function of the solution x and of theta, so its derivative is the chain
+rule through ``dx/dtheta`` plus its direct dependence on theta (a torque depends on the link
+masses directly, too).
+
+What is differentiated and what is not:
+- the contact schedule (which feet touch at which knot) and the knot count are fixed; the
+  timestep is a parameter (the phase durations scale with it);
+- the active set (which torque limits, friction facets, force bounds and clearance rows are
+  at their bounds) is held fixed: the derivative is that of the solution while the active
+  set does not change, and it is exact there;
+- at a degenerate solution (a limit reached with a zero multiplier: strict complementarity
+  fails) the solution is only one-sidedly differentiable; the weakly active limits are
+  treated as inactive, and ``OptimalMotion.degenerate`` is True;
+- derivatives are first order (no Hessians through the solver).
+
+A unique solution is needed for derivatives to exist: with four feet on the ground the
+contact forces are not determined by the task's costs alone (internal forces), so the NLP
+here adds a small force regularization ``1/2 force_weight |f / (m g)|^2`` per knot, and the
+task must have positive configuration and acceleration weights.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jtraj import config
+from jtraj import parameterization as params
+from jtraj import robot as robots
+from jtraj import solvers
+from jtraj import task as tasks
+from jtraj.implicit import implicit_solution
+from jtraj.nlp import CostGroup, Dep, KnotNLP
+from jtraj.transcription import CONSTRAINT_STAGES, GRAVITY, COMPACT_LAYOUT, TaskParams, Transcription, cost_terms
+
+__all__ = ["OptimalMotion", "DifferentiableTask", "differentiable", "SolveError", "IPOPT_OPTIONS"]
+
+#: Ipopt settings of the forward solve: tight (the derivatives are those of the exact
+#: solution) with the exact Hessian, which the sensitivity system needs anyway.
+IPOPT_OPTIONS: dict[str, Any] = {"tol": 1e-10, "constr_viol_tol": 1e-10, "hessian": "exact", "max_iter": 500}
+
+
+class SolveError(RuntimeError):
+    """The forward solve did not converge; the derivatives would be meaningless."""
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class OptimalMotion:
+    """The optimal motion at theta (a pytree; K knots, P contact points of the task).
+
+    Attributes:
+        t: (K,) s.
+        base_xyz_wxyz: (K, 7) base pose, MJX free-joint convention (world frame).
+        q_base: (K, nq_base) base coordinates in the parameterization's chart.
+        q_joints: (K, nj) rad.
+        v: (K, nv) body twist of the base (v_body, omega_body) and joint rates.
+        a: (K, nv) its time derivative.
+        tau: (K, nv) generalized forces from inverse dynamics (N, N m; base rows ~ 0).
+        forces: (K, P, 3) contact forces, world frame (N).
+        cost: () the NLP's objective at the solution.
+        degenerate: () bool: strict complementarity fails, derivatives are one-sided.
+        x: (n,) the NLP's solution vector; lam: (m,) its constraint multipliers.
+    """
+
+    t: jax.Array
+    base_xyz_wxyz: jax.Array
+    q_base: jax.Array
+    q_joints: jax.Array
+    v: jax.Array
+    a: jax.Array
+    tau: jax.Array
+    forces: jax.Array
+    cost: jax.Array
+    degenerate: jax.Array
+    x: jax.Array
+    lam: jax.Array
+
+
+class DifferentiableTask:
+    """The callable that `differentiable` returns: ``f(theta) -> OptimalMotion``.
+
+    Attributes:
+        transcription: the task's `jtraj.transcription.Transcription`.
+        nlp: its NLP (with the force regularization).
+        theta: the task's default parameters (`TaskParams`); change fields with
+            ``f.theta.replace(friction=0.5)``.
+        last_solution: the backend's `jtraj.solvers.Solution` of the latest forward solve.
+    """
+
+    def __init__(self, tr: Transcription, nlp: KnotNLP, backend: solvers.AbstractSolver, options: solvers.AbstractOptions, weak_tol: float):
+        self.transcription = tr
+        self.nlp = nlp
+        self.theta = tr.default_theta()
+        self.backend = backend
+        self.options = options
+        self.last_solution: solvers.Solution | None = None
+        self._x_warm = None
+
+        def forward(theta):
+            theta = jax.tree_util.tree_map(jnp.asarray, theta)
+            x0 = tr.warm_start().reshape(-1) if self._x_warm is None else self._x_warm
+            sol = backend.solve(nlp, x0, theta, options)
+            self.last_solution = sol
+            if not sol.status.converged:
+                raise SolveError(
+                    f"{tr.task.name}: {backend.name} did not converge at this theta ({sol.status.value}: {sol.status.message}; "
+                    f"{sol.stats.iterations} iterations, violation {sol.constraint_violation:.1e})"
+                )
+            self._x_warm = sol.x
+            return sol.x, sol.mult_g
+
+        self._solution = implicit_solution(nlp, forward, weak_tol=weak_tol)
+
+    def warm_start_from(self, x: np.ndarray | None) -> None:
+        """Warm-start the next forward solve from ``x`` (None: the task's warm start)."""
+        self._x_warm = None if x is None else np.asarray(x, float)
+
+    def __call__(self, theta: TaskParams | None = None) -> OptimalMotion:
+        theta = self.theta if theta is None else theta
+        sol = self._solution(theta)
+        return motion(self.transcription, self.nlp, sol.x, theta, sol.lam, sol.degenerate)
+
+
+def motion(tr: Transcription, nlp: KnotNLP, x: jax.Array, theta: TaskParams, lam: jax.Array, degenerate: jax.Array) -> OptimalMotion:
+    """`OptimalMotion` of a solution vector x at theta (JAX; differentiable in x and theta)."""
+    L, param = tr.layout, tr.param
+    Z = x.reshape(tr.N + 1, L.nz)
+    s = L.split(Z)
+    q, v, f = s["q"], s["v"], s["f"]
+    if "a" in s:
+        a = s["a"]
+    else:
+        a = jnp.concatenate([(v[1:] - v[:-1]) / theta.timestep, jnp.zeros_like(v[:1])])
+    tau = jax.vmap(tr._tau, in_axes=(0, 0, 0, 0, None))(q, v, a, f, theta.body_masses)
+    qpos = jax.vmap(param.to_qpos)(q[:, : param.nq])
+    return OptimalMotion(
+        t=jnp.arange(tr.N + 1) * theta.timestep,
+        base_xyz_wxyz=qpos,
+        q_base=q[:, : param.nq],
+        q_joints=q[:, param.nq :],
+        v=v,
+        a=a,
+        tau=tau,
+        forces=f.reshape(tr.N + 1, tr.P, 3),
+        cost=nlp.objective(x, theta),
+        degenerate=degenerate,
+        x=x,
+        lam=lam,
+    )
+
+
+def differentiable(
+    task: tasks.Task | str,
+    parameterization: str | params.AbstractParameterization = "se3",
+    *,
+    solver: str | solvers.AbstractSolver = "ipopt",
+    options: solvers.AbstractOptions | dict[str, Any] | None = None,
+    layout=COMPACT_LAYOUT,
+    force_weight: float = 1e-3,
+    weak_tol: float = 1e-6,
+) -> DifferentiableTask:
+    """``f(theta) -> OptimalMotion``, the task's optimal motion as a differentiable function.
+
+    Args:
+        task: a task name, ``.toml`` path or `jtraj.task.Task`; it needs positive
+            ``configuration_weight`` and ``acceleration_weight`` (a unique optimum).
+        parameterization: the floating-base parameterization (``"se3"`` default).
+        layout: a `jtraj.transcription.TranscriptionOptions` (default compact).
+        force_weight: weight of the force regularization ``1/2 w |f / (m g)|^2`` per knot
+            and contact point (makes internal contact forces unique).
+        solver: a `jtraj.solvers.SOLVERS` name or a solver object, for the forward solve.
+        options: its options (None: for Ipopt `IPOPT_OPTIONS`, tol 1e-10 and the exact
+            Hessian; the backend's defaults otherwise).
+        weak_tol: tolerance of the weak-activity (degeneracy) test, relative to the largest
+            multiplier (see `jtraj.sensitivity.active_set`).
+
+    Returns:
+        a `DifferentiableTask`: call it with a `TaskParams` (``f.theta`` is the task's).
+    """
+    config.enable_compilation_cache()
+    task = tasks.load(task)
+    if not (task.configuration_weight > 0 and task.acceleration_weight > 0):
+        raise ValueError(
+            f"task {task.name!r}: differentiable() needs configuration_weight > 0 and acceleration_weight > 0 for a unique optimum, "
+            f"got {task.configuration_weight} and {task.acceleration_weight}; set them in the task"
+        )
+    if force_weight <= 0:
+        raise ValueError(f"force_weight must be > 0 (it makes the contact forces unique), got {force_weight}")
+    robot = robots.load(task.robot)
+    tr = Transcription(robot, task, params.get(parameterization), layout)
+    groups = [g for stage in CONSTRAINT_STAGES for g in stage(tr)]
+    weight = force_weight / (robot.total_mass * GRAVITY) ** 2
+    costs = cost_terms(tr) + [CostGroup("force", (Dep("f"),), lambda theta, data, f: 0.5 * weight * jnp.sum(f**2), np.arange(tr.N + 1))]
+    nlp = KnotNLP(
+        tr.layout, tr.N + 1, costs, groups,
+        lambda theta: tr.bounds(theta)[0], lambda theta: tr.bounds(theta)[1],
+        theta=tr.default_theta(), structure=tr.structure,
+    )
+    nlp.build_hessian()
+    backend = solvers.get(solver)
+    if options is None and backend.name == "ipopt":
+        options = IPOPT_OPTIONS
+    return DifferentiableTask(tr, nlp, backend, backend.options(options), weak_tol)

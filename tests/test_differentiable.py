@@ -1,0 +1,113 @@
+"""Derivatives of optimal Go2 hops through the solver against central differences of re-solves.
+
+One `jtraj.differentiable` function (compiled once, module fixture) is evaluated at a few
+parameter values; every finite difference re-solves from the solution at tight tolerance.
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jaxlie import SO3
+
+import jtraj  # noqa: F401  (float64)
+from jtraj.differentiate import differentiable
+from jtraj.sensitivity import kkt_system
+from jtraj.task import Phase, Task
+
+FEET = ("FL_foot", "FR_foot", "RL_foot", "RR_foot")
+TAKE_OFF = 3  # first knot of the flight phase: its velocity is the take-off velocity
+
+
+@pytest.fixture(scope="module")
+def hop():
+    task = Task(
+        name="hop", robot="go2", timestep=0.05,
+        phases=(Phase(FEET, 0.15), Phase((), 0.1), Phase(FEET, 0.15)),
+        target_translation=(0.1, 0.0, 0.0), configuration_weight=1.0, acceleration_weight=1e-3,
+    )
+    return differentiable(task)
+
+
+def peak_joint_torque(m):
+    return jnp.max(jnp.abs(m.tau[:, 6:]))
+
+
+def take_off_vertical_velocity(m):
+    # body twist -> world linear velocity of the base at take-off
+    return SO3(m.base_xyz_wxyz[TAKE_OFF, 3:]).apply(m.v[TAKE_OFF, :3])[2]
+
+
+def cost(m):
+    return m.cost
+
+
+def with_entry(theta, field, index, value):
+    arr = np.array(getattr(theta, field), float)
+    arr[index] = value
+    return theta.replace(**{field: arr})
+
+
+def gradient_and_difference(f, theta, field, index, scalar, eps):
+    """(d scalar / d theta.field[index] through the solver, its central difference)."""
+    m = f(theta)
+    x_star = np.asarray(m.x)
+    grad = jax.grad(lambda th: scalar(f(th)))(theta)
+    g = float(np.asarray(getattr(grad, field))[index])
+    base = float(np.asarray(getattr(theta, field))[index])
+    values = []
+    for sign in (1.0, -1.0):
+        f.warm_start_from(x_star)
+        values.append(float(scalar(f(with_entry(theta, field, index, base + sign * eps)))))
+    f.warm_start_from(x_star)
+    return g, (values[0] - values[1]) / (2 * eps), m
+
+
+def active_groups(f, m, theta):
+    """Names of the constraint groups with a row active at the solution (and not dropped)."""
+    s = kkt_system(f.nlp, np.asarray(m.x), np.asarray(m.lam), theta)
+    inequality = f.nlp.g_lower != f.nlp.g_upper
+    return set(f.nlp.row_group[s.active.row_active & inequality].tolist()), s.active
+
+
+CASES = {
+    # name: (theta overrides, field, index, scalar, eps, inequality groups that must be active)
+    "cost/target_x": ({}, "target_translation", 0, cost, 1e-4, set()),
+    "peak_torque/friction": ({"friction": 0.3}, "friction", (), peak_joint_torque, 1e-5, {"friction"}),
+    "take_off_vz/trunk_mass": ({}, "body_masses", 1, take_off_vertical_velocity, 1e-4, set()),
+    "cost/target_x, torque limit": ({"body_masses_scale": 2.5}, "target_translation", 0, cost, 1e-4, {"dynamics"}),
+}
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_derivative_matches_resolved_central_difference(hop, case):
+    overrides, field, index, scalar, eps, must_be_active = CASES[case]
+    theta = hop.theta
+    overrides = dict(overrides)
+    if "body_masses_scale" in overrides:
+        overrides["body_masses"] = np.asarray(theta.body_masses) * overrides.pop("body_masses_scale")
+    theta = theta.replace(**overrides)
+    g, g_fd, m = gradient_and_difference(hop, theta, field, index, scalar, eps)
+    groups, active = active_groups(hop, m, theta)
+    assert must_be_active <= groups, f"{case}: expected {must_be_active} active, got {groups}"
+    weak = set(hop.nlp.row_group[active.weak_rows].tolist())
+    assert not bool(m.degenerate), f"{case}: weakly active rows in {weak}, {active.summary()}"
+    print(f"{case}: through the solver {g:.8e}, central difference {g_fd:.8e}, rel. {abs(g - g_fd) / abs(g_fd):.1e}")
+    assert abs(g - g_fd) <= 1e-4 * abs(g_fd)
+
+
+def test_grad_composes_with_jit_and_jvp_agrees(hop):
+    theta = hop.theta
+
+    def loss(th):
+        m = hop(th)
+        return m.cost + 0.01 * take_off_vertical_velocity(m) ** 2
+
+    g = jax.grad(loss)(theta)
+    g_jit = jax.jit(jax.grad(loss))(theta)
+    for a, b in zip(jax.tree.leaves(g), jax.tree.leaves(g_jit)):
+        np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-12)
+    direction = jax.tree.map(jnp.zeros_like, theta).replace(target_translation=jnp.array([1.0, 0.5, 0.0]), friction=jnp.array(1.0))
+    _, dloss = jax.jvp(loss, (theta,), (direction,))
+    expected = sum(float(jnp.vdot(a, b)) for a, b in zip(jax.tree.leaves(g), jax.tree.leaves(direction)))
+    np.testing.assert_allclose(float(dloss), expected, rtol=1e-9, atol=1e-12)
