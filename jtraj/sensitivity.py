@@ -181,10 +181,11 @@ def active_set(
     # bound multipliers from stationarity: z_L - z_U = grad f + J^T lam
     z = np.asarray(nlp.gradient(jnp.asarray(x), theta)).copy()
     np.add.at(z, nlp.jac_cols, J * lam[nlp.jac_rows])
-    scale = max(1.0, float(np.abs(lam).max(initial=0.0)), float(np.abs(z).max(initial=0.0)))
+    fixed = xl == xu
+    # (a fixed variable's z is not a multiplier that can vanish: it must not set the scale)
+    scale = max(1.0, float(np.abs(lam).max(initial=0.0)), float(np.abs(z[~fixed]).max(initial=0.0)))
     tol = weak_tol * scale
 
-    fixed = xl == xu
     x_up, x_slack = _side_and_slack(x, xl, xu)
     z_mag = np.abs(z)
     at_bound = fixed | (np.isfinite(x_slack) & (z_mag > x_slack))
