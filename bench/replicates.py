@@ -41,17 +41,17 @@ def main() -> None:
     ipm = IPM(nlp, IpmOptions(max_iter=tr.task.max_iter))
     batched = jax.jit(jax.vmap(ipm.solve, in_axes=(0, None)))
     t = time.perf_counter()
-    compiled = batched.lower(jnp.asarray(starts), None).compile()
+    compiled = batched.lower(jnp.asarray(starts), nlp.theta).compile()
     print(f"jtraj vmapped program compiled in {time.perf_counter() - t:.1f} s", flush=True)
     t = time.perf_counter()
-    r = jax.block_until_ready(compiled(jnp.asarray(starts), None))
+    r = jax.block_until_ready(compiled(jnp.asarray(starts), nlp.theta))
     t_vmapped = time.perf_counter() - t
 
     t_sequential = 0.0
     for i in range(args.replicates):
         x = np.asarray(r.x[i]).reshape(-1)
         traj = tr.decode(x)
-        viol = nlp.violation(x)
+        viol = nlp.violation(x, nlp.theta)
         ok_j = int(r.status[i]) == IpmStatus.CONVERGED and viol < FEASIBILITY_TOL and check_motion(traj.base_xyz_wxyz, tr.task.flip_axis, tr.task.flip_turns).ok
         res = solve(args.task, args.param, warm_start=starts[i], progress=None, keep_trajectory=False)
         t_sequential += res.time_s

@@ -21,16 +21,16 @@ def double_integrator() -> KnotNLP:
     layout = Layout((("p", 1), ("v", 1), ("u", 1)))
     pairs = np.arange(K - 1)
 
-    def step(data, p, v, u, p1, v1):
+    def step(theta, data, p, v, u, p1, v1):
         return jnp.concatenate([p1 - p - H_STEP * v1, v1 - v - H_STEP * u])
 
     groups = [
         ConstraintGroup("dynamics", (Dep("p"), Dep("v"), Dep("u"), Dep("p", 1), Dep("v", 1)), step, pairs,
                         np.zeros((K - 1, 2)), np.zeros((K - 1, 2)), np.ones((K - 1, 2), bool)),
-        ConstraintGroup("speed", (Dep("v"),), lambda data, v: v, np.arange(K),
+        ConstraintGroup("speed", (Dep("v"),), lambda theta, data, v: v, np.arange(K),
                         np.full((K, 1), -np.inf), np.full((K, 1), V_MAX), np.ones((K, 1), bool)),
     ]
-    costs = [CostGroup("effort", (Dep("u"),), lambda data, u: 0.5 * jnp.sum(u**2), np.arange(K))]
+    costs = [CostGroup("effort", (Dep("u"),), lambda theta, data, u: 0.5 * jnp.sum(u**2), np.arange(K))]
     lower = np.tile([-np.inf, -np.inf, -U_MAX], (K, 1))
     upper = np.tile([np.inf, np.inf, U_MAX], (K, 1))
     lower[0] = upper[0] = [0.0, 0.0, 0.0]
@@ -76,8 +76,8 @@ def test_negative_curvature_goes_through_inertia_correction():
     not stop at the saddle (0.75, 0.75) either)."""
     layout = Layout((("z", 2),))
     nk = 3
-    costs = [CostGroup("concave", (Dep("z"),), lambda data, z: -0.5 * jnp.sum(z**2), np.arange(nk))]
-    groups = [ConstraintGroup("sum", (Dep("z"),), lambda data, z: z[:1] + z[1:], np.arange(nk),
+    costs = [CostGroup("concave", (Dep("z"),), lambda theta, data, z: -0.5 * jnp.sum(z**2), np.arange(nk))]
+    groups = [ConstraintGroup("sum", (Dep("z"),), lambda theta, data, z: z[:1] + z[1:], np.arange(nk),
                               np.full((nk, 1), -1.5), np.full((nk, 1), 1.5), np.ones((nk, 1), bool))]
     nlp = KnotNLP(layout, nk, costs, groups, -np.ones((nk, 2)), np.ones((nk, 2)))
     ipm = IPM(nlp, IpmOptions(hessian="exact", tol=1e-6, max_iter=100))
@@ -100,9 +100,10 @@ def test_converges_on_small_go2_hop():
     hop = Task(name="hop", robot="go2", timestep=0.05, phases=(Phase(feet, 0.15), Phase((), 0.1), Phase(feet, 0.15)), target_translation=(0.1, 0.0, 0.0))
     prep = solver.prepare(hop, "se3")
     ipm = IPM(prep.nlp, IpmOptions(max_iter=100))
-    r = ipm.solve(jnp.asarray(prep.transcription.warm_start()), None)
+    theta = prep.nlp.theta
+    r = ipm.solve(jnp.asarray(prep.transcription.warm_start()), theta)
     assert int(r.status) == IpmStatus.CONVERGED
-    assert prep.nlp.violation(np.asarray(r.x).reshape(-1)) < 1e-4
+    assert prep.nlp.violation(np.asarray(r.x).reshape(-1), theta) < 1e-4
 
 
 def test_registered_backend_returns_the_shared_solution(toy):
@@ -114,7 +115,7 @@ def test_registered_backend_returns_the_shared_solution(toy):
     assert sol.constraint_violation < 1e-7 and sol.stats.iterations == len(sol.history) - 1
     assert sol.mult_g.shape == (nlp.m,)
     # the multipliers satisfy stationarity: grad f + J^T y - z_L + z_U = 0 on the free variables
-    r = np.asarray(nlp.gradient(sol.x)) + nlp.dense_jacobian(sol.x).T @ sol.mult_g - sol.mult_x_lower + sol.mult_x_upper
+    r = np.asarray(nlp.gradient(sol.x, None)) + nlp.dense_jacobian(sol.x).T @ sol.mult_g - sol.mult_x_lower + sol.mult_x_upper
     free = nlp.x_lower < nlp.x_upper
     assert np.abs(r[free]).max() < 1e-6
     with pytest.raises(solvers.InvalidOptionError, match="hessian"):
