@@ -29,6 +29,13 @@ Differences from Ipopt, and why:
   initial guesses (and parameters theta) runs replicates together, a converged replicate's
   state no longer changes (the batched while loop only updates unfinished members).
 
+State (measured on the loaded 2-core machine): converges on small problems and on a Go2 hop
+with all five parameterizations (8-15 iterations, Ipopt 6-7); on big_jump (Talos, 47 knots)
+it does NOT converge yet: 200 iterations whose steps the fraction-to-the-boundary rule cuts to
+1e-3..1e-2, violation still 234 (Ipopt: 11 iterations). Suspects, for the next person: the
+BFGS elements start at the identity (no scaling by the first s^T y), the equality multipliers
+start at 0 (Ipopt: least squares), and there is no restoration phase. Ipopt stays the default.
+
 Convergence (Ipopt's test at the comparative study's settings): the scaled optimality error
 ``max(dual_inf / s_d, constr_viol, compl / s_c) <= tol`` with Ipopt's ``s_d, s_c`` (s_max =
 100), and unscaled ``constr_viol <= 1e-4``, ``dual_inf <= 1``, ``compl <= 1e-4``.
