@@ -9,6 +9,10 @@ On a Go2 hop (the task of tests/test_differentiable.py), after compiling everyth
 - sensitivity system: active set, assembly of K and its sparse LU (host, once per solve);
 - backward: ``jax.jit(jax.grad(loss))`` minus the warm solve it contains (the transposed
   triangular solve and the JAX vector-Jacobian products of the residual and the motion).
+
+Measured on the 2-core machine (load average about 1, --repeat 3), 9 knots, n = 594, m = 638:
+cold solve 815 ms (15 Ipopt iterations), warm re-solve 624 ms (12), sensitivity system 61 ms,
+backward pass 318 ms, grad through the solver 942 ms (one forward solve per grad).
 """
 
 from __future__ import annotations
