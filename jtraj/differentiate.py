@@ -39,14 +39,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jtraj import config
+from jtraj import config, solvers
 from jtraj import parameterization as params
 from jtraj import robot as robots
-from jtraj import solvers
 from jtraj import task as tasks
 from jtraj.implicit import implicit_solution
 from jtraj.nlp import CostGroup, Dep, KnotNLP
-from jtraj.transcription import CONSTRAINT_STAGES, GRAVITY, COMPACT_LAYOUT, TaskParams, Transcription, cost_terms
+from jtraj.transcription import COMPACT_LAYOUT, CONSTRAINT_STAGES, GRAVITY, TaskParams, Transcription, cost_terms
 
 __all__ = ["OptimalMotion", "DifferentiableTask", "differentiable", "SolveError", "IPOPT_OPTIONS"]
 
@@ -110,7 +109,7 @@ class DifferentiableTask:
         self.backend = backend
         self.options = options
         self.last_solution: solvers.Solution | None = None
-        self._x_warm = None
+        self._x_warm: np.ndarray | None = None
 
         def forward(theta):
             theta = jax.tree_util.tree_map(jnp.asarray, theta)
