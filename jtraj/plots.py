@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from jtraj import io as jio
 from jtraj.lie import accumulated_rotation
 from jtraj.result import Result
 
@@ -49,7 +50,7 @@ def plot_result(result: Result, path: str | Path) -> Path:
     fig.suptitle(f"{result.task} on {result.robot}, {result.parameterization}: {result.status.value}, {result.iterations} iterations{turns} (grey: flight)")
     fig.tight_layout()
     path = Path(path)
-    fig.savefig(path, dpi=110)
+    jio.save_figure(fig, path, dpi=110)
     plt.close(fig)
     return path
 
@@ -67,7 +68,7 @@ def plot_convergence(result: Result, path: str | Path) -> Path:
     ax.set_title(f"{result.task} [{result.parameterization}]")
     fig.tight_layout()
     path = Path(path)
-    fig.savefig(path, dpi=110)
+    jio.save_figure(fig, path, dpi=110)
     plt.close(fig)
     return path
 
@@ -186,7 +187,7 @@ def _finish(plt, fig, path):
         return fig
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    jio.save_figure(fig, path, dpi=110)
     plt.close(fig)
     return path
 

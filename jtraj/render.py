@@ -31,6 +31,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from jtraj import io as jio
+
 if TYPE_CHECKING:
     import mujoco
 
@@ -628,6 +630,19 @@ def write_video(frames: np.ndarray, path: str | Path, fps: float = 30.0) -> Path
     frames = np.asarray(frames, np.uint8)
     path.parent.mkdir(parents=True, exist_ok=True)
     suffix = path.suffix.lower()
+    if suffix not in (".gif", ".mp4"):
+        raise ValueError(f"{path}: expected a .mp4 or .gif file name")
+    # written beside the target and renamed into place: a killed render leaves no half video
+    final, path = path, path.with_name(f".{path.stem}.{os.getpid()}.partial{suffix}")
+    try:
+        _encode_video(frames, path, suffix, fps)
+        os.replace(path, final)
+    finally:
+        path.unlink(missing_ok=True)
+    return final
+
+
+def _encode_video(frames: np.ndarray, path: Path, suffix: str, fps: float) -> None:
     if suffix == ".gif":
         from PIL import Image
 
@@ -648,9 +663,6 @@ def write_video(frames: np.ndarray, path: str | Path, fps: float = 30.0) -> Path
         for f in frames:
             writer.send(np.ascontiguousarray(f[:h, :w]))
         writer.close()
-    else:
-        raise ValueError(f"{path}: expected a .mp4 or .gif file name")
-    return path
 
 
 def show(frames: np.ndarray, fps: float = 30.0, **kwargs) -> None:
@@ -684,7 +696,9 @@ def write_image(image: np.ndarray, path: str | Path) -> Path:
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(np.asarray(image, np.uint8)).save(path, optimize=True)
+    fmt = {".jpg": "JPEG", ".jpeg": "JPEG"}.get(path.suffix.lower(), "PNG")
+    with jio.atomic_open(path, "wb") as f:
+        Image.fromarray(np.asarray(image, np.uint8)).save(f, format=fmt, optimize=True)
     return path
 
 

@@ -145,6 +145,8 @@ def test_video_files(frames, tmp_path):
     assert Image.open(write_image(frames[0], tmp_path / "f.png")).size == (W, H)
     with pytest.raises(ValueError, match="mp4 or .gif"):
         write_video(frames, tmp_path / "m.avi")
+    # written beside the target and renamed into place: no partial file is left behind
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["f.png", "m.gif", "m.mp4"]
 
 
 def test_collada_visuals_are_converted_for_every_go2_body():
