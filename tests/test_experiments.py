@@ -96,7 +96,10 @@ def test_sweep_killed_midway_resumes_without_losing_or_repeating_runs(tmp_path):
     whole = robustness([HOP], ["se3"], out=tmp_path / "whole", **kw)  # compiles; fills the cache
     out = tmp_path / "killed"
     runs_path = out / RUNS_FILE
-    proc = subprocess.Popen([sys.executable, "-c", _SWEEP.format(tests=str(Path(__file__).parent), out=str(out))])
+    # the killed process must not share the compilation cache: JAX writes an entry in place,
+    # and a kill in the middle of that write would leave a torn executable for later tests
+    env = {**os.environ, "JTRAJ_NO_CACHE": "1"}
+    proc = subprocess.Popen([sys.executable, "-c", _SWEEP.format(tests=str(Path(__file__).parent), out=str(out))], env=env)
     try:
         deadline = time.time() + 300
         while time.time() < deadline and proc.poll() is None:

@@ -165,7 +165,7 @@ def test_unit_norm_option():
 
 
 def test_unknown_name_lists_choices():
-    with pytest.raises(ValueError, match="se3, quat1, quat2, quat3, euler"):
+    with pytest.raises(ValueError, match=r"expected one of \['euler', 'quat1', 'quat2', 'quat3', 'se3'\]"):
         get("quaternion")
 
 
