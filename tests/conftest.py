@@ -31,9 +31,9 @@ def random_unit_vectors(rng, n, dim=3):
 def pytest_collection_modifyitems(session, config, items):
     """Run the rendering tests last.
 
-    Drawing with Mesa's software EGL (llvmpipe) loads Mesa's own LLVM into the test process;
-    two full CI runs then crashed (segmentation fault) in XLA's compilation of a later test
-    (test_transcription's dense jacfwd), which passes when run without the rendering tests
-    before it. Until that is understood, nothing compiles in this process after a render.
+    Drawing with Mesa's software EGL (llvmpipe) loads Mesa's own LLVM into the test process.
+    Two full CI runs crashed (segmentation fault) inside XLA later in the same process; a run
+    of the rendering tests followed by the crashing test passed, so this ordering is a
+    precaution (see also vm.max_map_count in .ci/run), not a proven fix.
     """
     items.sort(key=lambda item: item.nodeid.startswith("tests/test_render.py"))
