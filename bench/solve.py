@@ -90,6 +90,11 @@ def run_variant(task: str, param: str, variant: str, extra: dict) -> dict:
             os.close(saved)
         tmp.seek(0)
         timing = ipopt_timing(tmp.read())
+    return _record(variant, r, timing.get("StdAugSystemSolverMultiSolve"))
+
+
+def _record(variant: str, r, time_linear_solver: float | None) -> dict:
+    """One variant's row of the benchmark from its `jtraj.Result`."""
     return dict(
         variant=variant,
         status=r.status.value,
@@ -98,7 +103,7 @@ def run_variant(task: str, param: str, variant: str, extra: dict) -> dict:
         time_s=r.time_s,
         time_derivatives=r.time_derivatives,
         time_ipopt=r.time_solver,
-        time_linear_solver=timing.get("StdAugSystemSolverMultiSolve"),
+        time_linear_solver=time_linear_solver,
         cost=r.cost,
         constraint_violation=r.constraint_violation,
     )
@@ -110,18 +115,7 @@ def run_jtraj(task: str, param: str, variant: str, v: dict) -> dict:
     r = solve(task, param, layout=v["layout"], solver="jtraj", progress=io.StringIO())
     total = time.perf_counter() - t0
     print(f"{task} [{variant}]: solver program compiled and run in {total:.1f} s", flush=True)
-    return dict(
-        variant=variant,
-        status=r.status.value,
-        success=r.success,
-        iterations=r.iterations,
-        time_s=r.time_s,
-        time_derivatives=r.time_derivatives,
-        time_ipopt=r.time_solver,
-        time_linear_solver=None,
-        cost=r.cost,
-        constraint_violation=r.constraint_violation,
-    )
+    return _record(variant, r, None)
 
 
 def markdown(records: list[dict]) -> str:
