@@ -88,8 +88,8 @@ def main():
     # --- jtraj
     tau_batch = batched(dynamics.inverse_dynamics)
     c_tau, t_tau = timed(lambda: tau_batch(robot, param, Q, V, A, F), args.repeats)
-    c_jac, t_jac = timed(lambda: dynamics.inverse_dynamics_jacobians(robot, param, Q, V, A, F), args.repeats)
-    ours = dynamics.inverse_dynamics_jacobians(robot, param, Q, V, A, F)
+    c_jac, t_jac = timed(lambda: dynamics.batched_inverse_dynamics_derivatives(robot, param, Q, V, A, F), args.repeats)
+    ours = dynamics.batched_inverse_dynamics_derivatives(robot, param, Q, V, A, F)
 
     # --- Pinocchio, same states
     model, frames, q_index, v_index = pinocchio_model(robot)

@@ -1,11 +1,11 @@
 """Iterations of the study's public code and of jtraj on the same tasks, one after the other.
 
     python bench/side_by_side.py --out results/side_by_side [--tasks walk,big_jump,...]
-        [--layouts paper] [--peer ../shared/peers/run-se3-trajopt] [--sigma 0.5 --seeds 0,1,2]
+        [--variables paper] [--peer ../shared/peers/run-se3-trajopt] [--sigma 0.5 --seeds 0,1,2]
 
 For every task (and noise draw): the paper's code (SE(3) tangent, its own settings, through its
-runner script, which prints one JSON line), then ``jtraj.solve(task, "se3", layout=...)`` for
-each layout. Iterations are what is compared: on a shared machine the times are noisy. Writes
+runner script, which prints one JSON line), then ``jtraj.solve(task, "se3", variables=...)`` for
+each choice of variables. Iterations are what is compared: on a shared machine the times are noisy. Writes
 ``OUT/side_by_side.json`` (one row per solve), ``OUT/side_by_side.md`` (the table the README
 quotes) and ``OUT/provenance.json``. Rows already in the JSON are kept (resume).
 
@@ -47,9 +47,9 @@ def run_peer(peer: Path, task: str, sigma: float, seed: int) -> dict:
     return dict(code="paper", task=task, sigma=sigma, seed=seed, status=int(d["status"]), converged=int(d["status"]) in (0, 1), iterations=int(d["iterations"]), cost=d.get("obj"), time_s=d.get("time_s"))
 
 
-def run_jtraj(task: str, layout: str, sigma: float, seed: int) -> dict:
-    r = jtraj.solve(task, "se3", layout=layout, noise=sigma, seed=seed, progress=None, keep_trajectory=False)
-    return dict(code=f"jtraj {layout}", task=task, sigma=sigma, seed=seed, status=r.status.value, converged=bool(r.converged), iterations=int(r.iterations), cost=float(r.cost), time_s=round(float(r.time_s), 3), turns=r.turns)
+def run_jtraj(task: str, variables: str, sigma: float, seed: int) -> dict:
+    r = jtraj.solve(task, "se3", variables=variables, noise=sigma, seed=seed, progress=None, keep_trajectory=False)
+    return dict(code=f"jtraj {variables}", task=task, sigma=sigma, seed=seed, status=r.status.value, converged=bool(r.converged), iterations=int(r.iterations), cost=float(r.cost), time_s=round(float(r.time_s), 3), turns=r.turns)
 
 
 def _cell(rows: list[dict]) -> str:
@@ -84,7 +84,7 @@ def render(rows: list[dict]) -> str:
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--tasks", default=",".join(TASKS))
-    ap.add_argument("--layouts", default="paper")
+    ap.add_argument("--variables", "--layouts", dest="variables", default="paper", help="comma-separated jtraj.solver.VARIABLES names ('' for none; --layouts: the former name)")
     ap.add_argument("--sigma", type=float, default=0.0)
     ap.add_argument("--seeds", default="0")
     ap.add_argument("--peer", default=str(DEFAULT_PEER), help="the paper code's runner script ('' to skip it)")
@@ -99,7 +99,7 @@ def main(argv: list[str] | None = None) -> None:
     for task in args.tasks.split(","):
         for seed in seeds:
             jobs = ([("paper", lambda: run_peer(Path(args.peer), task, args.sigma, seed))] if args.peer else []) + [
-                (f"jtraj {lay}", lambda lay=lay: run_jtraj(task, lay, args.sigma, seed)) for lay in args.layouts.split(",") if lay
+                (f"jtraj {lay}", lambda lay=lay: run_jtraj(task, lay, args.sigma, seed)) for lay in args.variables.split(",") if lay
             ]
             for code, job in jobs:
                 if (code, task, args.sigma, seed) in done:

@@ -11,8 +11,8 @@ Variants (Ipopt with the study's settings: L-BFGS Hessian, tol 1e-3, MUMPS; or j
     paper    the study's variables per knot (q, v, a, f, c)
     compact  jtraj's default: contact positions substituted by forward kinematics (q, v, a, f)
     lean     accelerations substituted too (q, v, f)
-    exact    the paper layout with the exact Hessian of the Lagrangian from JAX
-    jtraj    the compact layout with jtraj's own interior point (solver="jtraj", tol 1e-3);
+    exact    the paper's variables with the exact Hessian of the Lagrangian from JAX
+    jtraj    the compact variables with jtraj's own interior point (solver="jtraj", tol 1e-3);
              its time is the whole jitted solve (the "Ipopt own" column then holds it all)
 
 ``--peer`` is a command that runs the public code on one task and prints one JSON line with
@@ -44,11 +44,11 @@ from jtraj.provenance import write_provenance
 from jtraj.solver import prepare, solve
 
 VARIANTS = {
-    "paper": dict(layout="paper", exact_hessian=False),
-    "lean": dict(layout="lean", exact_hessian=False),
-    "exact": dict(layout="paper", exact_hessian=True),
-    "compact": dict(layout="compact", exact_hessian=False),
-    "jtraj": dict(layout="compact", exact_hessian=False, solver="jtraj"),
+    "paper": dict(variables="paper", exact_hessian=False),
+    "lean": dict(variables="lean", exact_hessian=False),
+    "exact": dict(variables="paper", exact_hessian=True),
+    "compact": dict(variables="compact", exact_hessian=False),
+    "jtraj": dict(variables="compact", exact_hessian=False, solver="jtraj"),
 }
 DEFAULT_PEER = Path(__file__).resolve().parents[1].parent / "shared" / "peers" / "run-se3-trajopt"
 
@@ -83,7 +83,7 @@ def run_variant(task: str, param: str, variant: str, extra: dict) -> dict:
         saved = os.dup(1)
         os.dup2(tmp.fileno(), 1)
         try:
-            r = solve(task, param, layout=v["layout"], exact_hessian=v["exact_hessian"], ipopt_options=opts, progress=io.StringIO())
+            r = solve(task, param, variables=v["variables"], exact_hessian=v["exact_hessian"], ipopt_options=opts, progress=io.StringIO())
         finally:
             sys.stdout.flush()
             os.dup2(saved, 1)
@@ -112,7 +112,7 @@ def _record(variant: str, r, time_linear_solver: float | None) -> dict:
 def run_jtraj(task: str, param: str, variant: str, v: dict) -> dict:
     """jtraj's own interior point (compiled before its clock starts; no Ipopt timing table)."""
     t0 = time.perf_counter()
-    r = solve(task, param, layout=v["layout"], solver="jtraj", progress=io.StringIO())
+    r = solve(task, param, variables=v["variables"], solver="jtraj", progress=io.StringIO())
     total = time.perf_counter() - t0
     print(f"{task} [{variant}]: solver program compiled and run in {total:.1f} s", flush=True)
     return _record(variant, r, None)

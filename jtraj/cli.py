@@ -61,7 +61,7 @@ def _cmd_solve(args: argparse.Namespace) -> int:
         task,
         args.param,
         solver=args.solver,
-        layout=args.layout,
+        variables=args.variables,
         exact_hessian=args.exact_hessian,
         ipopt_options=options,
         noise=args.noise,
@@ -88,6 +88,11 @@ def _executor_arguments(p: argparse.ArgumentParser, workers: bool = True) -> Non
         p.add_argument("--workers", type=int, default=1, help="with --executor local: solve in this many processes")
 
 
+def _variables_argument(p: argparse.ArgumentParser, default: str, help: str) -> None:
+    # --layout is the option's former name, still parsed so that existing scripts run
+    p.add_argument("--variables", "--layout", dest="variables", default=default, choices=["compact", "paper", "lean"], help=help + " (--layout: its former name)")
+
+
 def _split(text: str) -> list[str]:
     return [x for x in text.split(",") if x]
 
@@ -96,7 +101,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     from jtraj.experiments import compare
     from jtraj.provenance import write_provenance
 
-    rows = compare(_split(args.tasks), _split(args.params), out=args.out, layout=args.layout, exact_hessian=args.exact_hessian, save_trajectories=not args.no_trajectories, executor=args.executor, workers=args.workers, ray_address=args.ray_address)
+    rows = compare(_split(args.tasks), _split(args.params), out=args.out, variables=args.variables, exact_hessian=args.exact_hessian, save_trajectories=not args.no_trajectories, executor=args.executor, workers=args.workers, ray_address=args.ray_address)
     write_provenance(args.out)
     print((__import__("pathlib").Path(args.out) / "table_iv.md").read_text())
     return 0 if rows else 1
@@ -107,7 +112,7 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
     from jtraj.provenance import write_provenance
 
     sigmas = args.sigmas_checked
-    robustness(_split(args.tasks), _split(args.params), sigmas, replicates=args.replicates, seed=args.seed, out=args.out, layout=args.layout, workers=args.workers, resume=not args.no_resume, executor=args.executor, ray_address=args.ray_address)
+    robustness(_split(args.tasks), _split(args.params), sigmas, replicates=args.replicates, seed=args.seed, out=args.out, variables=args.variables, workers=args.workers, resume=not args.no_resume, executor=args.executor, ray_address=args.ray_address)
     write_provenance(args.out)
     print((__import__("pathlib").Path(args.out) / "table_iii.md").read_text())
     return 0
@@ -245,7 +250,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--param", default="se3", choices=["se3", "quat1", "quat2", "quat3", "euler"], help="floating-base parameterization (default se3)")
     p.add_argument("--solver", default="ipopt", choices=_solver_names(), help="NLP solver backend (default ipopt)")
     p.add_argument("--out", help="output directory (default runs/TASK_PARAM)")
-    p.add_argument("--layout", default="compact", choices=["compact", "paper", "lean"], help="variables per knot: compact (q, v, a, f; default), the study's (q, v, a, f, c) or lean (q, v, f)")
+    _variables_argument(p, "compact", "variables per knot: compact (q, v, a, f; default), the study's (q, v, a, f, c) or lean (q, v, f)")
     p.add_argument("--exact-hessian", action="store_true", help="exact Hessian of the Lagrangian instead of L-BFGS")
     p.add_argument("--ipopt", action="append", metavar="NAME=VALUE", help="any solver option (Ipopt's names for ipopt), repeatable (e.g. --ipopt max_iter=50)")
     p.add_argument("--noise", type=float, default=0.0, help="std of Gaussian noise added to the warm start")
@@ -257,7 +262,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("compare", help="Table IV: every task with every parameterization (writes OUT/table_iv.{json,md})")
     p.add_argument("--tasks", default="walk,hopscotch,big_jump,handstand,backflip,sideflip")
     p.add_argument("--params", default="se3,quat1,quat2,quat3,euler")
-    p.add_argument("--layout", default="paper", choices=["paper", "compact", "lean"], help="default: the study's layout, for comparison with its tables")
+    _variables_argument(p, "paper", "variables per knot; default: the study's, for comparison with its tables")
     p.add_argument("--exact-hessian", action="store_true")
     p.add_argument("--out", default="runs/table_iv")
     p.add_argument("--no-trajectories", action="store_true", help="write only the tables (for results/)")
@@ -270,7 +275,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sigmas", default="1e-6,1e-3,0.1,0.5")
     p.add_argument("--replicates", type=int, default=10)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--layout", default="paper", choices=["paper", "compact", "lean"], help="default: the study's layout, for comparison with its tables")
+    _variables_argument(p, "paper", "variables per knot; default: the study's, for comparison with its tables")
     p.add_argument("--out", default="runs/robustness")
     p.add_argument("--workers", type=int, default=1, help="solve (task, parameterization) groups in this many processes")
     p.add_argument("--no-resume", action="store_true", help="solve again the runs already in OUT/runs.jsonl (the old file is kept as runs.jsonl.previous)")

@@ -43,9 +43,11 @@ from jtraj import config, solvers
 from jtraj import parameterization as params
 from jtraj import robot as robots
 from jtraj import task as tasks
+from jtraj.deprecation import renamed_argument
 from jtraj.implicit import implicit_solution
 from jtraj.nlp import CostGroup, Dep, KnotNLP
-from jtraj.transcription import COMPACT_LAYOUT, CONSTRAINT_STAGES, GRAVITY, TaskParams, Transcription, cost_terms
+from jtraj.solver import transcription_options
+from jtraj.transcription import COMPACT_VARIABLES, CONSTRAINT_STAGES, GRAVITY, TaskParams, Transcription, TranscriptionOptions, cost_terms
 
 __all__ = ["OptimalMotion", "DifferentiableTask", "differentiable", "SolveError", "IPOPT_OPTIONS"]
 
@@ -170,9 +172,10 @@ def differentiable(
     *,
     solver: str | solvers.AbstractSolver = "ipopt",
     options: solvers.AbstractOptions | dict[str, Any] | None = None,
-    layout=COMPACT_LAYOUT,
+    variables: str | TranscriptionOptions = COMPACT_VARIABLES,
     force_weight: float = 1e-3,
     weak_tol: float = 1e-6,
+    layout: str | TranscriptionOptions | None = None,
 ) -> DifferentiableTask:
     """``f(theta) -> OptimalMotion``, the task's optimal motion as a differentiable function.
 
@@ -180,7 +183,8 @@ def differentiable(
         task: a task name, ``.toml`` path or `jtraj.task.Task`; it needs positive
             ``configuration_weight`` and ``acceleration_weight`` (a unique optimum).
         parameterization: the floating-base parameterization (``"se3"`` default).
-        layout: a `jtraj.transcription.TranscriptionOptions` (default compact).
+        variables: the variables per knot, a name of `jtraj.solver.VARIABLES` or a
+            `jtraj.transcription.TranscriptionOptions` (default compact).
         force_weight: weight of the force regularization ``1/2 w |f / (m g)|^2`` per knot
             and contact point (makes internal contact forces unique).
         solver: a `jtraj.solvers.SOLVERS` name or a solver object, for the forward solve.
@@ -188,10 +192,12 @@ def differentiable(
             Hessian; the backend's defaults otherwise).
         weak_tol: tolerance of the weak-activity (degeneracy) test, relative to the largest
             multiplier (see `jtraj.sensitivity.active_set`).
+        layout: the former name of ``variables`` (deprecated: warns).
 
     Returns:
         a `DifferentiableTask`: call it with a `TaskParams` (``f.theta`` is the task's).
     """
+    variables = renamed_argument(variables, layout, "variables", "layout", COMPACT_VARIABLES)
     config.enable_compilation_cache()
     task = tasks.load(task)
     if not (task.configuration_weight > 0 and task.acceleration_weight > 0):
@@ -202,7 +208,7 @@ def differentiable(
     if force_weight <= 0:
         raise ValueError(f"force_weight must be > 0 (it makes the contact forces unique), got {force_weight}")
     robot = robots.load(task.robot)
-    tr = Transcription(robot, task, params.get(parameterization), layout)
+    tr = Transcription(robot, task, params.get(parameterization), transcription_options(variables))
     groups = [g for stage in CONSTRAINT_STAGES for g in stage(tr)]
     weight = force_weight / (robot.total_mass * GRAVITY) ** 2
     costs = cost_terms(tr) + [CostGroup("force", (Dep("f"),), lambda theta, data, f: 0.5 * weight * jnp.sum(f**2), np.arange(tr.N + 1))]

@@ -47,6 +47,7 @@ import mujoco
 import numpy as np
 from jaxlie import SO3
 
+from jtraj.deprecation import warn_renamed
 from jtraj.lie import skew as _skew
 from jtraj.parameterization import AbstractParameterization, body_twist_to_qvel
 from jtraj.robot import Robot, mjx  # jtraj.robot imports MJX quietly
@@ -60,7 +61,7 @@ __all__ = [
     "mass_matrix",
     "acceleration_force_jacobians",
     "inverse_dynamics_derivatives",
-    "inverse_dynamics_jacobians",
+    "batched_inverse_dynamics_derivatives",
     "InverseDynamicsJacobians",
     "model_masses",
     "to_mujoco",
@@ -653,7 +654,7 @@ def inverse_dynamics_derivatives(
 
 
 @functools.partial(jax.jit, static_argnums=(0, 1))
-def inverse_dynamics_jacobians(
+def batched_inverse_dynamics_derivatives(
     robot: Robot,
     param: AbstractParameterization,
     Q: jax.Array,
@@ -671,6 +672,13 @@ def inverse_dynamics_jacobians(
     """
     per_knot = jax.vmap(inverse_dynamics_derivatives, in_axes=(None, None, 0, 0, 0, 0, None))
     return per_knot(robot, param, Q, V, A, F, masses)
+
+
+def __getattr__(name: str):
+    if name == "inverse_dynamics_jacobians":  # its former name, which did not say it is batched
+        warn_renamed("jtraj.dynamics.inverse_dynamics_jacobians", "jtraj.dynamics.batched_inverse_dynamics_derivatives")
+        return batched_inverse_dynamics_derivatives
+    raise AttributeError(f"module 'jtraj.dynamics' has no attribute {name!r}")
 
 
 # ----------------------------------------------------------------------------------------

@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jtraj import io as jio
+from jtraj.deprecation import renamed_argument
 from jtraj.executors import executor_for
 from jtraj.parameterization import PARAMETERIZATIONS
 from jtraj.solver import prepare, solve
@@ -53,22 +54,27 @@ def compare(
     tasks: Sequence[str | Task] = ALL_TASKS,
     params: Sequence[str] = tuple(PARAMETERIZATIONS),
     out: str | Path = "runs/table_iv",
-    layout: str = "paper",
+    variables: str = "paper",
     exact_hessian: bool = False,
     progress: TextIO | None = sys.stdout,
     save_trajectories: bool = True,
     executor: str = "local",
     workers: int = 1,
     ray_address: str | None = None,
+    layout: str | None = None,
 ) -> list[dict]:
     """Table IV: solve every task with every parameterization; write table_iv.{json,md}.
+
+    ``variables``: the variables per knot (`jtraj.solver.VARIABLES`; default the study's);
+    ``layout`` is its deprecated former name.
 
     ``executor`` (`jtraj.executors`): ``"local"`` solves in this process (``workers`` > 1: in
     that many worker processes), ``"ray"`` one Ray task per solve on the cluster at
     ``ray_address``. Rows keep the order of ``tasks`` x ``params`` whatever the executor.
     """
+    variables = renamed_argument(variables, layout, "variables", "layout", "paper")
     out = Path(out)
-    jobs = [(task, p, layout, exact_hessian, str(out / f"{task if isinstance(task, str) else task.name}_{p}") if save_trajectories else None) for task in tasks for p in params]
+    jobs = [(task, p, variables, exact_hessian, str(out / f"{task if isinstance(task, str) else task.name}_{p}") if save_trajectories else None) for task in tasks for p in params]
     if executor == "local" and workers <= 1:
         rows = []
         for job in jobs:
@@ -84,9 +90,9 @@ def compare(
     return [done[k] for k in sorted(done)]
 
 
-def _compare_one(task, p, layout, exact_hessian, out, progress=None) -> dict:
+def _compare_one(task, p, variables, exact_hessian, out, progress=None) -> dict:
     """One cell of Table IV (a module-level function: executors ship it to other processes)."""
-    return _row(solve(task, p, layout=layout, exact_hessian=exact_hessian, progress=progress, progress_every=10, out=out))
+    return _row(solve(task, p, variables=variables, exact_hessian=exact_hessian, progress=progress, progress_every=10, out=out))
 
 
 def _write_table_iv(rows: list[dict], out: Path) -> None:
@@ -130,7 +136,8 @@ def noisy_warm_starts(x0: np.ndarray, sigmas: Sequence[float], replicates: int |
     return np.asarray(draw(bits, jnp.asarray(sigmas, base.dtype), jnp.asarray(reps, jnp.uint32)))
 
 
-#: the fields of a run's key, beside its task's name (kept for the tables)
+#: the fields of a run's key, beside its task's name (kept for the tables); "layout" holds the
+#: ``variables`` name under its former key, so that earlier runs.jsonl files still resume
 RUN_KEY = ("task_hash", "parameterization", "layout", "hessian", "options_hash", "seed", "sigma", "replicate")
 RUNS_FILE = "runs.jsonl"
 
@@ -141,7 +148,7 @@ def _options_hash(options: dict | None) -> str:
 
 
 def run_key(row: dict) -> tuple:
-    """The identity of a robustness run: (task content hash, parameterization, layout, Hessian
+    """The identity of a robustness run: (task content hash, parameterization, variables, Hessian
     mode, solver-options hash, seed, sigma, replicate)."""
     return tuple(row.get(k) for k in RUN_KEY)
 
@@ -167,20 +174,20 @@ def read_runs(path: str | Path, progress: TextIO | None = sys.stderr) -> list[di
     return list(seen.values())
 
 
-def _robustness_group(task, p, sigmas, replicates, seed, layout, exact_hessian, options, done, runs_path, progress=None) -> int:
+def _robustness_group(task, p, sigmas, replicates, seed, variables, exact_hessian, options, done, runs_path, progress=None) -> int:
     """One (task, parameterization) of the study: one compile, then every noisy replicate whose
     key is not in ``done``, each appended to ``runs_path`` as soon as it is solved (also from a
     worker process: a kill loses only the solve in flight). Returns the number solved."""
     task = load_task(task)
-    base = dict(task_hash=task.content_hash(), parameterization=p, layout=layout, hessian="exact" if exact_hessian else "limited-memory", options_hash=_options_hash(options), seed=seed)
+    base = dict(task_hash=task.content_hash(), parameterization=p, layout=variables, hessian="exact" if exact_hessian else "limited-memory", options_hash=_options_hash(options), seed=seed)
     todo = [(s, r) for s in sigmas for r in range(replicates) if run_key(base | {"sigma": float(s), "replicate": r}) not in done]
     if not todo:
         return 0
-    prep = prepare(task, p, layout)
+    prep = prepare(task, p, variables)
     x0 = prep.transcription.warm_start()
     for sigma, r in todo:
         start = noisy_warm_starts(x0, [sigma], [r], seed)[0, 0]
-        res = solve(task, p, layout=layout, warm_start=start, exact_hessian=exact_hessian, ipopt_options=dict(options or {}), progress=None, keep_trajectory=False)
+        res = solve(task, p, variables=variables, warm_start=start, exact_hessian=exact_hessian, ipopt_options=dict(options or {}), progress=None, keep_trajectory=False)
         row = base | {"sigma": float(sigma), "replicate": r} | _row(res)
         jio.append_jsonl(runs_path, row)
         if progress is not None:
@@ -214,7 +221,7 @@ def robustness(
     replicates: int = 10,
     seed: int = 0,
     out: str | Path = "runs/robustness",
-    layout: str = "paper",
+    variables: str = "paper",
     exact_hessian: bool = False,
     progress: TextIO | None = sys.stdout,
     workers: int = 1,
@@ -222,12 +229,13 @@ def robustness(
     ipopt_options: dict | None = None,
     executor: str = "local",
     ray_address: str | None = None,
+    layout: str | None = None,
 ) -> list[dict]:
     """Table III and Fig. 2: converged and task-success rates and iterations under warm-start noise.
 
     Every finished solve is appended at once to ``out/runs.jsonl``, one JSON line keyed by
-    `run_key` (task content, parameterization, layout, Hessian mode, Ipopt options, seed, sigma,
-    replicate). With ``resume`` (default) runs already there are not solved again, so a study
+    `run_key` (task content, parameterization, variables per knot, Hessian mode, Ipopt
+    options, seed, sigma, replicate). With ``resume`` (default) runs already there are not solved again, so a study
     stopped or killed at any point goes on where it ended; runs of other settings in the file
     are kept and left out of this call's tables. Without ``resume`` this call's runs are solved
     again and appended (the first of each key is the one read). The noise of replicate r at
@@ -237,7 +245,9 @@ def robustness(
     appending to the same file. ``executor="ray"`` makes each group a Ray task on the cluster
     at ``ray_address`` (`jtraj.executors`); its rows come back when the group finishes and are
     appended here, under the same keys and resume rules. Returns this call's runs; writes table_iii.{json,md} and fig2.png.
+    ``layout`` is the deprecated former name of ``variables``.
     """
+    variables = renamed_argument(variables, layout, "variables", "layout", "paper")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     runs_path = out / RUNS_FILE
@@ -251,7 +261,7 @@ def robustness(
     done = {run_key(r) for r in before}
     if progress is not None and done:
         print(f"resuming: {len(done)} runs already in {runs_path}", file=progress, flush=True)
-    args = [(t, p, tuple(sigmas), replicates, seed, layout, exact_hessian, ipopt_options, done, runs_path) for t in tasks for p in params]
+    args = [(t, p, tuple(sigmas), replicates, seed, variables, exact_hessian, ipopt_options, done, runs_path) for t in tasks for p in params]
     if executor == "local" and workers <= 1:
         for a in args:
             _robustness_group(*a, progress=progress)
@@ -268,10 +278,10 @@ def robustness(
     return runs
 
 
-def _select(runs: list[dict], task: Task, p: str, sigmas, replicates: int, seed: int, layout: str, exact_hessian: bool, options) -> list[dict]:
+def _select(runs: list[dict], task: Task, p: str, sigmas, replicates: int, seed: int, variables: str, exact_hessian: bool, options) -> list[dict]:
     """The runs of one group of this call's settings, in (sigma, replicate) order."""
     keys = {
-        (task.content_hash(), p, layout, "exact" if exact_hessian else "limited-memory", _options_hash(options), seed, float(s), r): (i, r)
+        (task.content_hash(), p, variables, "exact" if exact_hessian else "limited-memory", _options_hash(options), seed, float(s), r): (i, r)
         for i, s in enumerate(sigmas)
         for r in range(replicates)
     }

@@ -13,22 +13,34 @@ from jtraj import config, solvers
 from jtraj import parameterization as params
 from jtraj import robot as robots
 from jtraj import task as tasks
+from jtraj.deprecation import renamed_argument, warn_renamed
 from jtraj.nlp import KnotNLP
 from jtraj.registry import lookup
 from jtraj.result import Result
 from jtraj.success import FEASIBILITY_TOL
 from jtraj.success import evaluate as check_motion
-from jtraj.transcription import COMPACT_LAYOUT, LEAN_LAYOUT, PAPER_LAYOUT, TaskParams, Transcription, TranscriptionOptions
+from jtraj.transcription import COMPACT_VARIABLES, LEAN_VARIABLES, PAPER_VARIABLES, TaskParams, Transcription, TranscriptionOptions
 
-LAYOUTS = {"paper": PAPER_LAYOUT, "compact": COMPACT_LAYOUT, "lean": LEAN_LAYOUT}
+#: The named choices of variables per knot (``variables=`` of `solve`, ``--variables``).
+VARIABLES = {"paper": PAPER_VARIABLES, "compact": COMPACT_VARIABLES, "lean": LEAN_VARIABLES}
 
 
-def _layout(layout: str | TranscriptionOptions) -> TranscriptionOptions:
-    if isinstance(layout, TranscriptionOptions):
-        return layout
-    return lookup(LAYOUTS, layout, "layout", hint=" or a TranscriptionOptions")
+def transcription_options(variables: str | TranscriptionOptions) -> TranscriptionOptions:
+    """The `TranscriptionOptions` a ``variables=`` argument names (a `VARIABLES` key or an
+    options object)."""
+    if isinstance(variables, TranscriptionOptions):
+        return variables
+    return lookup(VARIABLES, variables, "variables", hint=" or a TranscriptionOptions")
 
-__all__ = ["solve", "prepare", "Prepared"]
+
+def __getattr__(name: str) -> Any:
+    if name == "LAYOUTS":  # its former name
+        warn_renamed("jtraj.solver.LAYOUTS", "jtraj.solver.VARIABLES")
+        return VARIABLES
+    raise AttributeError(f"module 'jtraj.solver' has no attribute {name!r}")
+
+
+__all__ = ["solve", "prepare", "Prepared", "VARIABLES", "transcription_options"]
 
 
 class Prepared:
@@ -46,12 +58,16 @@ _CACHE: dict[tuple, Prepared] = {}
 def prepare(
     task: tasks.Task | str,
     parameterization: str | params.AbstractParameterization = "se3",
-    layout: str | TranscriptionOptions = "compact",
+    variables: str | TranscriptionOptions = "compact",
+    *,
+    layout: str | TranscriptionOptions | None = None,
 ) -> Prepared:
-    """Build (once per task, parameterization and layout) the transcription and compile its NLP."""
+    """Build (once per task, parameterization and variables per knot) the transcription and
+    compile its NLP. ``variables`` as in `solve`; ``layout`` is its deprecated former name."""
+    variables = renamed_argument(variables, layout, "variables", "layout", "compact")
     task = tasks.load(task)
     param = params.get(parameterization)
-    options = _layout(layout)
+    options = transcription_options(variables)
     key = (task, param, options)
     if key in _CACHE:
         return _CACHE[key]
@@ -73,7 +89,7 @@ def solve(
     task: tasks.Task | str,
     parameterization: str | params.AbstractParameterization = "se3",
     *,
-    layout: str | TranscriptionOptions = "compact",
+    variables: str | TranscriptionOptions = "compact",
     solver: str | solvers.AbstractSolver = "ipopt",
     options: solvers.AbstractOptions | dict[str, Any] | None = None,
     exact_hessian: bool = False,
@@ -86,6 +102,7 @@ def solve(
     out: str | None = None,
     keep_trajectory: bool = True,
     theta: TaskParams | dict[str, Any] | None = None,
+    layout: str | TranscriptionOptions | None = None,
 ) -> Result:
     """Solve a task with one of `jtraj.solvers.SOLVERS` (Ipopt by default).
 
@@ -93,10 +110,10 @@ def solve(
         task: a built-in task name (``"big_jump"``), a ``.toml`` path or a `jtraj.task.Task`.
         parameterization: ``"se3"`` (default), ``"quat1"``, ``"quat2"``, ``"quat3"``, ``"euler"``
             or a parameterization object.
-        layout: variables per knot (see `TranscriptionOptions`): ``"compact"`` (default; q, v,
-            a, f: contact positions substituted by forward kinematics), ``"paper"`` (q, v, a,
-            f, c as the study) or ``"lean"`` (q, v, f: accelerations substituted too).
-            ``bench/solve.py TASK`` times the layouts against the study's public code in one
+        variables: variables per knot (`VARIABLES`, or a `TranscriptionOptions`):
+            ``"compact"`` (default; q, v, a, f: contact positions substituted by forward
+            kinematics), ``"paper"`` (q, v, a, f, c as the study) or ``"lean"`` (q, v, f:
+            accelerations substituted too). ``bench/solve.py TASK`` times them against the study's public code in one
             run (speed depends on the machine and its load: no figures here).
         solver: a name of `jtraj.solvers.SOLVERS` (``"ipopt"``) or a solver object.
         options: the solver's options object (e.g. `jtraj.solvers.IpoptOptions`) or a dict of
@@ -114,8 +131,10 @@ def solve(
         theta: the task's parameters (`jtraj.transcription.TaskParams`), or a dict
             overriding some of them (``{"friction": 0.5, "timestep": 0.04}``); other values
             of theta reuse the compiled NLP.
+        layout: the former name of ``variables`` (deprecated: warns).
     """
-    prep = prepare(task, parameterization, layout)
+    variables = renamed_argument(variables, layout, "variables", "layout", "compact")
+    prep = prepare(task, parameterization, variables)
     tr, nlp = prep.transcription, prep.nlp
     theta = tr.resolve_theta(theta)
     compile_time = prep.time_compile

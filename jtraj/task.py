@@ -26,7 +26,7 @@ TOML form (see ``tasks/big_jump.toml``)::
     [[phases]]
     contacts = ["left_foot", "right_foot"]
     duration = 1.0
-    [[warm_start]]                   # optional base-rotation rules on top of the stance
+    [[warm_start_rules]]             # optional base-rotation rules on top of the stance
     profile = "ramp"                 # "ramp" (0 -> angle over the phases) or "hold"
     axis = [0.0, 1.0, 0.0]
     angle = -6.283185307179586
@@ -35,19 +35,26 @@ TOML form (see ``tasks/big_jump.toml``)::
     phases = [2]
     joints = { arm_left_2_joint = 2.8 }
     place_on_terrain = true          # shift the base so the touching points rest on the ground
+
+``[[warm_start]]`` (and ``Task(warm_start=...)``) is the former name of ``warm_start_rules``:
+still read, with a `DeprecationWarning`.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import enum
+import functools
 import importlib.resources
 import math
 import tomllib
+import warnings
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from jtraj.deprecation import warn_renamed
 
 __all__ = ["TaskError", "Phase", "Profile", "RotationRule", "JointRule", "Task", "Schedule", "load", "from_file", "from_dict", "available"]
 
@@ -139,7 +146,7 @@ class Task:
     force_limit_factor: float = 1.5  # |f_i| <= factor * m g per component
     configuration_weight: float = 0.0
     acceleration_weight: float = 0.0
-    warm_start: tuple[RotationRule, ...] = ()
+    warm_start_rules: tuple[RotationRule, ...] = ()
     warm_start_joints: tuple[JointRule, ...] = ()
     flip_axis: tuple[float, float, float] | None = None  # world axis of the flip, any length
     flip_turns: float | None = None  # expected signed turns about flip_axis (back-flip about +y: -1)
@@ -186,7 +193,7 @@ class Task:
         counts = self.phase_knot_counts()
         starts = np.concatenate([[0], np.cumsum(counts)])
         out = []
-        for rule in self.warm_start:
+        for rule in self.warm_start_rules:
             angles = np.zeros(self.n_knots)
             first = starts[min(rule.phases)]
             last = starts[max(rule.phases) + 1]
@@ -239,11 +246,38 @@ class Task:
         import json
 
         data = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "description"}
+        # hashed under its former name: the digests of earlier runs (runs.jsonl keys) stay valid
+        data["warm_start"] = data.pop("warm_start_rules")
         text = json.dumps(data, default=lambda o: o.value if isinstance(o, enum.Enum) else dataclasses.asdict(o), sort_keys=True)
         return hashlib.sha256(text.encode()).hexdigest()[:16]
 
     def replace(self, **changes: Any) -> Task:
         return dataclasses.replace(self, **changes)
+
+
+# ``warm_start`` is the former name of ``warm_start_rules``: the constructor still takes it and
+# reading it still works, both with a warning. It is not a field, so `dataclasses.replace` and
+# the content hash see only the new name.
+_dataclass_init = Task.__init__
+
+
+@functools.wraps(_dataclass_init)
+def _task_init(self: Task, *args: Any, warm_start: tuple[RotationRule, ...] | None = None, **kwargs: Any) -> None:
+    if warm_start is not None:
+        if kwargs.get("warm_start_rules"):
+            raise TaskError("warm_start", _Raw("given with warm_start_rules"), "expected only warm_start_rules (warm_start is its former name)")
+        warn_renamed("Task(warm_start=...)", "Task(warm_start_rules=...)")
+        kwargs["warm_start_rules"] = warm_start
+    _dataclass_init(self, *args, **kwargs)
+
+
+def _former_warm_start(task: Task) -> tuple[RotationRule, ...]:
+    warn_renamed("Task.warm_start", "Task.warm_start_rules")
+    return task.warm_start_rules
+
+
+Task.__init__ = _task_init
+Task.warm_start = property(_former_warm_start)  # type: ignore[attr-defined]
 
 
 # ------------------------------------------------------------------ checks
@@ -331,15 +365,15 @@ def _check_and_normalize(t: Task) -> None:
     put("configuration_weight", _real(t.configuration_weight, "configuration_weight", "expected a weight >= 0", nonnegative=True))
     put("acceleration_weight", _real(t.acceleration_weight, "acceleration_weight", "expected a weight >= 0", nonnegative=True))
     rules = []
-    for i, rule in enumerate(tuple(t.warm_start)):
+    for i, rule in enumerate(tuple(t.warm_start_rules)):
         if not isinstance(rule, RotationRule):
-            raise TaskError(f"warm_start[{i}]", rule, "expected a RotationRule(profile, axis, angle, phases)")
+            raise TaskError(f"warm_start_rules[{i}]", rule, "expected a RotationRule(profile, axis, angle, phases)")
         if not isinstance(rule.profile, Profile):
-            raise TaskError(f"warm_start[{i}].profile", rule.profile, "expected 'ramp' or 'hold'")
-        axis = _vector(rule.axis, f"warm_start[{i}].axis", nonzero=True)
-        angle = _real(rule.angle, f"warm_start[{i}].angle", "expected an angle in radians")
-        rules.append(RotationRule(rule.profile, axis, angle, _indices(rule.phases, f"warm_start[{i}].phases", len(checked))))
-    put("warm_start", tuple(rules))
+            raise TaskError(f"warm_start_rules[{i}].profile", rule.profile, "expected 'ramp' or 'hold'")
+        axis = _vector(rule.axis, f"warm_start_rules[{i}].axis", nonzero=True)
+        angle = _real(rule.angle, f"warm_start_rules[{i}].angle", "expected an angle in radians")
+        rules.append(RotationRule(rule.profile, axis, angle, _indices(rule.phases, f"warm_start_rules[{i}].phases", len(checked))))
+    put("warm_start_rules", tuple(rules))
     joint_rules = []
     for i, rule in enumerate(tuple(t.warm_start_joints)):
         if not isinstance(rule, JointRule):
@@ -382,13 +416,14 @@ _TOML_NAMES = {
 }
 _TOP_KEYS = (
     "name", "robot", "timestep", "phases", "target", "costs", "friction", "max_delta_force", "force_limit_factor",
-    "warm_start", "warm_start_joints", "flip_axis", "flip_turns", "max_iter", "terrain_height", "description",
+    "warm_start_rules", "warm_start", "warm_start_joints", "flip_axis", "flip_turns", "max_iter", "terrain_height", "description",
 )
 _TABLE_KEYS = {
     "target": ("translation", "rotation_rpy", "joints"),
     "costs": ("configuration", "acceleration"),
     "phases": ("contacts", "duration"),
-    "warm_start": ("profile", "axis", "angle", "phases"),
+    "warm_start_rules": ("profile", "axis", "angle", "phases"),
+    "warm_start": ("profile", "axis", "angle", "phases"),  # the former name of warm_start_rules
     "warm_start_joints": ("phases", "joints", "place_on_terrain"),
 }
 
@@ -449,18 +484,24 @@ def _from_dict(data: dict[str, Any]) -> Task:
     target = _table(data.get("target", {}), "target", _TABLE_KEYS["target"])
     costs = _table(data.get("costs", {}), "costs", _TABLE_KEYS["costs"])
     rules = []
-    for i, w in enumerate(_tables(data, "warm_start")):
+    rules_key = "warm_start_rules"
+    if "warm_start" in data:
+        if rules_key in data:
+            raise TaskError("warm_start", _Raw("given with [[warm_start_rules]]"), "expected only [[warm_start_rules]] ([[warm_start]] is its former name)")
+        warnings.warn("[[warm_start]] in a task file is deprecated: it is now called [[warm_start_rules]]", DeprecationWarning, stacklevel=4)
+        rules_key = "warm_start"
+    for i, w in enumerate(_tables(data, rules_key)):
         profile = w.get("profile", "ramp")
         try:
             profile = Profile(profile)
         except ValueError:
-            raise TaskError(f"warm_start[{i}].profile", profile, "expected 'ramp' or 'hold'") from None
+            raise TaskError(f"{rules_key}[{i}].profile", profile, "expected 'ramp' or 'hold'") from None
         rules.append(
             RotationRule(
                 profile,
-                _need(w, "axis", f"warm_start[{i}]", "expected a rotation axis, a list of 3 numbers"),
-                _need(w, "angle", f"warm_start[{i}]", "expected a rotation angle in radians"),
-                _need(w, "phases", f"warm_start[{i}]", "expected a list of phase indices"),
+                _need(w, "axis", f"{rules_key}[{i}]", "expected a rotation axis, a list of 3 numbers"),
+                _need(w, "angle", f"{rules_key}[{i}]", "expected a rotation angle in radians"),
+                _need(w, "phases", f"{rules_key}[{i}]", "expected a list of phase indices"),
             )
         )
     joint_rules = []
@@ -483,7 +524,7 @@ def _from_dict(data: dict[str, Any]) -> Task:
         force_limit_factor=data.get("force_limit_factor", 1.5),
         configuration_weight=costs.get("configuration", 0.0),
         acceleration_weight=costs.get("acceleration", 0.0),
-        warm_start=tuple(rules),
+        warm_start_rules=tuple(rules),
         warm_start_joints=tuple(joint_rules),
         flip_axis=data.get("flip_axis"),
         flip_turns=data.get("flip_turns"),

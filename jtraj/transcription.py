@@ -35,8 +35,8 @@ Parameters. Every number of the task a user may vary or differentiate is a field
 standing pose. `Transcription.default_theta` gives the task's values; changing theta never
 recompiles.
 
-Knot structure (layouts with accelerations, "compact" and "paper"): the state of knot k is
-``x_k = (q_k, v_k)``, the controls ``u_k = (a_k, f_k)`` (and ``c_k`` in the paper layout), and
+Knot structure (the variables with accelerations, "compact" and "paper"): the state of knot k is
+``x_k = (q_k, v_k)``, the controls ``u_k = (a_k, f_k)`` (and ``c_k`` with the paper's variables), and
 the integration rows encode the explicit step ``x_{k+1} = F(x_k, u_k, theta)``:
 ``v' = v + a h``, ``q_b' = param.integrate(q_b, v'_b, h)``, ``q_j' = q_j + v'_j h``
 (`Transcription.step`, `KnotNLP.structure`).
@@ -58,6 +58,7 @@ from jaxlie import SE3, SO3
 
 from jtraj import dynamics, lie
 from jtraj.constants import GRAVITY
+from jtraj.deprecation import warn_renamed
 from jtraj.nlp import ConstraintGroup, CostGroup, Dep, KnotNLP, KnotStructure, Layout
 from jtraj.parameterization import AbstractParameterization
 from jtraj.task import Task
@@ -66,9 +67,9 @@ __all__ = [
     "Transcription",
     "TranscriptionOptions",
     "TaskParams",
-    "PAPER_LAYOUT",
-    "COMPACT_LAYOUT",
-    "LEAN_LAYOUT",
+    "PAPER_VARIABLES",
+    "COMPACT_VARIABLES",
+    "LEAN_VARIABLES",
     "Trajectory",
     "CONSTRAINT_STAGES",
     "dynamics_stage",
@@ -85,7 +86,8 @@ __all__ = [
 
 @dataclasses.dataclass(frozen=True)
 class TranscriptionOptions:
-    """Variable layout.
+    """Variables per knot (``variables=`` of `jtraj.solve`; `jtraj.nlp.Layout` is where they
+    sit in a knot's vector).
 
     Attributes:
         contact_variables: keep the contact positions c_{j,k} as variables with
@@ -123,11 +125,20 @@ class TranscriptionOptions:
 
 #: The study's public code: its variables per knot (q, v, a, f, c), its position row and its
 #: force-change bound at lift-off (docs/reproduction.md lists what else differs and why).
-PAPER_LAYOUT = TranscriptionOptions(position_step="stepped", liftoff_force_rate=True)
+PAPER_VARIABLES = TranscriptionOptions(position_step="stepped", liftoff_force_rate=True)
 #: Contact positions substituted by forward kinematics: (q, v, a, f) at every knot.
-COMPACT_LAYOUT = TranscriptionOptions(contact_variables=False, acceleration_variables=True)
+COMPACT_VARIABLES = TranscriptionOptions(contact_variables=False, acceleration_variables=True)
 #: Contact positions and accelerations substituted: (q, v, f) at every knot.
-LEAN_LAYOUT = TranscriptionOptions(contact_variables=False, acceleration_variables=False)
+LEAN_VARIABLES = TranscriptionOptions(contact_variables=False, acceleration_variables=False)
+
+_FORMER_NAMES = {"PAPER_LAYOUT": "PAPER_VARIABLES", "COMPACT_LAYOUT": "COMPACT_VARIABLES", "LEAN_LAYOUT": "LEAN_VARIABLES"}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _FORMER_NAMES:  # deprecated spellings of the constants above
+        warn_renamed(f"jtraj.transcription.{name}", f"jtraj.transcription.{_FORMER_NAMES[name]}")
+        return globals()[_FORMER_NAMES[name]]
+    raise AttributeError(f"module 'jtraj.transcription' has no attribute {name!r}")
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -203,7 +214,7 @@ class Trajectory:
 class Transcription:
     """The transcription of ``task`` for ``robot`` in parameterization ``param``."""
 
-    def __init__(self, robot, task: Task, param: AbstractParameterization, options: TranscriptionOptions = COMPACT_LAYOUT):
+    def __init__(self, robot, task: Task, param: AbstractParameterization, options: TranscriptionOptions = COMPACT_VARIABLES):
         task.validate(robot)
         self.options = options
         self.robot = robot
@@ -375,7 +386,7 @@ class Transcription:
             ``q_b' = param.integrate(q_b, v'_b, h)`` and ``q_j' = q_j + v'_j h``.
         """
         if not self.options.acceleration_variables:
-            raise ValueError("the step x' = F(x, u) needs the accelerations as controls; this layout substitutes them")
+            raise ValueError("the step x' = F(x, u) needs the accelerations as controls; these variables (lean) substitute them")
         nq, nv, nqb, h = self.nq, self.nv, self.param.nq, theta.timestep
         q, v, a = x[:nq], x[nq:], u[:nv]
         v1 = v + a * h
@@ -384,7 +395,7 @@ class Transcription:
 
     @property
     def structure(self) -> KnotStructure | None:
-        """State (q, v), controls and `step` of a knot; None for the layout without accelerations."""
+        """State (q, v), controls and `step` of a knot; None for the variables without accelerations (lean)."""
         if not self.options.acceleration_variables:
             return None
         control = tuple(name for name, _ in self.layout.slots if name not in ("q", "v"))
@@ -528,7 +539,7 @@ def _dynamics_derivatives(tr: Transcription, theta: TaskParams, Q, V, A, Fv):
     """Analytical RNEA Jacobians at K knots; d tau / d a = M and d tau / d f = -J^T need no
     autodiff. Returns them and d tau / d f restricted to the task's points (K, nv, 3 P)."""
     nv, P = tr.nv, tr.P
-    d = dynamics.inverse_dynamics_jacobians(tr.robot, tr.param, Q, V, A, jax.vmap(tr._forces_all)(Fv), theta.body_masses)
+    d = dynamics.batched_inverse_dynamics_derivatives(tr.robot, tr.param, Q, V, A, jax.vmap(tr._forces_all)(Fv), theta.body_masses)
     df = d.df.reshape(Q.shape[0], nv, -1, 3)[:, :, tr.points, :].reshape(Q.shape[0], nv, 3 * P)
     return d, df
 

@@ -97,3 +97,28 @@ def test_solve_exit_status_says_what_happened(converged, success, code, monkeypa
     monkeypatch.setattr(jtraj.plots, "plot_convergence", lambda *a, **k: None)
     assert cli.main(["solve", "big_jump", "--out", str(tmp_path / "r")]) == code
     assert len({0, cli.EXIT_BAD_INPUT, cli.EXIT_TASK_FAILED, cli.EXIT_NOT_CONVERGED}) == 4
+
+
+@pytest.mark.parametrize("command, default", [(["solve", "big_jump"], "compact"), (["compare"], "paper"), (["robustness"], "paper")])
+def test_variables_option_and_its_former_name_layout(command, default):
+    parser = cli.build_parser()
+    assert parser.parse_args(command).variables == default
+    assert parser.parse_args([*command, "--variables", "lean"]).variables == "lean"
+    assert parser.parse_args([*command, "--layout", "lean"]).variables == "lean"  # the former name still parses
+
+
+def test_solve_passes_variables_to_the_solver(monkeypatch, tmp_path):
+    import jtraj.plots
+    import jtraj.solver
+
+    seen = {}
+
+    def fake_solve(*args, **kwargs):
+        seen.update(kwargs)
+        return types.SimpleNamespace(converged=True, success=True)
+
+    monkeypatch.setattr(jtraj.solver, "solve", fake_solve)
+    monkeypatch.setattr(jtraj.plots, "plot_result", lambda *a, **k: None)
+    monkeypatch.setattr(jtraj.plots, "plot_convergence", lambda *a, **k: None)
+    assert cli.main(["solve", "big_jump", "--layout", "lean", "--out", str(tmp_path / "r")]) == 0
+    assert seen["variables"] == "lean" and "layout" not in seen

@@ -187,7 +187,7 @@ def test_derivatives_match_pinocchio_rnea_derivatives():
     data = model.createData()
     Q, V, A, F = random_states(robot, QUAT1, 1, seed=5)
     F = jnp.zeros_like(F)
-    jac = dynamics.inverse_dynamics_jacobians(robot, QUAT1, Q, V, A, F)
+    jac = dynamics.batched_inverse_dynamics_derivatives(robot, QUAT1, Q, V, A, F)
     q = _pin_q(model, q_index, np.asarray(Q[0]))
     v, a = np.zeros(model.nv), np.zeros(model.nv)
     v[perm], a[perm] = V[0], A[0]
@@ -232,7 +232,7 @@ def test_jacobians_equal_jacfwd(name, chart):
     robot = robot_lib.load(name)
     param = PARAMETERIZATIONS[chart]
     Q, V, A, F = random_states(robot, param, NSTATES, seed=3, quaternion_scale=0.8, standing=True)
-    fast = dynamics.inverse_dynamics_jacobians(robot, param, Q, V, A, F)
+    fast = dynamics.batched_inverse_dynamics_derivatives(robot, param, Q, V, A, F)
     for x in fast:
         assert np.all(np.isfinite(x))
     dq, dv, da, df = _jacfwd(robot, param, Q, V, A, F)
@@ -263,11 +263,16 @@ def test_jacobians_do_not_recompile():
     robot = robot_lib.load("go2")
     param = PARAMETERIZATIONS["quat3"]
     states = random_states(robot, param, NSTATES, seed=3, quaternion_scale=0.8)
-    dynamics.inverse_dynamics_jacobians(robot, param, *states)
-    before = dynamics.inverse_dynamics_jacobians._cache_size()
+    dynamics.batched_inverse_dynamics_derivatives(robot, param, *states)
+    before = dynamics.batched_inverse_dynamics_derivatives._cache_size()
     states = random_states(robot, param, NSTATES, seed=4)
-    dynamics.inverse_dynamics_jacobians(robot, param, *states)
-    assert dynamics.inverse_dynamics_jacobians._cache_size() == before
+    dynamics.batched_inverse_dynamics_derivatives(robot, param, *states)
+    assert dynamics.batched_inverse_dynamics_derivatives._cache_size() == before
+
+
+def test_former_name_of_the_batched_derivatives_warns():
+    with pytest.warns(DeprecationWarning, match="inverse_dynamics_jacobians is deprecated"):
+        assert dynamics.inverse_dynamics_jacobians is dynamics.batched_inverse_dynamics_derivatives
 
 
 def test_body_masses_match_mujoco_with_the_same_masses():
@@ -305,7 +310,7 @@ def test_jacobians_with_masses_equal_jacfwd():
     param = PARAMETERIZATIONS["se3"]
     Q, V, A, F = random_states(robot, param, NSTATES, seed=10)
     masses = jnp.asarray(dynamics.model_masses(robot) * np.random.default_rng(11).uniform(0.5, 2.0, robot.mj_model.nbody))
-    fast = dynamics.inverse_dynamics_jacobians(robot, param, Q, V, A, F, masses)
+    fast = dynamics.batched_inverse_dynamics_derivatives(robot, param, Q, V, A, F, masses)
     jac = jax.jit(
         jax.vmap(jax.jacfwd(dynamics.inverse_dynamics, argnums=(2, 3, 4, 5, 6)), in_axes=(None, None, 0, 0, 0, 0, None)),
         static_argnums=(0, 1),
@@ -360,7 +365,7 @@ def test_quaternion_scale_is_invisible(robot, evaluated):
     out2 = _evaluate(robot, QUAT1, Q2, V, A, F)
     assert rel_err(out2["tau"], out["tau"]) < 1e-12
     if robot.name == "go2":  # cheapest compile for the Jacobian
-        jac = dynamics.inverse_dynamics_jacobians(robot, QUAT1, Q, V, A, F)
+        jac = dynamics.batched_inverse_dynamics_derivatives(robot, QUAT1, Q, V, A, F)
         radial = jnp.einsum("kij,kj->ki", jac.dq[:, :, 3:7], Q[:, 3:7])
         assert np.abs(radial).max() < 1e-10 * np.abs(jac.dq).max()
 

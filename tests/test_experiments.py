@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from jtraj.experiments import RUNS_FILE, compare, noisy_warm_starts, read_runs, robustness, run_key
 from jtraj.plots import plot_convergence, plot_result
@@ -50,6 +51,9 @@ def test_robustness_resumes_a_stopped_study(tmp_path):
     (tmp_path / "table_iii.md").unlink()
     assert robustness([HOP], ["se3"], sigmas=[1e-3], replicates=2, seed=5, out=tmp_path, progress=None) == more
     assert "| test_hop | se3 | 100% / 100% |" in (tmp_path / "table_iii.md").read_text()
+    # layout= (the former name of variables=) warns and names the same runs
+    with pytest.warns(DeprecationWarning, match="layout="):
+        assert robustness([HOP], ["se3"], sigmas=[1e-3], replicates=2, seed=5, out=tmp_path, progress=None, layout="paper") == more
     # another seed is another study: nothing is reused
     other = robustness([HOP], ["se3"], sigmas=[1e-3], replicates=1, seed=6, out=tmp_path, progress=None)
     assert len(other) == 1 and other[0]["seed"] == 6 and other[0]["time_s"] != first[0]["time_s"]

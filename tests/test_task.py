@@ -132,7 +132,7 @@ duration = 0.1
 [[phases]]
 contacts = ["FL_foot", "FR_foot", "RL_foot", "RR_foot"]
 duration = 0.2
-[[warm_start]]
+[[warm_start_rules]]
 axis = [0.0, 1.0, 0.0]
 angle = 0.5
 phases = [1]
@@ -145,10 +145,10 @@ phases = [1]
         ("[costs]\nconfiguration", "[costs]\nconfigration", r"costs.configration: unknown key: expected one of \['configuration', 'acceleration'\]"),
         ("translation =", "translaton =", r"target.translaton: unknown key"),
         ("duration = 0.1", "duration = 0.1\nforce = 3", r"phases\[1\].force: unknown key"),
-        ("angle = 0.5", "angel = 0.5", r"warm_start\[0\].angel: unknown key"),
-        ("angle = 0.5\n", "", r"warm_start\[0\].angle: missing: expected a rotation angle"),
-        ("axis = [0.0, 1.0, 0.0]\n", "", r"warm_start\[0\].axis: missing"),
-        ("phases = [1]\n", "", r"warm_start\[0\].phases: missing"),
+        ("angle = 0.5", "angel = 0.5", r"warm_start_rules\[0\].angel: unknown key"),
+        ("angle = 0.5\n", "", r"warm_start_rules\[0\].angle: missing: expected a rotation angle"),
+        ("axis = [0.0, 1.0, 0.0]\n", "", r"warm_start_rules\[0\].axis: missing"),
+        ("phases = [1]\n", "", r"warm_start_rules\[0\].phases: missing"),
         ('robot = "go2"', 'robot = "go2"\nfriction = "high"', r"friction: 'high': expected a positive friction coefficient"),
         ('robot = "go2"', 'robot = "go2"\nmax_iter = "lots"', r"max_iter: 'lots': expected a positive whole number"),
         ('robot = "go2"', 'robot = "go2"\nmax_iter = -1', r"max_iter: -1: expected"),
@@ -175,6 +175,30 @@ def test_task_file_errors_name_file_field_value_and_expectation(tmp_path, old, n
 def test_phases_must_be_an_array_of_tables():
     with pytest.raises(TaskError, match=r"^<dict>: phases: 3: expected an array of tables \[\[phases\]\]"):
         tasks.from_dict({"name": "x", "robot": "go2", "timestep": 0.05, "phases": 3})
+
+
+def test_warm_start_is_the_former_name_of_warm_start_rules(tmp_path):
+    """The old key of task files and the old constructor keyword still work, with a warning."""
+    from jtraj.task import Profile, RotationRule
+
+    rule = RotationRule(Profile.RAMP, (0.0, 1.0, 0.0), 0.5, (1,))
+    new = small_task(warm_start_rules=(rule,))
+    with pytest.warns(DeprecationWarning, match="warm_start_rules"):
+        old = small_task(warm_start=(rule,))
+    assert old == new and old.content_hash() == new.content_hash() and old.warm_start_rules == (rule,)
+    with pytest.warns(DeprecationWarning, match="Task.warm_start is deprecated"):
+        assert new.warm_start == (rule,)
+    with pytest.raises(TaskError, match="expected only warm_start_rules"):
+        small_task(warm_start_rules=(rule,), warm_start=(rule,))
+    path = tmp_path / "old.toml"
+    path.write_text(_GOOD.replace("[[warm_start_rules]]", "[[warm_start]]"))
+    with pytest.warns(DeprecationWarning, match=r"\[\[warm_start\]\] in a task file"):
+        from_old_file = tasks.load(str(path))
+    path.write_text(_GOOD)
+    assert from_old_file == tasks.load(str(path)) and from_old_file.warm_start_rules[0].angle == 0.5
+    path.write_text(_GOOD + _GOOD[_GOOD.index("[[warm_start_rules]]") :].replace("[[warm_start_rules]]", "[[warm_start]]"))
+    with pytest.raises(TaskError, match=r"expected only \[\[warm_start_rules\]\]"):
+        tasks.load(str(path))
 
 
 def test_joint_rule_shapes_the_warm_start(go2):

@@ -37,10 +37,10 @@ PARAM_IDS = list(PARAMETERIZATIONS)
 CASES = [(p, "paper") for p in PARAM_IDS] + [("se3", "compact"), ("se3", "lean"), ("euler", "lean")]
 
 
-@pytest.fixture(scope="module", params=CASES, ids=[f"{p}-{l}" for p, l in CASES])
+@pytest.fixture(scope="module", params=CASES, ids=[f"{p}-{v}" for p, v in CASES])
 def prepared(request):
-    param, layout = request.param
-    return prepare(HOP, param, layout)
+    param, variables = request.param
+    return prepare(HOP, param, variables)
 
 
 def test_sparse_jacobian_equals_dense_jacfwd(prepared):
@@ -69,10 +69,10 @@ def test_layout_and_rows(prepared):
     assert rows["force_rate"] == (4 if tr.options.liftoff_force_rate else 3) * 3 * P
 
 
-def test_layout_options_are_checked():
-    from jtraj.transcription import PAPER_LAYOUT, TranscriptionOptions
+def test_variables_options_are_checked():
+    from jtraj.transcription import PAPER_VARIABLES, TranscriptionOptions
 
-    assert PAPER_LAYOUT.position_step == "stepped" and PAPER_LAYOUT.liftoff_force_rate
+    assert PAPER_VARIABLES.position_step == "stepped" and PAPER_VARIABLES.liftoff_force_rate
     with pytest.raises(ValueError, match="needs acceleration_variables"):
         TranscriptionOptions(acceleration_variables=False, position_step="stepped")
     with pytest.raises(ValueError, match="expected 'next' or 'stepped'"):
@@ -116,15 +116,15 @@ def test_constraints_vanish_on_dynamically_consistent_rollout(prepared):
     np.testing.assert_allclose(g[nlp.row_group == "integration"], 0.0, atol=1e-12 * scale)
     tau = g[nlp.row_group == "dynamics"].reshape(tr.N + 1, tr.nv)
     if not tr.options.acceleration_variables:
-        tau = tau[:-1]  # the lean layout's last knot is at rest (a_N = 0), the rollout is not
+        tau = tau[:-1]  # the lean variables' last knot is at rest (a_N = 0), the rollout is not
     np.testing.assert_allclose(tau[:, :6], 0.0, atol=1e-9 * scale)  # base rows: no actuation
     np.testing.assert_allclose(tau[:, 6:], np.tile(tau_j, (tau.shape[0], 1)), atol=1e-9 * scale)
 
 
-@pytest.mark.parametrize("param,layout", CASES, ids=[f"{p}-{l}" for p, l in CASES])
-def test_small_task_solves_for_every_parameterization(param, layout, tmp_path):
+@pytest.mark.parametrize("param,variables", CASES, ids=[f"{p}-{v}" for p, v in CASES])
+def test_small_task_solves_for_every_parameterization(param, variables, tmp_path):
     log = io.StringIO()
-    result = solve(HOP, param, layout=layout, progress=log, out=tmp_path / param, ipopt_options={"max_iter": 300})
+    result = solve(HOP, param, variables=variables, progress=log, out=tmp_path / param, ipopt_options={"max_iter": 300})
     assert "inf_pr" in log.getvalue()
     check = success.evaluate(result.trajectory.base_xyz_wxyz, HOP.flip_axis, HOP.flip_turns)
     if param == "quat3":
@@ -228,10 +228,10 @@ def test_theta_overrides_are_checked():
         tr.resolve_theta({"target_translation": [1.0, 0.0]})
 
 
-@pytest.mark.parametrize("layout", ["compact", "paper"])
-def test_step_is_the_integration_rows(layout):
+@pytest.mark.parametrize("variables", ["compact", "paper"])
+def test_step_is_the_integration_rows(variables):
     """x_{k+1} = step(x_k, u_k, theta) makes the integration rows vanish, at any theta."""
-    prep = prepare(HOP, "quat1", layout)
+    prep = prepare(HOP, "quat1", variables)
     tr, nlp = prep.transcription, prep.nlp
     S = nlp.structure
     assert S.state == ("q", "v") and S.control[:2] == ("a", "f") and S.nx + S.nu == tr.layout.nz
@@ -260,3 +260,23 @@ def test_solve_with_theta_override():
     f = traj.forces[traj.in_contact]
     assert np.all(np.abs(f[:, :2]) <= 0.7 * f[:, 2:3] + 1e-6)
     assert {name: getattr(nlp, name)._cache_size() for name in sizes} == sizes
+
+
+def test_layout_is_the_deprecated_name_of_variables():
+    """``layout=`` (the former name of ``variables=``) warns and does what ``variables=`` does."""
+    import jtraj.transcription
+    from jtraj.transcription import LEAN_VARIABLES
+
+    with pytest.warns(DeprecationWarning, match="layout= is deprecated: it is now called variables="):
+        old = prepare(HOP, "se3", layout="lean")
+    assert old is prepare(HOP, "se3", variables="lean")  # the same compiled NLP
+    quick = dict(ipopt_options={"max_iter": 3}, progress=None)
+    with pytest.warns(DeprecationWarning, match="layout="):
+        a = solve(HOP, "se3", layout="lean", **quick)
+    b = solve(HOP, "se3", variables="lean", **quick)
+    assert a.iterations == b.iterations and a.options == b.options and a.options["layout"]["acceleration_variables"] is False
+    np.testing.assert_array_equal(a.trajectory.v, b.trajectory.v)
+    with pytest.raises(TypeError, match="got both variables= and layout="):
+        prepare(HOP, "se3", "paper", layout="lean")
+    with pytest.warns(DeprecationWarning, match="LEAN_LAYOUT"):
+        assert jtraj.transcription.LEAN_LAYOUT is LEAN_VARIABLES
