@@ -226,6 +226,45 @@ def _dep_columns(layout: Layout, deps: Sequence[Dep]) -> tuple[np.ndarray, np.nd
     return np.concatenate(offs), np.concatenate(cols)
 
 
+def _on_flat(fn: Callable, sizes: Sequence[int]) -> Callable:
+    """``fn(theta, data, *deps)`` as a function of the dependencies concatenated into one
+    vector, ``(theta, data, flat) -> fn(...)``: the argument a block derivative is taken of."""
+    splits = np.cumsum(sizes)[:-1]
+
+    def flat_fn(theta, data, flat):
+        return fn(theta, data, *jnp.split(flat, splits))
+
+    return flat_fn
+
+
+def _knot_blocks(derivative: Callable, fn: Callable, layout: Layout, Z: jax.Array, knots: np.ndarray, deps: Sequence[Dep], theta: Any, data: Any, *batched: jax.Array) -> jax.Array:
+    """``derivative(fn, argnums=2)`` (`jax.jacfwd` or `jax.hessian`) at every knot, with
+    respect to the knot's concatenated dependency vector: one dense block per knot, leading
+    axis K. ``fn(theta, data_k, flat_k, *batched_k)``; theta shared, the rest batched."""
+    flat = jnp.concatenate(_gather_deps(layout, Z, knots, deps), axis=-1)
+    in_axes = (None, None if data is None else 0, 0) + (0,) * len(batched)
+    return jax.vmap(derivative(fn, argnums=2), in_axes=in_axes)(theta, data, flat, *batched)
+
+
+def _probe_point(rng: np.random.Generator, n_knots: int, nz: int) -> np.ndarray:
+    """A random (n_knots, nz) point with no entry near 0, where a structural zero shows."""
+    return rng.uniform(0.2, 1.0, size=(n_knots, nz)) * rng.choice([-1.0, 1.0], size=(n_knots, nz))
+
+
+def _knot_entries(pattern: np.ndarray, K: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The entries (i, j) of one knot's block pattern repeated at each of K knots:
+    (knot k, i, j) arrays in knot-major order."""
+    i_in, j_in = np.nonzero(pattern)
+    return np.repeat(np.arange(K), i_in.size), np.tile(i_in, K), np.tile(j_in, K)
+
+
+def _variable_index(knots: np.ndarray, kk: np.ndarray, j: np.ndarray, dep_columns: tuple[np.ndarray, np.ndarray], nz: int) -> np.ndarray:
+    """Index in x of entry j of the dependency vector at knot ``knots[kk]`` (``dep_columns``
+    from `_dep_columns`)."""
+    knot_off, col_in_knot = dep_columns
+    return (knots[kk] + knot_off[j]) * nz + col_in_knot[j]
+
+
 def _per_knot(fn, theta, data, deps):
     """``fn(theta, data_k, *deps_k)`` at every knot: theta shared, data and deps batched."""
     in_axes = (None, None if data is None else 0) + (0,) * len(deps)
@@ -335,20 +374,12 @@ class KnotNLP:
     def _group_block_jacobian(self, g: ConstraintGroup):
         """(Z, theta) -> (K, rows, ndep) block Jacobians of group g."""
         layout = self.layout
+        flat_fn = _on_flat(g.fn, [layout.size(d.slot) for d in g.deps])
 
         def blocks(Z, theta):
-            deps = _gather_deps(layout, Z, g.knots, g.deps)
             if g.batched_jacobian is not None:
-                return g.batched_jacobian(theta, g.data, *deps)
-            sizes = [d.shape[-1] for d in deps]
-
-            def one(theta, data, flat):
-                parts = jnp.split(flat, np.cumsum(sizes)[:-1])
-                return g.fn(theta, data, *parts)
-
-            flat = jnp.concatenate(deps, axis=-1)
-            in_axes = (None, None if g.data is None else 0, 0)
-            return jax.vmap(jax.jacfwd(one, argnums=2), in_axes=in_axes)(theta, g.data, flat)
+                return g.batched_jacobian(theta, g.data, *_gather_deps(layout, Z, g.knots, g.deps))
+            return _knot_blocks(jax.jacfwd, flat_fn, layout, Z, g.knots, g.deps, theta, g.data)
 
         return blocks
 
@@ -359,36 +390,26 @@ class KnotNLP:
         # One jitted function evaluates every group's blocks; it serves the probes here
         # and every later Jacobian evaluation (one compile).
         self._all_blocks = jax.jit(lambda x, theta: [fn(x.reshape(self.n_knots, self.nz), theta) for fn in block_fns])
-        patterns = [
-            np.ones((g.n_rows, _dep_columns(self.layout, g.deps)[1].size), bool)
-            if g.dense
-            else np.zeros((g.n_rows, _dep_columns(self.layout, g.deps)[1].size), bool)
-            for g in self.groups
-        ]
+        patterns = [np.full((g.n_rows, _dep_columns(self.layout, g.deps)[1].size), bool(g.dense)) for g in self.groups]
         if any(not g.dense for g in self.groups):
             for theta in thetas:
-                Z = rng.uniform(0.2, 1.0, size=(self.n_knots, self.nz)) * rng.choice([-1.0, 1.0], size=(self.n_knots, self.nz))
+                Z = _probe_point(rng, self.n_knots, self.nz)
                 for g, pattern, B in zip(self.groups, patterns, self._all_blocks(jnp.asarray(Z.reshape(-1)), theta)):
                     if not g.dense:
                         pattern |= np.any(np.asarray(B) != 0.0, axis=0)
         rows, cols, self._jac_gather = [], [], []
         for gi, (g, pattern) in enumerate(zip(self.groups, patterns)):
-            knot_off, col_in_knot = _dep_columns(self.layout, g.deps)
-            ndep = col_in_knot.size
-            r_in, c_in = np.nonzero(pattern)  # structural entries of one knot's block
             K = g.knots.size
             # position in the NLP of each active (knot, row) of this group
             nlp_row = -np.ones((K, g.n_rows), int)
             nlp_row.reshape(-1)[self.row_index[gi]] = self.group_row_offset[gi] + np.arange(self.row_index[gi].size)
-            kk = np.repeat(np.arange(K), r_in.size)
-            rr = np.tile(r_in, K)
-            cc = np.tile(c_in, K)
+            kk, rr, cc = _knot_entries(pattern, K)
             keep = g.active[kk, rr]
             kk, rr, cc = kk[keep], rr[keep], cc[keep]
             rows.append(nlp_row[kk, rr])
-            cols.append((g.knots[kk] + knot_off[cc]) * self.nz + col_in_knot[cc])
+            cols.append(_variable_index(g.knots, kk, cc, _dep_columns(self.layout, g.deps), self.nz))
             # gather index into the flattened (K, rows, ndep) block array
-            self._jac_gather.append((kk * g.n_rows + rr) * ndep + cc)
+            self._jac_gather.append(np.ravel_multi_index((kk, rr, cc), (K, *pattern.shape)))
         self.jac_rows = np.concatenate(rows).astype(np.int64) if rows else np.zeros(0, np.int64)
         self.jac_cols = np.concatenate(cols).astype(np.int64) if cols else np.zeros(0, np.int64)
         self.nnz_jac = self.jac_rows.size
@@ -462,20 +483,14 @@ class KnotNLP:
         rng = np.random.default_rng(seed)
         thetas = _probe_thetas(self.theta, np.random.default_rng(seed + 1000), n_probes)
 
-        def term_blocks(fn, deps, knots, data, weights, theta):
-            """(K, ndep, ndep) Hessians of weights_k . fn(theta, data_k, deps_k)."""
-            sizes = [layout.size(d.slot) for d in deps]
+        def weighted(fn, deps):
+            """``(theta, data_k, flat_k, w_k) -> w_k . fn(...)``, whose Hessian is the block."""
+            flat_fn = _on_flat(fn, [layout.size(d.slot) for d in deps])
 
-            def one(theta, d, flat, w):
-                parts = jnp.split(flat, np.cumsum(sizes)[:-1])
-                return jnp.sum(w * fn(theta, d, *parts))
+            def one(theta, data, flat, w):
+                return jnp.sum(w * flat_fn(theta, data, flat))
 
-            def blocks(Z):
-                flat = jnp.concatenate(_gather_deps(layout, Z, knots, deps), axis=-1)
-                in_axes = (None, None if data is None else 0, 0, 0)
-                return jax.vmap(jax.hessian(one, argnums=2), in_axes=in_axes)(theta, data, flat, weights)
-
-            return blocks
+            return one
 
         def lam_to_groups(lam):
             """Multipliers of the NLP rows -> per group (K, rows) arrays (0 on dropped rows)."""
@@ -486,38 +501,36 @@ class KnotNLP:
                 out.append(full.at[self.row_index[gi]].set(lam[idx]).reshape(g.active.shape))
             return out
 
-        terms = [(c.fn, c.deps, c.knots, c.data) for c in self.costs]
-        terms += [(g.fn, g.deps, g.knots, g.data) for g in self.groups]
+        terms = [(weighted(c.fn, c.deps), c.deps, c.knots, c.data) for c in self.costs]
+        terms += [(weighted(g.fn, g.deps), g.deps, g.knots, g.data) for g in self.groups]
 
         def all_blocks(x, lam, obj_factor, theta):
+            """(K, ndep, ndep) Hessians of weights_k . fn(theta, data_k, deps_k) per term."""
             Z = x.reshape(n_knots, nz)
             weights = [jnp.full((c.knots.size,), obj_factor) for c in self.costs] + lam_to_groups(lam)
-            return [term_blocks(fn, deps, knots, data, w, theta)(Z) for (fn, deps, knots, data), w in zip(terms, weights)]
+            return [_knot_blocks(jax.hessian, fn, layout, Z, knots, deps, theta, data, w) for (fn, deps, knots, data), w in zip(terms, weights)]
 
         all_blocks_jit = jax.jit(all_blocks)
         patterns = [np.zeros((_dep_columns(layout, t[1])[1].size,) * 2, bool) for t in terms]
         for theta in thetas:
-            Z = rng.uniform(0.2, 1.0, size=(n_knots, nz)) * rng.choice([-1.0, 1.0], size=(n_knots, nz))
+            Z = _probe_point(rng, n_knots, nz)
             lam = rng.normal(size=self.m)
             for pattern, B in zip(patterns, all_blocks_jit(jnp.asarray(Z.reshape(-1)), jnp.asarray(lam), 1.0, theta)):
                 pattern |= np.any(np.asarray(B) != 0.0, axis=0)
 
         rows, cols, gathers = [], [], []
         for (_fn, deps, knots, _data), pattern in zip(terms, patterns):
-            knot_off, col_in_knot = _dep_columns(layout, deps)
-            ndep = col_in_knot.size
+            columns = _dep_columns(layout, deps)
             pattern = pattern | pattern.T
-            a_in, b_in = np.nonzero(pattern)
             K = knots.size
-            kk = np.repeat(np.arange(K), a_in.size)
-            aa = np.tile(a_in, K)
-            bb = np.tile(b_in, K)
-            ga = (knots[kk] + knot_off[aa]) * nz + col_in_knot[aa]
-            gb = (knots[kk] + knot_off[bb]) * nz + col_in_knot[bb]
+            kk, aa, bb = _knot_entries(pattern, K)
+            ga = _variable_index(knots, kk, aa, columns, nz)
+            gb = _variable_index(knots, kk, bb, columns, nz)
             keep = ga >= gb  # lower triangle of the global matrix
             rows.append(ga[keep])
             cols.append(gb[keep])
-            gathers.append((kk[keep] * ndep + aa[keep]) * ndep + bb[keep])
+            # gather index into the flattened (K, ndep, ndep) block array
+            gathers.append(np.ravel_multi_index((kk[keep], aa[keep], bb[keep]), (K, *pattern.shape)))
         rows = np.concatenate(rows)
         cols = np.concatenate(cols)
         key = rows * self.n + cols

@@ -26,7 +26,6 @@ import importlib.metadata
 import importlib.resources
 import io
 import json
-import math
 import os
 import pathlib
 import shutil
@@ -42,6 +41,7 @@ import mujoco
 import numpy as np
 from jaxlie import SE3, SO3
 
+from jtraj import euler
 from jtraj.constants import GRAVITY
 
 # MJX prints "Failed to import warp" (its optional GPU backend) on import: keep the command line
@@ -284,25 +284,14 @@ def _floats(text: str | None, n: int, default: float = 0.0) -> np.ndarray:
     return values
 
 
-def _rpy_matrix(rpy: np.ndarray) -> np.ndarray:
-    """URDF ``rpy``: ``R = Rz(yaw) Ry(pitch) Rx(roll)``."""
-    r, p, y = rpy
-    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
-    return np.array(
-        [
-            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-            [-sp, cp * sr, cp * cr],
-        ]
-    )
-
-
 def _origin(element: ET.Element) -> tuple[np.ndarray, np.ndarray]:
     """(R, p) of an element's ``<origin>``, identity when absent."""
     origin = element.find("origin")
     if origin is None:
         return np.eye(3), np.zeros(3)
-    return _rpy_matrix(_floats(origin.get("rpy"), 3)), _floats(origin.get("xyz"), 3)
+    # URDF's rpy is R = Rz(yaw) Ry(pitch) Rx(roll), the convention of jtraj.euler
+    R = np.asarray(euler.rotation_matrix(np.asarray(_floats(origin.get("rpy"), 3))))
+    return R, _floats(origin.get("xyz"), 3)
 
 
 @dataclasses.dataclass(frozen=True)
