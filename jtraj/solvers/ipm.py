@@ -15,26 +15,28 @@ of their central values. Fixed variables (equal bounds) are removed from the ste
 Differences from Ipopt, and why:
 - Newton step: the block-tridiagonal factorization of `jtraj.solvers.kkt` (linear in the knots,
   small dense blocks; inertia correction by ``delta_w`` when the condensed matrix is not
-  positive definite; a tiny dual regularization ``delta_c`` always, removed by iterative
-  refinement), instead of a general sparse LDL^T.
-- Hessian: by default a damped (Powell) BFGS approximation per *element* (the 2n x 2n
-  Hessian of the knot-k terms of the Lagrangian on (z_k, z_{k+1}), a partitioned
-  quasi-Newton update in the sense of Griewank and Toint), which keeps the block-tridiagonal
-  structure and costs nothing to evaluate; the exact Hessian is an option (it costs about
-  0.5 s per evaluation on a Talos task, measured, so it is for small problems and tests).
-- Globalization: backtracking on the l1 exact-penalty merit ``phi_mu + nu |C - t|_1`` (nu
-  above the largest multiplier) instead of a filter; no feasibility restoration phase: a
-  failed line search takes its last (tiny) step and the solve stops after several in a row.
+  positive definite; a dual regularization ``delta_c mu^(1/4)`` on every row, which is Ipopt's
+  perturbation for a dependent Jacobian and is needed here: the corner-point contacts make the
+  equality rows dependent, 12 per stance knot on Talos), instead of a general sparse LDL^T.
+- Hessian: by default the exact Hessian of the Lagrangian, per element (the 2n x 2n block of
+  the knot-k terms on (z_k, z_{k+1})). A damped (Powell) BFGS approximation per element (a
+  partitioned quasi-Newton update in the sense of Griewank and Toint) is an option; it
+  converges on small problems but not on the whole-body tasks (measured on big_jump: the
+  multipliers grow to 1e7 and the dual infeasibility stalls near 1e4, where Ipopt's
+  limited-memory BFGS, a low-rank update of a scaled identity, converges in 11 iterations).
+- Barrier: Ipopt's adaptive strategy (its default with a quasi-Newton Hessian, and what the
+  study's Ipopt runs therefore use) with the LOQO oracle instead of Ipopt's default quality
+  function; the monotone strategy is an option. On big_jump the monotone strategy's fixed
+  mu = 0.1 let the fraction-to-the-boundary rule cut every step to 1e-3..1e-2.
+- Globalization: Ipopt's filter line search; no feasibility restoration phase: a failed line
+  search takes its last (tiny) step and the solve stops after several in a row.
 - Everything is one `jax.jit` program (`lax.while_loop`); `jax.vmap` of `IPM.solve` over
   initial guesses (and parameters theta) runs replicates together, a converged replicate's
   state no longer changes (the batched while loop only updates unfinished members).
 
-State (measured on the loaded 2-core machine): converges on small problems and on a Go2 hop
-with all five parameterizations (8-15 iterations, Ipopt 6-7); on big_jump (Talos, 47 knots)
-it does NOT converge yet: 200 iterations whose steps the fraction-to-the-boundary rule cuts to
-1e-3..1e-2, violation still 234 (Ipopt: 11 iterations). Suspects, for the next person: the
-BFGS elements start at the identity (no scaling by the first s^T y), the equality multipliers
-start at 0 (Ipopt: least squares), and there is no restoration phase. Ipopt stays the default.
+State (measured, 2-core CPU): big_jump (Talos, 47 knots) converges in 11 iterations, as Ipopt
+does (stepping the loop from Python, ``IPM._start`` and ``IPM._pass``); bench/solve.py's
+``jtraj`` variant measures all six tasks. Ipopt stays the default solver.
 
 Convergence (Ipopt's test at the comparative study's settings): the scaled optimality error
 ``max(dual_inf / s_d, constr_viol, compl / s_c) <= tol`` with Ipopt's ``s_d, s_c`` (s_max =
@@ -91,16 +93,26 @@ class IpmOptions(AbstractOptions):
         tol: scaled optimality error for convergence (the study's Ipopt setting, 1e-3).
         max_iter: iteration limit.
         constr_viol_tol, dual_inf_tol, compl_inf_tol: unscaled limits at convergence.
-        hessian: ``"bfgs"`` (partitioned damped BFGS, default) or ``"exact"``.
+        hessian: ``"exact"`` (default: the Lagrangian's Hessian from JAX, per element) or
+            ``"bfgs"`` (partitioned damped BFGS; does not converge on the whole-body tasks).
+        mu_strategy: ``"adaptive"`` (default, as Ipopt's default with a quasi-Newton Hessian)
+            or ``"monotone"`` (Fiacco-McCormick).
+        mu_min, mu_max, mu_max_fact, adaptive_mu_kkterror_red_fact,
+            adaptive_mu_monotone_init_factor: Ipopt's constants of the adaptive strategy.
         mu_init, kappa_eps, kappa_mu, theta_mu, tau_min, kappa_sigma, s_max: Ipopt's barrier
             and safeguard constants.
         bound_push, bound_frac: how far the initial point is pushed inside its bounds.
-        delta_c: dual regularization of every row (removed by iterative refinement).
+        delta_c, delta_c_mu_scaled: dual regularization of every row. Scaled (default):
+            ``delta_c mu^(1/4)`` and part of the system, as Ipopt's perturbation for a
+            dependent Jacobian (the whole-body tasks' corner-point contacts make the equality
+            rows dependent: 12 per stance knot on Talos). Otherwise a fixed value removed by
+            iterative refinement.
         refine_steps: iterative-refinement steps per KKT solve.
         max_line_search: backtracking steps per iteration.
         armijo: sufficient-decrease constant of the merit line search.
         max_line_search_failures: consecutive failed line searches before giving up.
         bfgs_init: initial element Hessian scale of the BFGS approximation.
+        bfgs_scaling: rescale each element's initial matrix by its first curvature pair.
     """
 
     tol: float = 1e-3
@@ -108,7 +120,8 @@ class IpmOptions(AbstractOptions):
     constr_viol_tol: float = 1e-4
     dual_inf_tol: float = 1.0
     compl_inf_tol: float = 1e-4
-    hessian: str = "bfgs"
+    hessian: str = "exact"
+    mu_strategy: str = "adaptive"
     mu_init: float = 0.1
     kappa_eps: float = 10.0
     kappa_mu: float = 0.2
@@ -118,18 +131,27 @@ class IpmOptions(AbstractOptions):
     s_max: float = 100.0
     bound_push: float = 1e-2
     bound_frac: float = 1e-2
-    delta_c: float = 1e-9
+    delta_c: float = 1e-8
+    delta_c_mu_scaled: bool = True
     refine_steps: int = 3
     max_line_search: int = 30
     armijo: float = 1e-4
     max_line_search_failures: int = 5
     bfgs_init: float = 1.0
+    bfgs_scaling: bool = True
+    mu_min: float = 1e-11
+    mu_max: float = 1e5
+    mu_max_fact: float = 1e3
+    adaptive_mu_kkterror_red_fact: float = 0.9999
+    adaptive_mu_monotone_init_factor: float = 0.8
 
     solver_name: ClassVar[str] = "jtraj"
 
     def __check__(self) -> None:
         if self.hessian not in ("bfgs", "exact"):
             raise InvalidOptionError(f"jtraj option hessian={self.hessian!r}: expected 'bfgs' or 'exact'")
+        if self.mu_strategy not in ("adaptive", "monotone"):
+            raise InvalidOptionError(f"jtraj option mu_strategy={self.mu_strategy!r}: expected 'adaptive' or 'monotone'")
         _positive(self, "tol", "constr_viol_tol", "dual_inf_tol", "compl_inf_tol", "mu_init", "delta_c")
         for name in ("max_iter", "refine_steps", "max_line_search", "max_line_search_failures"):
             value = getattr(self, name)
@@ -223,7 +245,11 @@ class _State(NamedTuple):
     theta_min: jax.Array
     theta_max: jax.Array
     mu: jax.Array
+    mu_max: jax.Array
+    free_mode: jax.Array  # adaptive strategy: mu from the LOQO rule (True) or monotone (False)
+    refs: jax.Array  # (4,) KKT errors of the last accepted free-mode iterates
     H: jax.Array
+    scaled: jax.Array  # (K,) bool: the element's BFGS matrix got its initial scaling
     delta_w: jax.Array
     # bookkeeping
     first: jax.Array
@@ -340,11 +366,21 @@ class IPM:
         (costs are assigned to the knot they are differentiated by) and y_k . C_k."""
         return jnp.concatenate([grad + jnp.einsum("kmn,km->kn", A, y), jnp.einsum("kmn,km->kn", B, y)], axis=1)
 
-    def _bfgs(self, H, s_el, y_el):
+    def _bfgs(self, H, scaled, s_el, y_el):
         """Damped BFGS update of each element Hessian (Powell: s^T y >= 0.2 s^T H s keeps H
-        positive definite); elements whose step is (numerically) zero are unchanged."""
+        positive definite); elements whose step is (numerically) zero are unchanged.
 
-        def one(Hk, sk, yk):
+        An element's first usable pair (s^T y > 0) first replaces its initial identity by
+        ``(y^T y / s^T y) I`` (Nocedal and Wright, eq. 6.20), so every direction starts at the
+        element's measured curvature rather than at 1: the whole-body problems' Lagrangian
+        curvature is many orders of magnitude away from 1. Returns (H, scaled)."""
+
+        def one(Hk, done, sk, yk):
+            sy0 = sk @ yk
+            usable = (sy0 > 1e-12 * jnp.sqrt((sk @ sk) * (yk @ yk))) & (sy0 > 0)
+            gamma = jnp.clip((yk @ yk) / jnp.where(usable, sy0, 1.0), 1e-8, 1e8)
+            rescale = usable & ~done
+            Hk = jnp.where(rescale, gamma * jnp.eye(Hk.shape[0], dtype=Hk.dtype), Hk)
             Hs = Hk @ sk
             sHs = sk @ Hs
             sy = sk @ yk
@@ -353,12 +389,16 @@ class IPM:
             sr = sk @ r
             ok = (sHs > 1e-14 * (1.0 + jnp.sum(jnp.abs(Hk)))) & (sr > 0) & jnp.isfinite(sr)
             Hn = Hk - jnp.outer(Hs, Hs) / jnp.where(ok, sHs, 1.0) + jnp.outer(r, r) / jnp.where(ok, sr, 1.0)
-            return jnp.where(ok, 0.5 * (Hn + Hn.T), Hk)
+            return jnp.where(ok, 0.5 * (Hn + Hn.T), Hk), done | rescale
 
-        return jax.vmap(one)(H, s_el, y_el)
+        if not self.options.bfgs_scaling:
+            scaled = jnp.ones_like(scaled)
+        return jax.vmap(one)(H, scaled, s_el, y_el)
 
     # ------------------------------------------------------------------ the solve
-    def _solve(self, x0: jax.Array, theta: Any = None) -> IpmResult:
+    def _start(self, x0: jax.Array, theta: Any = None) -> tuple[_Problem, _State]:
+        """The problem's bounds and masks, and the loop's first state (its first pass
+        evaluates x0)."""
         o = self.options
         view = self.view
         K, n, m = view.K, view.n, view.m
@@ -377,12 +417,26 @@ class IPM:
             dx=zx, ds=zc, dy=zc, dzl=zx, dzu=zx, dvl=zc, dvu=zc,
             alpha=zero, alpha_dual=zero, trials=jnp.zeros((), jnp.int32), phi0=zero, theta0=zero, slope=zero,
             filter=jnp.full((self.FILTER_SIZE, 2), jnp.inf), n_filter=jnp.zeros((), jnp.int32),
-            theta_min=zero, theta_max=zero, mu=jnp.asarray(o.mu_init),
-            H=jnp.broadcast_to(o.bfgs_init * jnp.eye(2 * n), (K, 2 * n, 2 * n)), delta_w=zero,
+            theta_min=zero, theta_max=zero, mu=jnp.asarray(o.mu_init), mu_max=jnp.asarray(o.mu_max),
+            free_mode=jnp.asarray(o.mu_strategy == "adaptive"), refs=jnp.full((4,), jnp.inf),
+            H=jnp.broadcast_to(o.bfgs_init * jnp.eye(2 * n), (K, 2 * n, 2 * n)), scaled=jnp.zeros((K,), bool), delta_w=zero,
             first=jnp.asarray(True), it=jnp.zeros((), jnp.int32),
             status=jnp.asarray(int(IpmStatus.RUNNING), jnp.int32), ls_fail=jnp.zeros((), jnp.int32),
             history=jnp.full((o.max_iter + 1, 5), jnp.nan),
         )
+        return p, st
+
+    def _finish(self, p: _Problem, st: _State, passes: jax.Array) -> IpmResult:
+        err, dual_inf, _, compl = self._error(p, st, 0.0)
+        return IpmResult(
+            x=st.x, y=st.y, z_lower=st.zl, z_upper=st.zu, status=st.status, iterations=st.it,
+            objective=st.f, constr_viol=self._constr_viol(p, st.c), dual_inf=dual_inf, compl=compl,
+            error=err, mu=st.mu, passes=passes, history=st.history,
+        )
+
+    def _solve(self, x0: jax.Array, theta: Any = None) -> IpmResult:
+        o = self.options
+        p, st = self._start(x0, theta)
         max_passes = (o.max_iter + 1) * (o.max_line_search + 1)
 
         def cond(carry):
@@ -394,12 +448,7 @@ class IPM:
             return self._pass(p, st, theta), passes + 1
 
         st, passes = lax.while_loop(cond, body, (st, jnp.zeros((), jnp.int32)))
-        err, dual_inf, _, compl = self._error(p, st, 0.0)
-        return IpmResult(
-            x=st.x, y=st.y, z_lower=st.zl, z_upper=st.zu, status=st.status, iterations=st.it,
-            objective=st.f, constr_viol=self._constr_viol(p, st.c), dual_inf=dual_inf, compl=compl,
-            error=err, mu=st.mu, passes=passes, history=st.history,
-        )
+        return self._finish(p, st, passes)
 
     FILTER_SIZE = 64
     # Ipopt's filter line-search constants (Wächter & Biegler 2006, section 2.3 and Table 1)
@@ -460,7 +509,11 @@ class IPM:
             s_el = jnp.concatenate([step, nxt(step)], axis=1)
             free2 = jnp.concatenate([p.free, nxt(p.free)], axis=1)
             y_el = jnp.where(free2, self._element_grad(gt, At, Bt, y) - self._element_grad(st.grad, st.A, st.B, y), 0.0)
-            H = jnp.where(first, H, self._bfgs(H, s_el, y_el))
+            H_new, scaled = self._bfgs(H, st.scaled, s_el, y_el)
+            H = jnp.where(first, H, H_new)
+            scaled = jnp.where(first, st.scaled, scaled)
+        else:
+            scaled = st.scaled
 
         def clamp(z, dist, mask):
             dist = jnp.where(mask, dist, 1.0)
@@ -479,26 +532,16 @@ class IPM:
         theta_max = jnp.where(first, 1e4 * jnp.maximum(1.0, th_t), st.theta_max)
         it = st.it + (~first).astype(jnp.int32)
         new = st._replace(
-            x=xt, s=s_t, y=y, zl=zl, zu=zu, vl=vl, vu=vu, f=ft, c=ct, grad=gt, A=At, B=Bt, H=H,
+            x=xt, s=s_t, y=y, zl=zl, zu=zu, vl=vl, vu=vu, f=ft, c=ct, grad=gt, A=At, B=Bt, H=H, scaled=scaled,
             filter=filt, n_filter=n_filter, theta_min=theta_min, theta_max=theta_max,
             first=jnp.asarray(False), it=it, trials=jnp.zeros((), jnp.int32),
             ls_fail=jnp.where(failed, st.ls_fail + 1, 0).astype(jnp.int32),
         )
 
-        # barrier update (monotone) while the barrier problem is solved well enough; a new mu
-        # starts a new filter
-        # Ipopt's floor: complementarity at mu must pass the unscaled compl_inf_tol test
-        mu_floor = min(o.tol, o.compl_inf_tol) / (o.kappa_eps + 1.0)
-
-        def mu_body(_, mu):
-            err_mu = self._error(p, new, mu)[0]
-            smaller = jnp.maximum(mu_floor, jnp.minimum(o.kappa_mu * mu, mu ** o.theta_mu))
-            return jnp.where(err_mu <= o.kappa_eps * mu, smaller, mu)
-
-        mu_new = lax.fori_loop(0, 4, mu_body, mu)
+        mu_new, free_mode, refs, mu_max = self._update_mu(p, new, first)
         reset = (mu_new != mu) | failed
         new = new._replace(
-            mu=mu_new,
+            mu=mu_new, free_mode=free_mode, refs=refs, mu_max=mu_max,
             filter=jnp.where(reset, jnp.full_like(filt, jnp.inf), filt),
             n_filter=jnp.where(reset, 0, n_filter).astype(jnp.int32),
         )
@@ -515,6 +558,56 @@ class IPM:
             jnp.where(it >= o.max_iter, int(IpmStatus.MAX_ITER), int(IpmStatus.RUNNING)))))
         new = new._replace(history=history, status=status.astype(jnp.int32))
         return self._direction(p, new, theta)
+
+    def _complementarity(self, p: _Problem, st: _State):
+        """(average, smallest) product of bound distance and multiplier over all bounds."""
+        pairs = ((st.x - p.xl, st.zl, p.has_xl), (p.xu - st.x, st.zu, p.has_xu), (st.s - p.cl, st.vl, p.has_sl), (p.cu - st.s, st.vu, p.has_su))
+        total = sum(jnp.sum(jnp.where(mask, d * z, 0.0)) for d, z, mask in pairs)
+        smallest = jnp.min(jnp.stack([jnp.min(jnp.where(mask, d * z, jnp.inf)) for d, z, mask in pairs]))
+        count = sum(jnp.sum(mask) for _, _, mask in pairs)
+        return total / jnp.maximum(count, 1), jnp.where(count > 0, smallest, 0.0)
+
+    def _update_mu(self, p: _Problem, st: _State, first):
+        """The barrier parameter for the next direction.
+
+        Monotone (Fiacco-McCormick, Ipopt's ``mu_strategy=monotone``): mu falls by
+        ``min(kappa_mu mu, mu^theta_mu)`` while the barrier problem's error is below
+        ``kappa_eps mu``. Adaptive (Ipopt's default when the Hessian is quasi-Newton; Nocedal,
+        Wächter and Waltz, 2009): in free mode mu is chosen afresh each iteration from the
+        iterate's centrality by the LOQO rule (Vanderbei and Shanno; Ipopt's ``mu_oracle=loqo``)
+        ``mu = sigma avg(d z)``, ``sigma = 0.1 min(0.05 (1 - xi) / xi, 2)^3``, ``xi = min(d z) /
+        avg(d z)``, in [mu_min, mu_max]. Free mode lasts while the KKT error falls below
+        ``kappa`` times the largest of the last four accepted errors (Ipopt's
+        ``adaptive_mu_globalization=kkt-error``); otherwise the monotone mode takes over from
+        ``mu = 0.8 avg(d z)`` and hands back once a solved barrier problem shows that progress.
+        Returns (mu, free_mode, refs, mu_max).
+        """
+        o = self.options
+        mu = st.mu
+        mu_floor = min(o.tol, o.compl_inf_tol) / (o.kappa_eps + 1.0)
+
+        def mu_body(_, mu):
+            err_mu = self._error(p, st, mu)[0]
+            smaller = jnp.maximum(mu_floor, jnp.minimum(o.kappa_mu * mu, mu ** o.theta_mu))
+            return jnp.where(err_mu <= o.kappa_eps * mu, smaller, mu)
+
+        mu_mono = lax.fori_loop(0, 4, mu_body, mu)
+        if o.mu_strategy == "monotone":
+            return mu_mono, st.free_mode, st.refs, st.mu_max
+        avg, smallest = self._complementarity(p, st)
+        mu_max = jnp.where(first, jnp.minimum(o.mu_max, o.mu_max_fact * avg), st.mu_max)
+        xi = smallest / jnp.maximum(avg, 1e-300)
+        sigma = 0.1 * jnp.minimum(0.05 * (1.0 - xi) / jnp.maximum(xi, 1e-300), 2.0) ** 3
+        mu_loqo = jnp.clip(sigma * avg, o.mu_min, mu_max)
+        err = self._error(p, st, 0.0)[0]
+        progress = err <= o.adaptive_mu_kkterror_red_fact * jnp.max(st.refs)
+        # free mode continues on progress; fixed mode returns to it when a barrier problem was
+        # solved (mu decreased) with progress
+        free = jnp.where(st.free_mode, progress, (mu_mono < mu) & progress)
+        to_fixed = st.free_mode & ~progress
+        mu_fixed = jnp.where(to_fixed, jnp.clip(o.adaptive_mu_monotone_init_factor * avg, o.mu_min, mu_max), mu_mono)
+        refs = jnp.where(free, jnp.roll(st.refs, 1).at[0].set(err), st.refs)
+        return jnp.where(free, mu_loqo, mu_fixed), free, refs, mu_max
 
     def _direction(self, p: _Problem, st: _State, theta) -> _State:
         """Newton direction at the iterate for the current mu, its step bounds, and the
@@ -542,8 +635,10 @@ class IPM:
         rhs_c = -jnp.where(p.ineq, r_c + rhat_s / sig_s, r_c)
         H = view.hessian(x, st.y, 1.0, theta) if o.hessian == "exact" else st.H
         system = kkt.KKTSystem(H=H, sigma=sigma_x, A=st.A, B=st.B, d0=d0, free=p.free)
-        fac, delta_w, ok = kkt.factor_with_correction(system, jnp.asarray(o.delta_c), st.delta_w)
-        dx, dy = kkt.solve(system, fac, delta_w, jnp.asarray(o.delta_c), -rhat_x, rhs_c, o.refine_steps)
+        # Ipopt's dual regularization, shrinking with mu (its kappa_c = 1/4)
+        delta_c = o.delta_c * mu ** 0.25 if o.delta_c_mu_scaled else jnp.asarray(o.delta_c)
+        fac, delta_w, ok = kkt.factor_with_correction(system, delta_c, st.delta_w)
+        dx, dy = kkt.solve(system, fac, delta_w, delta_c, -rhat_x, rhs_c, o.refine_steps, remove_delta_c=not o.delta_c_mu_scaled)
         ds = jnp.where(p.ineq, (dy - rhat_s) / sig_s, 0.0)
         dzl = jnp.where(p.has_xl, (mu - st.zl * dxl - st.zl * dx) / dxl, 0.0)
         dzu = jnp.where(p.has_xu, (mu - st.zu * dxu + st.zu * dx) / dxu, 0.0)

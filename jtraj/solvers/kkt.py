@@ -235,13 +235,18 @@ def solve(
     r_x: jax.Array,
     r_c: jax.Array,
     refine_steps: int = 3,
+    remove_delta_c: bool = True,
 ) -> tuple[jax.Array, jax.Array]:
-    """Solve the KKT system (with D0, i.e. without ``delta_c``) for right-hand sides r_x (K, n)
-    and r_c (K, m), given the factor of the ``delta_c``-regularized condensed matrix.
+    """Solve the KKT system for right-hand sides r_x (K, n) and r_c (K, m), given the factor of
+    the ``delta_c``-regularized condensed matrix.
 
-    Fixed variables get dx = 0 (their r_x entries are ignored). Iterative refinement keeps a
-    correction only where it lowers the residual, so a singular D0 system (dependent
-    equality rows) falls back to the regularized solution.
+    ``remove_delta_c`` (default): iterative refinement is against the system with D0, i.e.
+    without ``delta_c``; a correction is kept only where it lowers the residual, so a singular
+    D0 system (dependent equality rows) falls back to the regularized solution. Otherwise the
+    refinement is against the regularized system itself (Ipopt's treatment of a dependent
+    Jacobian: ``delta_c`` is part of the system), which keeps the multiplier step bounded by
+    ``|r_c| / delta_c`` where the linearized rows are inconsistent.
+    Fixed variables get dx = 0 (their r_x entries are ignored).
     """
     A, B = system.A, system.B
     d = system.d0 + delta_c
@@ -254,7 +259,7 @@ def solve(
         return dx, dy
 
     def residual(dx, dy):
-        top, bottom = multiply(system, delta_w, dx, dy)
+        top, bottom = multiply(system, delta_w, dx, dy, None if remove_delta_c else d)
         return r_x - top * f, r_c - bottom
 
     def norm(rx, rc):
