@@ -26,9 +26,7 @@ def plot_result(result: Result, path: str | Path) -> Path:
     """Base position, base rotation (world-axis angles, unwrapped), contact forces and joint
     torques against time, with contact phases shaded."""
     plt = _pyplot()
-    t = result.trajectory
-    if t is None:
-        raise ValueError("the result has no trajectory (solve(..., keep_trajectory=True))")
+    t = _trajectory(result)
     fig, axes = plt.subplots(2, 2, figsize=(11, 6.5), sharex=True)
     touching = t.in_contact.any(axis=1)
     for ax in axes.ravel():
@@ -49,10 +47,7 @@ def plot_result(result: Result, path: str | Path) -> Path:
     turns = "" if result.turns is None else f", {result.turns:+.2f} turns"
     fig.suptitle(f"{result.task} on {result.robot}, {result.parameterization}: {result.status.value}, {result.iterations} iterations{turns} (grey: flight)")
     fig.tight_layout()
-    path = Path(path)
-    jio.save_figure(fig, path, dpi=110)
-    plt.close(fig)
-    return path
+    return _finish(plt, fig, path)
 
 
 def plot_convergence(result: Result, path: str | Path) -> Path:
@@ -67,10 +62,7 @@ def plot_convergence(result: Result, path: str | Path) -> Path:
     ax.legend()
     ax.set_title(f"{result.task} [{result.parameterization}]")
     fig.tight_layout()
-    path = Path(path)
-    jio.save_figure(fig, path, dpi=110)
-    plt.close(fig)
-    return path
+    return _finish(plt, fig, path)
 
 
 def _base_pose_panels(ax_position, ax_rotation, t) -> None:
@@ -125,9 +117,7 @@ def plot_solution(result: Result, path: str | Path | None = None, *, friction: f
     from jtraj import robot as robots
 
     plt = _pyplot()
-    t = result.trajectory
-    if t is None:
-        raise ValueError("the result has no trajectory (solve(..., keep_trajectory=True))")
+    t = _trajectory(result)
     robot = robots.load(result.robot)
     mu = friction if friction is not None else _task_friction(result.task)
     mu_note = "" if friction is not None or mu is not None else " (mu = 0.9 assumed: not a built-in task)"
@@ -180,6 +170,12 @@ def plot_solution(result: Result, path: str | Path | None = None, *, friction: f
     )
     fig.tight_layout()
     return _finish(plt, fig, path)
+
+
+def _trajectory(result: Result):
+    if result.trajectory is None:
+        raise ValueError("the result has no trajectory (solve(..., keep_trajectory=True))")
+    return result.trajectory
 
 
 def _finish(plt, fig, path):
