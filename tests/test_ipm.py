@@ -1,5 +1,7 @@
 """jtraj's own interior-point solver on small knot problems and on a small Go2 hop."""
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -56,6 +58,21 @@ def test_active_bound_and_inequality(toy):
     assert ref.converged
     np.testing.assert_allclose(float(r.objective), ref.objective, rtol=1e-6)
     np.testing.assert_allclose(x.reshape(-1), ref.x, atol=1e-4)
+
+
+def test_monotone_barrier_strategy_reaches_the_same_solution(toy):
+    """The default barrier update is Ipopt's adaptive one; the monotone (Fiacco-McCormick)
+    update is an option and must find the same optimum."""
+    nlp, ipm = toy
+    adaptive = ipm.solve(jnp.zeros((K, 3)), None)
+    mono = IPM(nlp, dataclasses.replace(ipm.options, mu_strategy="monotone")).solve(jnp.zeros((K, 3)), None)
+    assert int(mono.status) == IpmStatus.CONVERGED and int(adaptive.status) == IpmStatus.CONVERGED
+    np.testing.assert_allclose(float(mono.objective), float(adaptive.objective), rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(mono.x), np.asarray(adaptive.x), atol=1e-4)
+    mus = np.asarray(mono.history)[: int(mono.iterations) + 1, 3]
+    assert np.all(np.diff(mus) <= 0)  # monotone: log10 mu never rises
+    with pytest.raises(solvers.InvalidOptionError, match="mu_strategy"):
+        IpmOptions(mu_strategy="probing")
 
 
 def test_vmap_equals_one_by_one_and_no_recompile(toy):
