@@ -56,7 +56,7 @@ def compare(
     out: str | Path = "runs/table_iv",
     variables: str = "paper",
     exact_hessian: bool = False,
-    progress: TextIO | None = sys.stdout,
+    progress: TextIO | bool | None = True,
     save_trajectories: bool = True,
     executor: str = "local",
     workers: int = 1,
@@ -66,13 +66,15 @@ def compare(
     """Table IV: solve every task with every parameterization; write table_iv.{json,md}.
 
     ``variables``: the variables per knot (`jtraj.solver.VARIABLES`; default the study's);
-    ``layout`` is its deprecated former name.
+    ``layout`` is its deprecated former name. ``progress``: True (default) prints to the
+    ``sys.stdout`` of the call, a text stream prints there, False or None is quiet.
 
     ``executor`` (`jtraj.executors`): ``"local"`` solves in this process (``workers`` > 1: in
     that many worker processes), ``"ray"`` one Ray task per solve on the cluster at
     ``ray_address``. Rows keep the order of ``tasks`` x ``params`` whatever the executor.
     """
     variables = renamed_argument(variables, layout, "variables", "layout", "paper")
+    progress = _progress_stream(progress)
     out = Path(out)
     jobs = [(task, p, variables, exact_hessian, str(out / f"{task if isinstance(task, str) else task.name}_{p}") if save_trajectories else None) for task in tasks for p in params]
     if executor == "local" and workers <= 1:
@@ -106,6 +108,19 @@ def _write_table_iv(rows: list[dict], out: Path) -> None:
         iterations = f"{r['iterations']}" + (f" ({paper})" if paper else "")
         cells.append((r["task"], r["parameterization"], r["status"], iterations, r["obj_evals"], r["jac_evals"], f"{r['cost']:.3g}", f"{r['constraint_violation']:.1e}", turns, f"{r['time_s']:.1f}"))
     jio.write_text(out / "table_iv.md", markdown_table(header, cells))
+
+
+def _progress_stream(progress: TextIO | bool | None) -> TextIO | None:
+    """The stream a ``progress=`` argument names: True the ``sys.stdout`` of this moment (not
+    of the import: pytest and notebooks replace it), a text stream itself, False or None
+    none (quiet)."""
+    if progress is True:
+        return sys.stdout
+    if progress is False or progress is None:
+        return None
+    if not hasattr(progress, "write"):
+        raise TypeError(f"progress={progress!r}: expected True, False/None or a text stream")
+    return progress
 
 
 def _sigma_bits(sigma: float) -> int:
@@ -153,10 +168,10 @@ def run_key(row: dict) -> tuple:
     return tuple(row.get(k) for k in RUN_KEY)
 
 
-def read_runs(path: str | Path, progress: TextIO | None = sys.stderr) -> list[dict]:
+def read_runs(path: str | Path, progress: TextIO | None = None) -> list[dict]:
     """Runs of a runs.jsonl file, first of each key kept. A file with lines that do not parse
-    (a kill during a write, damage) is moved aside to ``runs.jsonl.corrupt-N`` with a warning,
-    and the good lines are written back."""
+    (a kill during a write, damage) is moved aside to ``runs.jsonl.corrupt-N`` with a warning
+    on ``progress`` (None: the ``sys.stderr`` of the call), and the good lines are written back."""
     path = Path(path)
     records, bad = jio.read_jsonl(path)
     if bad:
@@ -223,7 +238,7 @@ def robustness(
     out: str | Path = "runs/robustness",
     variables: str = "paper",
     exact_hessian: bool = False,
-    progress: TextIO | None = sys.stdout,
+    progress: TextIO | bool | None = True,
     workers: int = 1,
     resume: bool = True,
     ipopt_options: dict | None = None,
@@ -245,9 +260,10 @@ def robustness(
     appending to the same file. ``executor="ray"`` makes each group a Ray task on the cluster
     at ``ray_address`` (`jtraj.executors`); its rows come back when the group finishes and are
     appended here, under the same keys and resume rules. Returns this call's runs; writes table_iii.{json,md} and fig2.png.
-    ``layout`` is the deprecated former name of ``variables``.
+    ``progress`` as in `compare`; ``layout`` is the deprecated former name of ``variables``.
     """
     variables = renamed_argument(variables, layout, "variables", "layout", "paper")
+    progress = _progress_stream(progress)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     runs_path = out / RUNS_FILE

@@ -75,7 +75,7 @@ def test_corrupt_runs_file_is_moved_aside(tmp_path, capsys):
     path = tmp_path / RUNS_FILE
     good = {"task_hash": "h", "parameterization": "se3", "layout": "paper", "hessian": "limited-memory", "options_hash": "o", "seed": 0, "sigma": 0.1, "replicate": 0, "task": "t"}
     path.write_text(json.dumps(good) + "\n" + json.dumps(good | {"replicate": 0, "cost": 2.0}) + "\n" + '{"task_hash": "h", "param')
-    runs = read_runs(path, progress=sys.stderr)
+    runs = read_runs(path)  # the warning goes to the sys.stderr of the call (capsys's here)
     assert runs == [good]  # the duplicate key is read once, the torn line dropped
     assert "line(s) [3] did not parse" in capsys.readouterr().err
     assert (tmp_path / f"{RUNS_FILE}.corrupt-1").read_text().endswith('"param')
@@ -135,9 +135,11 @@ def test_robustness_with_worker_processes_matches_in_process(tmp_path):
         np.testing.assert_allclose(a["cost"], b["cost"], rtol=1e-6)
 
 
-def test_compare_writes_table_iv_and_plots(tmp_path):
-    rows = compare([HOP], ["se3"], out=tmp_path, progress=None)
+def test_compare_writes_table_iv_and_plots(tmp_path, capsys):
+    rows = compare([HOP], ["se3"], out=tmp_path)
     assert rows[0]["task"] == "test_hop" and rows[0]["converged"]
+    # the default progress prints to the sys.stdout of the call (capsys's), not of the import
+    assert "jtraj: test_hop on go2" in capsys.readouterr().out
     assert "| test_hop | se3 | solved |" in (tmp_path / "table_iv.md").read_text()
     result = Result.load(tmp_path / "test_hop_se3")
     assert plot_result(result, tmp_path / "t.png").stat().st_size > 1000
