@@ -115,7 +115,7 @@ class DifferentiableTask:
 
         def forward(theta):
             theta = jax.tree_util.tree_map(jnp.asarray, theta)
-            x0 = tr.warm_start().reshape(-1) if self._x_warm is None else self._x_warm
+            x0 = tr.warm_start(theta).reshape(-1) if self._x_warm is None else self._x_warm
             sol = backend.solve(nlp, x0, theta, options)
             self.last_solution = sol
             if not sol.status.converged:

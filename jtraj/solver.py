@@ -121,7 +121,8 @@ def solve(
             default iteration limit of a dict.
         exact_hessian: use the exact Hessian of the Lagrangian from JAX instead of L-BFGS.
         ipopt_options: a dict of Ipopt options, the same as ``options`` (kept for scripts).
-        warm_start: (n_knots, nz) initial guess; default the task's warm start.
+        warm_start: (n_knots, nz) initial guess; default the task's warm start
+            (`Transcription.warm_start` at ``theta``: its standing pose and masses).
         noise: standard deviation of zero-mean Gaussian noise added to the warm start.
         seed: seed of that noise.
         progress: True (default) prints a line per ``progress_every`` iterations to the
@@ -139,7 +140,7 @@ def solve(
     theta = tr.resolve_theta(theta)
     compile_time = prep.time_compile
     prep.time_compile = 0.0  # counted once per process
-    x0 = tr.warm_start() if warm_start is None else np.asarray(warm_start, float)
+    x0 = tr.warm_start(theta) if warm_start is None else np.asarray(warm_start, float)
     if noise:
         x0 = x0 + noise * np.random.default_rng(seed).standard_normal(x0.shape)
     backend = solvers.get(solver)

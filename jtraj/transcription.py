@@ -453,16 +453,23 @@ class Transcription:
         return lower, upper
 
     # -------------------------------------------------------------------- warm start
-    def warm_start(self) -> np.ndarray:
+    def warm_start(self, theta: TaskParams | Mapping[str, Any] | None = None) -> np.ndarray:
         """The paper's non-informative warm start (plus the task's rotation rules): every knot
-        at the standing pose at rest, the weight shared among the touching points."""
+        at the standing pose at rest, the weight shared among the touching points.
+
+        (n_knots, nz). The standing pose (base and joints) and the body masses are theta's
+        (`resolve_theta`; None: the task's and robot's)."""
         robot, L = self.robot, self.layout
         n_knots, P = self.N + 1, self.P
         host = self._host
-        poses = np.tile(self.initial_xyz_wxyz, (n_knots, 1))
+        # the default theta's pose is initial_xyz_wxyz, which also checks the robot's stance
+        resolved = self.resolve_theta(theta)
+        initial = self.initial_xyz_wxyz if theta is None else np.asarray(host["initial"](resolved))
+        theta = resolved
+        poses = np.tile(initial, (n_knots, 1))
         for axis, angles in self.task.warm_start_angles():
             poses[:, 3:] = np.asarray(host["rotate"](axis[None] * angles[:, None], poses[:, 3:]))
-        qj = np.tile(np.asarray(robot.q_joints_standing, float), (n_knots, 1))
+        qj = np.tile(np.asarray(theta.q_joints_standing, float), (n_knots, 1))
         placed = np.zeros(n_knots, bool)
         for rule in self.task.warm_start_joints:
             knots = np.isin(self.schedule.phase_of_knot, rule.phases)
@@ -481,7 +488,8 @@ class Transcription:
         Z[:, L.slice("q")] = q
         n_touch = contact.sum(axis=1)
         f = np.zeros((n_knots, P, 3))
-        f[:, :, 2] = np.where(contact, robot.total_mass * GRAVITY / np.maximum(n_touch, 1)[:, None], 0.0)
+        weight = float(np.sum(np.asarray(theta.body_masses))) * GRAVITY  # robot.total_mass g for the default
+        f[:, :, 2] = np.where(contact, weight / np.maximum(n_touch, 1)[:, None], 0.0)
         Z[:, L.slice("f")] = f.reshape(n_knots, -1)
         if self.options.contact_variables:
             c = np.array(host["fk"](q))

@@ -280,3 +280,30 @@ def test_layout_is_the_deprecated_name_of_variables():
         prepare(HOP, "se3", "paper", layout="lean")
     with pytest.warns(DeprecationWarning, match="LEAN_LAYOUT"):
         assert jtraj.transcription.LEAN_LAYOUT is LEAN_VARIABLES
+
+
+def test_warm_start_is_built_from_the_theta_it_is_given():
+    """The standing pose and masses of theta, not the robot's, shape the warm start; the
+    default theta gives the task's warm start exactly."""
+    from jtraj import robot as robots
+    from jtraj.parameterization import get
+    from jtraj.transcription import PAPER_VARIABLES, Transcription
+
+    tr = Transcription(robots.load("go2"), HOP, get("se3"), PAPER_VARIABLES)
+    np.testing.assert_array_equal(tr.warm_start(), tr.warm_start(tr.default_theta()))
+    default = tr.default_theta()
+    crouch = np.asarray(default.q_joints_standing) + 0.1
+    theta = default.replace(q_joints_standing=crouch, body_masses=2.0 * np.asarray(default.body_masses))
+    Z, Z0 = tr.warm_start(theta), tr.warm_start()
+    L, nqb = tr.layout, tr.param.nq
+    q = Z[:, L.slice("q")]
+    np.testing.assert_allclose(q[:, nqb:], np.tile(crouch, (tr.N + 1, 1)))
+    # twice the mass, twice each touching point's share of the weight
+    np.testing.assert_allclose(Z[:, L.slice("f")], 2.0 * Z0[:, L.slice("f")], rtol=1e-12)
+    # the crouched stance is lowered or raised so that the first phase's feet touch the terrain
+    feet_z = np.asarray(tr._host["fk"](jnp.asarray(q)))[0, tr.schedule.in_contact[0], 2]
+    np.testing.assert_allclose(feet_z.mean(), HOP.terrain_height, atol=1e-9)
+    base_z = [float(tr.param.to_qpos(jnp.asarray(x[0, :nqb]))[2]) for x in (q, Z0[:, L.slice("q")])]
+    assert abs(base_z[0] - base_z[1]) > 1e-3  # ... which moved the base
+    # and a mapping of overrides is theta too
+    np.testing.assert_array_equal(tr.warm_start({"q_joints_standing": crouch, "body_masses": 2.0 * np.asarray(default.body_masses)}), Z)
