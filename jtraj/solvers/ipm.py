@@ -93,8 +93,10 @@ class IpmOptions(AbstractOptions):
         tol: scaled optimality error for convergence (the study's Ipopt setting, 1e-3).
         max_iter: iteration limit.
         constr_viol_tol, dual_inf_tol, compl_inf_tol: unscaled limits at convergence.
-        hessian: ``"exact"`` (default: the Lagrangian's Hessian from JAX, per element) or
-            ``"bfgs"`` (partitioned damped BFGS; does not converge on the whole-body tasks).
+        hessian: ``"lbfgs"`` (default: Ipopt's limited-memory BFGS, a scaled identity plus a
+            low-rank term, solved by Sherman-Morrison-Woodbury around the block factorization),
+            ``"exact"`` (the Lagrangian's Hessian from JAX, per element) or ``"bfgs"``
+            (partitioned damped BFGS; does not converge on the whole-body tasks).
         mu_strategy: ``"adaptive"`` (default, as Ipopt's default with a quasi-Newton Hessian)
             or ``"monotone"`` (Fiacco-McCormick).
         mu_min, mu_max, mu_max_fact, adaptive_mu_kkterror_red_fact,
@@ -113,6 +115,8 @@ class IpmOptions(AbstractOptions):
         max_line_search_failures: consecutive failed line searches before giving up.
         bfgs_init: initial element Hessian scale of the BFGS approximation.
         bfgs_scaling: rescale each element's initial matrix by its first curvature pair.
+        lbfgs_memory, lbfgs_init_val, lbfgs_init_min, lbfgs_init_max: Ipopt's
+            ``limited_memory_max_history`` and ``limited_memory_init_val(_min, _max)``.
     """
 
     tol: float = 1e-3
@@ -120,7 +124,7 @@ class IpmOptions(AbstractOptions):
     constr_viol_tol: float = 1e-4
     dual_inf_tol: float = 1.0
     compl_inf_tol: float = 1e-4
-    hessian: str = "exact"
+    hessian: str = "lbfgs"
     mu_strategy: str = "adaptive"
     mu_init: float = 0.1
     kappa_eps: float = 10.0
@@ -139,6 +143,10 @@ class IpmOptions(AbstractOptions):
     max_line_search_failures: int = 5
     bfgs_init: float = 1.0
     bfgs_scaling: bool = True
+    lbfgs_memory: int = 6
+    lbfgs_init_val: float = 1.0
+    lbfgs_init_min: float = 1e-8
+    lbfgs_init_max: float = 1e8
     mu_min: float = 1e-11
     mu_max: float = 1e5
     mu_max_fact: float = 1e3
@@ -148,12 +156,12 @@ class IpmOptions(AbstractOptions):
     solver_name: ClassVar[str] = "jtraj"
 
     def __check__(self) -> None:
-        if self.hessian not in ("bfgs", "exact"):
-            raise InvalidOptionError(f"jtraj option hessian={self.hessian!r}: expected 'bfgs' or 'exact'")
+        if self.hessian not in ("lbfgs", "exact", "bfgs"):
+            raise InvalidOptionError(f"jtraj option hessian={self.hessian!r}: expected 'lbfgs', 'exact' or 'bfgs'")
         if self.mu_strategy not in ("adaptive", "monotone"):
             raise InvalidOptionError(f"jtraj option mu_strategy={self.mu_strategy!r}: expected 'adaptive' or 'monotone'")
         _positive(self, "tol", "constr_viol_tol", "dual_inf_tol", "compl_inf_tol", "mu_init", "delta_c")
-        for name in ("max_iter", "refine_steps", "max_line_search", "max_line_search_failures"):
+        for name in ("max_iter", "refine_steps", "max_line_search", "max_line_search_failures", "lbfgs_memory"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
                 raise InvalidOptionError(f"jtraj option {name}={value!r}: expected an integer >= 0")
@@ -250,6 +258,10 @@ class _State(NamedTuple):
     refs: jax.Array  # (4,) KKT errors of the last accepted free-mode iterates
     H: jax.Array
     scaled: jax.Array  # (K,) bool: the element's BFGS matrix got its initial scaling
+    S: jax.Array  # (l, K, n) limited-memory BFGS steps, oldest first
+    Y: jax.Array  # (l, K, n) ... and Lagrangian gradient differences
+    used: jax.Array  # (l,) bool
+    lsigma: jax.Array  # scaled identity of the limited-memory matrix
     delta_w: jax.Array
     # bookkeeping
     first: jax.Array
@@ -402,6 +414,7 @@ class IPM:
         o = self.options
         view = self.view
         K, n, m = view.K, view.n, view.m
+        l = o.lbfgs_memory if o.hessian == "lbfgs" else 1  # noqa: E741
         p = self._problem(theta)
         Z = jnp.asarray(x0, jnp.float64).reshape(K, n)
         Z = jnp.where(p.free, Z, jnp.where(jnp.isfinite(p.xl), p.xl, Z))
@@ -420,6 +433,7 @@ class IPM:
             theta_min=zero, theta_max=zero, mu=jnp.asarray(o.mu_init), mu_max=jnp.asarray(o.mu_max),
             free_mode=jnp.asarray(o.mu_strategy == "adaptive"), refs=jnp.full((4,), jnp.inf),
             H=jnp.broadcast_to(o.bfgs_init * jnp.eye(2 * n), (K, 2 * n, 2 * n)), scaled=jnp.zeros((K,), bool), delta_w=zero,
+            S=jnp.zeros((l, K, n)), Y=jnp.zeros((l, K, n)), used=jnp.zeros((l,), bool), lsigma=jnp.asarray(o.lbfgs_init_val),
             first=jnp.asarray(True), it=jnp.zeros((), jnp.int32),
             status=jnp.asarray(int(IpmStatus.RUNNING), jnp.int32), ls_fail=jnp.zeros((), jnp.int32),
             history=jnp.full((o.max_iter + 1, 5), jnp.nan),
@@ -514,6 +528,18 @@ class IPM:
             scaled = jnp.where(first, st.scaled, scaled)
         else:
             scaled = st.scaled
+        lbfgs = (st.S, st.Y, st.used, st.lsigma)
+        if o.hessian == "lbfgs":
+            # Ipopt's limited-memory BFGS of the Lagrangian: pairs (x+ - x, grad L(x+, y+) -
+            # grad L(x, y+)) on the free variables, skipped without enough curvature, and the
+            # scaled identity sigma = s^T y / s^T s of the newest pair ("scalar1")
+            step = jnp.where(p.free, xt - st.x, 0.0)
+            diff = jnp.where(p.free, gt + kkt._apply_JT(At, Bt, y) - st.grad - kkt._apply_JT(st.A, st.B, y), 0.0)
+            sy, ss, yy = jnp.sum(step * diff), jnp.sum(step * step), jnp.sum(diff * diff)
+            keep = (~first) & (sy > 1e-8 * jnp.sqrt(ss * yy)) & (ss > 0)
+            push = lambda hist, new: jnp.where(keep, jnp.concatenate([hist[1:], new[None]], axis=0), hist)  # noqa: E731
+            lsigma = jnp.where(keep, jnp.clip(sy / jnp.where(keep, ss, 1.0), o.lbfgs_init_min, o.lbfgs_init_max), st.lsigma)
+            lbfgs = (push(st.S, step), push(st.Y, diff), push(st.used, jnp.asarray(True)), lsigma)
 
         def clamp(z, dist, mask):
             dist = jnp.where(mask, dist, 1.0)
@@ -533,6 +559,7 @@ class IPM:
         it = st.it + (~first).astype(jnp.int32)
         new = st._replace(
             x=xt, s=s_t, y=y, zl=zl, zu=zu, vl=vl, vu=vu, f=ft, c=ct, grad=gt, A=At, B=Bt, H=H, scaled=scaled,
+            S=lbfgs[0], Y=lbfgs[1], used=lbfgs[2], lsigma=lbfgs[3],
             filter=filt, n_filter=n_filter, theta_min=theta_min, theta_max=theta_max,
             first=jnp.asarray(False), it=it, trials=jnp.zeros((), jnp.int32),
             ls_fail=jnp.where(failed, st.ls_fail + 1, 0).astype(jnp.int32),
@@ -609,6 +636,20 @@ class IPM:
         refs = jnp.where(free, jnp.roll(st.refs, 1).at[0].set(err), st.refs)
         return jnp.where(free, mu_loqo, mu_fixed), free, refs, mu_max
 
+    @staticmethod
+    def _lbfgs_low_rank(st: _State) -> kkt.LowRank:
+        """The limited-memory BFGS matrix ``sigma I - W^T M^-1 W`` in compact form (Byrd,
+        Nocedal and Schnabel 1994): ``W = [sigma S; Y]``, ``M = [[sigma S^T S, L], [L^T, -D]]``
+        with ``L`` the strictly lower part of ``S^T Y`` and ``D`` its diagonal (pairs oldest
+        first). Unused slots hold zero vectors and identity rows of M."""
+        S, Y, used, sig = st.S, st.Y, st.used, st.lsigma
+        SS = jnp.einsum("ikn,jkn->ij", S, S)
+        SY = jnp.einsum("ikn,jkn->ij", S, Y)
+        L = jnp.tril(SY, -1)
+        unused = jnp.diag(jnp.where(used, 0.0, 1.0))
+        M = jnp.block([[sig * SS + unused, L], [L.T, -jnp.diag(jnp.where(used, jnp.diag(SY), 1.0))]])
+        return kkt.LowRank(W=jnp.concatenate([sig * S, Y], axis=0), M=M)
+
     def _direction(self, p: _Problem, st: _State, theta) -> _State:
         """Newton direction at the iterate for the current mu, its step bounds, and the
         line search's reference values."""
@@ -633,12 +674,18 @@ class IPM:
         sig_s = jnp.where(p.ineq, sigma_s, 1.0)
         d0 = jnp.where(p.ineq, 1.0 / sig_s, jnp.where(p.eq, 0.0, 1.0))
         rhs_c = -jnp.where(p.ineq, r_c + rhat_s / sig_s, r_c)
-        H = view.hessian(x, st.y, 1.0, theta) if o.hessian == "exact" else st.H
+        low_rank = None
+        if o.hessian == "lbfgs":
+            H = jnp.zeros_like(st.H)
+            sigma_x = sigma_x + jnp.where(p.free, st.lsigma, 0.0)
+            low_rank = self._lbfgs_low_rank(st)
+        else:
+            H = view.hessian(x, st.y, 1.0, theta) if o.hessian == "exact" else st.H
         system = kkt.KKTSystem(H=H, sigma=sigma_x, A=st.A, B=st.B, d0=d0, free=p.free)
         # Ipopt's dual regularization, shrinking with mu (its kappa_c = 1/4)
         delta_c = o.delta_c * mu ** 0.25 if o.delta_c_mu_scaled else jnp.asarray(o.delta_c)
         fac, delta_w, ok = kkt.factor_with_correction(system, delta_c, st.delta_w)
-        dx, dy = kkt.solve(system, fac, delta_w, delta_c, -rhat_x, rhs_c, o.refine_steps, remove_delta_c=not o.delta_c_mu_scaled)
+        dx, dy = kkt.solve(system, fac, delta_w, delta_c, -rhat_x, rhs_c, o.refine_steps, remove_delta_c=not o.delta_c_mu_scaled, low_rank=low_rank)
         ds = jnp.where(p.ineq, (dy - rhat_s) / sig_s, 0.0)
         dzl = jnp.where(p.has_xl, (mu - st.zl * dxl - st.zl * dx) / dxl, 0.0)
         dzu = jnp.where(p.has_xu, (mu - st.zu * dxu + st.zu * dx) / dxu, 0.0)

@@ -47,6 +47,7 @@ __all__ = [
     "solve",
     "multiply",
     "InertiaOptions",
+    "LowRank",
 ]
 
 
@@ -68,6 +69,26 @@ class KKTSystem(NamedTuple):
     B: jax.Array
     d0: jax.Array
     free: jax.Array
+
+
+class LowRank(NamedTuple):
+    """A low-rank term of the Hessian in the compact form of a limited-memory BFGS matrix
+    (Byrd, Nocedal and Schnabel, Math. Prog. 63, 1994): the Hessian is the block part minus
+    ``W^T M^-1 W``.
+
+    Attributes:
+        W: (r, K, n) the r vectors (the columns of the N x r matrix), 0 on fixed variables.
+        M: (r, r) symmetric and nonsingular.
+    """
+
+    W: jax.Array
+    M: jax.Array
+
+
+def _low_rank_apply(low_rank: LowRank, x: jax.Array) -> jax.Array:
+    """``-W^T M^-1 W x`` for x (K, n)."""
+    wx = jnp.einsum("rkn,kn->r", low_rank.W, x)
+    return -jnp.einsum("rkn,r->kn", low_rank.W, jnp.linalg.solve(low_rank.M, wx))
 
 
 class BlockFactor(NamedTuple):
@@ -215,14 +236,15 @@ def _apply_H(H, x):
     return out.at[1:].add((Hx[:, n:] * has_next)[:-1])
 
 
-def multiply(system: KKTSystem, delta_w: jax.Array, dx: jax.Array, dy: jax.Array, d: jax.Array | None = None) -> tuple[jax.Array, jax.Array]:
-    """The KKT matrix (with (2,2) block ``-diag(d)``, default D0) times (dx, dy), fixed
-    variables removed (their rows return dx itself)."""
+def multiply(system: KKTSystem, delta_w: jax.Array, dx: jax.Array, dy: jax.Array, d: jax.Array | None = None, low_rank: LowRank | None = None) -> tuple[jax.Array, jax.Array]:
+    """The KKT matrix (with (2,2) block ``-diag(d)``, default D0; the Hessian's low-rank term
+    if given) times (dx, dy), fixed variables removed (their rows return dx itself)."""
     H, sigma, A, B, d0, free = system
     d = d0 if d is None else d
     f = free.astype(dx.dtype)
     dxf = dx * f
-    top = (_apply_H(H, dxf) + (sigma + delta_w) * dxf + _apply_JT(A, B, dy)) * f + dx * (1.0 - f)
+    Hx = _apply_H(H, dxf) if low_rank is None else _apply_H(H, dxf) + _low_rank_apply(low_rank, dxf)
+    top = (Hx + (sigma + delta_w) * dxf + _apply_JT(A, B, dy)) * f + dx * (1.0 - f)
     bottom = _apply_J(A, B, dxf) - d * dy
     return top, bottom
 
@@ -236,6 +258,7 @@ def solve(
     r_c: jax.Array,
     refine_steps: int = 3,
     remove_delta_c: bool = True,
+    low_rank: LowRank | None = None,
 ) -> tuple[jax.Array, jax.Array]:
     """Solve the KKT system for right-hand sides r_x (K, n) and r_c (K, m), given the factor of
     the ``delta_c``-regularized condensed matrix.
@@ -247,19 +270,33 @@ def solve(
     Jacobian: ``delta_c`` is part of the system), which keeps the multiplier step bounded by
     ``|r_c| / delta_c`` where the linearized rows are inconsistent.
     Fixed variables get dx = 0 (their r_x entries are ignored).
+
+    ``low_rank``: the Hessian has that term too (``fac`` factors the matrix without it, which
+    must then be positive definite, as with a BFGS matrix); the condensed solve applies the
+    Sherman-Morrison-Woodbury formula with r extra block solves and an r x r system, so the
+    block-tridiagonal structure is kept.
     """
     A, B = system.A, system.B
     d = system.d0 + delta_c
     f = system.free.astype(r_x.dtype)
     r_x = r_x * f
 
+    if low_rank is not None:
+        # (M0 - W^T M^-1 W)^-1 = M0^-1 + M0^-1 W^T (M - W M0^-1 W^T)^-1 W M0^-1
+        Wf = low_rank.W * f
+        Z = jax.vmap(lambda w: solve_factored(fac, w) * f)(Wf)
+        capacitance = low_rank.M - jnp.einsum("rkn,skn->rs", Wf, Z)
+
     def condensed_solve(rx, rc):
-        dx = solve_factored(fac, rx + _apply_JT(A, B, rc / d) * f) * f
+        b = rx + _apply_JT(A, B, rc / d) * f
+        dx = solve_factored(fac, b) * f
+        if low_rank is not None:
+            dx = dx + jnp.einsum("rkn,r->kn", Z, jnp.linalg.solve(capacitance, jnp.einsum("rkn,kn->r", Wf, dx)))
         dy = (_apply_J(A, B, dx) - rc) / d
         return dx, dy
 
     def residual(dx, dy):
-        top, bottom = multiply(system, delta_w, dx, dy, None if remove_delta_c else d)
+        top, bottom = multiply(system, delta_w, dx, dy, None if remove_delta_c else d, low_rank)
         return r_x - top * f, r_c - bottom
 
     def norm(rx, rc):
