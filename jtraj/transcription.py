@@ -308,9 +308,10 @@ class Transcription:
     def _target_xyz_wxyz(self, theta: TaskParams) -> jax.Array:
         """(7,) target base pose: theta's displacement and rotation applied to the initial pose."""
         T0 = self._initial_xyz_wxyz(theta)
-        R = SO3(T0[3:])
-        for axis in range(3):  # Rz(yaw) Ry(pitch) Rx(roll), composed about world axes
-            R = lie.exp(SO3, jnp.zeros(3).at[axis].set(theta.target_rotation_rpy[axis])) @ R
+        roll, pitch, yaw = theta.target_rotation_rpy
+        # jaxlie's from_rpy_radians is Rz(yaw) Ry(pitch) Rx(roll) (jtraj.euler's convention),
+        # applied about world axes
+        R = SO3.from_rpy_radians(roll=roll, pitch=pitch, yaw=yaw) @ SO3(T0[3:])
         return jnp.concatenate([T0[:3] + theta.target_translation, R.wxyz])
 
     def _q_joints_target(self, theta: TaskParams) -> jax.Array:

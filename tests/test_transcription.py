@@ -307,3 +307,21 @@ def test_warm_start_is_built_from_the_theta_it_is_given():
     assert abs(base_z[0] - base_z[1]) > 1e-3  # ... which moved the base
     # and a mapping of overrides is theta too
     np.testing.assert_array_equal(tr.warm_start({"q_joints_standing": crouch, "body_masses": 2.0 * np.asarray(default.body_masses)}), Z)
+
+
+def test_target_rotation_is_roll_pitch_yaw_about_world_axes():
+    """theta's target rotation turns the initial base pose by Rz(yaw) Ry(pitch) Rx(roll) (the
+    convention of jtraj.euler, eq. 5 of the comparative study) about world axes."""
+    from jaxlie import SO3
+
+    from jtraj import euler
+    from jtraj import robot as robots
+    from jtraj.parameterization import get
+    from jtraj.transcription import Transcription
+
+    tr = Transcription(robots.load("go2"), HOP, get("se3"))
+    rpy = np.array([0.3, -0.4, 1.1])
+    target = tr.target_xyz_wxyz_of(tr.default_theta().replace(target_rotation_rpy=rpy))
+    R0 = np.asarray(SO3(jnp.asarray(tr.initial_xyz_wxyz[3:])).as_matrix())
+    np.testing.assert_allclose(np.asarray(SO3(jnp.asarray(target[3:])).as_matrix()), np.asarray(euler.rotation_matrix(rpy)) @ R0, atol=1e-14)
+    np.testing.assert_allclose(target[:3], tr.initial_xyz_wxyz[:3] + np.asarray(HOP.target_translation), atol=1e-14)
