@@ -110,3 +110,38 @@ def test_block_factor_equals_dense_cholesky(rng):
         np.testing.assert_allclose(fac.diag[k], L[k * n : (k + 1) * n, k * n : (k + 1) * n], atol=1e-10)
     b = rng.normal(size=(K, n))
     np.testing.assert_allclose(np.asarray(kkt.solve_factored(fac, jnp.asarray(b))).reshape(-1), np.linalg.solve(M, b.reshape(-1)), atol=1e-10)
+
+
+def test_low_rank_hessian_term_equals_dense_solve(rng):
+    """A limited-memory BFGS matrix in compact form, sigma I - W^T M^-1 W (built from the
+    recursive BFGS updates it must equal), around the block factorization: the Woodbury solve
+    equals a dense solve of the KKT system with that dense Hessian."""
+    K, n, m, pairs, sig = 5, 4, 3, 3, 0.7
+    system = random_system(rng, K, n, m)
+    free = np.asarray(system.free)
+    N = K * n
+    S = rng.normal(size=(pairs, K, n)) * free
+    Y = S + 0.3 * rng.normal(size=(pairs, K, n)) * free  # s^T y > 0 for these draws
+    assert np.all(np.einsum("ikn,ikn->i", S, Y) > 0)
+    # the dense BFGS matrix by the recursion from sigma I
+    Bd = sig * np.eye(N)
+    for s, y in zip(S.reshape(pairs, N), Y.reshape(pairs, N)):
+        Bs = Bd @ s
+        Bd = Bd - np.outer(Bs, Bs) / (s @ Bs) + np.outer(y, y) / (s @ y)
+    SY = np.einsum("ikn,jkn->ij", S, Y)
+    M = np.block([[sig * np.einsum("ikn,jkn->ij", S, S), np.tril(SY, -1)], [np.tril(SY, -1).T, -np.diag(np.diag(SY))]])
+    low_rank = kkt.LowRank(W=jnp.asarray(np.concatenate([sig * S, Y])), M=jnp.asarray(M))
+    W2 = np.asarray(low_rank.W).reshape(2 * pairs, N)
+    np.testing.assert_allclose(sig * np.eye(N) - W2.T @ np.linalg.solve(M, W2), Bd, atol=1e-9)
+    # block part: no element Hessian, sigma I on top of the barrier terms
+    blocks = system._replace(H=jnp.zeros_like(system.H), sigma=system.sigma + sig)
+    fac, delta_w, ok = kkt.factor_with_correction(blocks, jnp.asarray(1e-9), jnp.asarray(0.0))
+    assert bool(ok) and float(delta_w) == 0.0
+    r_x, r_c = rng.normal(size=(K, n)), rng.normal(size=(K, m))
+    dx, dy = kkt.solve(blocks, fac, delta_w, jnp.asarray(1e-9), jnp.asarray(r_x), jnp.asarray(r_c), low_rank=low_rank)
+    Md, keep = dense_kkt(blocks, 0.0)
+    nf = keep.sum()
+    Md[:nf, :nf] += (Bd - sig * np.eye(N))[np.ix_(keep, keep)]
+    ref = np.linalg.solve(Md, np.concatenate([r_x.reshape(-1)[keep], r_c.reshape(-1)]))
+    np.testing.assert_allclose(np.asarray(dx).reshape(-1)[keep], ref[:nf], rtol=1e-8, atol=1e-8)
+    np.testing.assert_allclose(np.asarray(dy).reshape(-1), ref[nf:], rtol=1e-8, atol=1e-8)
