@@ -101,7 +101,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     from jtraj.experiments import compare
     from jtraj.provenance import write_provenance
 
-    rows = compare(_split(args.tasks), _split(args.params), out=args.out, variables=args.variables, exact_hessian=args.exact_hessian, save_trajectories=not args.no_trajectories, executor=args.executor, workers=args.workers, ray_address=args.ray_address)
+    rows = compare(_split(args.tasks), _split(args.params), out=args.out, variables=args.variables, exact_hessian=args.exact_hessian, save_trajectories=not args.no_trajectories, executor=args.executor, workers=args.workers, ray_address=args.ray_address, solver=args.solver)
     write_provenance(args.out)
     print((__import__("pathlib").Path(args.out) / "table_iv.md").read_text())
     return 0 if rows else 1
@@ -112,7 +112,7 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
     from jtraj.provenance import write_provenance
 
     sigmas = args.sigmas_checked
-    robustness(_split(args.tasks), _split(args.params), sigmas, replicates=args.replicates, seed=args.seed, out=args.out, variables=args.variables, workers=args.workers, resume=not args.no_resume, executor=args.executor, ray_address=args.ray_address)
+    robustness(_split(args.tasks), _split(args.params), sigmas, replicates=args.replicates, seed=args.seed, out=args.out, variables=args.variables, workers=args.workers, resume=not args.no_resume, executor=args.executor, ray_address=args.ray_address, solver=args.solver)
     write_provenance(args.out)
     print((__import__("pathlib").Path(args.out) / "table_iii.md").read_text())
     return 0
@@ -266,6 +266,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--exact-hessian", action="store_true")
     p.add_argument("--out", default="runs/table_iv")
     p.add_argument("--no-trajectories", action="store_true", help="write only the tables (for results/)")
+    p.add_argument("--solver", default="ipopt", choices=_solver_names(), help="NLP solver backend of every cell (default ipopt)")
     _executor_arguments(p)
     p.set_defaults(func=_cmd_compare)
 
@@ -279,6 +280,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="runs/robustness")
     p.add_argument("--workers", type=int, default=1, help="solve (task, parameterization) groups in this many processes")
     p.add_argument("--no-resume", action="store_true", help="solve again the runs already in OUT/runs.jsonl (the old file is kept as runs.jsonl.previous)")
+    p.add_argument("--solver", default="ipopt", choices=_solver_names(), help="NLP solver backend (default ipopt); jtraj solves each (task, parameterization, sigma) group's replicates in one vmapped call")
     _executor_arguments(p, workers=False)
     p.set_defaults(func=_cmd_robustness)
 

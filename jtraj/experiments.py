@@ -9,6 +9,7 @@ Markdown tables and a figure.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -23,10 +24,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from jtraj import io as jio
+from jtraj import solvers
 from jtraj.deprecation import renamed_argument
 from jtraj.executors import executor_for
 from jtraj.parameterization import PARAMETERIZATIONS
-from jtraj.solver import prepare, solve
+from jtraj.solver import evaluate, prepare, solve, solver_options
 from jtraj.success import FEASIBILITY_TOL
 from jtraj.tables import markdown_table
 from jtraj.task import Task
@@ -41,12 +43,13 @@ ROBUSTNESS_TASKS = ("walk", "big_jump", "backflip", "sideflip")
 ROBUSTNESS_PARAMS = ("euler", "quat1", "quat2", "se3")
 SIGMAS = (1e-6, 1e-3, 0.1, 0.5)
 
-_ROW_KEYS = ("task", "parameterization", "status", "converged", "success", "turns", "iterations", "obj_evals", "grad_evals", "con_evals", "jac_evals", "cost", "constraint_violation", "time_s", "time_compile")
+_ROW_KEYS = ("task", "parameterization", "solver", "status", "solver_status", "converged", "success", "turns", "iterations", "obj_evals", "grad_evals", "con_evals", "jac_evals", "cost", "constraint_violation", "time_s", "time_compile")
 
 
 def _row(result) -> dict:
     row = {k: getattr(result, k) for k in _ROW_KEYS}
     row["status"] = result.status.value
+    row["solver_status"] = result.solver_status.value
     return row
 
 
@@ -62,9 +65,11 @@ def compare(
     workers: int = 1,
     ray_address: str | None = None,
     layout: str | None = None,
+    solver: str = "ipopt",
 ) -> list[dict]:
     """Table IV: solve every task with every parameterization; write table_iv.{json,md}.
 
+    ``solver``: the backend of every cell (`jtraj.solvers.SOLVERS`; each row records it).
     ``variables``: the variables per knot (`jtraj.solver.VARIABLES`; default the study's);
     ``layout`` is its deprecated former name. ``progress``: True (default) prints to the
     ``sys.stdout`` of the call, a text stream prints there, False or None is quiet.
@@ -76,7 +81,8 @@ def compare(
     variables = renamed_argument(variables, layout, "variables", "layout", "paper")
     progress = _progress_stream(progress)
     out = Path(out)
-    jobs = [(task, p, variables, exact_hessian, str(out / f"{task if isinstance(task, str) else task.name}_{p}") if save_trajectories else None) for task in tasks for p in params]
+    solvers.get(solver)  # an unknown name fails here, before the first solve
+    jobs = [(task, p, variables, exact_hessian, solver, str(out / f"{task if isinstance(task, str) else task.name}_{p}") if save_trajectories else None) for task in tasks for p in params]
     if executor == "local" and workers <= 1:
         rows = []
         for job in jobs:
@@ -92,21 +98,21 @@ def compare(
     return [done[k] for k in sorted(done)]
 
 
-def _compare_one(task, p, variables, exact_hessian, out, progress=None) -> dict:
+def _compare_one(task, p, variables, exact_hessian, solver, out, progress=None) -> dict:
     """One cell of Table IV (a module-level function: executors ship it to other processes)."""
-    return _row(solve(task, p, variables=variables, exact_hessian=exact_hessian, progress=progress, progress_every=10, out=out))
+    return _row(solve(task, p, variables=variables, solver=solver, exact_hessian=exact_hessian, progress=progress, progress_every=10, out=out))
 
 
 def _write_table_iv(rows: list[dict], out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
     jio.write_json(out / "table_iv.json", rows)
-    header = ("task", "parameterization", "status", "iterations (paper, SE(3))", "obj evals", "jac evals", "cost", "violation", "turns", "time (s)")
+    header = ("task", "parameterization", "status", "iterations (paper, SE(3))", "obj evals", "jac evals", "cost", "violation", "turns", "time (s)", "solver")
     cells = []
     for r in rows:
         paper = TABLE_IV_PAPER_SE3.get(r["task"]) if r["parameterization"] == "se3" else None
         turns = "" if r["turns"] is None else f"{r['turns']:+.2f}"
         iterations = f"{r['iterations']}" + (f" ({paper})" if paper else "")
-        cells.append((r["task"], r["parameterization"], r["status"], iterations, r["obj_evals"], r["jac_evals"], f"{r['cost']:.3g}", f"{r['constraint_violation']:.1e}", turns, f"{r['time_s']:.1f}"))
+        cells.append((r["task"], r["parameterization"], r["status"], iterations, r["obj_evals"], r["jac_evals"], f"{r['cost']:.3g}", f"{r['constraint_violation']:.1e}", turns, f"{r['time_s']:.1f}", r.get("solver", "ipopt")))
     jio.write_text(out / "table_iv.md", markdown_table(header, cells))
 
 
@@ -153,8 +159,11 @@ def noisy_warm_starts(x0: np.ndarray, sigmas: Sequence[float], replicates: int |
 
 #: the fields of a run's key, beside its task's name (kept for the tables); "layout" holds the
 #: ``variables`` name under its former key, so that earlier runs.jsonl files still resume
-RUN_KEY = ("task_hash", "parameterization", "layout", "hessian", "options_hash", "seed", "sigma", "replicate")
+RUN_KEY = ("task_hash", "parameterization", "layout", "hessian", "options_hash", "seed", "sigma", "replicate", "solver")
 RUNS_FILE = "runs.jsonl"
+#: key fields that rows of earlier runs.jsonl files lack, and their value there (before the
+#: solver was recorded every run was an Ipopt solve)
+_KEY_DEFAULTS = {"solver": "ipopt"}
 
 
 def _options_hash(options: dict | None) -> str:
@@ -164,8 +173,9 @@ def _options_hash(options: dict | None) -> str:
 
 def run_key(row: dict) -> tuple:
     """The identity of a robustness run: (task content hash, parameterization, variables, Hessian
-    mode, solver-options hash, seed, sigma, replicate)."""
-    return tuple(row.get(k) for k in RUN_KEY)
+    mode, solver-options hash, seed, sigma, replicate, solver); a row without a solver (an
+    earlier file's) is an Ipopt run."""
+    return tuple(row.get(k, _KEY_DEFAULTS.get(k)) for k in RUN_KEY)
 
 
 def read_runs(path: str | Path, progress: TextIO | None = None) -> list[dict]:
@@ -184,30 +194,64 @@ def read_runs(path: str | Path, progress: TextIO | None = None) -> list[dict]:
         print(f"warning: {path}: line(s) {bad[:5]} did not parse; the file was moved to {aside} and its {len(records)} good runs kept", file=progress or sys.stderr, flush=True)
     seen: dict[tuple, dict] = {}
     for r in records:
-        if isinstance(r, dict) and all(k in r for k in RUN_KEY):
+        if isinstance(r, dict) and all(k in r or k in _KEY_DEFAULTS for k in RUN_KEY):
             seen.setdefault(run_key(r), r)
     return list(seen.values())
 
 
-def _robustness_group(task, p, sigmas, replicates, seed, variables, exact_hessian, options, done, runs_path, progress=None) -> int:
+def _robustness_group(task, p, sigmas, replicates, seed, variables, exact_hessian, options, solver, done, runs_path, progress=None) -> int:
     """One (task, parameterization) of the study: one compile, then every noisy replicate whose
-    key is not in ``done``, each appended to ``runs_path`` as soon as it is solved (also from a
-    worker process: a kill loses only the solve in flight). Returns the number solved."""
+    key is not in ``done``, appended to ``runs_path`` as soon as it is solved (also from a
+    worker process: a kill loses only the solves in flight). A backend with ``solve_batch``
+    (jtraj's interior point) solves each sigma's missing replicates in one vmapped call, with
+    one program per group; Ipopt solves them one by one. Returns the number solved."""
     task = load_task(task)
-    base = dict(task_hash=task.content_hash(), parameterization=p, layout=variables, hessian="exact" if exact_hessian else "limited-memory", options_hash=_options_hash(options), seed=seed)
+    base = dict(task_hash=task.content_hash(), parameterization=p, layout=variables, hessian="exact" if exact_hessian else "limited-memory", options_hash=_options_hash(options), seed=seed, solver=solver)
     todo = [(s, r) for s in sigmas for r in range(replicates) if run_key(base | {"sigma": float(s), "replicate": r}) not in done]
     if not todo:
         return 0
     prep = prepare(task, p, variables)
     x0 = prep.transcription.warm_start()
+    if hasattr(solvers.get(solver), "solve_batch"):
+        for sigma in dict.fromkeys(s for s, _ in todo):
+            _robustness_batch(prep, sigma, [r for s, r in todo if s == sigma], replicates, seed, exact_hessian, options, solver, base, runs_path, progress)
+        return len(todo)
     for sigma, r in todo:
         start = noisy_warm_starts(x0, [sigma], [r], seed)[0, 0]
-        res = solve(task, p, variables=variables, warm_start=start, exact_hessian=exact_hessian, ipopt_options=dict(options or {}), progress=None, keep_trajectory=False)
-        row = base | {"sigma": float(sigma), "replicate": r} | _row(res)
+        res = solve(task, p, variables=variables, solver=solver, warm_start=start, exact_hessian=exact_hessian, ipopt_options=dict(options or {}), progress=None, keep_trajectory=False)
+        row = base | {"sigma": float(sigma), "replicate": r} | _row(res) | {"batch": 1}
         jio.append_jsonl(runs_path, row)
         if progress is not None:
             print(f"{task.name:10s} {p:6s} sigma={sigma:<7g} #{r}: {res.status.value:26s} {res.iterations:4d} it  {res.time_s:6.1f} s", file=progress, flush=True)
     return len(todo)
+
+
+def _robustness_batch(prep, sigma: float, reps: list[int], replicates: int, seed: int, exact_hessian: bool, options, solver: str, base: dict, runs_path: Path, progress) -> None:
+    """Replicates ``reps`` of one sigma in one call of ``solver``'s ``solve_batch``, compiled
+    for ``replicates`` members (a resumed group's shorter batch is padded, so every sigma and
+    every resume reuses one program). Each replicate's row has the fields of a one-by-one
+    solve's (through `jtraj.solver.evaluate`, as `solve` makes them); its ``time_s`` is the
+    vmapped call's wall time over the replicates, ``batch`` the number solved in that call."""
+    tr, nlp = prep.transcription, prep.nlp
+    backend = solvers.get(solver)
+    theta = tr.resolve_theta(None)
+    opts = solver_options(backend, None, options, exact_hessian, tr.task.max_iter)
+    starts = noisy_warm_starts(tr.warm_start(), [sigma], reps, seed)[0]  # the Ipopt path's draws
+    solutions, total, compile_time = backend.solve_batch(nlp, starts, theta, opts, batch_size=replicates)  # type: ignore[attr-defined]
+    compile_time += prep.time_compile
+    prep.time_compile = 0.0  # counted once per process, as `solve` does
+    settings = {"solver": backend.name, **opts.as_dict(), "layout": dataclasses.asdict(tr.options)}
+    results = []
+    for r, sol in zip(reps, solutions):
+        res = evaluate(tr, sol, tr.decode(sol.x, theta), compile_time, settings, nlp.nnz_jac, nlp.violation_by_group(sol.x, theta), theta, backend.name)
+        compile_time = 0.0  # the first row carries the compile
+        res.trajectory = None
+        results.append(res)
+        jio.append_jsonl(runs_path, base | {"sigma": float(sigma), "replicate": r} | _row(res) | {"batch": len(reps)})
+    if progress is not None:
+        converged = sum(res.converged for res in results)
+        iterations = np.mean([res.iterations for res in results])
+        print(f"{tr.task.name:10s} {base['parameterization']:6s} sigma={sigma:<7g} {solver}: {converged}/{len(reps)} converged, {iterations:5.1f} it mean, {total:6.2f} s for the batch of {len(reps)}", file=progress, flush=True)
 
 
 def _robustness_group_in_worker(*args) -> int:
@@ -245,12 +289,13 @@ def robustness(
     executor: str = "local",
     ray_address: str | None = None,
     layout: str | None = None,
+    solver: str = "ipopt",
 ) -> list[dict]:
     """Table III and Fig. 2: converged and task-success rates and iterations under warm-start noise.
 
     Every finished solve is appended at once to ``out/runs.jsonl``, one JSON line keyed by
-    `run_key` (task content, parameterization, variables per knot, Hessian mode, Ipopt
-    options, seed, sigma, replicate). With ``resume`` (default) runs already there are not solved again, so a study
+    `run_key` (task content, parameterization, variables per knot, Hessian mode, solver
+    options, seed, sigma, replicate, solver). With ``resume`` (default) runs already there are not solved again, so a study
     stopped or killed at any point goes on where it ended; runs of other settings in the file
     are kept and left out of this call's tables. Without ``resume`` this call's runs are solved
     again and appended (the first of each key is the one read). The noise of replicate r at
@@ -261,12 +306,20 @@ def robustness(
     at ``ray_address`` (`jtraj.executors`); its rows come back when the group finishes and are
     appended here, under the same keys and resume rules. Returns this call's runs; writes table_iii.{json,md} and fig2.png.
     ``progress`` as in `compare`; ``layout`` is the deprecated former name of ``variables``.
+
+    ``solver`` (`jtraj.solvers.SOLVERS`): ``"ipopt"`` solves the replicates one by one;
+    ``"jtraj"`` solves each (task, parameterization, sigma) group's replicates in one vmapped
+    call of its interior point (one compiled program per task and parameterization, compiled
+    before the clock starts; a row's ``time_s`` is the call's time over its replicates, and
+    ``batch`` says how many it solved). ``ipopt_options`` are the solver's options (Ipopt's
+    names for Ipopt, `jtraj.solvers.IpmOptions` fields for jtraj).
     """
     variables = renamed_argument(variables, layout, "variables", "layout", "paper")
     progress = _progress_stream(progress)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     runs_path = out / RUNS_FILE
+    solvers.get(solver)  # an unknown name fails here, before the first solve
     tasks = [load_task(t) for t in tasks]
     sigmas = [float(s) for s in sigmas]
     if not tasks or not params or not sigmas or replicates < 1:
@@ -277,11 +330,11 @@ def robustness(
     done = {run_key(r) for r in before}
     if progress is not None and done:
         print(f"resuming: {len(done)} runs already in {runs_path}", file=progress, flush=True)
-    args = [(t, p, tuple(sigmas), replicates, seed, variables, exact_hessian, ipopt_options, done, runs_path) for t in tasks for p in params]
+    args = [(t, p, tuple(sigmas), replicates, seed, variables, exact_hessian, ipopt_options, solver, done, runs_path) for t in tasks for p in params]
     if executor == "local" and workers <= 1:
         for a in args:
             _robustness_group(*a, progress=progress)
-            _write_robustness_outputs(_select(read_runs(runs_path, progress), *a[:8]), sigmas, out, figure=False)
+            _write_robustness_outputs(_select(read_runs(runs_path, progress), *a[:9]), sigmas, out, figure=False)
     elif executor == "local":
         for _ in executor_for("local", workers).map(_robustness_group_in_worker, [(*a, progress is not None) for a in args]):
             pass
@@ -289,15 +342,15 @@ def robustness(
         for _, rows in executor_for(executor, workers, ray_address).map(_robustness_group_rows, [a[:-1] for a in args]):
             for row in rows:
                 jio.append_jsonl(runs_path, row)
-    runs = [r for a in args for r in _select(read_runs(runs_path, progress), *a[:8])]
+    runs = [r for a in args for r in _select(read_runs(runs_path, progress), *a[:9])]
     _write_robustness_outputs(runs, sigmas, out)
     return runs
 
 
-def _select(runs: list[dict], task: Task, p: str, sigmas, replicates: int, seed: int, variables: str, exact_hessian: bool, options) -> list[dict]:
+def _select(runs: list[dict], task: Task, p: str, sigmas, replicates: int, seed: int, variables: str, exact_hessian: bool, options, solver: str) -> list[dict]:
     """The runs of one group of this call's settings, in (sigma, replicate) order."""
     keys = {
-        (task.content_hash(), p, variables, "exact" if exact_hessian else "limited-memory", _options_hash(options), seed, float(s), r): (i, r)
+        (task.content_hash(), p, variables, "exact" if exact_hessian else "limited-memory", _options_hash(options), seed, float(s), r, solver): (i, r)
         for i, s in enumerate(sigmas)
         for r in range(replicates)
     }

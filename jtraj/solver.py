@@ -40,7 +40,7 @@ def __getattr__(name: str) -> Any:
     raise AttributeError(f"module 'jtraj.solver' has no attribute {name!r}")
 
 
-__all__ = ["solve", "prepare", "Prepared", "VARIABLES", "transcription_options"]
+__all__ = ["solve", "prepare", "Prepared", "VARIABLES", "transcription_options", "solver_options", "evaluate"]
 
 
 class Prepared:
@@ -144,7 +144,7 @@ def solve(
     if noise:
         x0 = x0 + noise * np.random.default_rng(seed).standard_normal(x0.shape)
     backend = solvers.get(solver)
-    opts = _solver_options(backend, options, ipopt_options, exact_hessian, tr.task.max_iter)
+    opts = solver_options(backend, options, ipopt_options, exact_hessian, tr.task.max_iter)
     callback = solvers.resolve_progress(progress, progress_every)
     say = callback.write if isinstance(callback, solvers.PrintProgress) else None
     if say is not None:
@@ -168,7 +168,7 @@ def solve(
     return result
 
 
-def _solver_options(
+def solver_options(
     backend: solvers.AbstractSolver,
     options: solvers.AbstractOptions | dict[str, Any] | None,
     ipopt_options: dict[str, Any] | None,

@@ -122,3 +122,46 @@ def test_solve_passes_variables_to_the_solver(monkeypatch, tmp_path):
     monkeypatch.setattr(jtraj.plots, "plot_convergence", lambda *a, **k: None)
     assert cli.main(["solve", "big_jump", "--layout", "lean", "--out", str(tmp_path / "r")]) == 0
     assert seen["variables"] == "lean" and "layout" not in seen
+
+
+@pytest.mark.parametrize("solver", ["ipopt", "jtraj"])
+def test_compare_passes_the_solver_to_every_cell(solver, monkeypatch, tmp_path):
+    import jtraj.experiments
+    import jtraj.provenance
+
+    seen = {}
+
+    def fake_compare(tasks, params, **kwargs):
+        seen.update(kwargs, tasks=tasks)
+        (tmp_path / "table_iv.md").write_text("table\n")
+        return [{}]
+
+    monkeypatch.setattr(jtraj.experiments, "compare", fake_compare)
+    monkeypatch.setattr(jtraj.provenance, "write_provenance", lambda out: None)
+    argv = ["compare", "--tasks", "big_jump", "--params", "se3", "--out", str(tmp_path)]
+    assert cli.main(argv + (["--solver", solver] if solver != "ipopt" else [])) == 0
+    assert seen["solver"] == solver and seen["tasks"] == ["big_jump"]
+
+
+def test_compare_rejects_an_unknown_solver(no_solve, capsys):
+    with pytest.raises(SystemExit) as exit:
+        cli.main(["compare", "--solver", "fatrop"])
+    assert exit.value.code == cli.EXIT_BAD_INPUT
+    assert "--solver: invalid choice: 'fatrop'" in capsys.readouterr().err
+
+
+def test_robustness_passes_the_solver(monkeypatch, tmp_path):
+    import jtraj.experiments
+    import jtraj.provenance
+
+    seen = {}
+
+    def fake_robustness(tasks, params, sigmas, **kwargs):
+        seen.update(kwargs, sigmas=sigmas)
+        (tmp_path / "table_iii.md").write_text("table\n")
+        return []
+
+    monkeypatch.setattr(jtraj.experiments, "robustness", fake_robustness)
+    monkeypatch.setattr(jtraj.provenance, "write_provenance", lambda out: None)
+    assert cli.main(["robustness", "--tasks", "big_jump", "--sigmas", "0.1", "--solver", "jtraj", "--out", str(tmp_path)]) == 0
+    assert seen["solver"] == "jtraj" and seen["sigmas"] == [0.1]

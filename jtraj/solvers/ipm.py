@@ -757,7 +757,51 @@ class JtrajSolver(AbstractSolver):
             ipm.compiled[key] = ipm.solve.lower(jnp.asarray(x0), theta).compile()
         t0 = time.perf_counter()
         r = jax.block_until_ready(ipm.compiled[key](jnp.asarray(x0), theta))
+        solution = self._solution(ipm, f, r, opts, time.perf_counter() - t0, callback)
+        if callback is not None:
+            callback.on_end(solution)
+        return solution
+
+    def solve_batch(self, nlp: Any, x0s: np.ndarray, theta: Any = None, options: AbstractOptions | dict[str, Any] | None = None, batch_size: int | None = None) -> tuple[list[Solution], float, float]:
+        """Solve from several initial guesses in one call of the vmapped `IPM` program.
+
+        ``x0s``: (B, nlp.n) or (B, K, n) initial guesses, clipped to the variable bounds as in
+        `solve`, so member i equals ``solve(nlp, x0s[i], ...)`` (same iterations and status;
+        the iterates agree to rounding). ``batch_size`` (>= B; default B): the batch the
+        program is compiled for; a shorter batch is padded with copies of its first guess, so
+        that batches of different lengths (a resumed study's missing replicates) reuse one
+        program. Returns the B solutions, the seconds of the vmapped call (compiling excluded;
+        each solution's ``stats.time_total`` is that time divided by B) and the seconds spent
+        compiling in this call (0 when the program was compiled before).
+        """
+        opts = self.options(options)
+        ipm = self.ipm(nlp, opts)
+        view = ipm.view
+        f = bind(nlp, theta)
+        x0s = np.asarray(x0s, float).reshape(len(x0s), -1)
+        count = len(x0s)
+        size = count if batch_size is None else batch_size
+        if not 1 <= count <= size:
+            raise ValueError(f"solve_batch: {count} initial guesses for a batch of {size}; expected 1 to {size}")
+        x0s = np.clip(x0s, f.x_lower, f.x_upper).reshape(count, view.K, view.n)
+        padded = jnp.asarray(np.concatenate([x0s, np.repeat(x0s[:1], size - count, axis=0)]))
+        key = f"vmap {size} " + str(jax.tree.map(lambda a: (np.shape(a), jnp.result_type(a)), theta))
+        compile_time = 0.0
+        if key not in ipm.compiled:
+            t0 = time.perf_counter()
+            ipm.compiled[key] = jax.jit(jax.vmap(ipm.solve, in_axes=(0, None))).lower(padded, theta).compile()
+            compile_time = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        rs = jax.block_until_ready(ipm.compiled[key](padded, theta))
         total = time.perf_counter() - t0
+        members = [jax.tree.map(lambda a, i=i: a[i], rs) for i in range(count)]
+        return [self._solution(ipm, f, r, opts, total / count) for r in members], total, compile_time
+
+    @staticmethod
+    def _solution(ipm: IPM, f: Any, r: IpmResult, opts: IpmOptions, total: float, callback: AbstractCallback | None = None) -> Solution:
+        """The shared `Solution` of one (unbatched) `IpmResult`, solved in ``total`` seconds;
+        ``callback`` receives its iterations."""
+        view = ipm.view
         code = IpmStatus(int(r.status))
         x = np.asarray(r.x).reshape(-1)
         iterations = int(r.iterations)
@@ -765,16 +809,15 @@ class JtrajSolver(AbstractSolver):
             Iteration(iter=i, objective=float(h[0]), inf_pr=float(h[1]), inf_du=float(h[2]), mu=float(10.0 ** h[3]), alpha_pr=0.0 if np.isnan(h[4]) else float(h[4]))
             for i, h in enumerate(np.asarray(r.history)[: iterations + 1])
         )
-        status = _STATUS[code]
         if callback is not None:
             for it in history:
                 if callback.on_iteration(it) is False:
                     break
         g = np.asarray(f.constraints(jnp.asarray(x)))
         passes = int(r.passes)
-        solution = Solution(
+        return Solution(
             x=x,
-            status=status,
+            status=_STATUS[code],
             message=_MESSAGES.get(code, code.name),
             objective=float(r.objective),
             constraint_violation=max_violation(g, f.g_lower, f.g_upper, x, f.x_lower, f.x_upper),
@@ -784,6 +827,3 @@ class JtrajSolver(AbstractSolver):
             stats=Stats(iterations, passes, passes, passes, passes, iterations if opts.hessian == "exact" else 0, total, 0.0),
             history=history,
         )
-        if callback is not None:
-            callback.on_end(solution)
-        return solution
