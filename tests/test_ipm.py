@@ -137,3 +137,25 @@ def test_registered_backend_returns_the_shared_solution(toy):
     assert np.abs(r[free]).max() < 1e-6
     with pytest.raises(solvers.InvalidOptionError, match="hessian"):
         backend.options({"hessian": "lbfgs"})
+
+
+def test_solve_batch_equals_solve_and_padding_keeps_the_members(toy):
+    """`JtrajSolver.solve_batch`: one vmapped call; each member has the counts and status of
+    `solve` from the same guess (the toy rounds alike: the solutions agree too), and a batch
+    padded to a larger program gives its members the same results as the full batch."""
+    nlp, _ = toy
+    backend = solvers.get("jtraj")
+    opts = backend.options({"tol": 1e-8, "compl_inf_tol": 1e-8, "constr_viol_tol": 1e-8, "max_iter": 100})
+    x0s = 0.3 * np.random.default_rng(1).standard_normal((3, nlp.n))
+    batch, total, _ = backend.solve_batch(nlp, x0s, None, opts)
+    assert len(batch) == 3 and total > 0 and all(s.stats.time_total == total / 3 for s in batch)
+    for x0, member in zip(x0s, batch):
+        one = backend.solve(nlp, x0, None, opts)
+        assert (member.status, member.stats.iterations) == (one.status, one.stats.iterations) and member.converged
+        np.testing.assert_allclose(member.x, one.x, atol=1e-9)
+    padded, _, compile_time = backend.solve_batch(nlp, x0s[2:], None, opts, batch_size=3)
+    assert compile_time == 0.0  # the batch-of-3 program is reused
+    assert padded[0].stats.iterations == batch[2].stats.iterations
+    np.testing.assert_array_equal(padded[0].x, batch[2].x)
+    with pytest.raises(ValueError, match="4 initial guesses for a batch of 3"):
+        backend.solve_batch(nlp, np.zeros((4, nlp.n)), None, opts, batch_size=3)
