@@ -173,7 +173,8 @@ def test_jtraj_robustness_rows_record_the_batched_solve(jtraj_study):
     assert all(r["solver_status"] == "solved" and r["converged"] and r["constraint_violation"] < FEASIBILITY_TOL for r in runs)
     # one call's time, shared by its replicates
     assert len({r["time_s"] for r in runs}) == 1 and runs[0]["time_s"] > 0
-    assert "| test_hop | se3 | 100% / 100% |" in (out / "table_iii.md").read_text()
+    table = (out / "table_iii.md").read_text()
+    assert "| test_hop | se3 | 100% / 100% |" in table and "success of the solver (jtraj)" in table
 
 
 def test_ipopt_and_jtraj_runs_share_a_file_without_colliding(jtraj_study, tmp_path):
