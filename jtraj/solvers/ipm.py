@@ -7,8 +7,9 @@ The NLP is a `jtraj.nlp.KnotNLP` seen knot by knot (`jtraj.solvers.stage.StageVi
 Z (K, n), C (K, m) with row k reading knots k and k+1. As in Ipopt (Wächter & Biegler, Math.
 Prog. 106, 2006): inequality rows get slacks ``C - s = 0`` with the row bounds on s; the
 barrier subproblems ``min f - mu sum log(bound distances)`` are solved inexactly by primal-dual
-Newton steps, ``mu`` falls monotonically (``mu <- max(min(tol, compl_inf_tol)/(kappa_eps + 1), min(kappa_mu mu, mu^theta_mu))``
-once the barrier error is below ``kappa_eps mu``); steps keep a fraction ``tau = max(0.99,
+Newton steps, ``mu`` set afresh each iteration by Ipopt's adaptive rule (or falling
+monotonically, ``mu <- max(min(tol, compl_inf_tol)/(kappa_eps + 1), min(kappa_mu mu,
+mu^theta_mu))`` once the barrier error is below ``kappa_eps mu``); steps keep a fraction ``tau = max(0.99,
 1 - mu)`` of the distance to the bounds; the bound multipliers stay within ``kappa_sigma``
 of their central values. Fixed variables (equal bounds) are removed from the step.
 
@@ -18,12 +19,15 @@ Differences from Ipopt, and why:
   positive definite; a dual regularization ``delta_c mu^(1/4)`` on every row, which is Ipopt's
   perturbation for a dependent Jacobian and is needed here: the corner-point contacts make the
   equality rows dependent, 12 per stance knot on Talos), instead of a general sparse LDL^T.
-- Hessian: by default the exact Hessian of the Lagrangian, per element (the 2n x 2n block of
-  the knot-k terms on (z_k, z_{k+1})). A damped (Powell) BFGS approximation per element (a
-  partitioned quasi-Newton update in the sense of Griewank and Toint) is an option; it
-  converges on small problems but not on the whole-body tasks (measured on big_jump: the
-  multipliers grow to 1e7 and the dual infeasibility stalls near 1e4, where Ipopt's
-  limited-memory BFGS, a low-rank update of a scaled identity, converges in 11 iterations).
+- Hessian: by default Ipopt's limited-memory BFGS of the Lagrangian (``sigma I`` minus a
+  rank-12 term in compact form, Byrd, Nocedal and Schnabel 1994), whose low-rank term the
+  Newton solve handles by Sherman-Morrison-Woodbury around the block factorization of the
+  rest, so the matrix stays block tridiagonal. The exact Hessian per element (the 2n x 2n block
+  of the knot-k terms on (z_k, z_{k+1})) is an option: fewer iterations (big_jump 11 against
+  14), several times the cost per iteration and a far longer compile. A damped (Powell) BFGS
+  per element (partitioned quasi-Newton, Griewank and Toint) is another; it converges on small
+  problems but not on the whole-body tasks (big_jump: multipliers grow to 1e7 and the dual
+  infeasibility stalls near 1e4): its unexplored directions keep the identity's curvature.
 - Barrier: Ipopt's adaptive strategy (its default with a quasi-Newton Hessian, and what the
   study's Ipopt runs therefore use) with the LOQO oracle instead of Ipopt's default quality
   function; the monotone strategy is an option. On big_jump the monotone strategy's fixed
@@ -34,9 +38,9 @@ Differences from Ipopt, and why:
   initial guesses (and parameters theta) runs replicates together, a converged replicate's
   state no longer changes (the batched while loop only updates unfinished members).
 
-State (measured, 2-core CPU): big_jump (Talos, 47 knots) converges in 11 iterations, as Ipopt
-does (stepping the loop from Python, ``IPM._start`` and ``IPM._pass``); bench/solve.py's
-``jtraj`` variant measures all six tasks. Ipopt stays the default solver.
+State (measured, 2-core CPU, `bench/solve.py TASK --variants compact,jtraj`): big_jump,
+sideflip, hopscotch, walk and handstand converge (9 to 43 iterations) and do their task;
+backflip does not converge in 200 iterations. Ipopt stays the default.
 
 Convergence (Ipopt's test at the comparative study's settings): the scaled optimality error
 ``max(dual_inf / s_d, constr_viol, compl / s_c) <= tol`` with Ipopt's ``s_d, s_c`` (s_max =
