@@ -260,7 +260,7 @@ class _State(NamedTuple):
     mu_max: jax.Array
     free_mode: jax.Array  # adaptive strategy: mu from the LOQO rule (True) or monotone (False)
     refs: jax.Array  # (4,) KKT errors of the last accepted free-mode iterates
-    H: jax.Array
+    H: jax.Array  # (K, 2n, 2n) with hessian="bfgs", else empty
     scaled: jax.Array  # (K,) bool: the element's BFGS matrix got its initial scaling
     S: jax.Array  # (l, K, n) limited-memory BFGS steps, oldest first
     Y: jax.Array  # (l, K, n) ... and Lagrangian gradient differences
@@ -436,7 +436,8 @@ class IPM:
             filter=jnp.full((self.FILTER_SIZE, 2), jnp.inf), n_filter=jnp.zeros((), jnp.int32),
             theta_min=zero, theta_max=zero, mu=jnp.asarray(o.mu_init), mu_max=jnp.asarray(o.mu_max),
             free_mode=jnp.asarray(o.mu_strategy == "adaptive"), refs=jnp.full((4,), jnp.inf),
-            H=jnp.broadcast_to(o.bfgs_init * jnp.eye(2 * n), (K, 2 * n, 2 * n)), scaled=jnp.zeros((K,), bool), delta_w=zero,
+            # element Hessians are state only for the partitioned BFGS (the others rebuild them)
+            H=jnp.broadcast_to(o.bfgs_init * jnp.eye(2 * n), (K, 2 * n, 2 * n)) if o.hessian == "bfgs" else jnp.zeros((0,)), scaled=jnp.zeros((K,), bool), delta_w=zero,
             S=jnp.zeros((l, K, n)), Y=jnp.zeros((l, K, n)), used=jnp.zeros((l,), bool), lsigma=jnp.asarray(o.lbfgs_init_val),
             first=jnp.asarray(True), it=jnp.zeros((), jnp.int32),
             status=jnp.asarray(int(IpmStatus.RUNNING), jnp.int32), ls_fail=jnp.zeros((), jnp.int32),
@@ -569,7 +570,9 @@ class IPM:
             ls_fail=jnp.where(failed, st.ls_fail + 1, 0).astype(jnp.int32),
         )
 
-        mu_new, free_mode, refs, mu_max = self._update_mu(p, new, first)
+        # convergence error (at mu = 0, so the barrier update below does not change it)
+        err, dual_inf, _, compl = self._error(p, new, 0.0)
+        mu_new, free_mode, refs, mu_max = self._update_mu(p, new, first, err)
         reset = (mu_new != mu) | failed
         new = new._replace(
             mu=mu_new, free_mode=free_mode, refs=refs, mu_max=mu_max,
@@ -577,7 +580,6 @@ class IPM:
             n_filter=jnp.where(reset, 0, n_filter).astype(jnp.int32),
         )
         # convergence and limits at the new iterate
-        err, dual_inf, _, compl = self._error(p, new, 0.0)
         viol = self._constr_viol(p, ct)
         history = st.history.at[it].set(jnp.stack([ft, viol, dual_inf, jnp.log10(mu_new), jnp.where(first, jnp.nan, alpha)]))
         converged = (err <= o.tol) & (viol <= o.constr_viol_tol) & (dual_inf <= o.dual_inf_tol) & (compl <= o.compl_inf_tol)
@@ -598,7 +600,7 @@ class IPM:
         count = sum(jnp.sum(mask) for _, _, mask in pairs)
         return total / jnp.maximum(count, 1), jnp.where(count > 0, smallest, 0.0)
 
-    def _update_mu(self, p: _Problem, st: _State, first):
+    def _update_mu(self, p: _Problem, st: _State, first, err):
         """The barrier parameter for the next direction.
 
         Monotone (Fiacco-McCormick, Ipopt's ``mu_strategy=monotone``): mu falls by
@@ -611,7 +613,7 @@ class IPM:
         ``kappa`` times the largest of the last four accepted errors (Ipopt's
         ``adaptive_mu_globalization=kkt-error``); otherwise the monotone mode takes over from
         ``mu = 0.8 avg(d z)`` and hands back once a solved barrier problem shows that progress.
-        Returns (mu, free_mode, refs, mu_max).
+        ``err`` is the iterate's KKT error at mu = 0. Returns (mu, free_mode, refs, mu_max).
         """
         o = self.options
         mu = st.mu
@@ -630,7 +632,6 @@ class IPM:
         xi = smallest / jnp.maximum(avg, 1e-300)
         sigma = 0.1 * jnp.minimum(0.05 * (1.0 - xi) / jnp.maximum(xi, 1e-300), 2.0) ** 3
         mu_loqo = jnp.clip(sigma * avg, o.mu_min, mu_max)
-        err = self._error(p, st, 0.0)[0]
         progress = err <= o.adaptive_mu_kkterror_red_fact * jnp.max(st.refs)
         # free mode continues on progress; fixed mode returns to it when a barrier problem was
         # solved (mu decreased) with progress
@@ -680,7 +681,7 @@ class IPM:
         rhs_c = -jnp.where(p.ineq, r_c + rhat_s / sig_s, r_c)
         low_rank = None
         if o.hessian == "lbfgs":
-            H = jnp.zeros_like(st.H)
+            H = jnp.zeros((view.K, 2 * view.n, 2 * view.n))
             sigma_x = sigma_x + jnp.where(p.free, st.lsigma, 0.0)
             low_rank = self._lbfgs_low_rank(st)
         else:
@@ -731,7 +732,7 @@ class JtrajSolver(AbstractSolver):
     and ``stats.time_total`` is the solve alone. The solve runs inside one
     `jax.jit` call, so the callback receives the iterations after it ends, and the time is
     not split between evaluations and the solver's own work (``time_evaluations`` is 0).
-    For batches, use `IPM` directly: ``jax.vmap(IPM(nlp).solve)``.
+    For batches, `solve_batch` runs one vmapped program over several initial guesses.
     """
 
     name: ClassVar[str] = "jtraj"
@@ -756,11 +757,9 @@ class JtrajSolver(AbstractSolver):
         x0 = np.clip(np.asarray(x0, float).reshape(-1), f.x_lower, f.x_upper).reshape(view.K, view.n)
         # compile ahead (once per NLP, options and parameter shapes), so that the time below is
         # the solve's alone
-        key = str(jax.tree.map(lambda a: (np.shape(a), jnp.result_type(a)), theta))
-        if key not in ipm.compiled:
-            ipm.compiled[key] = ipm.solve.lower(jnp.asarray(x0), theta).compile()
+        program, _ = self._program(ipm, "", ipm.solve, jnp.asarray(x0), theta)
         t0 = time.perf_counter()
-        r = jax.block_until_ready(ipm.compiled[key](jnp.asarray(x0), theta))
+        r = jax.block_until_ready(program(jnp.asarray(x0), theta))
         solution = self._solution(ipm, f, r, opts, time.perf_counter() - t0, callback)
         if callback is not None:
             callback.on_end(solution)
@@ -789,17 +788,23 @@ class JtrajSolver(AbstractSolver):
             raise ValueError(f"solve_batch: {count} initial guesses for a batch of {size}; expected 1 to {size}")
         x0s = np.clip(x0s, f.x_lower, f.x_upper).reshape(count, view.K, view.n)
         padded = jnp.asarray(np.concatenate([x0s, np.repeat(x0s[:1], size - count, axis=0)]))
-        key = f"vmap {size} " + str(jax.tree.map(lambda a: (np.shape(a), jnp.result_type(a)), theta))
-        compile_time = 0.0
-        if key not in ipm.compiled:
-            t0 = time.perf_counter()
-            ipm.compiled[key] = jax.jit(jax.vmap(ipm.solve, in_axes=(0, None))).lower(padded, theta).compile()
-            compile_time = time.perf_counter() - t0
+        program, compile_time = self._program(ipm, f"vmap {size} ", jax.jit(jax.vmap(ipm.solve, in_axes=(0, None))), padded, theta)
         t0 = time.perf_counter()
-        rs = jax.block_until_ready(ipm.compiled[key](padded, theta))
+        rs = jax.block_until_ready(program(padded, theta))
         total = time.perf_counter() - t0
         members = [jax.tree.map(lambda a, i=i: a[i], rs) for i in range(count)]
         return [self._solution(ipm, f, r, opts, total / count) for r in members], total, compile_time
+
+    @staticmethod
+    def _program(ipm: IPM, kind: str, jitted: Any, x0: jax.Array, theta: Any) -> tuple[Any, float]:
+        """``jitted`` compiled ahead of time for these argument shapes, once per (NLP, options,
+        kind, parameter shapes); returns it and the seconds spent compiling in this call."""
+        key = kind + str(jax.tree.map(lambda a: (np.shape(a), jnp.result_type(a)), theta))
+        if key in ipm.compiled:
+            return ipm.compiled[key], 0.0
+        t0 = time.perf_counter()
+        ipm.compiled[key] = jitted.lower(x0, theta).compile()
+        return ipm.compiled[key], time.perf_counter() - t0
 
     @staticmethod
     def _solution(ipm: IPM, f: Any, r: IpmResult, opts: IpmOptions, total: float, callback: AbstractCallback | None = None) -> Solution:
