@@ -2,26 +2,41 @@
 solved one after another with Ipopt, in the same run.
 
     python bench/replicates.py [--task big_jump] [--param se3] [--sigma 0.1] [--replicates 10]
+                               [--batches 10,100] [--jtraj-sequential] [--no-ipopt] [--out F.json]
 
-Both solvers start from the same noisy warm starts (`jtraj.experiments.noisy_warm_starts`).
-Compilation is excluded from both times: the vmapped program is compiled ahead of time
-(``lower().compile()``), and Ipopt's NLP functions are compiled by ``prepare``. Prints one line
-per replicate (status, iterations, violation, task success) and, last,
-``replicates: vmapped X s, sequential Y s, speedup Z``.
+Both solvers start from the same noisy warm starts (`jtraj.experiments.noisy_warm_starts`), and
+jtraj's batch goes through `JtrajSolver.solve_batch`, as `jtraj robustness --solver jtraj` does.
+Compilation is excluded from every time: the vmapped programs are compiled ahead of time (the
+compile time is printed on its own line), and Ipopt's NLP functions are compiled by ``prepare``.
+
+- ``--batches``: further batch sizes to time (more noisy starts from the same seed), to see how
+  a vmapped solve scales; on a CPU it is about linear, on a GPU it should not be.
+- ``--jtraj-sequential``: also time jtraj's solver one replicate at a time (one compiled
+  program), which separates what vmap buys from what the solver buys.
+- ``--no-ipopt``: skip Ipopt (a machine without cyipopt); the last line then compares with
+  jtraj one at a time.
+
+On a GPU, jtraj's programs run on the GPU and Ipopt's NLP functions on the same machine's CPU
+(``jax.default_device``), where a solver that calls them one point at a time belongs.
+
+Prints the JAX device, one line per replicate (status, iterations, violation, task success) and,
+last, ``replicates: vmapped X s, sequential Y s, speedup Z``; ``--out`` writes every figure as
+JSON.
 """
 
 from __future__ import annotations
 
 import argparse
-import time
+import contextlib
+import json
+import platform
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
+from jtraj import solvers
 from jtraj.experiments import noisy_warm_starts
-from jtraj.solver import prepare, solve
-from jtraj.solvers.ipm import IPM, IpmOptions, IpmStatus
+from jtraj.solver import prepare, solve, solver_options
 from jtraj.success import FEASIBILITY_TOL
 from jtraj.success import evaluate as check_motion
 
@@ -32,35 +47,91 @@ def main() -> None:
     ap.add_argument("--param", default="se3")
     ap.add_argument("--sigma", type=float, default=0.1)
     ap.add_argument("--replicates", type=int, default=10)
+    ap.add_argument("--batches", default="", help="comma-separated further batch sizes to time, e.g. 100,1000")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--jtraj-sequential", action="store_true", help="also time jtraj's solver one replicate at a time")
+    ap.add_argument("--no-ipopt", action="store_true", help="skip the sequential Ipopt solves")
+    ap.add_argument("--out", help="write the figures to this JSON file")
     args = ap.parse_args()
+    batches = [int(b) for b in args.batches.split(",") if b.strip()]
+    if args.replicates < 1 or any(b < 1 for b in batches):
+        ap.error("--replicates and --batches take positive whole numbers")
+    if args.no_ipopt:
+        args.jtraj_sequential = True  # something to compare with
 
+    device = jax.devices()[0]
+    print(f"JAX {jax.__version__} on {device.platform} ({device.device_kind}); {platform.node()}", flush=True)
     prep = prepare(args.task, args.param)
     tr, nlp = prep.transcription, prep.nlp
-    starts = noisy_warm_starts(tr.warm_start(), [args.sigma], args.replicates, args.seed)[0]
-    ipm = IPM(nlp, IpmOptions(max_iter=tr.task.max_iter))
-    batched = jax.jit(jax.vmap(ipm.solve, in_axes=(0, None)))
-    t = time.perf_counter()
-    compiled = batched.lower(jnp.asarray(starts), nlp.theta).compile()
-    print(f"jtraj vmapped program compiled in {time.perf_counter() - t:.1f} s", flush=True)
-    t = time.perf_counter()
-    r = jax.block_until_ready(compiled(jnp.asarray(starts), nlp.theta))
-    t_vmapped = time.perf_counter() - t
+    theta = tr.resolve_theta(None)
+    backend = solvers.get("jtraj")
+    opts = solver_options(backend, None, None, False, tr.task.max_iter)
+    largest = max([args.replicates, *batches])
+    starts = noisy_warm_starts(tr.warm_start(), [args.sigma], largest, args.seed)[0]
+    report: dict = {
+        "task": args.task, "parameterization": args.param, "sigma": args.sigma, "replicates": args.replicates,
+        "jax": jax.__version__, "device": f"{device.platform} {device.device_kind}", "batches": [],
+    }
 
-    t_sequential = 0.0
-    for i in range(args.replicates):
-        x = np.asarray(r.x[i]).reshape(-1)
-        traj = tr.decode(x)
-        viol = nlp.violation(x, nlp.theta)
-        ok_j = int(r.status[i]) == IpmStatus.CONVERGED and viol < FEASIBILITY_TOL and check_motion(traj.base_xyz_wxyz, tr.task.flip_axis, tr.task.flip_turns).ok
-        res = solve(args.task, args.param, warm_start=starts[i], progress=None, keep_trajectory=False)
-        t_sequential += res.time_s
+    for size in [args.replicates, *batches]:
+        sols, total, compile_time = backend.solve_batch(nlp, starts[:size], theta, opts)  # type: ignore[attr-defined]
+        converged = sum(s.converged for s in sols)
+        its = [s.stats.iterations for s in sols]
         print(
-            f"#{i}: jtraj {IpmStatus(int(r.status[i])).name.lower():18s} {int(r.iterations[i]):4d} it viol {viol:.1e} success {ok_j} | "
-            f"ipopt {res.status.value:26s} {res.iterations:4d} it viol {res.constraint_violation:.1e} {res.time_s:6.2f} s success {res.success}",
+            f"jtraj vmapped batch of {size}: compiled in {compile_time:.1f} s, solved in {total:.2f} s "
+            f"({total / size:.3f} s per replicate), {converged}/{size} converged, iterations {min(its)}-{max(its)}",
             flush=True,
         )
-    print(f"replicates: vmapped {t_vmapped:.2f} s, sequential {t_sequential:.2f} s, speedup {t_sequential / t_vmapped:.2f}")
+        report["batches"].append({"size": size, "compile_s": compile_time, "solve_s": total, "converged": converged, "iterations_max": max(its), "iterations_mean": float(np.mean(its))})
+        if size == args.replicates:
+            batch, t_vmapped = sols, total
+
+    t_jtraj_seq = 0.0
+    seq: list = [None] * args.replicates
+    if args.jtraj_sequential:
+        for i in range(args.replicates):
+            seq[i] = backend.solve(nlp, starts[i], theta, opts)
+            t_jtraj_seq += seq[i].stats.time_total
+        report["jtraj_sequential_s"] = t_jtraj_seq
+
+    # Ipopt calls the NLP's functions one point at a time: on the CPU, also on a GPU machine
+    on_cpu = contextlib.nullcontext() if device.platform == "cpu" else jax.default_device(jax.devices("cpu")[0])
+    if not args.no_ipopt:
+        with on_cpu:  # compile them for the CPU before timing (as `prepare` does)
+            x = np.asarray(tr.warm_start()).reshape(-1)
+            for fn in (nlp.objective, nlp.gradient, nlp.constraints, nlp.jacobian):
+                np.asarray(fn(x, theta))
+    t_ipopt = 0.0
+    rows = []
+    for i, sol in enumerate(batch):
+        traj = tr.decode(sol.x, theta)
+        viol = nlp.violation(sol.x, theta)
+        ok = sol.converged and viol < FEASIBILITY_TOL and check_motion(traj.base_xyz_wxyz, tr.task.flip_axis, tr.task.flip_turns).ok
+        line = f"#{i}: jtraj {sol.status.value:26s} {sol.stats.iterations:4d} it viol {viol:.1e} success {ok}"
+        row = {"replicate": i, "jtraj": {"status": sol.status.value, "iterations": sol.stats.iterations, "violation": viol, "success": bool(ok)}}
+        if seq[i] is not None:
+            line += f" | one at a time {seq[i].stats.iterations:4d} it {seq[i].stats.time_total:6.2f} s"
+        if not args.no_ipopt:
+            with on_cpu:
+                res = solve(args.task, args.param, warm_start=starts[i], progress=None, keep_trajectory=False)
+            t_ipopt += res.time_s
+            line += f" | ipopt {res.status.value:26s} {res.iterations:4d} it viol {res.constraint_violation:.1e} {res.time_s:6.2f} s success {res.success}"
+            row["ipopt"] = {"status": res.status.value, "iterations": res.iterations, "violation": res.constraint_violation, "time_s": res.time_s, "success": bool(res.success)}
+        rows.append(row)
+        print(line, flush=True)
+    report["rows"] = rows
+    report["vmapped_s"] = t_vmapped
+    if args.jtraj_sequential:
+        print(f"jtraj one at a time: {t_jtraj_seq:.2f} s; vmapped {t_vmapped:.2f} s, speedup {t_jtraj_seq / t_vmapped:.2f}", flush=True)
+    sequential = t_jtraj_seq if args.no_ipopt else t_ipopt
+    if not args.no_ipopt:
+        report["ipopt_sequential_s"] = t_ipopt
+    report["speedup"] = sequential / t_vmapped
+    if args.out:
+        with open(args.out, "w") as f:
+            json.dump(report, f, indent=1)
+    against = "jtraj one at a time" if args.no_ipopt else "Ipopt"
+    print(f"replicates: vmapped {t_vmapped:.2f} s, sequential {sequential:.2f} s, speedup {sequential / t_vmapped:.2f} (sequential: {against})")
 
 
 if __name__ == "__main__":

@@ -214,8 +214,21 @@ class Robot:
 # Locating files
 
 
+ROBOT_DATA_ENV = "JTRAJ_ROBOT_DATA"
+
+
 def robots_data_dir() -> pathlib.Path:
-    """The ``robots`` folder of the installed example-robot-data distribution."""
+    """The ``robots`` folder of the installed example-robot-data distribution.
+
+    The environment variable ``JTRAJ_ROBOT_DATA``, when set, names another folder laid out the
+    same way (for a machine where only the few URDF files are copied, not the distribution).
+    """
+    override = os.environ.get(ROBOT_DATA_ENV)
+    if override:
+        folder = pathlib.Path(override).expanduser()
+        if not folder.is_dir():
+            raise RobotLoadError(f"{ROBOT_DATA_ENV}={override!r} is not a folder")
+        return folder
     try:
         files = importlib.metadata.files("example-robot-data")
     except importlib.metadata.PackageNotFoundError:
