@@ -75,6 +75,37 @@ def test_monotone_barrier_strategy_reaches_the_same_solution(toy):
         IpmOptions(mu_strategy="probing")
 
 
+def test_objective_constraint_filter_globalization(toy):
+    """Ipopt's obj-constr-filter rule for leaving the free barrier mode: an iterate that
+    improves neither the objective nor the violation on an earlier free-mode iterate sends the
+    barrier to the monotone mode at 0.8 times the average complementarity; an improving one
+    stays free and joins the filter, dropping the entries it dominates. The solve reaches the
+    same optimum as with the KKT-error rule."""
+    nlp, ipm = toy
+    opts = dataclasses.replace(ipm.options, adaptive_mu_globalization="obj-constr-filter")
+    filt = IPM(nlp, opts)
+    r = filt.solve(jnp.zeros((K, 3)), None)
+    ref = ipm.solve(jnp.zeros((K, 3)), None)
+    assert int(r.status) == IpmStatus.CONVERGED
+    np.testing.assert_allclose(float(r.objective), float(ref.objective), rtol=1e-6)
+
+    p, st = filt._start(jnp.zeros((K, 3)), None)
+    st = st._replace(f=jnp.asarray(2.0), c=jnp.zeros_like(st.c) + 0.01)
+    theta = float(filt._infeasibility_l1(p, st.c, st.s))
+    avg = float(filt._complementarity(p, st)[0])
+    worse = st._replace(mu_filter=st.mu_filter.at[0].set(jnp.array([1.0, 0.5 * theta])))
+    mu, free, _, _, kept = filt._update_mu(p, worse, jnp.asarray(False), jnp.asarray(1.0))
+    assert not bool(free) and np.isclose(float(mu), 0.8 * avg) and np.array_equal(np.asarray(kept), np.asarray(worse.mu_filter))
+    better = st._replace(mu_filter=st.mu_filter.at[0].set(jnp.array([3.0, 2.0 * theta])).at[1].set(jnp.array([1.0, 3.0 * theta])))
+    mu, free, _, _, kept = filt._update_mu(p, better, jnp.asarray(False), jnp.asarray(1.0))
+    kept = np.asarray(kept)
+    assert bool(free)
+    assert [2.0, theta] in kept.tolist() and [3.0, 2.0 * theta] not in kept.tolist()  # dominated entry dropped
+    assert [1.0, 3.0 * theta] in kept.tolist()
+    with pytest.raises(solvers.InvalidOptionError, match="adaptive_mu_globalization"):
+        IpmOptions(adaptive_mu_globalization="never")
+
+
 def test_vmap_equals_one_by_one_and_no_recompile(toy):
     nlp, ipm = toy
     x0s = 0.3 * np.random.default_rng(0).standard_normal((3, K, 3))
