@@ -278,7 +278,7 @@ def test_invalid_definitions_raise_with_the_offending_value(tmp_path, edit, frag
     config = _talos_config()
     edit(config)
     path = _write_toml(tmp_path / "bad.toml", config)
-    with pytest.raises(robot_lib.RobotLoadError, match="bad.toml") as err:
+    with pytest.raises(robot_lib.RobotLoadError, match=r"bad\.toml") as err:
         robot_lib.load_file(path)
     assert fragment in str(err.value)
 
@@ -300,3 +300,24 @@ def test_model_that_mujoco_cannot_load_names_the_file(tmp_path):
     with pytest.raises(robot_lib.RobotLoadError) as err:
         robot_lib.load_file(path)
     assert "massless.toml" in str(err.value) and "massless.urdf" in str(err.value)
+
+
+def test_robot_data_folder_from_the_environment(tmp_path, monkeypatch):
+    """JTRAJ_ROBOT_DATA names a folder laid out as example-robot-data's ``robots`` folder (a
+    machine with only the URDFs copied); a robot file's relative ``urdf`` resolves in it."""
+    installed = robot_lib.robots_data_dir()
+    rel = "go2_description/urdf/go2.urdf"
+    (tmp_path / rel).parent.mkdir(parents=True)
+    (tmp_path / rel).write_bytes((installed / rel).read_bytes())
+    monkeypatch.setenv(robot_lib.ROBOT_DATA_ENV, str(tmp_path))
+    assert robot_lib.robots_data_dir() == tmp_path
+    with importlib.resources.as_file(importlib.resources.files("jtraj.robots") / "go2.toml") as path:
+        go2 = robot_lib.load_file(path)
+    assert go2.nj == 12 and go2.ncontact == 4
+    (tmp_path / rel).unlink()  # read from there, not from the installed distribution
+    with importlib.resources.as_file(importlib.resources.files("jtraj.robots") / "go2.toml") as path:
+        with pytest.raises(robot_lib.RobotLoadError, match="not found"):
+            robot_lib.load_file(path)
+    monkeypatch.setenv(robot_lib.ROBOT_DATA_ENV, str(tmp_path / "missing"))
+    with pytest.raises(robot_lib.RobotLoadError, match="JTRAJ_ROBOT_DATA"):
+        robot_lib.robots_data_dir()
