@@ -500,7 +500,7 @@ def _callback_class():
 
 
 #: FATROP's return codes (its ``return_flag``): 0 converged, others failures.
-def solve_fatrop(form: StageForm, x0: np.ndarray, theta: Any, tol: float = 1e-3, max_iter: int = 200, print_level: int = 0, hessian: str = "exact") -> dict:
+def solve_fatrop(form: StageForm, x0: np.ndarray, theta: Any, tol: float = 1e-3, max_iter: int = 200, print_level: int = 0, hessian: str = "exact", options: dict | None = None) -> dict:
     """Solve the stage NLP with FATROP from the original warm start ``x0`` (n,); the record
     holds status, iterations, time (s), the JAX part, cost and violation of the ORIGINAL NLP."""
     import casadi
@@ -509,7 +509,7 @@ def solve_fatrop(form: StageForm, x0: np.ndarray, theta: Any, tol: float = 1e-3,
     oracle = _callback_class()(ev)
     opts = {
         "structure_detection": "manual", "N": form.N, "nx": form.nx, "nu": form.nu, "ng": form.ng,
-        "fatrop": {"tol": tol, "max_iter": int(max_iter), "print_level": print_level},
+        "fatrop": {"tol": tol, "max_iter": int(max_iter), "print_level": print_level, **(options or {})},
         "print_time": False,
     }
     solver = casadi.nlpsol("fatrop", "fatrop", oracle, opts)
@@ -560,6 +560,9 @@ def markdown(records: list[dict]) -> str:
                 f"| {rec['task']} | {r['solver']} | {r['status']} | {r['iterations']} | {r['time_s']:.2f} | {r['time_derivatives']:.2f} | {r['time_solver']:.2f} "
                 f"| {r['cost']:.6g} | {r['constraint_violation']:.1e} |"
             )
+    for rec in records:
+        if "dropped_rows" in rec:
+            lines.append(f"\n{rec['task']}: FATROP's stage form leaves out {sum(rec['dropped_rows'].values())} linearly dependent equality rows {rec['dropped_rows']} (rank tolerance {rec.get('rtol', 1e-7):g}).")
     cpus = records[0]["machine"]["cpus"] if records else None
     lines.append(
         f"\nMachine: {cpus} CPUs. FATROP: exact Hessian from JAX, tol 1e-3, the task's max_iter, on the stage form of the compact NLP "
@@ -575,6 +578,7 @@ def main() -> None:
     ap.add_argument("--jtraj", action="store_true", help="also solve with jtraj's own interior point")
     ap.add_argument("--no-ipopt", action="store_true", help="skip the Ipopt solve")
     ap.add_argument("--hessian", default="exact", choices=HESSIANS, help="FATROP's Hessian: exact, or its stage blocks with eigenvalues clipped at 1e-6")
+    ap.add_argument("--rtol", type=float, default=1e-7, help="relative tolerance of drop_dependent's rank decision (default 1e-7)")
     ap.add_argument("--print-level", type=int, default=0, help="FATROP's print_level (0 quiet, 10 a line per iteration)")
     ap.add_argument("--out", help="write DIR/fatrop.json, DIR/fatrop.md, DIR/provenance.json")
     args = ap.parse_args()
@@ -589,7 +593,8 @@ def main() -> None:
         form = stage_form(nlp)
         rec["stage_form_s"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        form = drop_dependent(form, x0, theta)
+        form = drop_dependent(form, x0, theta, rtol=args.rtol)
+        rec["rtol"] = args.rtol
         rec["presolve_s"] = time.perf_counter() - t0
         rec["dropped_rows"] = form.dropped
         print(f"{task} [{args.param}]: {nlp.n} variables, {nlp.m} rows; stage form N={form.N}, nx={form.nx[0]}, nu={form.nu[0]}, ng<={max(form.ng)} ({form.nlp.n} variables, {form.nlp.m} rows), built in {rec['stage_form_s']:.1f} s; dependent rows left out {form.dropped} ({rec['presolve_s']:.1f} s)", flush=True)
