@@ -76,13 +76,18 @@ def prepare(
     robot = robots.load(task.robot)
     tr = Transcription(robot, task, param, options)
     nlp = tr.build_nlp()
-    # compile every callback once, on the warm start, before Ipopt runs
-    x = jnp.asarray(tr.warm_start().reshape(-1))
-    for fn in (nlp.objective, nlp.gradient, nlp.constraints, nlp.jacobian):
-        np.asarray(fn(x, nlp.theta))
+    compile_callbacks(tr, nlp)
     prep = Prepared(tr, nlp, time.perf_counter() - t0)
     _CACHE[key] = prep
     return prep
+
+
+def compile_callbacks(tr: Transcription, nlp: KnotNLP) -> None:
+    """Compile the NLP functions Ipopt calls, for the current default device, by calling each
+    once on the warm start (so that a timed solve does not include compiling them)."""
+    x = jnp.asarray(tr.warm_start().reshape(-1))
+    for fn in (nlp.objective, nlp.gradient, nlp.constraints, nlp.jacobian):
+        np.asarray(fn(x, nlp.theta))
 
 
 def solve(
