@@ -1,8 +1,8 @@
 """Executors of sweeps: every group runs once, results come back with their index.
 
-The Ray executor is checked against a stand-in `ray` module (init / remote / wait / get with
-Ray's semantics, completion out of submission order): starting a real Ray instance takes
-minutes on a loaded 2-core CI machine and timed out there.
+The Ray executor's dispatch is checked against a stand-in `ray` module (init / remote / wait /
+get with Ray's semantics, completion out of submission order), and a tiny sweep runs on a real
+local Ray instance when Ray is installed (the ``ray`` extra, part of the ``test`` extra).
 """
 
 from __future__ import annotations
@@ -93,5 +93,22 @@ def test_robustness_table_with_ray_executor_equals_local(tmp_path, monkeypatch):
     local = robustness([HOP], ["se3"], out=tmp_path / "local", **kw)
     ray_runs = robustness([HOP], ["se3"], out=tmp_path / "ray", executor="ray", ray_address="auto", **kw)
     assert calls["address"] == "auto"
+    assert [(r["replicate"], r["status"], r["iterations"]) for r in ray_runs] == [(r["replicate"], r["status"], r["iterations"]) for r in local]
+    assert (tmp_path / "ray" / "table_iii.md").read_text() == (tmp_path / "local" / "table_iii.md").read_text()
+
+
+@pytest.mark.slow
+def test_robustness_table_on_a_local_ray_instance_equals_local(tmp_path):
+    """The same tiny sweep on a real local Ray instance (one worker process, started here)."""
+    ray = pytest.importorskip("ray")
+    from jtraj.experiments import robustness
+    from test_transcription import HOP
+
+    kw = dict(sigmas=[1e-2], replicates=2, seed=2, progress=None, resume=False)
+    local = robustness([HOP], ["se3"], out=tmp_path / "local", **kw)
+    try:  # no address: the executor starts a local instance
+        ray_runs = robustness([HOP], ["se3"], out=tmp_path / "ray", executor="ray", **kw)
+    finally:
+        ray.shutdown()
     assert [(r["replicate"], r["status"], r["iterations"]) for r in ray_runs] == [(r["replicate"], r["status"], r["iterations"]) for r in local]
     assert (tmp_path / "ray" / "table_iii.md").read_text() == (tmp_path / "local" / "table_iii.md").read_text()
