@@ -80,12 +80,12 @@ def test_objective_constraint_filter_globalization(toy):
     improves neither the objective nor the violation on an earlier free-mode iterate sends the
     barrier to the monotone mode at 0.8 times the average complementarity; an improving one
     stays free and joins the filter, dropping the entries it dominates. The solve reaches the
-    same optimum as with the KKT-error rule."""
+    same optimum as with the KKT-error rule (an option)."""
     nlp, ipm = toy
-    opts = dataclasses.replace(ipm.options, adaptive_mu_globalization="obj-constr-filter")
-    filt = IPM(nlp, opts)
+    filt = ipm
+    assert filt.options.adaptive_mu_globalization == "obj-constr-filter"  # Ipopt's default
     r = filt.solve(jnp.zeros((K, 3)), None)
-    ref = ipm.solve(jnp.zeros((K, 3)), None)
+    ref = IPM(nlp, dataclasses.replace(ipm.options, adaptive_mu_globalization="kkt-error")).solve(jnp.zeros((K, 3)), None)
     assert int(r.status) == IpmStatus.CONVERGED
     np.testing.assert_allclose(float(r.objective), float(ref.objective), rtol=1e-6)
 
@@ -104,6 +104,30 @@ def test_objective_constraint_filter_globalization(toy):
     assert [1.0, 3.0 * theta] in kept.tolist()
     with pytest.raises(solvers.InvalidOptionError, match="adaptive_mu_globalization"):
         IpmOptions(adaptive_mu_globalization="never")
+
+
+def test_quality_function_and_loqo_oracles_reach_the_same_solution(toy):
+    """The default mu oracle is Ipopt's (the quality function over the affine-scaling and
+    centering steps); the LOQO rule is an option: the same optimum, another barrier path."""
+    nlp, ipm = toy
+    qf = ipm
+    assert qf.options.mu_oracle == "quality-function"
+    r = qf.solve(jnp.zeros((K, 3)), None)
+    ref = IPM(nlp, dataclasses.replace(ipm.options, mu_oracle="loqo")).solve(jnp.zeros((K, 3)), None)
+    assert int(ref.status) == IpmStatus.CONVERGED
+    assert int(r.status) == IpmStatus.CONVERGED
+    np.testing.assert_allclose(float(r.objective), float(ref.objective), rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(r.x), np.asarray(ref.x), atol=1e-4)
+    mu_qf = np.asarray(r.history)[1 : int(r.iterations) + 1, 3]
+    mu_loqo = np.asarray(ref.history)[1 : int(ref.iterations) + 1, 3]
+    assert len(mu_qf) != len(mu_loqo) or not np.allclose(mu_qf, mu_loqo)
+    # the first direction: mu = sigma avg(d z) with sigma in [sigma_min, sigma_max]
+    p, st = qf._start(jnp.zeros((K, 3)), None)
+    st = qf._pass(p, st, None)
+    avg = float(qf._complementarity(p, st)[0])
+    assert bool(st.free_mode) and qf.options.sigma_min * avg <= float(st.mu) <= qf.options.sigma_max * avg
+    with pytest.raises(solvers.InvalidOptionError, match="mu_oracle"):
+        IpmOptions(mu_oracle="probing")
 
 
 def test_vmap_equals_one_by_one_and_no_recompile(toy):

@@ -29,18 +29,21 @@ Differences from Ipopt, and why:
   problems but not on the whole-body tasks (big_jump: multipliers grow to 1e7 and the dual
   infeasibility stalls near 1e4): its unexplored directions keep the identity's curvature.
 - Barrier: Ipopt's adaptive strategy (its default with a quasi-Newton Hessian, and what the
-  study's Ipopt runs therefore use) with the LOQO oracle instead of Ipopt's default quality
-  function; the monotone strategy is an option. On big_jump the monotone strategy's fixed
-  mu = 0.1 let the fraction-to-the-boundary rule cut every step to 1e-3..1e-2.
+  study's Ipopt runs therefore use) with Ipopt's defaults: the quality-function oracle and the
+  obj-constr-filter rule for leaving the free mode. The G1 back-flip needs both: with the LOQO
+  oracle and the KKT-error rule jtraj's solver stopped at 200 iterations, and Ipopt itself,
+  given those two options, converges in 45 iterations to a motion of -0.95 turn (not a flip)
+  where its defaults find the flip in 19. The LOQO oracle, the KKT-error rule and the
+  monotone strategy are options. On big_jump the monotone strategy's fixed mu = 0.1 let the
+  fraction-to-the-boundary rule cut every step to 1e-3..1e-2.
 - Globalization: Ipopt's filter line search; no feasibility restoration phase: a failed line
   search takes its last (tiny) step and the solve stops after several in a row.
 - Everything is one `jax.jit` program (`lax.while_loop`); `jax.vmap` of `IPM.solve` over
   initial guesses (and parameters theta) runs replicates together, a converged replicate's
   state no longer changes (the batched while loop only updates unfinished members).
 
-State (measured, 2-core CPU, `bench/solve.py TASK --variants compact,jtraj`): big_jump,
-sideflip, hopscotch, walk and handstand converge (9 to 43 iterations) and do their task;
-backflip does not converge in 200 iterations. Ipopt stays the default.
+State: `bench/solve.py TASK --variants compact,jtraj` measures it on the six tasks (the
+README quotes the run). Ipopt stays the default.
 
 Convergence (Ipopt's test at the comparative study's settings): the scaled optimality error
 ``max(dual_inf / s_d, constr_viol, compl / s_c) <= tol`` with Ipopt's ``s_d, s_c`` (s_max =
@@ -103,15 +106,21 @@ class IpmOptions(AbstractOptions):
             (partitioned damped BFGS; does not converge on the whole-body tasks).
         mu_strategy: ``"adaptive"`` (default, as Ipopt's default with a quasi-Newton Hessian)
             or ``"monotone"`` (Fiacco-McCormick).
+        mu_oracle: how the adaptive strategy's free mode picks mu: ``"loqo"`` (default here:
+            ``sigma avg(d z)`` from the iterate's centrality) or ``"quality-function"``
+            (Ipopt's default: the affine-scaling and centering steps are solved with the same
+            factorization, and ``sigma`` minimizes a linear model of the next iterate's
+            squared KKT residuals, found by golden section in [sigma_min, sigma_max];
+            Nocedal, Wächter and Waltz 2009). ``sigma_min``, ``sigma_max``,
+            ``quality_function_max_section_steps`` and ``quality_function_section_sigma_tol``
+            are Ipopt's options of that oracle.
         adaptive_mu_globalization: when the adaptive strategy falls back to the monotone mode
-            (Ipopt's option of that name): ``"kkt-error"`` (default here: free mode lasts while
-            the KKT error falls) or ``"obj-constr-filter"`` (Ipopt's default: while each
-            iterate improves the objective or the constraint violation on every earlier
-            free-mode iterate, by a margin). Measured on the G1 back-flip from the compact
-            warm start: with kkt-error the solve stops at 200 iterations (cost near 41),
-            with obj-constr-filter it converges in 98 to another local minimum (cost 33.7,
-            violation 2.3e-5); Ipopt finds cost 0.64 in 19. The six-task benchmark was
-            measured with kkt-error.
+            (Ipopt's option of that name): ``"obj-constr-filter"`` (default, as Ipopt's: free
+            mode lasts while each iterate improves the objective or the constraint violation
+            on every earlier free-mode iterate, by a margin) or ``"kkt-error"`` (while the KKT
+            error falls). Measured on the G1 back-flip from the compact warm start with the
+            quality-function oracle: obj-constr-filter converges in 23 iterations to a flip of
+            cost 0.48 (Ipopt: 0.64 in 19), kkt-error stops at 200 iterations.
         mu_min, mu_max, mu_max_fact, adaptive_mu_kkterror_red_fact,
             adaptive_mu_monotone_init_factor, filter_margin_fact, filter_max_margin: Ipopt's
             constants of the adaptive strategy.
@@ -140,7 +149,8 @@ class IpmOptions(AbstractOptions):
     compl_inf_tol: float = 1e-4
     hessian: str = "lbfgs"
     mu_strategy: str = "adaptive"
-    adaptive_mu_globalization: str = "kkt-error"
+    mu_oracle: str = "quality-function"
+    adaptive_mu_globalization: str = "obj-constr-filter"
     filter_margin_fact: float = 1e-5
     filter_max_margin: float = 1.0
     mu_init: float = 0.1
@@ -167,6 +177,10 @@ class IpmOptions(AbstractOptions):
     mu_min: float = 1e-11
     mu_max: float = 1e5
     mu_max_fact: float = 1e3
+    sigma_min: float = 1e-6
+    sigma_max: float = 1e2
+    quality_function_max_section_steps: int = 8
+    quality_function_section_sigma_tol: float = 1e-2
     adaptive_mu_kkterror_red_fact: float = 0.9999
     adaptive_mu_monotone_init_factor: float = 0.8
 
@@ -177,10 +191,12 @@ class IpmOptions(AbstractOptions):
             raise InvalidOptionError(f"jtraj option hessian={self.hessian!r}: expected 'lbfgs', 'exact' or 'bfgs'")
         if self.mu_strategy not in ("adaptive", "monotone"):
             raise InvalidOptionError(f"jtraj option mu_strategy={self.mu_strategy!r}: expected 'adaptive' or 'monotone'")
+        if self.mu_oracle not in ("loqo", "quality-function"):
+            raise InvalidOptionError(f"jtraj option mu_oracle={self.mu_oracle!r}: expected 'loqo' or 'quality-function'")
         if self.adaptive_mu_globalization not in ("obj-constr-filter", "kkt-error"):
             raise InvalidOptionError(f"jtraj option adaptive_mu_globalization={self.adaptive_mu_globalization!r}: expected 'obj-constr-filter' or 'kkt-error'")
         _positive(self, "tol", "constr_viol_tol", "dual_inf_tol", "compl_inf_tol", "mu_init", "delta_c")
-        for name in ("max_iter", "refine_steps", "max_line_search", "max_line_search_failures", "lbfgs_memory"):
+        for name in ("max_iter", "refine_steps", "max_line_search", "max_line_search_failures", "lbfgs_memory", "quality_function_max_section_steps"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
                 raise InvalidOptionError(f"jtraj option {name}={value!r}: expected an integer >= 0")
@@ -272,6 +288,7 @@ class _State(NamedTuple):
     theta_min: jax.Array
     theta_max: jax.Array
     mu: jax.Array
+    tau: jax.Array  # fraction to the boundary for the next direction
     mu_max: jax.Array
     free_mode: jax.Array  # adaptive strategy: mu from the LOQO rule (True) or monotone (False)
     refs: jax.Array  # (4,) KKT errors of the last accepted free-mode iterates
@@ -450,7 +467,7 @@ class IPM:
             dx=zx, ds=zc, dy=zc, dzl=zx, dzu=zx, dvl=zc, dvu=zc,
             alpha=zero, alpha_dual=zero, trials=jnp.zeros((), jnp.int32), phi0=zero, theta0=zero, slope=zero,
             filter=jnp.full((self.FILTER_SIZE, 2), jnp.inf), n_filter=jnp.zeros((), jnp.int32),
-            theta_min=zero, theta_max=zero, mu=jnp.asarray(o.mu_init), mu_max=jnp.asarray(o.mu_max),
+            theta_min=zero, theta_max=zero, mu=jnp.asarray(o.mu_init), tau=jnp.asarray(o.tau_min), mu_max=jnp.asarray(o.mu_max),
             free_mode=jnp.asarray(o.mu_strategy == "adaptive"), refs=jnp.full((4,), jnp.inf),
             mu_filter=jnp.full((self.FILTER_SIZE, 2), jnp.inf),
             # element Hessians are state only for the partitioned BFGS (the others rebuild them)
@@ -590,15 +607,17 @@ class IPM:
         # convergence error (at mu = 0, so the barrier update below does not change it)
         err, dual_inf, _, compl = self._error(p, new, 0.0)
         mu_new, free_mode, refs, mu_max, mu_filter = self._update_mu(p, new, first, err)
-        reset = (mu_new != mu) | failed
-        new = new._replace(
-            mu=mu_new, free_mode=free_mode, refs=refs, mu_max=mu_max, mu_filter=mu_filter,
-            filter=jnp.where(reset, jnp.full_like(filt, jnp.inf), filt),
-            n_filter=jnp.where(reset, 0, n_filter).astype(jnp.int32),
-        )
+        if o.mu_oracle == "quality-function":
+            # Ipopt's fraction to the boundary: from the NLP error in free mode, from mu otherwise;
+            # in free mode `_direction` chooses mu, and the factorization before it sees the
+            # previous one (as Ipopt's regularization does)
+            tau = jnp.where(free_mode, jnp.maximum(o.tau_min, 1.0 - err), jnp.maximum(o.tau_min, 1.0 - mu_new))
+            mu_new = jnp.where(free_mode & (o.mu_strategy == "adaptive"), mu, mu_new)
+        else:
+            tau = jnp.maximum(o.tau_min, 1.0 - mu_new)
+        new = new._replace(mu=mu_new, tau=tau, free_mode=free_mode, refs=refs, mu_max=mu_max, mu_filter=mu_filter)
         # convergence and limits at the new iterate
         viol = self._constr_viol(p, ct)
-        history = st.history.at[it].set(jnp.stack([ft, viol, dual_inf, jnp.log10(mu_new), jnp.where(first, jnp.nan, alpha)]))
         converged = (err <= o.tol) & (viol <= o.constr_viol_tol) & (dual_inf <= o.dual_inf_tol) & (compl <= o.compl_inf_tol)
         finite = jnp.isfinite(err) & jnp.all(jnp.isfinite(xt))
         status = jnp.where(
@@ -606,8 +625,15 @@ class IPM:
             jnp.where(~finite, int(IpmStatus.NUMERICAL_ERROR),
             jnp.where(new.ls_fail >= o.max_line_search_failures, int(IpmStatus.LINE_SEARCH_FAILED),
             jnp.where(it >= o.max_iter, int(IpmStatus.MAX_ITER), int(IpmStatus.RUNNING)))))
-        new = new._replace(history=history, status=status.astype(jnp.int32))
-        return self._direction(p, new, theta)
+        new = self._direction(p, new._replace(status=status.astype(jnp.int32)), theta)  # sets mu with the quality function
+        # a new barrier problem (or a failed line search) empties the filter
+        reset = (new.mu != mu) | failed
+        history = st.history.at[it].set(jnp.stack([ft, viol, dual_inf, jnp.log10(new.mu), jnp.where(first, jnp.nan, alpha)]))
+        return new._replace(
+            history=history,
+            filter=jnp.where(reset, jnp.full_like(filt, jnp.inf), filt),
+            n_filter=jnp.where(reset, 0, n_filter).astype(jnp.int32),
+        )
 
     def _complementarity(self, p: _Problem, st: _State):
         """(average, smallest) product of bound distance and multiplier over all bounds."""
@@ -623,10 +649,11 @@ class IPM:
         Monotone (Fiacco-McCormick, Ipopt's ``mu_strategy=monotone``): mu falls by
         ``min(kappa_mu mu, mu^theta_mu)`` while the barrier problem's error is below
         ``kappa_eps mu``. Adaptive (Ipopt's default when the Hessian is quasi-Newton; Nocedal,
-        Wächter and Waltz, 2009): in free mode mu is chosen afresh each iteration from the
-        iterate's centrality by the LOQO rule (Vanderbei and Shanno; Ipopt's ``mu_oracle=loqo``)
-        ``mu = sigma avg(d z)``, ``sigma = 0.1 min(0.05 (1 - xi) / xi, 2)^3``, ``xi = min(d z) /
-        avg(d z)``, in [mu_min, mu_max]. Free mode lasts while the iterate makes progress;
+        Wächter and Waltz, 2009): in free mode mu is chosen afresh each iteration, by the
+        quality function (``mu_oracle="quality-function"``: chosen in `_direction`, which has the
+        Newton steps it needs) or by the LOQO rule
+        (Vanderbei and Shanno; ``mu_oracle="loqo"``) ``mu = sigma avg(d z)``, ``sigma = 0.1
+        min(0.05 (1 - xi) / xi, 2)^3``, ``xi = min(d z) / avg(d z)``, in [mu_min, mu_max]. Free mode lasts while the iterate makes progress;
         otherwise the monotone mode takes over from ``mu = 0.8 avg(d z)``. Progress, by
         ``adaptive_mu_globalization``: with ``obj-constr-filter`` (Ipopt's default), the
         objective or the l1 constraint violation, each plus a margin ``1e-5 min(1, err)``, is
@@ -689,11 +716,16 @@ class IPM:
         return kkt.LowRank(W=jnp.concatenate([sig * S, Y], axis=0), M=M)
 
     def _direction(self, p: _Problem, st: _State, theta) -> _State:
-        """Newton direction at the iterate for the current mu, its step bounds, and the
-        line search's reference values."""
+        """Newton direction at the iterate for the barrier parameter, its step bounds, and the
+        line search's reference values.
+
+        Every piece of the primal-dual Newton step is affine in mu, so it is solved for two
+        right-hand sides with one factorization: the affine-scaling step (mu = 0) and the step
+        at mu = avg(d z); the step for any mu is their combination (Ipopt's quality-function
+        oracle does the same). With ``mu_oracle="quality-function"`` in free mode, mu is chosen
+        here (`_quality_function_mu`); otherwise it is ``st.mu``."""
         o = self.options
         view = self.view
-        mu = st.mu
         x, s = st.x, st.s
         dxl = jnp.where(p.has_xl, x - p.xl, 1.0)
         dxu = jnp.where(p.has_xu, p.xu - x, 1.0)
@@ -701,17 +733,33 @@ class IPM:
         dsu = jnp.where(p.has_su, p.cu - s, 1.0)
         sigma_x = _safe(st.zl, dxl, p.has_xl) + _safe(st.zu, dxu, p.has_xu)
         sigma_s = _safe(st.vl, dsl, p.has_sl) + _safe(st.vu, dsu, p.has_su)
-        # barrier gradients: the bound multipliers replaced by mu / distance
-        grad_bar_x = jnp.where(p.free, st.grad - _safe(mu, dxl, p.has_xl) + _safe(mu, dxu, p.has_xu), 0.0)
-        grad_bar_s = jnp.where(p.ineq, -_safe(mu, dsl, p.has_sl) + _safe(mu, dsu, p.has_su), 0.0)
-        rhat_x = jnp.where(p.free, grad_bar_x + kkt._apply_JT(st.A, st.B, st.y), 0.0)
-        rhat_s = jnp.where(p.ineq, grad_bar_s - st.y, 0.0)
         t = jnp.where(p.eq, p.cl, s)
         r_c = jnp.where(p.eq | p.ineq, st.c - t, 0.0)
-        # slacks eliminated: ds = (dy - rhat_s) / sigma_s on inequality rows
         sig_s = jnp.where(p.ineq, sigma_s, 1.0)
         d0 = jnp.where(p.ineq, 1.0 / sig_s, jnp.where(p.eq, 0.0, 1.0))
-        rhs_c = -jnp.where(p.ineq, r_c + rhat_s / sig_s, r_c)
+
+        def barrier_gradients(mu):
+            # the bound multipliers replaced by mu / distance
+            gx = jnp.where(p.free, st.grad - _safe(mu, dxl, p.has_xl) + _safe(mu, dxu, p.has_xu), 0.0)
+            gs = jnp.where(p.ineq, -_safe(mu, dsl, p.has_sl) + _safe(mu, dsu, p.has_su), 0.0)
+            return gx, gs
+
+        def right_hand_side(mu):
+            gx, gs = barrier_gradients(mu)
+            rhat_x = jnp.where(p.free, gx + kkt._apply_JT(st.A, st.B, st.y), 0.0)
+            rhat_s = jnp.where(p.ineq, gs - st.y, 0.0)
+            # slacks eliminated: ds = (dy - rhat_s) / sigma_s on inequality rows
+            return -rhat_x, -jnp.where(p.ineq, r_c + rhat_s / sig_s, r_c)
+
+        def full_step(mu, dx, dy):
+            rhat_s = jnp.where(p.ineq, barrier_gradients(mu)[1] - st.y, 0.0)
+            ds = jnp.where(p.ineq, (dy - rhat_s) / sig_s, 0.0)
+            dzl = jnp.where(p.has_xl, (mu - st.zl * dxl - st.zl * dx) / dxl, 0.0)
+            dzu = jnp.where(p.has_xu, (mu - st.zu * dxu + st.zu * dx) / dxu, 0.0)
+            dvl = jnp.where(p.has_sl, (mu - st.vl * dsl - st.vl * ds) / dsl, 0.0)
+            dvu = jnp.where(p.has_su, (mu - st.vu * dsu + st.vu * ds) / dsu, 0.0)
+            return dx, ds, dy, dzl, dzu, dvl, dvu
+
         low_rank = None
         if o.hessian == "lbfgs":
             H = jnp.zeros((view.K, 2 * view.n, 2 * view.n))
@@ -721,24 +769,95 @@ class IPM:
             H = view.hessian(x, st.y, 1.0, theta) if o.hessian == "exact" else st.H
         system = kkt.KKTSystem(H=H, sigma=sigma_x, A=st.A, B=st.B, d0=d0, free=p.free)
         # Ipopt's dual regularization, shrinking with mu (its kappa_c = 1/4)
-        delta_c = o.delta_c * mu ** 0.25 if o.delta_c_mu_scaled else jnp.asarray(o.delta_c)
+        delta_c = o.delta_c * st.mu ** 0.25 if o.delta_c_mu_scaled else jnp.asarray(o.delta_c)
         fac, delta_w, ok = kkt.factor_with_correction(system, delta_c, st.delta_w)
-        dx, dy = kkt.solve(system, fac, delta_w, delta_c, -rhat_x, rhs_c, o.refine_steps, remove_delta_c=not o.delta_c_mu_scaled, low_rank=low_rank)
-        ds = jnp.where(p.ineq, (dy - rhat_s) / sig_s, 0.0)
-        dzl = jnp.where(p.has_xl, (mu - st.zl * dxl - st.zl * dx) / dxl, 0.0)
-        dzu = jnp.where(p.has_xu, (mu - st.zu * dxu + st.zu * dx) / dxu, 0.0)
-        dvl = jnp.where(p.has_sl, (mu - st.vl * dsl - st.vl * ds) / dsl, 0.0)
-        dvu = jnp.where(p.has_su, (mu - st.vu * dsu + st.vu * ds) / dsu, 0.0)
-        tau = jnp.maximum(o.tau_min, 1.0 - mu)
+        avg = jnp.maximum(self._complementarity(p, st)[0], 1e-300)
+        rx, rc = jax.tree.map(lambda a, b: jnp.stack([a, b]), right_hand_side(0.0), right_hand_side(avg))
+        dxs, dys = jax.vmap(lambda bx, bc: kkt.solve(system, fac, delta_w, delta_c, bx, bc, o.refine_steps, remove_delta_c=not o.delta_c_mu_scaled, low_rank=low_rank))(rx, rc)
+        affine = full_step(0.0, dxs[0], dys[0])
+        centering = jax.tree.map(lambda a, b: a - b, full_step(avg, dxs[1], dys[1]), affine)  # per unit sigma
+        mu = st.mu
+        if o.mu_strategy == "adaptive" and o.mu_oracle == "quality-function":
+            mu = jnp.where(st.free_mode, self._quality_function_mu(p, st, affine, centering, avg), mu)
+        dx, ds, dy, dzl, dzu, dvl, dvu = jax.tree.map(lambda a, c: a + (mu / avg) * c, affine, centering)
+        tau = st.tau
         a_max = jnp.minimum(self._max_step(x, dx, p.xl, p.xu, p.has_xl, p.has_xu, tau), self._max_step(s, ds, p.cl, p.cu, p.has_sl, p.has_su, tau))
         a_dual = jnp.min(jnp.stack([self._max_dual_step(z, dz, mk, tau) for z, dz, mk in ((st.zl, dzl, p.has_xl), (st.zu, dzu, p.has_xu), (st.vl, dvl, p.has_sl), (st.vu, dvu, p.has_su))]))
         theta0, phi0 = self._measures(p, x, s, st.f, st.c, mu)
+        grad_bar_x, grad_bar_s = barrier_gradients(mu)
         slope = jnp.sum(grad_bar_x * dx) + jnp.sum(grad_bar_s * ds)
         status = jnp.where((st.status == int(IpmStatus.RUNNING)) & ~ok, int(IpmStatus.NUMERICAL_ERROR), st.status)
         return st._replace(
-            dx=dx, ds=ds, dy=dy, dzl=dzl, dzu=dzu, dvl=dvl, dvu=dvu, alpha=a_max, alpha_dual=a_dual,
+            dx=dx, ds=ds, dy=dy, dzl=dzl, dzu=dzu, dvl=dvl, dvu=dvu, alpha=a_max, alpha_dual=a_dual, mu=mu,
             phi0=phi0, theta0=theta0, slope=slope, delta_w=jnp.where(ok, delta_w, st.delta_w), status=status.astype(jnp.int32),
         )
+
+    def _quality_function_mu(self, p: _Problem, st: _State, affine, centering, avg):
+        """Ipopt's quality-function oracle: mu = sigma avg(d z), with sigma minimizing the
+        squared KKT residuals predicted after the step ``affine + sigma centering`` (each
+        cut by the fraction to the boundary): ``(1 - a_dual)^2 |grad L|^2 / n_dual + (1 -
+        a_primal)^2 |c - s|^2 / n_rows + |(d + a_primal dd) (z + a_dual dz)|^2 / n_bounds``.
+        The search follows Ipopt's: the slope at sigma = 1 decides between [1, sigma_max] and
+        [sigma_min, 0.99], then golden section in sigma (at most
+        ``quality_function_max_section_steps`` sections, relative tolerance
+        ``quality_function_section_sigma_tol``), the interval's outer end kept if it is better."""
+        o = self.options
+        tau = st.tau
+        r_x, r_s, r_c, _ = self._residuals(p, st, 0.0)
+        n_dual = jnp.maximum(jnp.sum(p.free) + jnp.sum(p.ineq), 1)
+        n_pri = jnp.maximum(jnp.sum(p.eq | p.ineq), 1)
+        n_comp = jnp.maximum(jnp.sum(p.has_xl) + jnp.sum(p.has_xu) + jnp.sum(p.has_sl) + jnp.sum(p.has_su), 1)
+        dual_sq = (jnp.sum(r_x**2) + jnp.sum(r_s**2)) / n_dual
+        primal_sq = jnp.sum(r_c**2) / n_pri
+        x, s = st.x, st.s
+
+        def quality(sigma):
+            dx, ds, _, dzl, dzu, dvl, dvu = jax.tree.map(lambda a, c: a + sigma * c, affine, centering)
+            a_p = jnp.minimum(self._max_step(x, dx, p.xl, p.xu, p.has_xl, p.has_xu, tau), self._max_step(s, ds, p.cl, p.cu, p.has_sl, p.has_su, tau))
+            a_d = jnp.min(jnp.stack([self._max_dual_step(z, dz, mk, tau) for z, dz, mk in ((st.zl, dzl, p.has_xl), (st.zu, dzu, p.has_xu), (st.vl, dvl, p.has_sl), (st.vu, dvu, p.has_su))]))
+            pairs = ((x - p.xl, dx, st.zl, dzl, p.has_xl), (p.xu - x, -dx, st.zu, dzu, p.has_xu), (s - p.cl, ds, st.vl, dvl, p.has_sl), (p.cu - s, -ds, st.vu, dvu, p.has_su))
+            compl = sum(jnp.sum(jnp.where(mask, ((d + a_p * dd) * (z + a_d * dz)) ** 2, 0.0)) for d, dd, z, dz, mask in pairs) / n_comp
+            return (1.0 - a_d) ** 2 * dual_sq + (1.0 - a_p) ** 2 * primal_sq + compl
+
+        gfac = (3.0 - np.sqrt(5.0)) / 2.0
+        tol = o.quality_function_section_sigma_tol
+
+        def golden(lo, up):
+            """Golden section on [lo, up]; returns the best of the last inner points and the
+            interval's end that the search never moved (evaluated)."""
+            m1, m2 = lo + gfac * (up - lo), lo + (1.0 - gfac) * (up - lo)
+            q1, q2 = quality(m1), quality(m2)
+
+            def section(_, c):
+                lo, m1, m2, up, q1, q2 = c
+                go = (up - lo) >= tol * up
+                left = q1 > q2  # the minimum is right of m1
+                n_lo, n_up = jnp.where(left, m1, lo), jnp.where(left, up, m2)
+                n_m1 = jnp.where(left, m2, n_lo + gfac * (n_up - n_lo))
+                n_m2 = jnp.where(left, n_lo + (1.0 - gfac) * (n_up - n_lo), m1)
+                q_new = quality(jnp.where(left, n_m2, n_m1))
+                n_q1, n_q2 = jnp.where(left, q2, q_new), jnp.where(left, q_new, q1)
+                new = (n_lo, n_m1, n_m2, n_up, n_q1, n_q2)
+                return jax.tree.map(lambda a, b: jnp.where(go, a, b), new, c)
+
+            lo_e, m1, m2, up_e, q1, q2 = lax.fori_loop(0, o.quality_function_max_section_steps, section, (lo, m1, m2, up, q1, q2))
+            best, q_best = jnp.where(q1 < q2, m1, m2), jnp.minimum(q1, q2)
+            return best, q_best, lo_e, up_e
+
+        sigma_1minus = 1.0 - max(1e-4, tol)
+        q_1, q_1minus = quality(1.0), quality(sigma_1minus)
+        larger = q_1minus > q_1  # the quality falls beyond sigma = 1
+        up_big = jnp.minimum(o.sigma_max, st.mu_max / avg)
+        lo_small = jnp.maximum(o.sigma_min, o.mu_min / avg)
+        up_small = jnp.minimum(jnp.maximum(lo_small, sigma_1minus), st.mu_max / avg)
+        lo, up = jnp.where(larger, 1.0, lo_small), jnp.where(larger, up_big, up_small)
+        best, q_best, lo_e, up_e = golden(lo, jnp.maximum(up, lo))
+        # as Ipopt: an end of the interval the search never moved from (the upper one first)
+        # is taken if it is better than the best inner point
+        end = jnp.where(up_e == up, up, lo)
+        sigma = jnp.where(((up_e == up) | (lo_e == lo)) & (quality(end) < q_best), end, best)
+        sigma = jnp.where(lo >= up, jnp.where(larger, up, lo), sigma)  # empty interval: its end
+        return jnp.clip(sigma * avg, o.mu_min, st.mu_max)
 
 
 #: IpmStatus -> the shared enumeration
