@@ -1,0 +1,61 @@
+"""jtraj's interior point and Ipopt on a small Go2 hop with each of the five floating-base
+parameterizations, in one run.
+
+    python bench/params_hop.py [--params se3,quat1,quat2,quat3,euler] [--out DIR]
+
+The hop is the one of ``tests/test_ipm.py`` (Go2, 0.05 s knots, stance 0.15 s, flight 0.1 s,
+stance 0.15 s, 0.1 m forward), solved from the task's warm start with the compact variables by
+``jtraj.solve(..., solver="jtraj")`` and by Ipopt with the study's settings. CI solves the SE(3)
+tangent case with jtraj's solver (``test_converges_on_small_go2_hop``); each further
+parameterization is a compile of its own, so the others are measured here. Prints one row per
+(parameterization, solver): status, iterations, cost, largest constraint violation, solve time
+(compile excluded); ``--out`` writes ``DIR/params_hop.json``, ``DIR/params_hop.md`` and
+``DIR/provenance.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+import jtraj
+from jtraj import io
+from jtraj.provenance import write_provenance
+from jtraj.task import Phase, Task
+
+FEET = ("FL_foot", "FR_foot", "RL_foot", "RR_foot")
+HOP = Task(name="hop", robot="go2", timestep=0.05, phases=(Phase(FEET, 0.15), Phase((), 0.1), Phase(FEET, 0.15)), target_translation=(0.1, 0.0, 0.0))
+
+
+def run(params: list[str]) -> list[dict]:
+    rows = []
+    for p in params:
+        for solver in ("jtraj", "ipopt"):
+            res = jtraj.solve(HOP, p, solver=solver, progress=None, keep_trajectory=False)
+            row = dict(parameterization=p, solver=solver, status=res.status.value, iterations=res.iterations, cost=res.cost, constraint_violation=res.constraint_violation, time_s=round(res.time_s, 3), time_compile_s=round(res.time_compile, 1))
+            print(f"{p:6s} {solver:6s} {row['status']:16s} {row['iterations']:4d} it  cost {row['cost']:.3g}  viol {row['constraint_violation']:.1e}  {row['time_s']:.2f} s", flush=True)
+            rows.append(row)
+    return rows
+
+
+def render(rows: list[dict]) -> str:
+    lines = ["| parameterization | solver | status | iterations | cost | max violation | time (s) |", "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['parameterization']} | {r['solver']} | {r['status']} | {r['iterations']} | {r['cost']:.3g} | {r['constraint_violation']:.1e} | {r['time_s']:.2f} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--params", default="se3,quat1,quat2,quat3,euler")
+    ap.add_argument("--out")
+    args = ap.parse_args(argv)
+    rows = run([p for p in args.params.split(",") if p])
+    if args.out:
+        write_provenance(args.out, ["python", "bench/params_hop.py", *(argv if argv is not None else sys.argv[1:])])
+        io.write_json(f"{args.out}/params_hop.json", rows)
+        io.write_text(f"{args.out}/params_hop.md", render(rows))
+
+
+if __name__ == "__main__":
+    main()
