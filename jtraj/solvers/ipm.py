@@ -24,7 +24,7 @@ Differences from Ipopt, and why:
   Newton solve handles by Sherman-Morrison-Woodbury around the block factorization of the
   rest, so the matrix stays block tridiagonal. The exact Hessian per element (the 2n x 2n block
   of the knot-k terms on (z_k, z_{k+1})) is an option: fewer iterations (big_jump 11 against
-  14), several times the cost per iteration and a far longer compile. A damped (Powell) BFGS
+  14, both with the LOQO oracle), several times the cost per iteration and a far longer compile. A damped (Powell) BFGS
   per element (partitioned quasi-Newton, Griewank and Toint) is another; it converges on small
   problems but not on the whole-body tasks (big_jump: multipliers grow to 1e7 and the dual
   infeasibility stalls near 1e4): its unexplored directions keep the identity's curvature.

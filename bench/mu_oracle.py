@@ -1,0 +1,43 @@
+"""jtraj's interior point with its two barrier rules on one task, in one process: iterations,
+time, and time per pass (an NLP evaluation: an iteration or a backtracking step).
+
+    python bench/mu_oracle.py [TASK] [--param se3] [--repeat 2]
+
+The rules: the default (Ipopt's: quality-function oracle, obj-constr-filter) and the former one
+(LOQO oracle, KKT-error). Each is solved ``--repeat`` times from the task's warm start with the
+compact variables, alternating, so a change in the machine's load shows as a change between
+repeats; compile is excluded (one program per rule, compiled before the first solve).
+"""
+
+from __future__ import annotations
+
+import argparse
+
+RULES = {
+    "quality-function + obj-constr-filter (default)": {},
+    "loqo + kkt-error": {"mu_oracle": "loqo", "adaptive_mu_globalization": "kkt-error"},
+}
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("task", nargs="?", default="big_jump")
+    ap.add_argument("--param", default="se3")
+    ap.add_argument("--repeat", type=int, default=2)
+    args = ap.parse_args(argv)
+
+    from jtraj.solver import prepare
+    from jtraj.solvers import JtrajSolver
+
+    prep = prepare(args.task, args.param)
+    x0 = prep.transcription.warm_start()
+    solver = JtrajSolver()
+    for _ in range(args.repeat):
+        for name, opts in RULES.items():
+            sol = solver.solve(prep.nlp, x0, prep.nlp.theta, opts)
+            t, its, passes = sol.stats.time_total, sol.stats.iterations, sol.stats.obj_evals
+            print(f"{args.task} {name:48s} {sol.status.value:14s} {its:4d} it {t:7.2f} s  {t / max(its, 1):.3f} s/it  {passes} passes  {t / max(passes, 1):.3f} s/pass", flush=True)
+
+
+if __name__ == "__main__":
+    main()
