@@ -34,7 +34,8 @@ Differences from Ipopt, and why:
   oracle and the KKT-error rule jtraj's solver stopped at 200 iterations, and Ipopt itself,
   given those two options, converges in 45 iterations to a motion of -0.95 turn (not a flip)
   where its defaults find the flip in 19. The LOQO oracle, the KKT-error rule and the
-  monotone strategy are options. On big_jump the monotone strategy's fixed mu = 0.1 let the
+  monotone strategy are options; the KKT-error rule measures progress by the scaled
+  optimality error (max-norm) where Ipopt's uses averaged squared residuals. On big_jump the monotone strategy's fixed mu = 0.1 let the
   fraction-to-the-boundary rule cut every step to 1e-3..1e-2.
 - Globalization: Ipopt's filter line search; no feasibility restoration phase: a failed line
   search takes its last (tiny) step and the solve stops after several in a row.
