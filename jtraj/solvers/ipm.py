@@ -411,6 +411,14 @@ class IPM:
         a = jnp.where(mask & (dz < 0), -tau * z / jnp.where(dz < 0, dz, -1.0), jnp.inf)
         return jnp.minimum(1.0, jnp.min(a))
 
+    def _step_bounds(self, p: _Problem, st: _State, step, tau):
+        """(primal, dual) fraction-to-the-boundary step lengths of ``step`` = (dx, ds, dy, dzl,
+        dzu, dvl, dvu) from the iterate ``st``."""
+        dx, ds, _, dzl, dzu, dvl, dvu = step
+        a_primal = jnp.minimum(self._max_step(st.x, dx, p.xl, p.xu, p.has_xl, p.has_xu, tau), self._max_step(st.s, ds, p.cl, p.cu, p.has_sl, p.has_su, tau))
+        a_dual = jnp.min(jnp.stack([self._max_dual_step(z, dz, mk, tau) for z, dz, mk in ((st.zl, dzl, p.has_xl), (st.zu, dzu, p.has_xu), (st.vl, dvl, p.has_sl), (st.vu, dvu, p.has_su))]))
+        return a_primal, a_dual
+
     def _element_grad(self, grad, A, B, y):
         """(K, 2n) gradient of each element's Lagrangian terms: the cost's gradient at knot k
         (costs are assigned to the knot they are differentiated by) and y_k . C_k."""
@@ -780,10 +788,9 @@ class IPM:
         mu = st.mu
         if o.mu_strategy == "adaptive" and o.mu_oracle == "quality-function":
             mu = jnp.where(st.free_mode, self._quality_function_mu(p, st, affine, centering, avg), mu)
-        dx, ds, dy, dzl, dzu, dvl, dvu = jax.tree.map(lambda a, c: a + (mu / avg) * c, affine, centering)
-        tau = st.tau
-        a_max = jnp.minimum(self._max_step(x, dx, p.xl, p.xu, p.has_xl, p.has_xu, tau), self._max_step(s, ds, p.cl, p.cu, p.has_sl, p.has_su, tau))
-        a_dual = jnp.min(jnp.stack([self._max_dual_step(z, dz, mk, tau) for z, dz, mk in ((st.zl, dzl, p.has_xl), (st.zu, dzu, p.has_xu), (st.vl, dvl, p.has_sl), (st.vu, dvu, p.has_su))]))
+        step = jax.tree.map(lambda a, c: a + (mu / avg) * c, affine, centering)
+        dx, ds, dy, dzl, dzu, dvl, dvu = step
+        a_max, a_dual = self._step_bounds(p, st, step, st.tau)
         theta0, phi0 = self._measures(p, x, s, st.f, st.c, mu)
         grad_bar_x, grad_bar_s = barrier_gradients(mu)
         slope = jnp.sum(grad_bar_x * dx) + jnp.sum(grad_bar_s * ds)
@@ -813,9 +820,9 @@ class IPM:
         x, s = st.x, st.s
 
         def quality(sigma):
-            dx, ds, _, dzl, dzu, dvl, dvu = jax.tree.map(lambda a, c: a + sigma * c, affine, centering)
-            a_p = jnp.minimum(self._max_step(x, dx, p.xl, p.xu, p.has_xl, p.has_xu, tau), self._max_step(s, ds, p.cl, p.cu, p.has_sl, p.has_su, tau))
-            a_d = jnp.min(jnp.stack([self._max_dual_step(z, dz, mk, tau) for z, dz, mk in ((st.zl, dzl, p.has_xl), (st.zu, dzu, p.has_xu), (st.vl, dvl, p.has_sl), (st.vu, dvu, p.has_su))]))
+            step = jax.tree.map(lambda a, c: a + sigma * c, affine, centering)
+            dx, ds, _, dzl, dzu, dvl, dvu = step
+            a_p, a_d = self._step_bounds(p, st, step, tau)
             pairs = ((x - p.xl, dx, st.zl, dzl, p.has_xl), (p.xu - x, -dx, st.zu, dzu, p.has_xu), (s - p.cl, ds, st.vl, dvl, p.has_sl), (p.cu - s, -ds, st.vu, dvu, p.has_su))
             compl = sum(jnp.sum(jnp.where(mask, ((d + a_p * dd) * (z + a_d * dz)) ** 2, 0.0)) for d, dd, z, dz, mask in pairs) / n_comp
             return (1.0 - a_d) ** 2 * dual_sq + (1.0 - a_p) ** 2 * primal_sq + compl
