@@ -34,7 +34,7 @@ def random_system(rng, K=5, n=4, m=3, indefinite=False):
 
 def dense_kkt(system, delta_w):
     """Dense KKT matrix over the free variables and all rows."""
-    H, sigma, A, B, d0, free = (np.asarray(a) for a in system)
+    H, sigma, A, B, d0, free = (np.asarray(a) for a in system[:6])
     K, n = sigma.shape
     m = A.shape[1]
     N = K * n
@@ -145,3 +145,57 @@ def test_low_rank_hessian_term_equals_dense_solve(rng):
     ref = np.linalg.solve(Md, np.concatenate([r_x.reshape(-1)[keep], r_c.reshape(-1)]))
     np.testing.assert_allclose(np.asarray(dx).reshape(-1)[keep], ref[:nf], rtol=1e-8, atol=1e-8)
     np.testing.assert_allclose(np.asarray(dy).reshape(-1), ref[nf:], rtol=1e-8, atol=1e-8)
+
+
+def sparse_system(rng, K=6, n=5, m=7):
+    """A random system whose A and B have a sparsity pattern (one dense row slot in A, sparse
+    rows elsewhere, B on some rows only), with that pattern; the element Hessians are None."""
+    system = random_system(rng, K, n, m)
+    mask_a = rng.uniform(size=(K, m, n)) < 0.3
+    mask_a[:, 2, :] = True  # a dense row slot, as the dynamics rows are
+    mask_a[:, np.arange(m), np.arange(m) % n] = True  # no empty row (the dense KKT stays regular)
+    mask_b = (rng.uniform(size=(K, m, n)) < 0.3) & (np.arange(m)[None, :, None] < 4)
+    mask_b[-1] = False
+    knot, slot, col = np.nonzero(np.concatenate([mask_a, mask_b], axis=2))
+    A = np.where(mask_a, np.asarray(system.A), 0.0)
+    B = np.where(mask_b, rng.normal(size=(K, m, n)), 0.0)
+    return system._replace(H=None, A=jnp.asarray(A), B=jnp.asarray(B)), (K, m, n, knot, slot, col)
+
+
+@pytest.mark.parametrize("pair_cost", [0.0, 1e9])
+def test_jacobian_pattern_products_equal_dense_ones(rng, pair_cost):
+    """J x, J^T y and the condensed blocks J^T W J from the nonzeros equal the dense products,
+    with every row as pairs (pair_cost 0) and with the dense slot by a dense product (1e9)."""
+    system, args = sparse_system(rng)
+    pattern = kkt.JacobianPattern(*args, pair_cost=pair_cost)
+    assert (pattern.dense_slots.size > 0) == (pair_cost > 0)
+    K, m, n = args[:3]
+    A, B = system.A, system.B
+    x, y = jnp.asarray(rng.normal(size=(K, n))), jnp.asarray(rng.normal(size=(K, m)))
+    np.testing.assert_allclose(pattern.apply_J(A, B, x), kkt._apply_J(A, B, x), atol=1e-12)
+    np.testing.assert_allclose(pattern.apply_JT(A, B, y), kkt._apply_JT(A, B, y), atol=1e-12)
+    d = jnp.asarray(rng.uniform(0.5, 2.0, size=(K, m)))
+    dense = kkt.condensed_blocks(system, d, jnp.asarray(0.1))
+    sparse = jax.jit(kkt.condensed_blocks)(system._replace(pattern=pattern), d, jnp.asarray(0.1))
+    for a, b in zip(sparse, dense):
+        np.testing.assert_allclose(a, b, atol=1e-12)
+
+
+def test_kkt_solve_with_pattern_equals_dense_solve(rng):
+    """The whole solve with a pattern (and no element Hessians) equals the dense KKT solve."""
+    system, args = sparse_system(rng)
+    system = system._replace(pattern=kkt.JacobianPattern(*args))
+    K, m, n = args[:3]
+    fac, delta_w, ok = jax.jit(kkt.factor_with_correction)(system, jnp.asarray(1e-9), jnp.asarray(0.0))
+    assert bool(ok)
+    r_x, r_c = rng.normal(size=(K, n)), rng.normal(size=(K, m))
+    dx, dy = jax.jit(kkt.solve)(system, fac, delta_w, jnp.asarray(1e-9), jnp.asarray(r_x), jnp.asarray(r_c))
+    M, keep = dense_kkt(system._replace(H=jnp.zeros((K, 2 * n, 2 * n))), float(delta_w))
+    ref = np.linalg.solve(M, np.concatenate([r_x.reshape(-1)[keep], r_c.reshape(-1)]))
+    np.testing.assert_allclose(np.asarray(dx).reshape(-1)[keep], ref[: keep.sum()], rtol=1e-8, atol=1e-8)
+    np.testing.assert_allclose(np.asarray(dy).reshape(-1), ref[keep.sum() :], rtol=1e-8, atol=1e-8)
+
+
+def test_jacobian_pattern_rejects_a_last_knot_reading_beyond():
+    with pytest.raises(ValueError, match="last knot"):
+        kkt.JacobianPattern(2, 1, 1, np.array([1]), np.array([0]), np.array([1]))

@@ -356,7 +356,7 @@ class IPM:
     def _residuals(self, p: _Problem, st: _State, mu):
         """Dual infeasibility, primal infeasibility (C - t) and complementarities at st."""
         A, B = st.A, st.B
-        jty = kkt._apply_JT(A, B, st.y)
+        jty = kkt._apply_JT(A, B, st.y, self.view.pattern)
         r_x = jnp.where(p.free, st.grad + jty - st.zl + st.zu, 0.0)
         r_s = jnp.where(p.ineq, -st.y - st.vl + st.vu, 0.0)
         t = jnp.where(p.eq, p.cl, st.s)
@@ -582,7 +582,8 @@ class IPM:
             # grad L(x, y+)) on the free variables, skipped without enough curvature, and the
             # scaled identity sigma = s^T y / s^T s of the newest pair ("scalar1")
             step = jnp.where(p.free, xt - st.x, 0.0)
-            diff = jnp.where(p.free, gt + kkt._apply_JT(At, Bt, y) - st.grad - kkt._apply_JT(st.A, st.B, y), 0.0)
+            pattern = self.view.pattern
+            diff = jnp.where(p.free, gt + kkt._apply_JT(At, Bt, y, pattern) - st.grad - kkt._apply_JT(st.A, st.B, y, pattern), 0.0)
             sy, ss, yy = jnp.sum(step * diff), jnp.sum(step * step), jnp.sum(diff * diff)
             keep = (~first) & (sy > 1e-8 * jnp.sqrt(ss * yy)) & (ss > 0)
             push = lambda hist, new: jnp.where(keep, jnp.concatenate([hist[1:], new[None]], axis=0), hist)  # noqa: E731
@@ -755,7 +756,7 @@ class IPM:
 
         def right_hand_side(mu):
             gx, gs = barrier_gradients(mu)
-            rhat_x = jnp.where(p.free, gx + kkt._apply_JT(st.A, st.B, st.y), 0.0)
+            rhat_x = jnp.where(p.free, gx + kkt._apply_JT(st.A, st.B, st.y, view.pattern), 0.0)
             rhat_s = jnp.where(p.ineq, gs - st.y, 0.0)
             # slacks eliminated: ds = (dy - rhat_s) / sigma_s on inequality rows
             return -rhat_x, -jnp.where(p.ineq, r_c + rhat_s / sig_s, r_c)
@@ -771,12 +772,12 @@ class IPM:
 
         low_rank = None
         if o.hessian == "lbfgs":
-            H = jnp.zeros((view.K, 2 * view.n, 2 * view.n))
+            H = None  # the Hessian is sigma I plus the low-rank term
             sigma_x = sigma_x + jnp.where(p.free, st.lsigma, 0.0)
             low_rank = self._lbfgs_low_rank(st)
         else:
             H = view.hessian(x, st.y, 1.0, theta) if o.hessian == "exact" else st.H
-        system = kkt.KKTSystem(H=H, sigma=sigma_x, A=st.A, B=st.B, d0=d0, free=p.free)
+        system = kkt.KKTSystem(H=H, sigma=sigma_x, A=st.A, B=st.B, d0=d0, free=p.free, pattern=view.pattern)
         # Ipopt's dual regularization, shrinking with mu (its kappa_c = 1/4)
         delta_c = o.delta_c * st.mu ** 0.25 if o.delta_c_mu_scaled else jnp.asarray(o.delta_c)
         fac, delta_w, ok = kkt.factor_with_correction(system, delta_c, st.delta_w)

@@ -26,6 +26,10 @@ M is positive definite, i.e. iff its Cholesky factorization succeeds: a failed f
 rules). The ``delta_c`` error is removed by iterative refinement against the system with D0.
 
 Cost: O(K (n^3 + m n^2)); the factorization and the two triangular sweeps are ``lax.scan``s.
+With a `JacobianPattern` (the Jacobian's static sparsity, which `jtraj.solvers.stage.StageView`
+knows), the products with J and the condensed blocks ``J^T D^-1 J`` touch only the nonzeros:
+on the whole-body tasks about a tenth of the dense blocks' entries, and the dense products were
+most of a Newton step's time (they are memory-bound on a CPU).
 """
 
 from __future__ import annotations
@@ -34,6 +38,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import lax
 from jax.scipy.linalg import solve_triangular
 
@@ -48,27 +53,134 @@ __all__ = [
     "multiply",
     "InertiaOptions",
     "LowRank",
+    "JacobianPattern",
 ]
 
 
 class KKTSystem(NamedTuple):
-    """The KKT matrix's pieces (see the module docstring); all float arrays.
+    """The KKT matrix's pieces (see the module docstring); float arrays but ``pattern``.
 
     Attributes:
-        H: (K, 2n, 2n) symmetric element Hessians on (z_k, z_{k+1}); H[K-1][n:, :] is ignored.
+        H: (K, 2n, 2n) symmetric element Hessians on (z_k, z_{k+1}); H[K-1][n:, :] is ignored;
+            None for no block Hessian (a limited-memory Hessian is all low-rank term).
         sigma: (K, n) diagonal barrier terms of the variable bounds.
         A: (K, m, n) Jacobian of knot k's rows with respect to z_k.
         B: (K, m, n) ... with respect to z_{k+1} (B[K-1] is ignored).
         d0: (K, m) the (2, 2) block is ``-diag(d0)``; 0 for equalities.
         free: (K, n) bool, False for fixed variables.
+        pattern: the static sparsity of A and B (entries outside it are taken as zero), or
+            None for dense blocks.
     """
 
-    H: jax.Array
+    H: jax.Array | None
     sigma: jax.Array
     A: jax.Array
     B: jax.Array
     d0: jax.Array
     free: jax.Array
+    pattern: JacobianPattern | None = None
+
+
+@jax.tree_util.register_static
+class JacobianPattern:
+    """The static sparsity of the stage Jacobian blocks A, B (K, m, n), and the products that
+    use only their nonzeros.
+
+    Built once from the nonzeros' (knot k, row slot r, column c in [0, 2n)): c < n is an entry
+    of A[k, r, c], c >= n one of B[k, r, c - n] (rows of knot k reading knot k + 1).
+
+    - `apply_J` / `apply_JT`: gathers of the nonzeros and a scatter-add, instead of dense
+      (K, m, n) products.
+    - `condensed`: the blocks of ``J^T diag(w) J``. Each row adds ``w_r`` times the outer
+      product of its nonzeros, so its entries are sums over pairs of nonzeros of one row:
+      those pairs (index arrays) are built here and summed by one sorted segment sum. Row
+      slots with many nonzeros in A (the dynamics rows, whose pairs grow as the square)
+      contribute their A-A part by a dense batched product over those slots instead; which
+      slots, by a cost model (``pair_cost`` flops per pair).
+
+    Registered as a static pytree node, so a `KKTSystem` carrying it passes through ``jit``
+    and ``vmap`` (it is hashed by identity).
+    """
+
+    def __init__(self, K: int, m: int, n: int, knot: np.ndarray, slot: np.ndarray, col: np.ndarray, pair_cost: float = 200.0):
+        knot, slot, col = (np.asarray(a, np.int64) for a in (knot, slot, col))
+        flat = np.unique((knot * m + slot) * (2 * n) + col)
+        knot, slot, col = flat // (m * 2 * n), (flat // (2 * n)) % m, flat % (2 * n)
+        is_b = col >= n
+        if np.any(is_b & (knot >= K - 1)):
+            raise ValueError("a row of the last knot reads a next knot")
+        self.K, self.m, self.n = K, m, n
+        self.nnz = int(flat.size)
+        i32 = lambda a: np.asarray(a, np.int32)  # noqa: E731
+        row = knot * m + slot
+        # gathers from A.ravel() and B.ravel(); columns into the (K + 1) n padded vector
+        ka, ra, ca = knot[~is_b], row[~is_b], col[~is_b]
+        kb, rb, cb = knot[is_b], row[is_b], col[is_b] - n
+        self._a = (i32(ra * n + ca), i32(ra), i32(ka * n + ca))
+        self._b = (i32(rb * n + cb), i32(rb), i32((kb + 1) * n + cb))
+        # every nonzero: its row, the knot of its column, its column, its position in [A.ravel(), B.ravel()]
+        e_row = np.concatenate([ra, rb])
+        e_knot = np.concatenate([ka, kb + 1])
+        e_col = np.concatenate([ca, cb])
+        e_pos = np.concatenate([ra * n + ca, K * m * n + rb * n + cb])
+        e_a = np.concatenate([np.ones(ka.size, bool), np.zeros(kb.size, bool)])
+        # dense slots: the fewest (largest-A) slots that minimize dense flops + pair_cost * pairs
+        n_a = np.bincount(ra, minlength=K * m).reshape(K, m)
+        per_slot_aa = (n_a.astype(np.int64) ** 2).sum(axis=0)
+        by_size = np.argsort(-n_a.max(axis=0), kind="stable")
+        cost = [pair_cost * per_slot_aa.sum()]
+        for j in range(m):
+            cost.append(cost[-1] - pair_cost * per_slot_aa[by_size[j]] + 2.0 * K * n * n)
+        self.dense_slots = np.sort(by_size[: int(np.argmin(cost))]).astype(np.int32)
+        dense_row = np.zeros(K * m, bool)
+        dense_row[(np.arange(K)[:, None] * m + self.dense_slots[None, :]).ravel()] = True
+        # pairs (p, q) of nonzeros in one row with knot(p) <= knot(q), A-A pairs of dense rows left out
+        order = np.argsort(e_row, kind="stable")
+        counts = np.bincount(e_row, minlength=K * m)
+        starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        per = counts[e_row[order]]
+        p = np.repeat(order, per)
+        first = np.repeat(starts[e_row[order]], per)
+        offset = np.arange(p.size) - np.repeat(np.cumsum(per) - per, per)
+        q = order[first + offset]
+        keep = (e_knot[p] <= e_knot[q]) & ~(dense_row[e_row[p]] & e_a[p] & e_a[q])
+        p, q = p[keep], q[keep]
+        # target: diag (offset 0) or upper (offset 1) block of knot(p), entry (col p, col q)
+        target = (e_knot[q] - e_knot[p]) * (K * n * n) + e_knot[p] * (n * n) + e_col[p] * n + e_col[q]
+        srt = np.argsort(target, kind="stable")
+        self._pairs = (i32(e_pos[p[srt]]), i32(e_pos[q[srt]]), i32(e_row[p[srt]]), i32(target[srt]))
+        self.n_pairs = int(p.size)
+
+    def apply_J(self, A: jax.Array, B: jax.Array, x: jax.Array) -> jax.Array:
+        """J x (K, m) for x (K, n)."""
+        K, m, n = self.K, self.m, self.n
+        xf = jnp.concatenate([x.reshape(-1), jnp.zeros(n, x.dtype)])
+        (pa, ra, ca), (pb, rb, cb) = self._a, self._b
+        out = jnp.zeros(K * m, x.dtype).at[ra].add(A.reshape(-1)[pa] * xf[ca]).at[rb].add(B.reshape(-1)[pb] * xf[cb])
+        return out.reshape(K, m)
+
+    def apply_JT(self, A: jax.Array, B: jax.Array, y: jax.Array) -> jax.Array:
+        """J^T y (K, n) for y (K, m)."""
+        K, n = self.K, self.n
+        yf = y.reshape(-1)
+        (pa, ra, ca), (pb, rb, cb) = self._a, self._b
+        out = jnp.zeros((K + 1) * n, y.dtype).at[ca].add(A.reshape(-1)[pa] * yf[ra]).at[cb].add(B.reshape(-1)[pb] * yf[rb])
+        return out[: K * n].reshape(K, n)
+
+    def condensed(self, A: jax.Array, B: jax.Array, w: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """The blocks of ``J^T diag(w) J`` for w (K, m): (diag (K, n, n), upper (K, n, n)),
+        upper[k] = the (k, k+1) block; the B-B products land on diag[k + 1]."""
+        K, n = self.K, self.n
+        p, q, row, target = self._pairs
+        values = jnp.concatenate([A.reshape(-1), B.reshape(-1)])
+        prods = values[p] * values[q] * w.reshape(-1)[row]
+        out = jax.ops.segment_sum(prods, target, num_segments=2 * K * n * n, indices_are_sorted=True)
+        diag, upper = out[: K * n * n].reshape(K, n, n), out[K * n * n :].reshape(K, n, n)
+        # (the pairs of one knot's columns come in both orders, so diag is symmetric)
+        if self.dense_slots.size:
+            Ad = A[:, self.dense_slots, :]
+            diag = diag + jnp.swapaxes(Ad * w[:, self.dense_slots, None], 1, 2) @ Ad
+        return diag, upper
 
 
 class LowRank(NamedTuple):
@@ -120,17 +232,21 @@ def condensed_blocks(system: KKTSystem, d: jax.Array, delta_w: jax.Array) -> tup
     """Blocks of ``M = H + diag(sigma) + delta_w I + J^T diag(1/d) J`` restricted to the free
     variables (identity on fixed ones): (diag (K, n, n), upper (K, n, n) with upper[k] =
     M[k, k+1], upper[K-1] = 0)."""
-    H, sigma, A, B, _, free = system
+    H, sigma, A, B, free, pattern = system.H, system.sigma, system.A, system.B, system.free, system.pattern
     K, n = sigma.shape
     has_next = _split_last(K)
-    Bm = B * has_next[:, None, None]
     w = 1.0 / d
-    AtW = jnp.swapaxes(A * w[:, :, None], 1, 2)
-    BtW = jnp.swapaxes(Bm * w[:, :, None], 1, 2)
-    diag = H[:, :n, :n] + AtW @ A
-    nxt = (H[:, n:, n:] * has_next[:, None, None]) + BtW @ Bm  # lands on knot k+1
-    diag = diag.at[1:].add(nxt[:-1])
-    upper = (H[:, :n, n:] * has_next[:, None, None]) + AtW @ Bm
+    if pattern is not None:
+        diag, upper = pattern.condensed(A, B, w)
+    else:
+        Bm = B * has_next[:, None, None]
+        AtW = jnp.swapaxes(A * w[:, :, None], 1, 2)
+        BtW = jnp.swapaxes(Bm * w[:, :, None], 1, 2)
+        diag = (AtW @ A).at[1:].add((BtW @ Bm)[:-1])  # B_k's products land on knot k+1
+        upper = AtW @ Bm
+    if H is not None:
+        diag = (diag + H[:, :n, :n]).at[1:].add(H[:-1, n:, n:])
+        upper = upper + H[:, :n, n:] * has_next[:, None, None]
     diag = diag + jax.vmap(jnp.diag)(sigma + delta_w)
     f = free.astype(diag.dtype)
     f_next = jnp.concatenate([f[1:], jnp.zeros_like(f[:1])], axis=0)
@@ -193,7 +309,8 @@ def factor_with_correction(
     d = system.d0 + delta_c
     n = system.sigma.shape[1]
     # one factorization in the program (attempt 0 is delta_w = 0), to keep compile time low
-    empty = BlockFactor(jnp.zeros_like(system.H[:, :n, :n]), jnp.zeros_like(system.H[:, :n, :n]))
+    zeros = jnp.zeros((system.sigma.shape[0], n, n), system.sigma.dtype)
+    empty = BlockFactor(zeros, zeros)
 
     def cond(state):
         _, ok, dw, i = state
@@ -211,15 +328,19 @@ def factor_with_correction(
     return fac, dw, ok
 
 
-def _apply_J(A, B, x):
+def _apply_J(A, B, x, pattern: JacobianPattern | None = None):
     """J x: (K, m) rows of knot k from x_k and x_{k+1}."""
+    if pattern is not None:
+        return pattern.apply_J(A, B, x)
     K = x.shape[0]
     x_next = jnp.concatenate([x[1:], jnp.zeros_like(x[:1])], axis=0)
     return jnp.einsum("kmn,kn->km", A, x) + jnp.einsum("kmn,kn->km", B * _split_last(K)[:, None, None], x_next)
 
 
-def _apply_JT(A, B, y):
+def _apply_JT(A, B, y, pattern: JacobianPattern | None = None):
     """J^T y: (K, n)."""
+    if pattern is not None:
+        return pattern.apply_JT(A, B, y)
     K = y.shape[0]
     out = jnp.einsum("kmn,km->kn", A, y)
     from_prev = jnp.einsum("kmn,km->kn", B * _split_last(K)[:, None, None], y)
@@ -239,13 +360,15 @@ def _apply_H(H, x):
 def multiply(system: KKTSystem, delta_w: jax.Array, dx: jax.Array, dy: jax.Array, d: jax.Array | None = None, low_rank: LowRank | None = None) -> tuple[jax.Array, jax.Array]:
     """The KKT matrix (with (2,2) block ``-diag(d)``, default D0; the Hessian's low-rank term
     if given) times (dx, dy), fixed variables removed (their rows return dx itself)."""
-    H, sigma, A, B, d0, free = system
+    H, sigma, A, B, d0, free, pattern = system
     d = d0 if d is None else d
     f = free.astype(dx.dtype)
     dxf = dx * f
-    Hx = _apply_H(H, dxf) if low_rank is None else _apply_H(H, dxf) + _low_rank_apply(low_rank, dxf)
-    top = (Hx + (sigma + delta_w) * dxf + _apply_JT(A, B, dy)) * f + dx * (1.0 - f)
-    bottom = _apply_J(A, B, dxf) - d * dy
+    Hx = jnp.zeros_like(dxf) if H is None else _apply_H(H, dxf)
+    if low_rank is not None:
+        Hx = Hx + _low_rank_apply(low_rank, dxf)
+    top = (Hx + (sigma + delta_w) * dxf + _apply_JT(A, B, dy, pattern)) * f + dx * (1.0 - f)
+    bottom = _apply_J(A, B, dxf, pattern) - d * dy
     return top, bottom
 
 
@@ -288,11 +411,11 @@ def solve(
         capacitance = low_rank.M - jnp.einsum("rkn,skn->rs", Wf, Z)
 
     def condensed_solve(rx, rc):
-        b = rx + _apply_JT(A, B, rc / d) * f
+        b = rx + _apply_JT(A, B, rc / d, system.pattern) * f
         dx = solve_factored(fac, b) * f
         if low_rank is not None:
             dx = dx + jnp.einsum("rkn,r->kn", Z, jnp.linalg.solve(capacitance, jnp.einsum("rkn,kn->r", Wf, dx)))
-        dy = (_apply_J(A, B, dx) - rc) / d
+        dy = (_apply_J(A, B, dx, system.pattern) - rc) / d
         return dx, dy
 
     def residual(dx, dy):

@@ -22,6 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jtraj.nlp import KnotNLP
+from jtraj.solvers.kkt import JacobianPattern
 
 __all__ = ["StageView", "INFINITY"]
 
@@ -61,6 +62,9 @@ class StageView:
         if off.size and (off.min() < 0 or off.max() > 1):
             raise ValueError("a constraint row reads a knot other than its own and the next one; the stage view needs offsets 0 or 1")
         self._jac_flat = self.row_flat[nlp.jac_rows] * (2 * n) + off * n + nlp.jac_cols % n
+        slot_flat = self.row_flat[nlp.jac_rows]
+        #: the blocks' static sparsity, for the KKT solve's products (`kkt.JacobianPattern`)
+        self.pattern = JacobianPattern(K, m, n, slot_flat // m, slot_flat % m, off * n + nlp.jac_cols % n)
         # an NLP with parameters has bounds(theta) and functions of (x, theta) (`jtraj.solvers.base.bind`)
         self._theta = callable(getattr(nlp, "bounds", None))
 
