@@ -38,7 +38,8 @@ Differences from Ipopt, and why:
   optimality error (max-norm) where Ipopt's uses averaged squared residuals. On big_jump the monotone strategy's fixed mu = 0.1 let the
   fraction-to-the-boundary rule cut every step to 1e-3..1e-2.
 - Globalization: Ipopt's filter line search; no feasibility restoration phase: a failed line
-  search takes its last (tiny) step and the solve stops after several in a row.
+  search takes its last (tiny) step and the solve stops after several in a row. A trial point
+  costs the objective and constraints only; the Jacobian is evaluated at accepted points.
 - Everything is one `jax.jit` program (`lax.while_loop`); `jax.vmap` of `IPM.solve` over
   initial guesses (and parameters theta) runs replicates together, a converged replicate's
   state no longer changes (the batched while loop only updates unfinished members).
@@ -507,7 +508,7 @@ class IPM:
 
         def body(carry):
             st, passes = carry
-            return self._pass(p, st, theta), passes + 1
+            return self._iteration(p, st, passes, theta)
 
         st, passes = lax.while_loop(cond, body, (st, jnp.zeros((), jnp.int32)))
         return self._finish(p, st, passes)
@@ -520,35 +521,57 @@ class IPM:
         """(theta, phi): l1 infeasibility and barrier objective."""
         return self._infeasibility_l1(p, c, s), f + self._barrier(p, x, s, mu)
 
-    def _pass(self, p: _Problem, st: _State, theta) -> _State:
-        """One evaluation at the trial point; accept (advance) or halve the step."""
+    def _iteration(self, p: _Problem, st: _State, passes: jax.Array, theta) -> tuple[_State, jax.Array]:
+        """One iteration: the line search (values only at each trial point), then the
+        derivatives at the accepted point and the next direction (`_advance`).
+
+        Only an accepted point needs the Jacobian, so a rejected trial costs one evaluation of
+        the objective and constraints. Under ``vmap`` the line search is its own loop, so the
+        derivatives and the Newton step run once per iteration for the whole batch, not once per
+        trial of its slowest member (a batched ``cond`` computes both branches)."""
         o = self.options
-        xt = st.x + st.alpha * st.dx
-        s_t = st.s + st.alpha * st.ds
-        ft, ct, gt, At, Bt = self.view.evaluate(xt, theta)
-        # the first pass only evaluates the initial point; its slacks start inside their bounds
-        s_first = jnp.where(p.ineq, self._push(ct, p.cl, p.cu, p.has_sl, p.has_su, o.bound_push, o.bound_frac), 0.0)
-        s_t = jnp.where(st.first, s_first, s_t)
-        th_t, ph_t = self._measures(p, xt, s_t, ft, ct, st.mu)
-        finite = jnp.isfinite(th_t) & jnp.isfinite(ph_t)
-        switching = (st.slope < 0) & (st.alpha * (-st.slope) ** self.S_PHI > self.DELTA * st.theta0 ** self.S_THETA)
-        armijo = ph_t <= st.phi0 + self.ETA_PHI * st.alpha * st.slope
-        f_type = switching & (st.theta0 <= st.theta_min)
-        sufficient = jnp.where(f_type, armijo, (th_t <= (1.0 - self.GAMMA_THETA) * st.theta0) | (ph_t <= st.phi0 - self.GAMMA_PHI * st.theta0))
-        in_filter = jnp.any((th_t >= st.filter[:, 0]) & (ph_t >= st.filter[:, 1]))
-        accept = finite & (th_t <= st.theta_max) & sufficient & ~in_filter
-        give_up = finite & ~accept & (st.trials + 1 >= o.max_line_search)
-        advance = st.first | accept | give_up
-        trial = (xt, s_t, ft, ct, gt, At, Bt, th_t)
+        K, m = self.view.K, self.view.m
+        zero = jnp.zeros(())
+        false = jnp.asarray(False)
+        # the loop carries what a trial changes (step length, trial count, status), not the state
+        init = (st.alpha, st.trials, st.status, st.x, st.s, zero, jnp.zeros((K, m)), zero, false, false, false, passes)
 
-        def on_advance(st):
-            return self._advance(p, st, trial, f_type & armijo, give_up & ~st.first, theta)
+        def trial_cond(ls):
+            status, done, passes = ls[2], ls[8], ls[11]
+            return (~done) & (status == int(IpmStatus.RUNNING)) & (passes < (o.max_iter + 1) * (o.max_line_search + 1))
 
-        def on_reject(st):
-            status = jnp.where(finite | (st.trials + 1 < o.max_line_search), st.status, int(IpmStatus.NUMERICAL_ERROR))
-            return st._replace(alpha=0.5 * st.alpha, trials=st.trials + 1, status=status.astype(jnp.int32))
+        def trial_body(ls):
+            alpha, trials, status, *_, passes = ls
+            xt = st.x + alpha * st.dx
+            s_t = st.s + alpha * st.ds
+            ft, ct = self.view.values(xt, theta)
+            # the first pass only evaluates the initial point; its slacks start inside their bounds
+            s_first = jnp.where(p.ineq, self._push(ct, p.cl, p.cu, p.has_sl, p.has_su, o.bound_push, o.bound_frac), 0.0)
+            s_t = jnp.where(st.first, s_first, s_t)
+            th_t, ph_t = self._measures(p, xt, s_t, ft, ct, st.mu)
+            finite = jnp.isfinite(th_t) & jnp.isfinite(ph_t)
+            switching = (st.slope < 0) & (alpha * (-st.slope) ** self.S_PHI > self.DELTA * st.theta0 ** self.S_THETA)
+            armijo = ph_t <= st.phi0 + self.ETA_PHI * alpha * st.slope
+            f_type = switching & (st.theta0 <= st.theta_min)
+            sufficient = jnp.where(f_type, armijo, (th_t <= (1.0 - self.GAMMA_THETA) * st.theta0) | (ph_t <= st.phi0 - self.GAMMA_PHI * st.theta0))
+            in_filter = jnp.any((th_t >= st.filter[:, 0]) & (ph_t >= st.filter[:, 1]))
+            accept = finite & (th_t <= st.theta_max) & sufficient & ~in_filter
+            give_up = finite & ~accept & (trials + 1 >= o.max_line_search)
+            advance = st.first | accept | give_up
+            # a rejected trial halves the step (a non-finite one at the last trial stops the solve)
+            status = jnp.where(advance | finite | (trials + 1 < o.max_line_search), status, int(IpmStatus.NUMERICAL_ERROR)).astype(jnp.int32)
+            alpha = jnp.where(advance, alpha, 0.5 * alpha)
+            trials = jnp.where(advance, trials, trials + 1).astype(jnp.int32)
+            return (alpha, trials, status, xt, s_t, ft, ct, th_t, advance, f_type & armijo, give_up & ~st.first, passes + 1)
 
-        return lax.cond(advance, on_advance, on_reject, st)
+        alpha, trials, status, xt, s_t, ft, ct, th_t, done, f_step, failed, passes = lax.while_loop(trial_cond, trial_body, init)
+        st = st._replace(alpha=alpha, trials=trials, status=status)
+
+        def accepted(st):
+            gt, At, Bt = self.view.derivatives(xt, theta)
+            return self._advance(p, st, (xt, s_t, ft, ct, gt, At, Bt, th_t), f_step, failed, theta)
+
+        return lax.cond(done, accepted, lambda st: st, st), passes
 
     def _advance(self, p: _Problem, st: _State, trial, f_step, failed, theta) -> _State:
         """Accept the trial point: update multipliers, Hessian, filter, barrier; test
