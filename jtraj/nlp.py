@@ -246,6 +246,30 @@ def _knot_blocks(derivative: Callable, fn: Callable, layout: Layout, Z: jax.Arra
     return jax.vmap(derivative(fn, argnums=2), in_axes=in_axes)(theta, data, flat, *batched)
 
 
+def _knot_jacobians(fn: Callable, layout: Layout, Z: jax.Array, knots: np.ndarray, deps: Sequence[Dep], theta: Any, data: Any) -> jax.Array:
+    """The block Jacobian of ``fn(theta, data, *deps)`` at every knot, (K, rows, sum of dep
+    sizes), as `_knot_blocks` with `jax.jacfwd` gives it, one dependency at a time.
+
+    Forward mode pushes one tangent per column through the whole function. Differentiating
+    with respect to one dependency, the others held, lets JAX skip (symbolic zero tangents)
+    every part of ``fn`` that does not read it: the step rows, whose dependencies each enter a
+    few rows, and the stationary-contact rows, a kinematics call at each of two knots. Measured
+    on big_jump's groups (2 cores): 30 -> 5 ms and 28 -> 14 ms, the same values."""
+    args = _gather_deps(layout, Z, knots, deps)
+
+    def one(theta, data, *ds):
+        blocks = []
+        for j in range(len(ds)):
+            def of_j(dj, j=j):
+                return fn(theta, data, *ds[:j], dj, *ds[j + 1 :])
+
+            blocks.append(jax.jacfwd(of_j)(ds[j]))
+        return jnp.concatenate(blocks, axis=-1)
+
+    in_axes = (None, None if data is None else 0) + (0,) * len(deps)
+    return jax.vmap(one, in_axes=in_axes)(theta, data, *args)
+
+
 def _probe_point(rng: np.random.Generator, n_knots: int, nz: int) -> np.ndarray:
     """A random (n_knots, nz) point with no entry near 0, where a structural zero shows."""
     return rng.uniform(0.2, 1.0, size=(n_knots, nz)) * rng.choice([-1.0, 1.0], size=(n_knots, nz))
@@ -374,12 +398,11 @@ class KnotNLP:
     def _group_block_jacobian(self, g: ConstraintGroup):
         """(Z, theta) -> (K, rows, ndep) block Jacobians of group g."""
         layout = self.layout
-        flat_fn = _on_flat(g.fn, [layout.size(d.slot) for d in g.deps])
 
         def blocks(Z, theta):
             if g.batched_jacobian is not None:
                 return g.batched_jacobian(theta, g.data, *_gather_deps(layout, Z, g.knots, g.deps))
-            return _knot_blocks(jax.jacfwd, flat_fn, layout, Z, g.knots, g.deps, theta, g.data)
+            return _knot_jacobians(g.fn, layout, Z, g.knots, g.deps, theta, g.data)
 
         return blocks
 
