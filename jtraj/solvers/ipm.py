@@ -498,13 +498,11 @@ class IPM:
         )
 
     def _solve(self, x0: jax.Array, theta: Any = None) -> IpmResult:
-        o = self.options
         p, st = self._start(x0, theta)
-        max_passes = (o.max_iter + 1) * (o.max_line_search + 1)
 
         def cond(carry):
             st, passes = carry
-            return (st.status == int(IpmStatus.RUNNING)) & (passes < max_passes)
+            return (st.status == int(IpmStatus.RUNNING)) & (passes < self._max_passes)
 
         def body(carry):
             st, passes = carry
@@ -512,6 +510,11 @@ class IPM:
 
         st, passes = lax.while_loop(cond, body, (st, jnp.zeros((), jnp.int32)))
         return self._finish(p, st, passes)
+
+    @property
+    def _max_passes(self) -> int:
+        """Bound on NLP evaluations: every iteration's full line search."""
+        return (self.options.max_iter + 1) * (self.options.max_line_search + 1)
 
     FILTER_SIZE = 64
     # Ipopt's filter line-search constants (Wächter & Biegler 2006, section 2.3 and Table 1)
@@ -538,7 +541,7 @@ class IPM:
 
         def trial_cond(ls):
             status, done, passes = ls[2], ls[8], ls[11]
-            return (~done) & (status == int(IpmStatus.RUNNING)) & (passes < (o.max_iter + 1) * (o.max_line_search + 1))
+            return (~done) & (status == int(IpmStatus.RUNNING)) & (passes < self._max_passes)
 
         def trial_body(ls):
             alpha, trials, status, *_, passes = ls

@@ -115,11 +115,6 @@ class StageView:
         J2 = jnp.zeros(K * m * 2 * n, vals.dtype).at[self._jac_flat].add(vals).reshape(K, m, 2 * n)
         return grad, J2[..., :n], J2[..., n:]
 
-    def evaluate(self, Z: jax.Array, theta: Any = None) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array, jax.Array]:
-        """Everything first-order at Z: objective, C (K, m), gradient (K, n), A, B (K, m, n)."""
-        f, C = self.values(Z, theta)
-        return (f, C) + self.derivatives(Z, theta)
-
     def prepare_hessian(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Build the NLP's Hessian structure (host work: call before tracing) and the scatter
         of its lower-triangle entries into element blocks; returns that scatter."""
