@@ -2,6 +2,7 @@
 
     python bench/side_by_side.py --out results/side_by_side [--tasks walk,big_jump,...]
         [--variables paper] [--peer ../shared/peers/run-se3-trajopt] [--sigma 0.5 --seeds 0,1,2]
+        [--robot talos=talos_full] [--code-costs]
 
 For every task (and noise draw): the paper's code (SE(3) tangent, its own settings, through its
 runner script, which prints one JSON line), then ``jtraj.solve(task, "se3", variables=...)`` for
@@ -12,11 +13,16 @@ quotes) and ``OUT/provenance.json``. Rows already in the JSON are kept (resume).
 The noise of the paper's runner is numpy's ``default_rng(seed)`` on its own variable vector,
 jtraj's is ``numpy default_rng(seed)`` on jtraj's: same distribution, not the same draws (the
 two codes order and size their variables differently).
+
+``--robot talos=talos_full`` solves jtraj's side on the study's Talos model (`robots/talos_full.toml`)
+and ``--code-costs`` with the cost weights of the code's task scripts where they differ from the
+paper's Table II (`CODE_COSTS`); both show in the jtraj column's name.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import subprocess
 import sys
@@ -25,6 +31,8 @@ from pathlib import Path
 import jtraj
 from jtraj import io
 from jtraj.provenance import write_provenance
+from jtraj.task import Task, retarget
+from jtraj.task import load as load_task
 
 #: The public code's runner: ../shared/peers/run-se3-trajopt beside the repository (pass
 #: --peer from a worktree elsewhere).
@@ -32,6 +40,10 @@ DEFAULT_PEER = Path(__file__).resolve().parents[1].parent / "shared" / "peers" /
 #: Iterations of the SE(3) tangent parameterization in the paper's Table IV.
 PAPER_TABLE_IV = {"walk": 14, "hopscotch": 10, "big_jump": 11, "handstand": 88, "backflip": 28, "sideflip": 29}
 TASKS = ("walk", "hopscotch", "big_jump", "handstand", "backflip", "sideflip")
+#: Cost weights of the public code's task scripts that differ from the paper's Table II:
+#: ``walk.py`` adds a configuration cost of 1e-6 (Table II: none), ``humanoid_flip.py`` weighs
+#: the back-flip's configuration cost 1e-6 (Table II: 1e-9).
+CODE_COSTS = {"walk": {"configuration_weight": 1e-6}, "backflip": {"configuration_weight": 1e-6}}
 
 
 def run_peer(peer: Path, task: str, sigma: float, seed: int) -> dict:
@@ -44,12 +56,40 @@ def run_peer(peer: Path, task: str, sigma: float, seed: int) -> dict:
         return dict(code="paper", task=task, sigma=sigma, seed=seed, status="error", converged=False, iterations=None, error=out.stderr[-500:])
     d = json.loads(out.stdout.strip().splitlines()[-1])
     # Ipopt's status 0 (solved) and 1 (solved to acceptable level) count as converged
-    return dict(code="paper", task=task, sigma=sigma, seed=seed, status=int(d["status"]), converged=int(d["status"]) in (0, 1), iterations=int(d["iterations"]), cost=d.get("obj"), time_s=d.get("time_s"))
+    return dict(
+        code="paper", task=task, sigma=sigma, seed=seed, status=int(d["status"]), converged=int(d["status"]) in (0, 1), iterations=int(d["iterations"]), cost=d.get("obj"), time_s=d.get("time_s")
+    )
 
 
-def run_jtraj(task: str, variables: str, sigma: float, seed: int) -> dict:
-    r = jtraj.solve(task, "se3", variables=variables, noise=sigma, seed=seed, progress=None, keep_trajectory=False)
-    return dict(code=f"jtraj {variables}", task=task, sigma=sigma, seed=seed, status=r.status.value, converged=bool(r.converged), iterations=int(r.iterations), cost=float(r.cost), time_s=round(float(r.time_s), 3), turns=r.turns)
+def jtraj_task(name: str, robots: dict[str, str], code_costs: bool) -> Task:
+    """The task jtraj solves: the built-in one, on the robot ``robots`` maps its robot to, with
+    the code's cost weights if ``code_costs``."""
+    task = retarget(load_task(name), robots)
+    return dataclasses.replace(task, **CODE_COSTS.get(name, {})) if code_costs else task
+
+
+def jtraj_label(variables: str, robots: dict[str, str], code_costs: bool) -> str:
+    """The jtraj column: ``jtraj paper``, ``jtraj paper, talos_full, code's costs``."""
+    return ", ".join([f"jtraj {variables}", *robots.values(), *(["code's costs"] if code_costs else [])])
+
+
+def run_jtraj(task: str, variables: str, sigma: float, seed: int, robots: dict[str, str] | None = None, code_costs: bool = False) -> dict:
+    problem = jtraj_task(task, robots or {}, code_costs)
+    r = jtraj.solve(problem, "se3", variables=variables, noise=sigma, seed=seed, progress=None, keep_trajectory=False)
+    return dict(
+        code=jtraj_label(variables, robots or {}, code_costs),
+        robot=problem.robot,
+        configuration_weight=problem.configuration_weight,
+        task=task,
+        sigma=sigma,
+        seed=seed,
+        status=r.status.value,
+        converged=bool(r.converged),
+        iterations=int(r.iterations),
+        cost=float(r.cost),
+        time_s=round(float(r.time_s), 3),
+        turns=r.turns,
+    )
 
 
 def _cell(rows: list[dict]) -> str:
@@ -88,8 +128,11 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--sigma", type=float, default=0.0)
     ap.add_argument("--seeds", default="0")
     ap.add_argument("--peer", default=str(DEFAULT_PEER), help="the paper code's runner script ('' to skip it)")
+    ap.add_argument("--robot", action="append", default=[], metavar="ROBOT=OTHER", help="jtraj solves tasks on ROBOT with the model OTHER (e.g. talos=talos_full: the study's Talos)")
+    ap.add_argument("--code-costs", action="store_true", help="jtraj uses the cost weights of the code's task scripts (CODE_COSTS) where they differ from Table II")
     ap.add_argument("--out", default="results/side_by_side")
     args = ap.parse_args(argv)
+    robots = dict(item.split("=", 1) for item in args.robot)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     path = out / "side_by_side.json"
@@ -98,8 +141,10 @@ def main(argv: list[str] | None = None) -> None:
     seeds = [int(s) for s in args.seeds.split(",")] if args.sigma else [0]
     for task in args.tasks.split(","):
         for seed in seeds:
-            jobs = ([("paper", lambda: run_peer(Path(args.peer), task, args.sigma, seed))] if args.peer else []) + [
-                (f"jtraj {lay}", lambda lay=lay: run_jtraj(task, lay, args.sigma, seed)) for lay in args.variables.split(",") if lay
+            jobs = ([("paper", lambda task=task, seed=seed: run_peer(Path(args.peer), task, args.sigma, seed))] if args.peer else []) + [
+                (jtraj_label(lay, robots, args.code_costs), lambda lay=lay, task=task, seed=seed: run_jtraj(task, lay, args.sigma, seed, robots, args.code_costs))
+                for lay in args.variables.split(",")
+                if lay
             ]
             for code, job in jobs:
                 if (code, task, args.sigma, seed) in done:

@@ -55,7 +55,7 @@ def _cmd_solve(args: argparse.Namespace) -> int:
     from jtraj.solver import solve
 
     options = args.ipopt_checked  # parsed and checked by _check_inputs
-    task = tasks.load(args.task)
+    task = tasks.retarget(tasks.load(args.task), args.robots_checked)
     out = args.out or f"runs/{task.name}_{args.param}"
     result = solve(
         task,
@@ -93,6 +93,10 @@ def _variables_argument(p: argparse.ArgumentParser, default: str, help: str) -> 
     p.add_argument("--variables", "--layout", dest="variables", default=default, choices=["compact", "paper", "lean"], help=help + " (--layout: its former name)")
 
 
+def _robot_argument(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--robot", action="append", metavar="ROBOT=OTHER", help="solve the tasks on ROBOT with the robot model OTHER instead, repeatable (e.g. --robot talos=talos_full: the study's Talos)")
+
+
 def _split(text: str) -> list[str]:
     return [x for x in text.split(",") if x]
 
@@ -101,10 +105,20 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     from jtraj.experiments import compare
     from jtraj.provenance import write_provenance
 
-    rows = compare(_split(args.tasks), _split(args.params), out=args.out, variables=args.variables, exact_hessian=args.exact_hessian, save_trajectories=not args.no_trajectories, executor=args.executor, workers=args.workers, ray_address=args.ray_address, solver=args.solver)
+    rows = compare(_tasks(args), _split(args.params), out=args.out, variables=args.variables, exact_hessian=args.exact_hessian, save_trajectories=not args.no_trajectories, executor=args.executor, workers=args.workers, ray_address=args.ray_address, solver=args.solver)
     write_provenance(args.out)
     print((__import__("pathlib").Path(args.out) / "table_iv.md").read_text())
     return 0 if rows else 1
+
+
+def _tasks(args: argparse.Namespace) -> list:
+    """The tasks of ``--tasks``: names as they are, or Task objects where ``--robot`` moves them
+    to another robot model."""
+    from jtraj import task as tasks
+
+    if not args.robots_checked:
+        return _split(args.tasks)
+    return [tasks.retarget(tasks.load(name), args.robots_checked) for name in _split(args.tasks)]
 
 
 def _cmd_robustness(args: argparse.Namespace) -> int:
@@ -112,7 +126,7 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
     from jtraj.provenance import write_provenance
 
     sigmas = args.sigmas_checked
-    robustness(_split(args.tasks), _split(args.params), sigmas, replicates=args.replicates, seed=args.seed, out=args.out, variables=args.variables, workers=args.workers, resume=not args.no_resume, executor=args.executor, ray_address=args.ray_address, solver=args.solver)
+    robustness(_tasks(args), _split(args.params), sigmas, replicates=args.replicates, seed=args.seed, out=args.out, variables=args.variables, workers=args.workers, resume=not args.no_resume, executor=args.executor, ray_address=args.ray_address, solver=args.solver)
     write_provenance(args.out)
     print((__import__("pathlib").Path(args.out) / "table_iii.md").read_text())
     return 0
@@ -257,6 +271,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--every", type=int, default=1, help="print the solver's progress every N iterations")
     p.add_argument("--render", action="store_true", help="also write DIR/motion.mp4 and DIR/keyframes.png")
+    _robot_argument(p)
     p.set_defaults(func=_cmd_solve)
 
     p = sub.add_parser("compare", help="Table IV: every task with every parameterization (writes OUT/table_iv.{json,md})")
@@ -267,6 +282,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="runs/table_iv")
     p.add_argument("--no-trajectories", action="store_true", help="write only the tables (for results/)")
     p.add_argument("--solver", default="ipopt", choices=_solver_names(), help="NLP solver backend of every cell (default ipopt)")
+    _robot_argument(p)
     _executor_arguments(p)
     p.set_defaults(func=_cmd_compare)
 
@@ -281,6 +297,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, default=1, help="solve (task, parameterization) groups in this many processes")
     p.add_argument("--no-resume", action="store_true", help="solve again the runs already in OUT/runs.jsonl (the old file is kept as runs.jsonl.previous)")
     p.add_argument("--solver", default="ipopt", choices=_solver_names(), help="NLP solver backend (default ipopt); jtraj solves each (task, parameterization, sigma) group's replicates in one vmapped call")
+    _robot_argument(p)
     _executor_arguments(p, workers=False)
     p.set_defaults(func=_cmd_robustness)
 
@@ -342,24 +359,42 @@ def _check_names(field: str, text: str, known: list[str], what: str, allow_files
     return names
 
 
-def _load_valid_task(name: str):
-    """The task ``name`` with the checks that need its robot done; errors name its file."""
+def _check_robots(items: list[str] | None) -> dict[str, str]:
+    """``--robot ROBOT=OTHER`` items as a mapping, both names robots of jtraj."""
+    from jtraj import robot as robot_lib
+
+    known = robot_lib.available()
+    robots: dict[str, str] = {}
+    for item in items or []:
+        old, sep, new = item.partition("=")
+        if not sep or not old or not new:
+            raise InputError("--robot", item, "expected ROBOT=OTHER, e.g. --robot talos=talos_full")
+        for name in (old, new):
+            if name not in known:
+                raise InputError("--robot", item, f"unknown robot {name!r}; expected one of {', '.join(known)}")
+        robots[old] = new
+    return robots
+
+
+def _load_valid_task(name: str, robots: dict[str, str] | None = None):
+    """The task ``name`` (on the robot ``robots`` maps its robot to) with the checks that need
+    its robot done; errors name its file."""
     from jtraj import task as tasks
 
-    task = tasks.load(name)
+    task = tasks.retarget(tasks.load(name), robots or {})
     try:
         return task.validate()
     except tasks.TaskError as e:
         raise e.with_source(name if name.endswith(".toml") else f"tasks/{name}.toml") from None
 
 
-def _check_tasks(field: str, text: str) -> list[str]:
+def _check_tasks(field: str, text: str, robots: dict[str, str] | None = None) -> list[str]:
     """Every task named loads and passes the checks that need its robot, before any solve."""
     from jtraj import task as tasks
 
     names = _check_names(field, text, tasks.available(), "tasks", allow_files=True)
     for name in names:
-        _load_valid_task(name)
+        _load_valid_task(name, robots)
     return names
 
 
@@ -393,8 +428,10 @@ def _check_positive_int(field: str, value: int, minimum: int = 1) -> None:
 def _check_inputs(args: argparse.Namespace) -> None:
     """Every value of the command line that can be checked without compiling anything."""
     cmd = args.command
+    if cmd in ("solve", "compare", "robustness"):
+        args.robots_checked = _check_robots(args.robot)
     if cmd == "solve":
-        _load_valid_task(args.task)
+        _load_valid_task(args.task, args.robots_checked)
         _check_out(args.out)
         if not (math.isfinite(args.noise) and args.noise >= 0):
             raise InputError("--noise", args.noise, "expected a standard deviation >= 0")
@@ -402,7 +439,7 @@ def _check_inputs(args: argparse.Namespace) -> None:
         args.ipopt_checked = _check_ipopt(args.ipopt, getattr(args, "solver", "ipopt"))
     elif cmd in ("compare", "robustness"):
         # sweeps: every name is checked before the first solve
-        _check_tasks("--tasks", args.tasks)
+        _check_tasks("--tasks", args.tasks, args.robots_checked)
         _check_params("--params", args.params)
         _check_positive_int("--workers", args.workers)
         _check_out(args.out)

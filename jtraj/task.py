@@ -56,7 +56,7 @@ import numpy as np
 
 from jtraj.deprecation import warn_renamed
 
-__all__ = ["TaskError", "Phase", "Profile", "RotationRule", "JointRule", "Task", "Schedule", "load", "from_file", "from_dict", "available"]
+__all__ = ["TaskError", "Phase", "Profile", "RotationRule", "JointRule", "Task", "Schedule", "load", "from_file", "from_dict", "available", "retarget"]
 
 
 class TaskError(ValueError):
@@ -545,6 +545,15 @@ def from_file(path: str | Path) -> Task:
     except tomllib.TOMLDecodeError as e:
         raise TaskError("task file", str(path), f"not valid TOML ({e})") from None
     return from_dict(data, source=str(path))
+
+
+def retarget(task: Task, robots: dict[str, str]) -> Task:
+    """``task`` on another model of its robot: ``robots`` maps a robot name to the one to use
+    instead (``{"talos": "talos_full"}``, the study's Talos); a task on a robot that is not a
+    key comes back as it is. Only the robot changes (the content hash with it), so the new
+    robot needs the task's contact groups and joints: `Task.validate` checks them."""
+    new = robots.get(task.robot, task.robot)
+    return task if new == task.robot else dataclasses.replace(task, robot=new)
 
 
 def available() -> list[str]:

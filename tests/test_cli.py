@@ -41,6 +41,9 @@ def _run(argv, capsys):
         (["robustness", "--tasks", "big_jump", "--replicates", "0"], "jtraj robustness: --replicates: 0: expected an integer >= 1"),
         (["robustness", "--tasks", "big_jump", "--replicates", "two"], "jtraj robustness: argument --replicates: invalid int value: 'two'"),
         (["solve", "big_jump", "--noise", "-1"], "jtraj solve: --noise: -1.0: expected a standard deviation >= 0"),
+        (["solve", "walk", "--robot", "talos"], "jtraj solve: --robot: 'talos': expected ROBOT=OTHER"),
+        (["compare", "--tasks", "walk", "--robot", "talos=atlas"], "jtraj compare: --robot: 'talos=atlas': unknown robot 'atlas'; expected one of g1, go2, talos, talos_full"),
+        (["robustness", "--tasks", "walk", "--robot", "talos=go2"], "jtraj robustness: tasks/walk.toml: phases[0].contacts: 'left_foot': expected a contact of robot 'go2'"),
         (["solve", "big_jump", "--ipopt", "tol"], "jtraj solve: --ipopt: 'tol': expected NAME=VALUE"),
         (["solve", "big_jump", "--ipopt", "tol=abc"], "jtraj solve: --ipopt tol: 'abc': expected a real number in (0, inf)"),
         (["solve", "big_jump", "--ipopt", "max_itr=3"], "jtraj solve: --ipopt max_itr: 3: unknown Ipopt option; did you mean max_iter"),
@@ -165,3 +168,25 @@ def test_robustness_passes_the_solver(monkeypatch, tmp_path):
     monkeypatch.setattr(jtraj.provenance, "write_provenance", lambda out: None)
     assert cli.main(["robustness", "--tasks", "big_jump", "--sigmas", "0.1", "--solver", "jtraj", "--out", str(tmp_path)]) == 0
     assert seen["solver"] == "jtraj" and seen["sigmas"] == [0.1]
+
+
+def test_robot_option_moves_the_tasks_to_that_model(monkeypatch, tmp_path, capsys):
+    """``--robot talos=talos_full`` hands the sweep Task objects on the study's Talos; tasks on
+    other robots, and runs without the option, keep their names."""
+    import jtraj.experiments
+
+    seen = {}
+
+    def fake_compare(tasks, params, **kwargs):
+        seen["tasks"] = tasks
+        (tmp_path / "table_iv.md").write_text("table")
+        return [{}]
+
+    monkeypatch.setattr(jtraj.experiments, "compare", fake_compare)
+    monkeypatch.setattr("jtraj.provenance.write_provenance", lambda *a, **k: None)
+    assert cli.main(["compare", "--tasks", "walk,sideflip", "--params", "se3", "--out", str(tmp_path), "--robot", "talos=talos_full"]) == 0
+    walk, sideflip = seen["tasks"]
+    assert (walk.name, walk.robot) == ("walk", "talos_full")
+    assert sideflip.robot == "go2"
+    assert cli.main(["compare", "--tasks", "walk", "--params", "se3", "--out", str(tmp_path)]) == 0
+    assert seen["tasks"] == ["walk"]

@@ -12,9 +12,10 @@ import pytest
 
 from jtraj import robot as robot_lib
 
-ROBOTS = ("talos", "g1", "go2")
+ROBOTS = ("talos", "talos_full", "g1", "go2")
 EXPECTED = {  # name: (joints, nv, contact groups and their sizes)
     "talos": (30, 36, {"left_foot": 4, "right_foot": 4, "left_hand": 1, "right_hand": 1}),
+    "talos_full": (30, 36, {"left_foot": 4, "right_foot": 4, "left_hand": 1, "right_hand": 1}),
     "g1": (29, 35, {"left_foot": 4, "right_foot": 4, "left_hand": 1, "right_hand": 1}),
     "go2": (12, 18, {"FL_foot": 1, "FR_foot": 1, "RL_foot": 1, "RR_foot": 1}),
 }
@@ -72,6 +73,27 @@ def test_talos_grippers_locked():
     talos = robot_lib.load("talos")
     assert set(talos.locked_joints) == {"gripper_left_joint", "gripper_right_joint"}
     assert "gripper_left_joint" not in talos.joint_names
+
+
+def test_talos_full_is_the_study_codes_talos():
+    """talos_full: talos_full_v2's links, joints and masses (the study's code's Talos), the
+    seven joints of each gripper locked; the same joints, standing pose and contacts as talos,
+    whose talos_reduced model is lighter and has far weaker arms."""
+    full, reduced = robot_lib.load("talos_full"), robot_lib.load("talos")
+    assert full.urdf_path.name == "talos_full_v2.urdf"
+    assert len(full.locked_joints) == 14 and all(j.startswith("gripper_") for j in full.locked_joints)
+    assert full.joint_names == reduced.joint_names
+    np.testing.assert_array_equal(full.q_joints_standing, reduced.q_joints_standing)
+    assert full.contact_names == reduced.contact_names
+    # the mass of every link of the URDF, read here independently of the loader
+    links = ET.parse(full.urdf_path).getroot().findall("link")
+    urdf_mass = sum(float(link.find("inertial/mass").get("value")) for link in links if link.find("inertial") is not None)
+    assert full.total_mass == pytest.approx(urdf_mass) == pytest.approx(93.336, abs=1e-3)
+    assert reduced.total_mass == pytest.approx(90.272, abs=1e-3)
+    tau = dict(zip(full.joint_names, full.tau_max))
+    tau_reduced = dict(zip(reduced.joint_names, reduced.tau_max))
+    assert (tau["arm_left_5_joint"], tau_reduced["arm_left_5_joint"]) == (20.0, 3.0)
+    assert (tau["torso_1_joint"], tau_reduced["torso_1_joint"]) == (200.0, 78.0)
 
 
 def test_load_is_cached_and_frozen():

@@ -65,7 +65,7 @@ def test_warm_start_ramp_reaches_full_turn_over_flight():
 @pytest.mark.parametrize(
     "changes, match",
     [
-        (dict(robot="atlas"), r"^robot: 'atlas': expected one of \['g1', 'go2', 'talos'\]$"),
+        (dict(robot="atlas"), r"^robot: 'atlas': expected one of \['g1', 'go2', 'talos', 'talos_full'\]$"),
         (dict(timestep=0.0), r"^timestep: 0.0: expected a positive number of seconds$"),
         (dict(timestep=-0.05), r"^timestep: -0.05: expected a positive"),
         (dict(phases=(Phase(FEET, 0.1), Phase((), -0.2), Phase(FEET, 0.1))), r"^phases\[1\].duration: -0.2: expected a positive"),
@@ -226,3 +226,14 @@ def test_task_files(tmp_path):
         tasks.load(str(tmp_path / "missing.toml"))
     with pytest.raises(TaskError, match="^task: 'moonwalk': unknown task"):
         tasks.load("moonwalk")
+
+
+def test_retarget_changes_the_robot_and_nothing_else():
+    walk = tasks.load("walk")
+    full = tasks.retarget(walk, {"talos": "talos_full"})
+    assert full.robot == "talos_full" and full.validate() is full
+    assert dataclasses.replace(full, robot="talos") == walk
+    assert full.content_hash() != walk.content_hash()  # runs on either model keep their own keys
+    assert tasks.retarget(walk, {"go2": "talos"}) is walk
+    with pytest.raises(tasks.TaskError, match="expected a contact of robot 'go2'"):
+        tasks.retarget(walk, {"talos": "go2"}).validate()
