@@ -95,3 +95,15 @@ def test_side_by_side_render_cells():
     assert lines[2] == "| walk | 0 | 14 | 12 | 50, not conv. |"
     assert lines[3] == "| backflip | 0 | 28 |  | 31, task failed |"
     assert lines[4] == "| walk | 0.5 |  | 1/2 conv., median 38 |  |"
+
+
+def test_side_by_side_jtraj_task_follows_robot_and_code_costs():
+    mod = _side_by_side_module()
+    walk = mod.jtraj_task("walk", {"talos": "talos_full"}, code_costs=True)
+    assert (walk.robot, walk.configuration_weight) == ("talos_full", 1e-6)
+    plain = mod.jtraj_task("walk", {}, code_costs=False)
+    assert (plain.robot, plain.configuration_weight) == ("talos", 0.0)
+    sideflip = mod.jtraj_task("sideflip", {"talos": "talos_full"}, code_costs=True)
+    assert sideflip.robot == "go2" and sideflip == mod.jtraj_task("sideflip", {}, code_costs=False)  # no code cost differs there
+    assert mod.jtraj_label("paper", {"talos": "talos_full"}, True) == "jtraj paper, talos_full, code's costs"
+    assert mod.jtraj_label("paper", {}, False) == "jtraj paper"
