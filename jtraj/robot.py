@@ -274,14 +274,66 @@ def load_file(path: str | pathlib.Path) -> Robot:
     ``base_xyz``, ``base_wxyz`` and a ``[standing.joints]`` table (others 0); ``[[contact]]``
     entries with ``name``, ``link`` and ``offset`` (m, link frame); ``[groups]`` mapping a
     group name to contact names.
+
+    ``extends = "talos"`` starts from another robot file in the same folder (``talos.toml``,
+    which may extend another in turn) and applies this file on top: tables (``[standing]``,
+    ``[standing.joints]``, ``[groups]``) are merged key by key at every depth, and any other
+    value (a string, number or array, the ``[[contact]]`` list included) replaces the
+    parent's whole. ``name`` is not inherited: it defaults to this file's stem.
+    ``robots/talos_full.toml`` is an example.
     """
     path = pathlib.Path(path)
+    return _build(_read_config(path), path)
+
+
+def _read_toml(path: pathlib.Path) -> dict[str, Any]:
     try:
         with open(path, "rb") as f:
-            config = tomllib.load(f)
+            return tomllib.load(f)
     except (OSError, tomllib.TOMLDecodeError) as err:
         raise RobotLoadError(f"{path}: cannot read robot definition: {err}") from err
-    return _build(config, path)
+
+
+def _read_config(path: pathlib.Path, chain: tuple[pathlib.Path, ...] = ()) -> dict[str, Any]:
+    """The robot file at ``path`` with its ``extends`` chain resolved (see `load_file`).
+
+    ``chain`` holds the files that extend this one, child first, to report cycles.
+    """
+    config = _read_toml(path)
+    if "extends" not in config:
+        return config
+    parent = config.pop("extends")
+    if not isinstance(parent, str) or not parent or "/" in parent or "\\" in parent or parent.endswith(".toml"):
+        raise RobotLoadError(
+            f"{path}: 'extends' must name another robot file in the same folder by its stem "
+            f"(e.g. \"talos\" for talos.toml), got {parent!r}"
+        )
+    parent_path = path.parent / f"{parent}.toml"
+    chain = (*chain, path)
+    if parent_path.resolve() in {p.resolve() for p in chain}:
+        cycle = " -> ".join(p.name for p in (*chain, parent_path))
+        raise RobotLoadError(f"{path}: extends = {parent!r} makes a cycle: {cycle}")
+    if not parent_path.is_file():
+        siblings = sorted(p.stem for p in path.parent.glob("*.toml") if p.resolve() != path.resolve())
+        raise RobotLoadError(
+            f"{path}: extends = {parent!r}, but there is no robot file {parent_path}; "
+            f"expected one of: {', '.join(siblings) or '(no other .toml file in that folder)'}"
+        )
+    base = _read_config(parent_path, chain)
+    base.pop("name", None)  # a robot's name is its own (see load_file)
+    return _merge(base, config)
+
+
+def _merge(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict[str, Any]:
+    """``override`` on top of ``base``: tables merged key by key at every depth, other values
+    replaced whole; keys keep the parent's order, new keys come after."""
+    merged = dict(base)
+    for key, value in override.items():
+        if isinstance(value, dict) and isinstance(merged.get(key), dict):
+            merged[key] = _merge(merged[key], value)
+        else:
+            merged[key] = value
+    return merged
 
 
 # ----------------------------------------------------------------------------------------

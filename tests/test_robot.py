@@ -324,6 +324,84 @@ def test_model_that_mujoco_cannot_load_names_the_file(tmp_path):
     assert "massless.toml" in str(err.value) and "massless.urdf" in str(err.value)
 
 
+# ----------------------------------------------------------------------------------------
+# extends: a robot file on top of another
+
+
+def test_extends_merges_tables_and_replaces_other_values(tmp_path):
+    """Tables merge key by key at every depth; strings, numbers and arrays (``[[contact]]``
+    included) replace the parent's; ``name`` is not inherited; chains resolve in order."""
+    (tmp_path / "base.toml").write_text(
+        'name = "base"\nurdf = "a.urdf"\nlocked_joints = ["j1", "j2"]\nexpected_joints = 3\n'
+        "[standing]\nbase_xyz = [0.0, 0.0, 1.0]\n[standing.joints]\nknee = 0.8\nhip = -0.4\n"
+        '[[contact]]\nname = "c1"\nlink = "l1"\n[[contact]]\nname = "c2"\nlink = "l2"\n'
+        '[groups]\nfoot = ["c1", "c2"]\nhand = ["c2"]\n'
+    )
+    (tmp_path / "middle.toml").write_text(
+        'extends = "base"\nurdf = "b.urdf"\nlocked_joints = ["j3"]\n'
+        "[standing.joints]\nknee = 0.9\nankle = 0.1\n"
+        '[[contact]]\nname = "c3"\nlink = "l3"\n[groups]\nfoot = ["c3"]\n'
+    )
+    (tmp_path / "child.toml").write_text('extends = "middle"\nexpected_joints = 4\n[standing]\nbase_wxyz = [0.0, 0.0, 0.0, 1.0]\n')
+    config = robot_lib._read_config(tmp_path / "child.toml")
+    assert config == {
+        "urdf": "b.urdf",
+        "locked_joints": ["j3"],
+        "expected_joints": 4,
+        "standing": {"base_xyz": [0.0, 0.0, 1.0], "joints": {"knee": 0.9, "hip": -0.4, "ankle": 0.1}, "base_wxyz": [0.0, 0.0, 0.0, 1.0]},
+        "contact": [{"name": "c3", "link": "l3"}],
+        "groups": {"foot": ["c3"], "hand": ["c2"]},
+    }
+    assert robot_lib._read_config(tmp_path / "base.toml")["name"] == "base"  # a file without extends is as written
+
+
+def test_extends_overrides_a_loaded_robot(tmp_path):
+    """A file extending a copy of talos.toml loads as talos with its own changes on top."""
+    talos = robot_lib.load("talos")
+    (tmp_path / "parent.toml").write_text((importlib.resources.files("jtraj.robots") / "talos.toml").read_text())
+    (tmp_path / "kneel.toml").write_text(
+        'extends = "parent"\n[standing]\nbase_xyz = [0.0, 0.0, 0.9]\n[standing.joints]\nleg_left_4_joint = 1.2\n'
+        '[groups]\nfeet = ["left_foot_front_left", "right_foot_front_left"]\n'
+    )
+    robot = robot_lib.load_file(tmp_path / "kneel.toml")
+    assert robot.name == "kneel"  # the file's stem, not the parent's name
+    assert (robot.joint_names, robot.locked_joints, robot.contact_names) == (talos.joint_names, talos.locked_joints, talos.contact_names)
+    expected = talos.q_joints_standing.copy()
+    expected[talos.joint_names.index("leg_left_4_joint")] = 1.2
+    np.testing.assert_array_equal(robot.q_joints_standing, expected)
+    assert robot.base_xyz_wxyz_standing.tolist() == [0.0, 0.0, 0.9, 1.0, 0.0, 0.0, 0.0]
+    assert dict(robot.contact_groups) == {**talos.contact_groups, "feet": (0, 4)}
+
+
+def test_talos_full_extends_talos():
+    """talos_full.toml states only what differs from talos.toml: its URDF and locked joints."""
+    folder = importlib.resources.files("jtraj.robots")
+    with importlib.resources.as_file(folder / "talos_full.toml") as full, importlib.resources.as_file(folder / "talos.toml") as reduced:
+        assert tomllib.loads(full.read_text())["extends"] == "talos"
+        merged, parent = robot_lib._read_config(full), robot_lib._read_config(reduced)
+    assert {k for k in merged.keys() | parent.keys() if merged.get(k) != parent.get(k)} == {"name", "urdf", "locked_joints"}
+
+
+@pytest.mark.parametrize(
+    "files, start, fragments",
+    [
+        ({"a": 'extends = "b"', "b": 'extends = "a"'}, "a", ["b.toml", "'a'", "cycle", "a.toml -> b.toml -> a.toml"]),
+        ({"a": 'extends = "a"'}, "a", ["a.toml", "cycle", "a.toml -> a.toml"]),
+        ({"a": 'extends = "nowhere"', "other": ""}, "a", ["a.toml", "'nowhere'", "nowhere.toml", "expected one of: other"]),
+        ({"a": 'extends = "../talos"'}, "a", ["a.toml", "'../talos'", "same folder"]),
+        ({"a": "extends = 3"}, "a", ["a.toml", "3", "same folder"]),
+    ],
+)
+def test_extends_cycles_and_missing_parents_raise(tmp_path, files, start, fragments):
+    for stem, text in files.items():
+        (tmp_path / f"{stem}.toml").write_text(f'urdf = "x.urdf"\n{text}\n')
+    with pytest.raises(ValueError) as err:  # RobotLoadError, before any URDF is read
+        robot_lib.load_file(tmp_path / f"{start}.toml")
+    assert isinstance(err.value, robot_lib.RobotLoadError)
+    for fragment in fragments:
+        assert fragment in str(err.value), str(err.value)
+
+
 def test_robot_data_folder_from_the_environment(tmp_path, monkeypatch):
     """JTRAJ_ROBOT_DATA names a folder laid out as example-robot-data's ``robots`` folder (a
     machine with only the URDFs copied); a robot file's relative ``urdf`` resolves in it."""
