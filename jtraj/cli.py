@@ -51,11 +51,10 @@ def _cmd_params(args: argparse.Namespace) -> int:
 
 
 def _cmd_solve(args: argparse.Namespace) -> int:
-    from jtraj import task as tasks
     from jtraj.solver import solve
 
-    options = args.ipopt_checked  # parsed and checked by _check_inputs
-    task = tasks.retarget(tasks.load(args.task), args.robots_checked)
+    # loaded, retargeted and checked by _check_inputs
+    options, task = args.ipopt_checked, args.task_checked
     out = args.out or f"runs/{task.name}_{args.param}"
     result = solve(
         task,
@@ -105,20 +104,10 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     from jtraj.experiments import compare
     from jtraj.provenance import write_provenance
 
-    rows = compare(_tasks(args), _split(args.params), out=args.out, variables=args.variables, exact_hessian=args.exact_hessian, save_trajectories=not args.no_trajectories, executor=args.executor, workers=args.workers, ray_address=args.ray_address, solver=args.solver)
+    rows = compare(args.tasks_checked, _split(args.params), out=args.out, variables=args.variables, exact_hessian=args.exact_hessian, save_trajectories=not args.no_trajectories, executor=args.executor, workers=args.workers, ray_address=args.ray_address, solver=args.solver)
     write_provenance(args.out)
     print((__import__("pathlib").Path(args.out) / "table_iv.md").read_text())
     return 0 if rows else 1
-
-
-def _tasks(args: argparse.Namespace) -> list:
-    """The tasks of ``--tasks``: names as they are, or Task objects where ``--robot`` moves them
-    to another robot model."""
-    from jtraj import task as tasks
-
-    if not args.robots_checked:
-        return _split(args.tasks)
-    return [tasks.retarget(tasks.load(name), args.robots_checked) for name in _split(args.tasks)]
 
 
 def _cmd_robustness(args: argparse.Namespace) -> int:
@@ -126,7 +115,7 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
     from jtraj.provenance import write_provenance
 
     sigmas = args.sigmas_checked
-    robustness(_tasks(args), _split(args.params), sigmas, replicates=args.replicates, seed=args.seed, out=args.out, variables=args.variables, workers=args.workers, resume=not args.no_resume, executor=args.executor, ray_address=args.ray_address, solver=args.solver)
+    robustness(args.tasks_checked, _split(args.params), sigmas, replicates=args.replicates, seed=args.seed, out=args.out, variables=args.variables, workers=args.workers, resume=not args.no_resume, executor=args.executor, ray_address=args.ray_address, solver=args.solver)
     write_provenance(args.out)
     print((__import__("pathlib").Path(args.out) / "table_iii.md").read_text())
     return 0
@@ -388,14 +377,16 @@ def _load_valid_task(name: str, robots: dict[str, str] | None = None):
         raise e.with_source(name if name.endswith(".toml") else f"tasks/{name}.toml") from None
 
 
-def _check_tasks(field: str, text: str, robots: dict[str, str] | None = None) -> list[str]:
-    """Every task named loads and passes the checks that need its robot, before any solve."""
+def _check_tasks(field: str, text: str, robots: dict[str, str] | None = None) -> list:
+    """Every task named loads and passes the checks that need its robot, before any solve.
+
+    Returns what the sweep is given: the names as they are without ``robots``, else the
+    checked Task objects, moved to the robot models ``robots`` names (loaded once, here)."""
     from jtraj import task as tasks
 
     names = _check_names(field, text, tasks.available(), "tasks", allow_files=True)
-    for name in names:
-        _load_valid_task(name, robots)
-    return names
+    checked = [_load_valid_task(name, robots) for name in names]
+    return checked if robots else names
 
 
 def _check_params(field: str, text: str) -> list[str]:
@@ -431,7 +422,7 @@ def _check_inputs(args: argparse.Namespace) -> None:
     if cmd in ("solve", "compare", "robustness"):
         args.robots_checked = _check_robots(args.robot)
     if cmd == "solve":
-        _load_valid_task(args.task, args.robots_checked)
+        args.task_checked = _load_valid_task(args.task, args.robots_checked)
         _check_out(args.out)
         if not (math.isfinite(args.noise) and args.noise >= 0):
             raise InputError("--noise", args.noise, "expected a standard deviation >= 0")
@@ -439,7 +430,7 @@ def _check_inputs(args: argparse.Namespace) -> None:
         args.ipopt_checked = _check_ipopt(args.ipopt, getattr(args, "solver", "ipopt"))
     elif cmd in ("compare", "robustness"):
         # sweeps: every name is checked before the first solve
-        _check_tasks("--tasks", args.tasks, args.robots_checked)
+        args.tasks_checked = _check_tasks("--tasks", args.tasks, args.robots_checked)
         _check_params("--params", args.params)
         _check_positive_int("--workers", args.workers)
         _check_out(args.out)

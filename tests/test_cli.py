@@ -190,3 +190,39 @@ def test_robot_option_moves_the_tasks_to_that_model(monkeypatch, tmp_path, capsy
     assert sideflip.robot == "go2"
     assert cli.main(["compare", "--tasks", "walk", "--params", "se3", "--out", str(tmp_path)]) == 0
     assert seen["tasks"] == ["walk"]
+
+
+def test_each_task_is_loaded_once(monkeypatch, tmp_path):
+    """The tasks checked before the command runs are the ones it solves: each task file is
+    read (and moved to the ``--robot`` model) once, by the check."""
+    import jtraj.experiments
+    import jtraj.plots
+    import jtraj.provenance
+    import jtraj.solver
+    from jtraj import task as tasks
+
+    loads = []
+    load = tasks.load
+    monkeypatch.setattr(tasks, "load", lambda name: loads.append(name) or load(name))
+    seen = {}
+
+    def fake_solve(task, *args, **kwargs):
+        seen["task"] = task
+        return types.SimpleNamespace(converged=True, success=True)
+
+    def fake_compare(tasks, params, **kwargs):
+        seen["tasks"] = tasks
+        (tmp_path / "table_iv.md").write_text("table\n")
+        return [{}]
+
+    monkeypatch.setattr(jtraj.solver, "solve", fake_solve)
+    monkeypatch.setattr(jtraj.plots, "plot_result", lambda *a, **k: None)
+    monkeypatch.setattr(jtraj.plots, "plot_convergence", lambda *a, **k: None)
+    monkeypatch.setattr(jtraj.experiments, "compare", fake_compare)
+    monkeypatch.setattr(jtraj.provenance, "write_provenance", lambda out: None)
+
+    assert cli.main(["solve", "big_jump", "--robot", "talos=talos_full", "--out", str(tmp_path / "r")]) == 0
+    assert loads == ["big_jump"] and (seen["task"].name, seen["task"].robot) == ("big_jump", "talos_full")
+    loads.clear()
+    assert cli.main(["compare", "--tasks", "walk,sideflip", "--params", "se3", "--out", str(tmp_path), "--robot", "talos=talos_full"]) == 0
+    assert loads == ["walk", "sideflip"] and [t.robot for t in seen["tasks"]] == ["talos_full", "go2"]
