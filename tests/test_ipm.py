@@ -131,7 +131,7 @@ def test_quality_function_and_loqo_oracles_reach_the_same_solution(toy):
 
 
 def test_vmap_equals_one_by_one_and_no_recompile(toy):
-    nlp, ipm = toy
+    _nlp, ipm = toy
     x0s = 0.3 * np.random.default_rng(0).standard_normal((3, K, 3))
     batched = jax.jit(jax.vmap(ipm.solve, in_axes=(0, None)))(jnp.asarray(x0s), None)
     for i, x0 in enumerate(x0s):
@@ -247,3 +247,32 @@ def test_solve_batch_equals_solve_and_padding_keeps_the_members(toy):
     np.testing.assert_array_equal(padded[0].x, batch[2].x)
     with pytest.raises(ValueError, match="4 initial guesses for a batch of 3"):
         backend.solve_batch(nlp, np.zeros((4, nlp.n)), None, opts, batch_size=3)
+
+
+def test_lbfgs_iterates_follow_ipopt_with_skipped_pairs():
+    """On a cost concave in z0 and convex in z1 some curvature pairs have s^T y < 0: Ipopt's
+    limited-memory BFGS skips them, and after two in a row forgets its memory and drops the
+    third pair (limited_memory_max_skipping=2). With the same rule and the adaptive strategy's
+    start (mu = 1 for the first factorization, mu_max from the initial complementarity),
+    jtraj's solver takes Ipopt's steps: the same iteration count and, iteration by iteration,
+    the same barrier parameter and step length (without the reset it takes 9 iterations where
+    Ipopt takes 10)."""
+    layout = Layout((("z", 2),))
+    nk = 3
+    costs = [CostGroup("saddle", (Dep("z"),), lambda theta, data, z: -0.5 * z[0] ** 2 + 2.0 * z[1] ** 2 + 0.1 * z[0] - 0.3 * z[1], np.arange(nk))]
+    groups = [ConstraintGroup("sum", (Dep("z"),), lambda theta, data, z: z[:1] + 2.0 * z[1:], np.arange(nk),
+                              np.full((nk, 1), -1.5), np.full((nk, 1), 1.5), np.ones((nk, 1), bool))]
+    nlp = KnotNLP(layout, nk, costs, groups, -np.ones((nk, 2)), np.ones((nk, 2)))
+    x0 = np.tile([0.05, 0.02], nk)
+    tol = {"tol": 1e-8, "max_iter": 60}
+    ipopt = solvers.get("ipopt")
+    ref = ipopt.solve(nlp, x0, None, ipopt.options({**tol, "constr_viol_tol": 1e-8, "acceptable_iter": 0, "print_level": 0}))
+    ours = solvers.get("jtraj")
+    sol = ours.solve(nlp, x0, None, ours.options({**tol, "constr_viol_tol": 1e-8, "compl_inf_tol": 1e-8}))
+    assert ref.converged and sol.converged
+    assert sol.stats.iterations == ref.stats.iterations > 5
+    # Ipopt reports the mu of the step that led to an iterate, jtraj the mu of the next step;
+    # the last two steps are taken at the smallest mu either allows (not compared)
+    np.testing.assert_allclose([h.mu for h in sol.history[:-3]], [h.mu for h in ref.history[1:-2]], rtol=1e-6)
+    np.testing.assert_allclose([h.alpha_pr for h in sol.history[:-2]], [h.alpha_pr for h in ref.history[:-2]], rtol=1e-6, atol=1e-12)
+    np.testing.assert_allclose(sol.x, ref.x, atol=1e-6)

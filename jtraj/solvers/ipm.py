@@ -108,9 +108,9 @@ class IpmOptions(AbstractOptions):
             (partitioned damped BFGS; does not converge on the whole-body tasks).
         mu_strategy: ``"adaptive"`` (default, as Ipopt's default with a quasi-Newton Hessian)
             or ``"monotone"`` (Fiacco-McCormick).
-        mu_oracle: how the adaptive strategy's free mode picks mu: ``"loqo"`` (default here:
-            ``sigma avg(d z)`` from the iterate's centrality) or ``"quality-function"``
-            (Ipopt's default: the affine-scaling and centering steps are solved with the same
+        mu_oracle: how the adaptive strategy's free mode picks mu: ``"loqo"`` (``sigma
+            avg(d z)`` from the iterate's centrality) or ``"quality-function"`` (default, as
+            Ipopt's: the affine-scaling and centering steps are solved with the same
             factorization, and ``sigma`` minimizes a linear model of the next iterate's
             squared KKT residuals, found by golden section in [sigma_min, sigma_max];
             Nocedal, Wächter and Waltz 2009). ``sigma_min``, ``sigma_max``,
@@ -125,9 +125,13 @@ class IpmOptions(AbstractOptions):
             cost 0.48 (Ipopt: 0.64 in 19), kkt-error stops at 200 iterations.
         mu_min, mu_max, mu_max_fact, adaptive_mu_kkterror_red_fact,
             adaptive_mu_monotone_init_factor, filter_margin_fact, filter_max_margin: Ipopt's
-            constants of the adaptive strategy.
+            constants of the adaptive strategy. ``mu_max=None`` (default) is, as in Ipopt when
+            the option is not given, ``mu_max_fact`` times the initial point's average
+            complementarity.
         mu_init, kappa_eps, kappa_mu, theta_mu, tau_min, kappa_sigma, s_max: Ipopt's barrier
-            and safeguard constants.
+            and safeguard constants. ``mu_init`` is the monotone strategy's first barrier
+            parameter; the adaptive strategy starts, as Ipopt's, from mu = 1, which only sets
+            the first factorization's dual regularization ``delta_c mu^(1/4)``.
         bound_push, bound_frac: how far the initial point is pushed inside its bounds.
         delta_c, delta_c_mu_scaled: dual regularization of every row. Scaled (default):
             ``delta_c mu^(1/4)`` and part of the system, as Ipopt's perturbation for a
@@ -142,6 +146,11 @@ class IpmOptions(AbstractOptions):
         bfgs_scaling: rescale each element's initial matrix by its first curvature pair.
         lbfgs_memory, lbfgs_init_val, lbfgs_init_min, lbfgs_init_max: Ipopt's
             ``limited_memory_max_history`` and ``limited_memory_init_val(_min, _max)``.
+        lbfgs_max_skipping: Ipopt's ``limited_memory_max_skipping``: after this many
+            successive pairs skipped for want of curvature, the next iteration forgets the
+            memory and restarts from ``lbfgs_init_val`` times the identity (on the whole-body
+            tasks' first iterations almost every pair is skipped, and Ipopt restarts every
+            third iteration).
     """
 
     tol: float = 1e-3
@@ -176,8 +185,9 @@ class IpmOptions(AbstractOptions):
     lbfgs_init_val: float = 1.0
     lbfgs_init_min: float = 1e-8
     lbfgs_init_max: float = 1e8
+    lbfgs_max_skipping: int = 2
     mu_min: float = 1e-11
-    mu_max: float = 1e5
+    mu_max: float | None = None
     mu_max_fact: float = 1e3
     sigma_min: float = 1e-6
     sigma_max: float = 1e2
@@ -198,7 +208,8 @@ class IpmOptions(AbstractOptions):
         if self.adaptive_mu_globalization not in ("obj-constr-filter", "kkt-error"):
             raise InvalidOptionError(f"jtraj option adaptive_mu_globalization={self.adaptive_mu_globalization!r}: expected 'obj-constr-filter' or 'kkt-error'")
         _positive(self, "tol", "constr_viol_tol", "dual_inf_tol", "compl_inf_tol", "mu_init", "delta_c")
-        for name in ("max_iter", "refine_steps", "max_line_search", "max_line_search_failures", "lbfgs_memory", "quality_function_max_section_steps"):
+        _positive(self, "mu_max", allow_none=True)
+        for name in ("max_iter", "refine_steps", "max_line_search", "max_line_search_failures", "lbfgs_memory", "lbfgs_max_skipping", "quality_function_max_section_steps"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
                 raise InvalidOptionError(f"jtraj option {name}={value!r}: expected an integer >= 0")
@@ -301,6 +312,7 @@ class _State(NamedTuple):
     Y: jax.Array  # (l, K, n) ... and Lagrangian gradient differences
     used: jax.Array  # (l,) bool
     lsigma: jax.Array  # scaled identity of the limited-memory matrix
+    lskip: jax.Array  # successive limited-memory updates skipped
     delta_w: jax.Array
     # bookkeeping
     first: jax.Array
@@ -477,12 +489,14 @@ class IPM:
             dx=zx, ds=zc, dy=zc, dzl=zx, dzu=zx, dvl=zc, dvu=zc,
             alpha=zero, alpha_dual=zero, trials=jnp.zeros((), jnp.int32), phi0=zero, theta0=zero, slope=zero,
             filter=jnp.full((self.FILTER_SIZE, 2), jnp.inf), n_filter=jnp.zeros((), jnp.int32),
-            theta_min=zero, theta_max=zero, mu=jnp.asarray(o.mu_init), tau=jnp.asarray(o.tau_min), mu_max=jnp.asarray(o.mu_max),
+            theta_min=zero, theta_max=zero, mu=jnp.asarray(o.mu_init if o.mu_strategy == "monotone" else 1.0), tau=jnp.asarray(o.tau_min),
+            mu_max=jnp.asarray(np.inf if o.mu_max is None else o.mu_max),
             free_mode=jnp.asarray(o.mu_strategy == "adaptive"), refs=jnp.full((4,), jnp.inf),
             mu_filter=jnp.full((self.FILTER_SIZE, 2), jnp.inf),
             # element Hessians are state only for the partitioned BFGS (the others rebuild them)
             H=jnp.broadcast_to(o.bfgs_init * jnp.eye(2 * n), (K, 2 * n, 2 * n)) if o.hessian == "bfgs" else jnp.zeros((0,)), scaled=jnp.zeros((K,), bool), delta_w=zero,
             S=jnp.zeros((l, K, n)), Y=jnp.zeros((l, K, n)), used=jnp.zeros((l,), bool), lsigma=jnp.asarray(o.lbfgs_init_val),
+            lskip=jnp.zeros((), jnp.int32),
             first=jnp.asarray(True), it=jnp.zeros((), jnp.int32),
             status=jnp.asarray(int(IpmStatus.RUNNING), jnp.int32), ls_fail=jnp.zeros((), jnp.int32),
             history=jnp.full((o.max_iter + 1, 5), jnp.nan),
@@ -602,19 +616,25 @@ class IPM:
             scaled = jnp.where(first, st.scaled, scaled)
         else:
             scaled = st.scaled
-        lbfgs = (st.S, st.Y, st.used, st.lsigma)
+        lbfgs = (st.S, st.Y, st.used, st.lsigma, st.lskip)
         if o.hessian == "lbfgs":
             # Ipopt's limited-memory BFGS of the Lagrangian: pairs (x+ - x, grad L(x+, y+) -
-            # grad L(x, y+)) on the free variables, skipped without enough curvature, and the
-            # scaled identity sigma = s^T y / s^T s of the newest pair ("scalar1")
+            # grad L(x, y+)) on the free variables, skipped without enough curvature (s^T y <=
+            # sqrt(eps) |s| |y|) or for a step of (numerically) zero, and the scaled identity
+            # sigma = s^T y / s^T s of the newest pair ("scalar1"). As Ipopt's, after
+            # lbfgs_max_skipping successive skips the memory is reset and the pair dropped.
             step = jnp.where(p.free, xt - st.x, 0.0)
             pattern = self.view.pattern
             diff = jnp.where(p.free, gt + kkt._apply_JT(At, Bt, y, pattern) - st.grad - kkt._apply_JT(st.A, st.B, y, pattern), 0.0)
             sy, ss, yy = jnp.sum(step * diff), jnp.sum(step * step), jnp.sum(diff * diff)
-            keep = (~first) & (sy > 1e-8 * jnp.sqrt(ss * yy)) & (ss > 0)
-            push = lambda hist, new: jnp.where(keep, jnp.concatenate([hist[1:], new[None]], axis=0), hist)  # noqa: E731
-            lsigma = jnp.where(keep, jnp.clip(sy / jnp.where(keep, ss, 1.0), o.lbfgs_init_min, o.lbfgs_init_max), st.lsigma)
-            lbfgs = (push(st.S, step), push(st.Y, diff), push(st.used, jnp.asarray(True)), lsigma)
+            eps = jnp.finfo(step.dtype).eps
+            reset = (~first) & (st.lskip >= o.lbfgs_max_skipping)
+            update = (~first) & ~reset
+            keep = update & (jnp.max(jnp.abs(step)) >= 100.0 * eps) & (sy > jnp.sqrt(eps) * jnp.sqrt(ss * yy))
+            push = lambda hist, new, empty: jnp.where(reset, empty, jnp.where(keep, jnp.concatenate([hist[1:], new[None]], axis=0), hist))  # noqa: E731
+            lsigma = jnp.where(keep, jnp.clip(sy / jnp.where(keep, ss, 1.0), o.lbfgs_init_min, o.lbfgs_init_max), jnp.where(reset, o.lbfgs_init_val, st.lsigma))
+            lskip = jnp.where(update & ~keep, st.lskip + 1, 0).astype(jnp.int32)
+            lbfgs = (push(st.S, step, jnp.zeros_like(st.S)), push(st.Y, diff, jnp.zeros_like(st.Y)), push(st.used, jnp.asarray(True), jnp.zeros_like(st.used)), lsigma, lskip)
 
         def clamp(z, dist, mask):
             dist = jnp.where(mask, dist, 1.0)
@@ -634,7 +654,7 @@ class IPM:
         it = st.it + (~first).astype(jnp.int32)
         new = st._replace(
             x=xt, s=s_t, y=y, zl=zl, zu=zu, vl=vl, vu=vu, f=ft, c=ct, grad=gt, A=At, B=Bt, H=H, scaled=scaled,
-            S=lbfgs[0], Y=lbfgs[1], used=lbfgs[2], lsigma=lbfgs[3],
+            S=lbfgs[0], Y=lbfgs[1], used=lbfgs[2], lsigma=lbfgs[3], lskip=lbfgs[4],
             filter=filt, n_filter=n_filter, theta_min=theta_min, theta_max=theta_max,
             first=jnp.asarray(False), it=it, trials=jnp.zeros((), jnp.int32),
             ls_fail=jnp.where(failed, st.ls_fail + 1, 0).astype(jnp.int32),
@@ -713,7 +733,7 @@ class IPM:
         if o.mu_strategy == "monotone":
             return mu_mono, st.free_mode, st.refs, st.mu_max, st.mu_filter
         avg, smallest = self._complementarity(p, st)
-        mu_max = jnp.where(first, jnp.minimum(o.mu_max, o.mu_max_fact * avg), st.mu_max)
+        mu_max = jnp.where(first, o.mu_max_fact * avg, st.mu_max) if o.mu_max is None else st.mu_max
         xi = smallest / jnp.maximum(avg, 1e-300)
         sigma = 0.1 * jnp.minimum(0.05 * (1.0 - xi) / jnp.maximum(xi, 1e-300), 2.0) ** 3
         mu_loqo = jnp.clip(sigma * avg, o.mu_min, mu_max)
