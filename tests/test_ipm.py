@@ -276,3 +276,30 @@ def test_lbfgs_iterates_follow_ipopt_with_skipped_pairs():
     np.testing.assert_allclose([h.mu for h in sol.history[:-3]], [h.mu for h in ref.history[1:-2]], rtol=1e-6)
     np.testing.assert_allclose([h.alpha_pr for h in sol.history[:-2]], [h.alpha_pr for h in ref.history[:-2]], rtol=1e-6, atol=1e-12)
     np.testing.assert_allclose(sol.x, ref.x, atol=1e-6)
+
+
+def test_second_order_corrections_let_the_full_step_through():
+    """The Maratos example (Nocedal and Wright, eq. 15.34): min 2 (x^2 + y^2 - 1) - x on the unit
+    circle, from a point on the circle where the full Newton step raises both the objective and
+    the violation, so the filter rejects it. With second-order corrections (max_soc=4, Ipopt's
+    default) the corrected full step is accepted, as Ipopt accepts it, and the solve takes fewer
+    iterations; without them the first step is halved."""
+    layout = Layout((("p", 2),))
+    nk = 2
+    costs = [CostGroup("maratos", (Dep("p"),), lambda theta, data, p: 2.0 * (p[0] ** 2 + p[1] ** 2 - 1.0) - p[0], np.arange(nk))]
+    groups = [ConstraintGroup("circle", (Dep("p"),), lambda theta, data, p: (p[0] ** 2 + p[1] ** 2)[None], np.arange(nk),
+                              np.ones((nk, 1)), np.ones((nk, 1)), np.ones((nk, 1), bool))]
+    nlp = KnotNLP(layout, nk, costs, groups, np.tile([-2.0, -np.inf], (nk, 1)), np.tile([2.0, np.inf], (nk, 1)))
+    x0 = np.tile([np.cos(0.3), np.sin(0.3)], nk)
+    ipopt, ours = solvers.get("ipopt"), solvers.get("jtraj")
+    runs = {}
+    for max_soc in (0, 4):
+        common = {"tol": 1e-8, "max_iter": 60, "constr_viol_tol": 1e-8, "max_soc": max_soc}
+        ref = ipopt.solve(nlp, x0, None, ipopt.options({**common, "acceptable_iter": 0, "print_level": 0}))
+        sol = ours.solve(nlp, x0, None, ours.options({**common, "compl_inf_tol": 1e-8}))
+        assert ref.converged and sol.converged
+        np.testing.assert_allclose(sol.x.reshape(nk, 2), np.tile([1.0, 0.0], (nk, 1)), atol=1e-6)
+        # the first step: halved without corrections, full with them, in both solvers
+        assert sol.history[1].alpha_pr == ref.history[1].alpha_pr == (0.5 if max_soc == 0 else 1.0)
+        runs[max_soc] = sol.stats.iterations
+    assert runs[4] < runs[0]

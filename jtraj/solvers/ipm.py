@@ -147,6 +147,12 @@ class IpmOptions(AbstractOptions):
             iterative refinement.
         refine_steps: iterative-refinement steps per KKT solve.
         max_line_search: backtracking steps per iteration.
+        max_soc, kappa_soc: Ipopt's second-order corrections: when the first trial point of an
+            iteration is rejected and raised the constraint violation, up to ``max_soc``
+            corrected steps (the same factorization, the constraint rows' right-hand side
+            replaced by the accumulated ``c_soc = alpha c_soc + c(trial)``) are tried, while each
+            lowers the violation by the factor ``kappa_soc``; then backtracking resumes along
+            the original direction. ``max_soc=0`` turns them off.
         armijo: sufficient-decrease constant of the merit line search.
         max_line_search_failures: consecutive failed line searches before giving up.
         bfgs_init: initial element Hessian scale of the BFGS approximation.
@@ -184,6 +190,8 @@ class IpmOptions(AbstractOptions):
     delta_c_mu_scaled: bool = True
     refine_steps: int = 3
     max_line_search: int = 30
+    max_soc: int = 4
+    kappa_soc: float = 0.99
     armijo: float = 1e-4
     max_line_search_failures: int = 5
     bfgs_init: float = 1.0
@@ -216,7 +224,7 @@ class IpmOptions(AbstractOptions):
             raise InvalidOptionError(f"jtraj option adaptive_mu_globalization={self.adaptive_mu_globalization!r}: expected 'obj-constr-filter' or 'kkt-error'")
         _positive(self, "tol", "constr_viol_tol", "dual_inf_tol", "compl_inf_tol", "mu_init", "delta_c")
         _positive(self, "mu_max", allow_none=True)
-        for name in ("max_iter", "refine_steps", "max_line_search", "max_line_search_failures", "lbfgs_memory", "lbfgs_max_skipping", "quality_function_max_section_steps"):
+        for name in ("max_iter", "refine_steps", "max_line_search", "max_line_search_failures", "lbfgs_memory", "lbfgs_max_skipping", "max_soc", "quality_function_max_section_steps"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
                 raise InvalidOptionError(f"jtraj option {name}={value!r}: expected an integer >= 0")
@@ -313,13 +321,19 @@ class _State(NamedTuple):
     free_mode: jax.Array  # adaptive strategy: mu from the LOQO rule (True) or monotone (False)
     refs: jax.Array  # (4,) KKT errors of the last accepted free-mode iterates
     mu_filter: jax.Array  # (F, 2) (objective, violation) of free-mode iterates, +inf where empty
-    H: jax.Array  # (K, 2n, 2n) with hessian="bfgs", else empty
+    H: jax.Array  # (K, 2n, 2n) with hessian="bfgs" (its state) or "exact" (of the current direction), else empty
     scaled: jax.Array  # (K,) bool: the element's BFGS matrix got its initial scaling
     S: jax.Array  # (l, K, n) limited-memory BFGS steps, oldest first
     Y: jax.Array  # (l, K, n) ... and Lagrangian gradient differences
     used: jax.Array  # (l,) bool
     lsigma: jax.Array  # scaled identity of the limited-memory matrix
     lskip: jax.Array  # successive limited-memory updates skipped
+    # the Newton matrix of the current direction, kept for second-order corrections
+    fac_diag: jax.Array  # (K, n, n) block Cholesky factor
+    fac_sub: jax.Array
+    sys_sigma: jax.Array  # (K, n) its diagonal (bound terms, L-BFGS sigma)
+    sys_d0: jax.Array  # (K, m)
+    delta_c: jax.Array
     delta_w: jax.Array
     # bookkeeping
     first: jax.Array
@@ -501,9 +515,10 @@ class IPM:
             free_mode=jnp.asarray(o.mu_strategy == "adaptive"), refs=jnp.full((4,), jnp.inf),
             mu_filter=jnp.full((self.FILTER_SIZE, 2), jnp.inf),
             # element Hessians are state only for the partitioned BFGS (the others rebuild them)
-            H=jnp.broadcast_to(o.bfgs_init * jnp.eye(2 * n), (K, 2 * n, 2 * n)) if o.hessian == "bfgs" else jnp.zeros((0,)), scaled=jnp.zeros((K,), bool), delta_w=zero,
+            H=jnp.broadcast_to(o.bfgs_init * jnp.eye(2 * n), (K, 2 * n, 2 * n)) if o.hessian == "bfgs" else jnp.zeros((K, 2 * n, 2 * n)) if o.hessian == "exact" else jnp.zeros((0,)), scaled=jnp.zeros((K,), bool), delta_w=zero,
             S=jnp.zeros((l, K, n)), Y=jnp.zeros((l, K, n)), used=jnp.zeros((l,), bool), lsigma=jnp.asarray(o.lbfgs_init_val),
             lskip=jnp.zeros((), jnp.int32),
+            fac_diag=jnp.zeros((K, n, n)), fac_sub=jnp.zeros((K, n, n)), sys_sigma=zx, sys_d0=zc, delta_c=zero,
             first=jnp.asarray(True), it=jnp.zeros((), jnp.int32),
             status=jnp.asarray(int(IpmStatus.RUNNING), jnp.int32), ls_fail=jnp.zeros((), jnp.int32),
             history=jnp.full((o.max_iter + 1, 5), jnp.nan),
@@ -535,7 +550,7 @@ class IPM:
     @property
     def _max_passes(self) -> int:
         """Bound on NLP evaluations: every iteration's full line search."""
-        return (self.options.max_iter + 1) * (self.options.max_line_search + 1)
+        return (self.options.max_iter + 1) * (self.options.max_line_search + 1 + self.options.max_soc)
 
     FILTER_SIZE = 64
     # Ipopt's filter line-search constants (Wächter & Biegler 2006, section 2.3 and Table 1)
@@ -557,39 +572,65 @@ class IPM:
         K, m = self.view.K, self.view.m
         zero = jnp.zeros(())
         false = jnp.asarray(False)
-        # the loop carries what a trial changes (step length, trial count, status), not the state
-        init = (st.alpha, st.trials, st.status, st.x, st.s, zero, jnp.zeros((K, m)), zero, false, false, false, passes)
+        # the loop carries what a trial changes (step length, trial count, status, a second-order
+        # correction's step), not the state
+        step0 = (st.dx, st.ds, st.dy, st.dzl, st.dzu, st.dvl, st.dvu)
+        r_c0 = jnp.where(p.eq, st.c - p.cl, jnp.where(p.ineq, st.c - st.s, 0.0))
+        soc0 = (false, false, jnp.zeros((), jnp.int32), jnp.zeros((K, m)), zero, step0, zero, zero)
+        init = (st.alpha, st.trials, st.status, st.x, st.s, zero, jnp.zeros((K, m)), zero, false, false, false, passes, soc0)
 
         def trial_cond(ls):
             status, done, passes = ls[2], ls[8], ls[11]
             return (~done) & (status == int(IpmStatus.RUNNING)) & (passes < self._max_passes)
 
         def trial_body(ls):
-            alpha, trials, status, *_, passes = ls
-            xt = st.x + alpha * st.dx
-            s_t = st.s + alpha * st.ds
+            alpha, trials, status, *_, passes, soc = ls
+            in_soc, _, soc_k, c_soc, th_old, soc_step, a_soc, ad_soc = soc
+            # the trial point: along the direction, or a second-order correction's step
+            xt = st.x + jnp.where(in_soc, a_soc * soc_step[0], alpha * st.dx)
+            s_t = st.s + jnp.where(in_soc, a_soc * soc_step[1], alpha * st.ds)
             ft, ct = self.view.values(xt, theta)
             # the first pass only evaluates the initial point; its slacks start inside their bounds
             s_first = jnp.where(p.ineq, self._push(ct, p.cl, p.cu, p.has_sl, p.has_su, o.bound_push, o.bound_frac), 0.0)
             s_t = jnp.where(st.first, s_first, s_t)
             th_t, ph_t = self._measures(p, xt, s_t, ft, ct, st.mu)
             finite = jnp.isfinite(th_t) & jnp.isfinite(ph_t)
+            # a correction is judged with the first trial's alpha (Ipopt's alpha_primal_test)
             switching = (st.slope < 0) & (alpha * (-st.slope) ** self.S_PHI > self.DELTA * st.theta0 ** self.S_THETA)
             armijo = ph_t <= st.phi0 + self.ETA_PHI * alpha * st.slope
             f_type = switching & (st.theta0 <= st.theta_min)
             sufficient = jnp.where(f_type, armijo, (th_t <= (1.0 - self.GAMMA_THETA) * st.theta0) | (ph_t <= st.phi0 - self.GAMMA_PHI * st.theta0))
             in_filter = jnp.any((th_t >= st.filter[:, 0]) & (ph_t >= st.filter[:, 1]))
             accept = finite & (th_t <= st.theta_max) & sufficient & ~in_filter
-            give_up = finite & ~accept & (trials + 1 >= o.max_line_search)
+            # second-order corrections: after a rejected first trial that raised the violation,
+            # then while each correction lowers it by kappa_soc (Wachter & Biegler, A-5.5 to 5.10)
+            rejected = finite & ~accept & ~st.first
+            start = rejected & ~in_soc & (trials == 0) & (o.max_soc > 0) & (th_t >= st.theta0)
+            more = rejected & in_soc & (soc_k < o.max_soc) & (th_t <= o.kappa_soc * th_old)
+            do_soc = start | more
+            r_t = jnp.where(p.eq, ct - p.cl, jnp.where(p.ineq, ct - s_t, 0.0))
+            c_new = jnp.where(start, alpha * r_c0, a_soc * c_soc) + r_t
+            soc_step, a_soc, ad_soc = lax.cond(do_soc, lambda: self._soc_step(p, st, c_new), lambda: (soc_step, a_soc, ad_soc))
+            soc = (do_soc, in_soc, jnp.where(do_soc, soc_k + 1, soc_k).astype(jnp.int32), jnp.where(do_soc, c_new, c_soc), jnp.where(do_soc, th_t, th_old), soc_step, a_soc, ad_soc)
+            give_up = finite & ~accept & ~do_soc & (trials + 1 >= o.max_line_search)
             advance = st.first | accept | give_up
             # a rejected trial halves the step (a non-finite one at the last trial stops the solve)
             status = jnp.where(advance | finite | (trials + 1 < o.max_line_search), status, int(IpmStatus.NUMERICAL_ERROR)).astype(jnp.int32)
-            alpha = jnp.where(advance, alpha, 0.5 * alpha)
-            trials = jnp.where(advance, trials, trials + 1).astype(jnp.int32)
-            return (alpha, trials, status, xt, s_t, ft, ct, th_t, advance, f_type & armijo, give_up & ~st.first, passes + 1)
+            back = ~advance & ~do_soc
+            alpha = jnp.where(back, 0.5 * alpha, alpha)
+            trials = jnp.where(back, trials + 1, trials).astype(jnp.int32)
+            return (alpha, trials, status, xt, s_t, ft, ct, th_t, advance, f_type & armijo, give_up & ~st.first, passes + 1, soc)
 
-        alpha, trials, status, xt, s_t, ft, ct, th_t, done, f_step, failed, passes = lax.while_loop(trial_cond, trial_body, init)
-        st = st._replace(alpha=alpha, trials=trials, status=status)
+        alpha, trials, status, xt, s_t, ft, ct, th_t, done, f_step, failed, passes, soc = lax.while_loop(trial_cond, trial_body, init)
+        # the accepted point came from a correction: its step is the one taken (primal length
+        # of the correction, y along it, bound multipliers by its own fraction to the boundary)
+        taken = done & soc[1]
+        pick = lambda a, b: jnp.where(taken, a, b)  # noqa: E731
+        dx, ds, dy, dzl, dzu, dvl, dvu = jax.tree.map(pick, soc[5], step0)
+        st = st._replace(
+            alpha=pick(soc[6], alpha), alpha_dual=pick(soc[7], st.alpha_dual), trials=trials, status=status,
+            dx=dx, ds=ds, dy=dy, dzl=dzl, dzu=dzu, dvl=dvl, dvu=dvu,
+        )
 
         def accepted(st):
             gt, At, Bt = self.view.derivatives(xt, theta)
@@ -789,6 +830,48 @@ class IPM:
         here (`_quality_function_mu`); otherwise it is ``st.mu``."""
         o = self.options
         view = self.view
+        x = st.x
+        sigma_x, d0, r_c, right_hand_side, full_step, barrier_gradients = self._newton_maps(p, st)
+        low_rank = None
+        if o.hessian == "lbfgs":
+            H = None  # the Hessian is sigma I plus the low-rank term
+            sigma_x = sigma_x + jnp.where(p.free, st.lsigma, 0.0)
+            low_rank = self._lbfgs_low_rank(st)
+        else:
+            H = view.hessian(x, st.y, 1.0, theta) if o.hessian == "exact" else st.H
+        system = kkt.KKTSystem(H=H, sigma=sigma_x, A=st.A, B=st.B, d0=d0, free=p.free, pattern=view.pattern)
+        # Ipopt's dual regularization, shrinking with mu (its kappa_c = 1/4)
+        delta_c = o.delta_c * st.mu ** 0.25 if o.delta_c_mu_scaled else jnp.asarray(o.delta_c)
+        fac, delta_w, ok = kkt.factor_with_correction(system, delta_c, st.delta_w)
+        avg = jnp.maximum(self._complementarity(p, st)[0], 1e-300)
+        rx, rc = jax.tree.map(lambda a, b: jnp.stack([a, b]), right_hand_side(0.0, r_c), right_hand_side(avg, r_c))
+        dxs, dys = jax.vmap(lambda bx, bc: kkt.solve(system, fac, delta_w, delta_c, bx, bc, o.refine_steps, remove_delta_c=not o.delta_c_mu_scaled, low_rank=low_rank))(rx, rc)
+        affine = full_step(0.0, dxs[0], dys[0])
+        centering = jax.tree.map(lambda a, b: a - b, full_step(avg, dxs[1], dys[1]), affine)  # per unit sigma
+        mu = st.mu
+        if o.mu_strategy == "adaptive" and o.mu_oracle == "quality-function":
+            mu = jnp.where(st.free_mode, self._quality_function_mu(p, st, affine, centering, avg), mu)
+        step = jax.tree.map(lambda a, c: a + (mu / avg) * c, affine, centering)
+        dx, ds, dy, dzl, dzu, dvl, dvu = step
+        a_max, a_dual = self._step_bounds(p, st, step, st.tau)
+        theta0, phi0 = self._measures(p, x, st.s, st.f, st.c, mu)
+        grad_bar_x, grad_bar_s = barrier_gradients(mu)
+        slope = jnp.sum(grad_bar_x * dx) + jnp.sum(grad_bar_s * ds)
+        status = jnp.where((st.status == int(IpmStatus.RUNNING)) & ~ok, int(IpmStatus.NUMERICAL_ERROR), st.status)
+        return st._replace(
+            dx=dx, ds=ds, dy=dy, dzl=dzl, dzu=dzu, dvl=dvl, dvu=dvu, alpha=a_max, alpha_dual=a_dual, mu=mu,
+            phi0=phi0, theta0=theta0, slope=slope, delta_w=jnp.where(ok, delta_w, st.delta_w), status=status.astype(jnp.int32),
+            fac_diag=fac.diag, fac_sub=fac.sub, sys_sigma=sigma_x, sys_d0=d0, delta_c=delta_c,
+            H=H if o.hessian == "exact" else st.H,
+        )
+
+    def _newton_maps(self, p: _Problem, st: _State):
+        """The pieces of the primal-dual Newton step at the iterate ``st`` that do not need the
+        factorization: the bound terms of the matrix (sigma_x (K, n), d0 (K, m)), the
+        constraint residual r_c, and maps ``right_hand_side(mu, r_c)`` (the
+        condensed system's right-hand sides), ``full_step(mu, dx, dy)`` (slack and bound
+        multiplier steps from dx, dy) and ``barrier_gradients(mu)``. Every piece is affine in
+        mu; second-order corrections replace r_c."""
         x, s = st.x, st.s
         dxl = jnp.where(p.has_xl, x - p.xl, 1.0)
         dxu = jnp.where(p.has_xu, p.xu - x, 1.0)
@@ -807,9 +890,9 @@ class IPM:
             gs = jnp.where(p.ineq, -_safe(mu, dsl, p.has_sl) + _safe(mu, dsu, p.has_su), 0.0)
             return gx, gs
 
-        def right_hand_side(mu):
+        def right_hand_side(mu, r_c):
             gx, gs = barrier_gradients(mu)
-            rhat_x = jnp.where(p.free, gx + kkt._apply_JT(st.A, st.B, st.y, view.pattern), 0.0)
+            rhat_x = jnp.where(p.free, gx + kkt._apply_JT(st.A, st.B, st.y, self.view.pattern), 0.0)
             rhat_s = jnp.where(p.ineq, gs - st.y, 0.0)
             # slacks eliminated: ds = (dy - rhat_s) / sigma_s on inequality rows
             return -rhat_x, -jnp.where(p.ineq, r_c + rhat_s / sig_s, r_c)
@@ -823,36 +906,23 @@ class IPM:
             dvu = jnp.where(p.has_su, (mu - st.vu * dsu + st.vu * ds) / dsu, 0.0)
             return dx, ds, dy, dzl, dzu, dvl, dvu
 
-        low_rank = None
-        if o.hessian == "lbfgs":
-            H = None  # the Hessian is sigma I plus the low-rank term
-            sigma_x = sigma_x + jnp.where(p.free, st.lsigma, 0.0)
-            low_rank = self._lbfgs_low_rank(st)
-        else:
-            H = view.hessian(x, st.y, 1.0, theta) if o.hessian == "exact" else st.H
-        system = kkt.KKTSystem(H=H, sigma=sigma_x, A=st.A, B=st.B, d0=d0, free=p.free, pattern=view.pattern)
-        # Ipopt's dual regularization, shrinking with mu (its kappa_c = 1/4)
-        delta_c = o.delta_c * st.mu ** 0.25 if o.delta_c_mu_scaled else jnp.asarray(o.delta_c)
-        fac, delta_w, ok = kkt.factor_with_correction(system, delta_c, st.delta_w)
-        avg = jnp.maximum(self._complementarity(p, st)[0], 1e-300)
-        rx, rc = jax.tree.map(lambda a, b: jnp.stack([a, b]), right_hand_side(0.0), right_hand_side(avg))
-        dxs, dys = jax.vmap(lambda bx, bc: kkt.solve(system, fac, delta_w, delta_c, bx, bc, o.refine_steps, remove_delta_c=not o.delta_c_mu_scaled, low_rank=low_rank))(rx, rc)
-        affine = full_step(0.0, dxs[0], dys[0])
-        centering = jax.tree.map(lambda a, b: a - b, full_step(avg, dxs[1], dys[1]), affine)  # per unit sigma
-        mu = st.mu
-        if o.mu_strategy == "adaptive" and o.mu_oracle == "quality-function":
-            mu = jnp.where(st.free_mode, self._quality_function_mu(p, st, affine, centering, avg), mu)
-        step = jax.tree.map(lambda a, c: a + (mu / avg) * c, affine, centering)
-        dx, ds, dy, dzl, dzu, dvl, dvu = step
-        a_max, a_dual = self._step_bounds(p, st, step, st.tau)
-        theta0, phi0 = self._measures(p, x, s, st.f, st.c, mu)
-        grad_bar_x, grad_bar_s = barrier_gradients(mu)
-        slope = jnp.sum(grad_bar_x * dx) + jnp.sum(grad_bar_s * ds)
-        status = jnp.where((st.status == int(IpmStatus.RUNNING)) & ~ok, int(IpmStatus.NUMERICAL_ERROR), st.status)
-        return st._replace(
-            dx=dx, ds=ds, dy=dy, dzl=dzl, dzu=dzu, dvl=dvl, dvu=dvu, alpha=a_max, alpha_dual=a_dual, mu=mu,
-            phi0=phi0, theta0=theta0, slope=slope, delta_w=jnp.where(ok, delta_w, st.delta_w), status=status.astype(jnp.int32),
-        )
+        return sigma_x, d0, r_c, right_hand_side, full_step, barrier_gradients
+
+    def _soc_step(self, p: _Problem, st: _State, c_soc):
+        """Ipopt's second-order correction: the Newton step at the iterate for its barrier
+        parameter with the factorization of the current direction, the constraint residual
+        replaced by ``c_soc``. Returns (step, primal and dual fraction-to-the-boundary
+        lengths)."""
+        o = self.options
+        _, _, _, right_hand_side, full_step, _ = self._newton_maps(p, st)
+        H = st.H if o.hessian in ("exact", "bfgs") else None
+        system = kkt.KKTSystem(H=H, sigma=st.sys_sigma, A=st.A, B=st.B, d0=st.sys_d0, free=p.free, pattern=self.view.pattern)
+        low_rank = self._lbfgs_low_rank(st) if o.hessian == "lbfgs" else None
+        rx, rc = right_hand_side(st.mu, c_soc)
+        dx, dy = kkt.solve(system, kkt.BlockFactor(st.fac_diag, st.fac_sub), st.delta_w, st.delta_c, rx, rc, o.refine_steps, remove_delta_c=not o.delta_c_mu_scaled, low_rank=low_rank)
+        step = full_step(st.mu, dx, dy)
+        a_p, a_d = self._step_bounds(p, st, step, st.tau)
+        return step, a_p, a_d
 
     def _quality_function_mu(self, p: _Problem, st: _State, affine, centering, avg):
         """Ipopt's quality-function oracle: mu = sigma avg(d z), with sigma minimizing the
