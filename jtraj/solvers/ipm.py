@@ -42,10 +42,11 @@ Differences from Ipopt, and why:
   limited-memory BFGS forgets its memory after ``lbfgs_max_skipping`` skipped pairs in a row:
   with these three, the iterates on a noisy Talos walk agree with Ipopt's to the printed digits
   for 23 iterations (without them they parted at the first; README).
-- Globalization: Ipopt's filter line search without its second-order corrections (the one
-  difference left on the noisy walks: Ipopt with ``max_soc=0`` takes the same iteration counts)
-  and without a feasibility restoration phase: a failed line search takes its last (tiny) step
-  and the solve stops after several in a row. A trial point
+- Globalization: Ipopt's filter line search with its second-order corrections (``max_soc``;
+  the factorization of the direction is kept in the loop state, so a correction costs one KKT
+  solve; under ``vmap`` every trial pass pays it, as a batched ``cond`` runs both branches),
+  without a feasibility restoration phase: a failed line search takes its last (tiny) step and
+  the solve stops after several in a row. A trial point
   costs the objective and constraints only; the Jacobian is evaluated at accepted points.
 - Everything is one `jax.jit` program (`lax.while_loop`); `jax.vmap` of `IPM.solve` over
   initial guesses (and parameters theta) runs replicates together, a converged replicate's
