@@ -2,12 +2,18 @@
 solved one after another with Ipopt, in the same run.
 
     python bench/replicates.py [--task big_jump] [--param se3] [--sigma 0.1] [--replicates 10]
-                               [--batches 10,100] [--jtraj-sequential] [--no-ipopt] [--out F.json]
+                               [--strategies vmap,threads] [--batches 10,100] [--jtraj-sequential]
+                               [--no-ipopt] [--out F.json]
 
 Both solvers start from the same noisy warm starts (`jtraj.experiments.noisy_warm_starts`), and
 jtraj's batch goes through `JtrajSolver.solve_batch`, as `jtraj robustness --solver jtraj` does.
-Compilation is excluded from every time: the vmapped programs are compiled ahead of time (the
-compile time is printed on its own line), and Ipopt's NLP functions are compiled by ``prepare``.
+Compilation is excluded from every time: the programs are compiled ahead of time (the compile
+time is printed on its own line), and Ipopt's NLP functions are compiled by ``prepare``.
+
+- ``--strategies``: `solve_batch`'s ways to solve the batch, each timed: ``vmap`` (one
+  vectorized program, the members in lockstep) and ``threads`` (the one-problem program, one
+  member per CPU core at a time; what `solve_batch` does on a CPU). The last line is the first
+  strategy's; with both (the default) one line per strategy, ``vmap``'s last.
 
 - ``--batches``: further batch sizes to time (more noisy starts from the same seed), to see how
   a vmapped solve scales; on a CPU it is about linear, on a GPU it should not be.
@@ -29,6 +35,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import os
 import platform
 
 import jax
@@ -47,6 +54,7 @@ def main() -> None:
     ap.add_argument("--param", default="se3")
     ap.add_argument("--sigma", type=float, default=0.1)
     ap.add_argument("--replicates", type=int, default=10)
+    ap.add_argument("--strategies", default="vmap,threads", help="comma-separated solve_batch strategies to time (vmap, threads)")
     ap.add_argument("--batches", default="", help="comma-separated further batch sizes to time, e.g. 100,1000")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--jtraj-sequential", action="store_true", help="also time jtraj's solver one replicate at a time")
@@ -54,6 +62,11 @@ def main() -> None:
     ap.add_argument("--out", help="write the figures to this JSON file")
     args = ap.parse_args()
     batches = [int(b) for b in args.batches.split(",") if b.strip()]
+    strategies = [s.strip() for s in args.strategies.split(",") if s.strip()]
+    from jtraj.solvers.ipm import JtrajSolver
+
+    if not strategies or any(s not in JtrajSolver.STRATEGIES for s in strategies):
+        ap.error(f"--strategies takes some of {', '.join(JtrajSolver.STRATEGIES)}")
     if args.replicates < 1 or any(b < 1 for b in batches):
         ap.error("--replicates and --batches take positive whole numbers")
     if args.no_ipopt:
@@ -70,21 +83,26 @@ def main() -> None:
     starts = noisy_warm_starts(tr.warm_start(), [args.sigma], largest, args.seed)[0]
     report: dict = {
         "task": args.task, "parameterization": args.param, "sigma": args.sigma, "replicates": args.replicates,
-        "jax": jax.__version__, "device": f"{device.platform} {device.device_kind}", "batches": [],
+        "jax": jax.__version__, "device": f"{device.platform} {device.device_kind}", "cpus": os.cpu_count(), "batches": [],
     }
 
-    for k, size in enumerate([args.replicates, *batches]):
-        sols, total, compile_time = backend.solve_batch(nlp, starts[:size], theta, opts)  # type: ignore[attr-defined]
-        converged = sum(s.converged for s in sols)
-        its = [s.stats.iterations for s in sols]
-        print(
-            f"jtraj vmapped batch of {size}: compiled in {compile_time:.1f} s, solved in {total:.2f} s "
-            f"({total / size:.3f} s per replicate), {converged}/{size} converged, iterations {min(its)}-{max(its)}",
-            flush=True,
-        )
-        report["batches"].append({"size": size, "compile_s": compile_time, "solve_s": total, "converged": converged, "iterations_max": max(its), "iterations_mean": float(np.mean(its))})
-        if k == 0:  # the replicates compared with Ipopt
-            batch, t_vmapped = sols, total
+    label = {"vmap": "vmapped", "threads": f"threads ({min(args.replicates, os.cpu_count() or 1)} at a time)"}
+    timed: dict[str, float] = {}
+    for strategy in strategies:
+        for k, size in enumerate([args.replicates, *batches]):
+            sols, total, compile_time = backend.solve_batch(nlp, starts[:size], theta, opts, strategy=strategy)  # type: ignore[attr-defined]
+            converged = sum(s.converged for s in sols)
+            its = [s.stats.iterations for s in sols]
+            print(
+                f"jtraj {strategy} batch of {size}: compiled in {compile_time:.1f} s, solved in {total:.2f} s "
+                f"({total / size:.3f} s per replicate), {converged}/{size} converged, iterations {min(its)}-{max(its)}",
+                flush=True,
+            )
+            report["batches"].append({"strategy": strategy, "size": size, "compile_s": compile_time, "solve_s": total, "converged": converged, "iterations_max": max(its), "iterations_mean": float(np.mean(its))})
+            if k == 0:  # the replicates compared with Ipopt
+                timed[strategy] = total
+                if strategy == strategies[0]:
+                    batch = sols
 
     t_jtraj_seq = 0.0
     seq: list = [None] * args.replicates
@@ -119,18 +137,23 @@ def main() -> None:
         rows.append(row)
         print(line, flush=True)
     report["rows"] = rows
-    report["vmapped_s"] = t_vmapped
+    if "vmap" in timed:
+        report["vmapped_s"] = timed["vmap"]
+    if "threads" in timed:
+        report["threads_s"] = timed["threads"]
     if args.jtraj_sequential:
-        print(f"jtraj one at a time: {t_jtraj_seq:.2f} s; vmapped {t_vmapped:.2f} s, speedup {t_jtraj_seq / t_vmapped:.2f}", flush=True)
+        print(f"jtraj one at a time: {t_jtraj_seq:.2f} s; " + ", ".join(f"{label[s]} {t:.2f} s, speedup {t_jtraj_seq / t:.2f}" for s, t in timed.items()), flush=True)
     sequential = t_jtraj_seq if args.no_ipopt else t_ipopt
     if not args.no_ipopt:
         report["ipopt_sequential_s"] = t_ipopt
-    report["speedup"] = sequential / t_vmapped
+    report["speedup"] = {s: sequential / t for s, t in timed.items()}
     if args.out:
         with open(args.out, "w") as f:
             json.dump(report, f, indent=1)
     against = "jtraj one at a time" if args.no_ipopt else "Ipopt"
-    print(f"replicates: vmapped {t_vmapped:.2f} s, sequential {sequential:.2f} s, speedup {sequential / t_vmapped:.2f} (sequential: {against})")
+    # the first strategy's line last (vmap's, by default: the issue's line)
+    for s in reversed(strategies):
+        print(f"replicates: {label[s]} {timed[s]:.2f} s, sequential {sequential:.2f} s, speedup {sequential / timed[s]:.2f} (sequential: {against})")
 
 
 if __name__ == "__main__":

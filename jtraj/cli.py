@@ -285,7 +285,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="runs/robustness")
     p.add_argument("--workers", type=int, default=1, help="solve (task, parameterization) groups in this many processes")
     p.add_argument("--no-resume", action="store_true", help="solve again the runs already in OUT/runs.jsonl (the old file is kept as runs.jsonl.previous)")
-    p.add_argument("--solver", default="ipopt", choices=_solver_names(), help="NLP solver backend (default ipopt); jtraj solves each (task, parameterization, sigma) group's replicates in one vmapped call")
+    p.add_argument("--solver", default="ipopt", choices=_solver_names(), help="NLP solver backend (default ipopt); jtraj solves each (task, parameterization, sigma) group's replicates in one batched call (vmapped on a GPU, one per core on a CPU)")
     _robot_argument(p)
     _executor_arguments(p, workers=False)
     p.set_defaults(func=_cmd_robustness)

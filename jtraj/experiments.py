@@ -203,8 +203,9 @@ def _robustness_group(task, p, sigmas, replicates, seed, variables, exact_hessia
     """One (task, parameterization) of the study: one compile, then every noisy replicate whose
     key is not in ``done``, appended to ``runs_path`` as soon as it is solved (also from a
     worker process: a kill loses only the solves in flight). A backend with ``solve_batch``
-    (jtraj's interior point) solves each sigma's missing replicates in one vmapped call, with
-    one program per group; Ipopt solves them one by one. Returns the number solved."""
+    (jtraj's interior point) solves each sigma's missing replicates in one batched call (one
+    vmapped program on an accelerator, the one-problem program on every core of a CPU), with
+    one compile per group; Ipopt solves them one by one. Returns the number solved."""
     task = load_task(task)
     base = dict(task_hash=task.content_hash(), parameterization=p, layout=variables, hessian="exact" if exact_hessian else "limited-memory", options_hash=_options_hash(options), seed=seed, solver=solver)
     todo = [(s, r) for s in sigmas for r in range(replicates) if run_key(base | {"sigma": float(s), "replicate": r}) not in done]
@@ -231,7 +232,7 @@ def _robustness_batch(prep, sigma: float, reps: list[int], replicates: int, seed
     for ``replicates`` members (a resumed group's shorter batch is padded, so every sigma and
     every resume reuses one program). Each replicate's row has the fields of a one-by-one
     solve's (through `jtraj.solver.evaluate`, as `solve` makes them); its ``time_s`` is the
-    vmapped call's wall time over the replicates, ``batch`` the number solved in that call."""
+    batched call's wall time over the replicates, ``batch`` the number solved in that call."""
     tr, nlp = prep.transcription, prep.nlp
     backend = solvers.get(solver)
     theta = tr.resolve_theta(None)
@@ -308,8 +309,9 @@ def robustness(
     ``progress`` as in `compare`; ``layout`` is the deprecated former name of ``variables``.
 
     ``solver`` (`jtraj.solvers.SOLVERS`): ``"ipopt"`` solves the replicates one by one;
-    ``"jtraj"`` solves each (task, parameterization, sigma) group's replicates in one vmapped
-    call of its interior point (one compiled program per task and parameterization, compiled
+    ``"jtraj"`` solves each (task, parameterization, sigma) group's replicates in one batched
+    call of its interior point (`JtrajSolver.solve_batch`: vmapped on an accelerator, member by
+    member on every core of a CPU; one compiled program per task and parameterization, compiled
     before the clock starts; a row's ``time_s`` is the call's time over its replicates, and
     ``batch`` says how many it solved). ``ipopt_options`` are the solver's options (Ipopt's
     names for Ipopt, `jtraj.solvers.IpmOptions` fields for jtraj).

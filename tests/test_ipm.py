@@ -228,25 +228,34 @@ def test_registered_backend_returns_the_shared_solution(toy):
 
 
 def test_solve_batch_equals_solve_and_padding_keeps_the_members(toy):
-    """`JtrajSolver.solve_batch`: one vmapped call; each member has the counts and status of
-    `solve` from the same guess (the toy rounds alike: the solutions agree too), and a batch
-    padded to a larger program gives its members the same results as the full batch."""
+    """`JtrajSolver.solve_batch` with ``strategy="vmap"``: one vmapped call; each member has the
+    counts and status of `solve` from the same guess (the toy rounds alike: the solutions agree
+    too), and a batch padded to a larger program gives its members the same results as the
+    full batch. With ``"threads"`` (the CPU's default) each member is `solve`'s own program, so
+    its solution is `solve`'s to the bit."""
     nlp, _ = toy
     backend = solvers.get("jtraj")
     opts = backend.options({"tol": 1e-8, "compl_inf_tol": 1e-8, "constr_viol_tol": 1e-8, "max_iter": 100})
     x0s = 0.3 * np.random.default_rng(1).standard_normal((3, nlp.n))
-    batch, total, _ = backend.solve_batch(nlp, x0s, None, opts)
+    batch, total, _ = backend.solve_batch(nlp, x0s, None, opts, strategy="vmap")
+    threaded, t_threads, _ = backend.solve_batch(nlp, x0s, None, opts, strategy="threads", threads=2)
+    assert backend.default_strategy() == ("threads" if jax.default_backend() == "cpu" else "vmap")
     assert len(batch) == 3 and total > 0 and all(s.stats.time_total == total / 3 for s in batch)
-    for x0, member in zip(x0s, batch):
+    assert len(threaded) == 3 and all(s.stats.time_total == t_threads / 3 for s in threaded)
+    for x0, member, own in zip(x0s, batch, threaded):
         one = backend.solve(nlp, x0, None, opts)
         assert (member.status, member.stats.iterations) == (one.status, one.stats.iterations) and member.converged
         np.testing.assert_allclose(member.x, one.x, atol=1e-9)
-    padded, _, compile_time = backend.solve_batch(nlp, x0s[2:], None, opts, batch_size=3)
+        assert (own.status, own.stats.iterations) == (one.status, one.stats.iterations)
+        np.testing.assert_array_equal(own.x, one.x)
+    padded, _, compile_time = backend.solve_batch(nlp, x0s[2:], None, opts, batch_size=3, strategy="vmap")
     assert compile_time == 0.0  # the batch-of-3 program is reused
     assert padded[0].stats.iterations == batch[2].stats.iterations
     np.testing.assert_array_equal(padded[0].x, batch[2].x)
     with pytest.raises(ValueError, match="4 initial guesses for a batch of 3"):
         backend.solve_batch(nlp, np.zeros((4, nlp.n)), None, opts, batch_size=3)
+    with pytest.raises(ValueError, match="unknown strategy 'pmap'"):
+        backend.solve_batch(nlp, x0s, None, opts, strategy="pmap")
 
 
 def test_lbfgs_iterates_follow_ipopt_with_skipped_pairs():

@@ -171,12 +171,17 @@ def test_jacobian_pattern_products_equal_dense_ones(rng, pair_cost):
     assert (pattern.dense_slots.size > 0) == (pair_cost > 0)
     K, m, n = args[:3]
     A, B = system.A, system.B
+    v = pattern.values(A, B)
+    assert v.shape == (pattern.nnz,) and pattern.nnz == len(args[3])
+    # the vector holds every nonzero once, and gives the blocks back
+    for a, b in zip(pattern.dense(v), (A, B)):
+        np.testing.assert_array_equal(a, b)
     x, y = jnp.asarray(rng.normal(size=(K, n))), jnp.asarray(rng.normal(size=(K, m)))
-    np.testing.assert_allclose(pattern.apply_J(A, B, x), kkt._apply_J(A, B, x), atol=1e-12)
-    np.testing.assert_allclose(pattern.apply_JT(A, B, y), kkt._apply_JT(A, B, y), atol=1e-12)
+    np.testing.assert_allclose(pattern.apply_J(v, x), kkt._apply_J(A, B, x), atol=1e-12)
+    np.testing.assert_allclose(pattern.apply_JT(v, y), kkt._apply_JT(A, B, y), atol=1e-12)
     d = jnp.asarray(rng.uniform(0.5, 2.0, size=(K, m)))
     dense = kkt.condensed_blocks(system, d, jnp.asarray(0.1))
-    sparse = jax.jit(kkt.condensed_blocks)(system._replace(pattern=pattern), d, jnp.asarray(0.1))
+    sparse = jax.jit(kkt.condensed_blocks)(system._replace(A=v, B=None, pattern=pattern), d, jnp.asarray(0.1))
     for a, b in zip(sparse, dense):
         np.testing.assert_allclose(a, b, atol=1e-12)
 
@@ -184,16 +189,35 @@ def test_jacobian_pattern_products_equal_dense_ones(rng, pair_cost):
 def test_kkt_solve_with_pattern_equals_dense_solve(rng):
     """The whole solve with a pattern (and no element Hessians) equals the dense KKT solve."""
     system, args = sparse_system(rng)
-    system = system._replace(pattern=kkt.JacobianPattern(*args))
+    pattern = kkt.JacobianPattern(*args)
+    dense_system = system
+    system = system._replace(A=pattern.values(system.A, system.B), B=None, pattern=pattern)
     K, m, n = args[:3]
     fac, delta_w, ok = jax.jit(kkt.factor_with_correction)(system, jnp.asarray(1e-9), jnp.asarray(0.0))
     assert bool(ok)
     r_x, r_c = rng.normal(size=(K, n)), rng.normal(size=(K, m))
     dx, dy = jax.jit(kkt.solve)(system, fac, delta_w, jnp.asarray(1e-9), jnp.asarray(r_x), jnp.asarray(r_c))
-    M, keep = dense_kkt(system._replace(H=jnp.zeros((K, 2 * n, 2 * n))), float(delta_w))
+    M, keep = dense_kkt(dense_system._replace(H=jnp.zeros((K, 2 * n, 2 * n))), float(delta_w))
     ref = np.linalg.solve(M, np.concatenate([r_x.reshape(-1)[keep], r_c.reshape(-1)]))
     np.testing.assert_allclose(np.asarray(dx).reshape(-1)[keep], ref[: keep.sum()], rtol=1e-8, atol=1e-8)
     np.testing.assert_allclose(np.asarray(dy).reshape(-1), ref[keep.sum() :], rtol=1e-8, atol=1e-8)
+
+
+def test_jacobian_pattern_index_finds_each_nonzero(rng):
+    """`index` maps (knot, slot, column) keys to their place in the vector of nonzeros, and
+    refuses a key outside the pattern."""
+    system, args = sparse_system(rng)
+    pattern = kkt.JacobianPattern(*args)
+    K, m, n, knot, slot, col = args
+    keys = (knot * m + slot) * (2 * n) + col
+    shuffled = rng.permutation(keys.size)
+    pos = pattern.index(keys[shuffled])
+    v = np.asarray(pattern.values(system.A, system.B))
+    dense = np.concatenate([np.asarray(system.A), np.asarray(system.B)], axis=2)
+    np.testing.assert_array_equal(v[pos], dense[knot, slot, col][shuffled])
+    missing = np.setdiff1d(np.arange(K * m * 2 * n), keys)[:1]
+    with pytest.raises(ValueError, match="outside the pattern"):
+        pattern.index(missing)
 
 
 def test_jacobian_pattern_rejects_a_last_knot_reading_beyond():

@@ -64,8 +64,10 @@ class KKTSystem(NamedTuple):
         H: (K, 2n, 2n) symmetric element Hessians on (z_k, z_{k+1}); H[K-1][n:, :] is ignored;
             None for no block Hessian (a limited-memory Hessian is all low-rank term).
         sigma: (K, n) diagonal barrier terms of the variable bounds.
-        A: (K, m, n) Jacobian of knot k's rows with respect to z_k.
-        B: (K, m, n) ... with respect to z_{k+1} (B[K-1] is ignored).
+        A: (K, m, n) Jacobian of knot k's rows with respect to z_k; with a ``pattern``, the
+            vector (pattern.nnz,) of the Jacobian's nonzeros in the pattern's order instead
+            (`JacobianPattern.values`).
+        B: (K, m, n) ... with respect to z_{k+1} (B[K-1] is ignored); None with a pattern.
         d0: (K, m) the (2, 2) block is ``-diag(d0)``; 0 for equalities.
         free: (K, n) bool, False for fixed variables.
         pattern: the static sparsity of A and B (entries outside it are taken as zero), or
@@ -75,7 +77,7 @@ class KKTSystem(NamedTuple):
     H: jax.Array | None
     sigma: jax.Array
     A: jax.Array
-    B: jax.Array
+    B: jax.Array | None
     d0: jax.Array
     free: jax.Array
     pattern: JacobianPattern | None = None
@@ -89,7 +91,12 @@ class JacobianPattern:
     Built once from the nonzeros' (knot k, row slot r, column c in [0, 2n)): c < n is an entry
     of A[k, r, c], c >= n one of B[k, r, c - n] (rows of knot k reading knot k + 1).
 
-    - `apply_J` / `apply_JT`: gathers of the nonzeros and a scatter-add, instead of dense
+    The Jacobian is then the vector of its nonzeros, A's then B's, each in (knot, slot,
+    column) order (`values` takes them from dense blocks, `dense` puts them back): 1/16 of the
+    dense blocks' memory on the whole-body tasks, which matters because a Newton step is
+    memory-bound on a CPU, most of all under ``vmap``.
+
+    - `apply_J` / `apply_JT`: products with the nonzeros and a scatter-add, instead of dense
       (K, m, n) products.
     - `condensed`: the blocks of ``J^T diag(w) J``. Each row adds ``w_r`` times the outer
       product of its nonzeros, so its entries are sums over pairs of nonzeros of one row:
@@ -118,11 +125,15 @@ class JacobianPattern:
         kb, rb, cb = knot[is_b], row[is_b], col[is_b] - n
         self._a = (i32(ra * n + ca), i32(ra), i32(ka * n + ca))
         self._b = (i32(rb * n + cb), i32(rb), i32((kb + 1) * n + cb))
+        self.n_a = int(ka.size)
+        #: the (K * m) stage row of every nonzero, in the vector's order
+        self.rows = i32(np.concatenate([ra, rb]))
+        #: the flat key (knot m + slot) 2n + column of every nonzero, in the vector's order
+        self.keys = np.concatenate([flat[~is_b], flat[is_b]])
         # every nonzero: its row, the knot of its column, its column, its position in [A.ravel(), B.ravel()]
         e_row = np.concatenate([ra, rb])
         e_knot = np.concatenate([ka, kb + 1])
         e_col = np.concatenate([ca, cb])
-        e_pos = np.concatenate([ra * n + ca, K * m * n + rb * n + cb])
         e_a = np.concatenate([np.ones(ka.size, bool), np.zeros(kb.size, bool)])
         # dense slots: the fewest (largest-A) slots that minimize dense flops + pair_cost * pairs
         n_a = np.bincount(ra, minlength=K * m).reshape(K, m)
@@ -148,37 +159,63 @@ class JacobianPattern:
         # target: diag (offset 0) or upper (offset 1) block of knot(p), entry (col p, col q)
         target = (e_knot[q] - e_knot[p]) * (K * n * n) + e_knot[p] * (n * n) + e_col[p] * n + e_col[q]
         srt = np.argsort(target, kind="stable")
-        self._pairs = (i32(e_pos[p[srt]]), i32(e_pos[q[srt]]), i32(e_row[p[srt]]), i32(target[srt]))
+        self._pairs = (i32(p[srt]), i32(q[srt]), i32(e_row[p[srt]]), i32(target[srt]))
         self.n_pairs = int(p.size)
+        # A's nonzeros in the dense slots: their index in the vector, their place in (K, slots, n)
+        where = np.full(m, -1)
+        where[self.dense_slots] = np.arange(self.dense_slots.size)
+        in_dense = where[slot[~is_b]] >= 0
+        self._dense = (i32(np.flatnonzero(in_dense)), i32((ka[in_dense] * self.dense_slots.size + where[slot[~is_b]][in_dense]) * n + ca[in_dense]))
 
-    def apply_J(self, A: jax.Array, B: jax.Array, x: jax.Array) -> jax.Array:
-        """J x (K, m) for x (K, n)."""
+    def index(self, keys: np.ndarray) -> np.ndarray:
+        """Positions in the vector of nonzeros of flat keys ``(knot m + slot) 2n + column``
+        (each must be in the pattern)."""
+        keys = np.asarray(keys, np.int64)
+        order = np.argsort(self.keys, kind="stable")
+        pos = order[np.minimum(np.searchsorted(self.keys, keys, sorter=order), max(self.keys.size - 1, 0))]
+        if keys.size and not np.array_equal(self.keys[pos], keys):
+            raise ValueError("a key outside the pattern")
+        return pos
+
+    def values(self, A: jax.Array, B: jax.Array) -> jax.Array:
+        """The vector of nonzeros (nnz,) of dense blocks A, B (K, m, n)."""
+        return jnp.concatenate([A.reshape(-1)[self._a[0]], B.reshape(-1)[self._b[0]]])
+
+    def dense(self, v: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """Dense blocks (A, B), each (K, m, n), of the vector of nonzeros ``v``."""
+        size = self.K * self.m * self.n
+        A = jnp.zeros(size, v.dtype).at[self._a[0]].set(v[: self.n_a])
+        B = jnp.zeros(size, v.dtype).at[self._b[0]].set(v[self.n_a :])
+        return A.reshape(self.K, self.m, self.n), B.reshape(self.K, self.m, self.n)
+
+    def apply_J(self, v: jax.Array, x: jax.Array) -> jax.Array:
+        """J x (K, m) for the nonzeros v and x (K, n)."""
         K, m, n = self.K, self.m, self.n
         xf = jnp.concatenate([x.reshape(-1), jnp.zeros(n, x.dtype)])
-        (pa, ra, ca), (pb, rb, cb) = self._a, self._b
-        out = jnp.zeros(K * m, x.dtype).at[ra].add(A.reshape(-1)[pa] * xf[ca]).at[rb].add(B.reshape(-1)[pb] * xf[cb])
+        (_, ra, ca), (_, rb, cb) = self._a, self._b
+        out = jnp.zeros(K * m, x.dtype).at[ra].add(v[: self.n_a] * xf[ca]).at[rb].add(v[self.n_a :] * xf[cb])
         return out.reshape(K, m)
 
-    def apply_JT(self, A: jax.Array, B: jax.Array, y: jax.Array) -> jax.Array:
-        """J^T y (K, n) for y (K, m)."""
+    def apply_JT(self, v: jax.Array, y: jax.Array) -> jax.Array:
+        """J^T y (K, n) for the nonzeros v and y (K, m)."""
         K, n = self.K, self.n
         yf = y.reshape(-1)
-        (pa, ra, ca), (pb, rb, cb) = self._a, self._b
-        out = jnp.zeros((K + 1) * n, y.dtype).at[ca].add(A.reshape(-1)[pa] * yf[ra]).at[cb].add(B.reshape(-1)[pb] * yf[rb])
+        (_, ra, ca), (_, rb, cb) = self._a, self._b
+        out = jnp.zeros((K + 1) * n, y.dtype).at[ca].add(v[: self.n_a] * yf[ra]).at[cb].add(v[self.n_a :] * yf[rb])
         return out[: K * n].reshape(K, n)
 
-    def condensed(self, A: jax.Array, B: jax.Array, w: jax.Array) -> tuple[jax.Array, jax.Array]:
-        """The blocks of ``J^T diag(w) J`` for w (K, m): (diag (K, n, n), upper (K, n, n)),
-        upper[k] = the (k, k+1) block; the B-B products land on diag[k + 1]."""
+    def condensed(self, v: jax.Array, w: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """The blocks of ``J^T diag(w) J`` for the nonzeros v and w (K, m): (diag (K, n, n),
+        upper (K, n, n)), upper[k] = the (k, k+1) block; the B-B products land on diag[k + 1]."""
         K, n = self.K, self.n
         p, q, row, target = self._pairs
-        values = jnp.concatenate([A.reshape(-1), B.reshape(-1)])
-        prods = values[p] * values[q] * w.reshape(-1)[row]
+        prods = v[p] * v[q] * w.reshape(-1)[row]
         out = jax.ops.segment_sum(prods, target, num_segments=2 * K * n * n, indices_are_sorted=True)
         diag, upper = out[: K * n * n].reshape(K, n, n), out[K * n * n :].reshape(K, n, n)
         # (the pairs of one knot's columns come in both orders, so diag is symmetric)
         if self.dense_slots.size:
-            Ad = A[:, self.dense_slots, :]
+            s = self.dense_slots.size
+            Ad = jnp.zeros(K * s * n, v.dtype).at[self._dense[1]].set(v[self._dense[0]]).reshape(K, s, n)
             diag = diag + jnp.swapaxes(Ad * w[:, self.dense_slots, None], 1, 2) @ Ad
         return diag, upper
 
@@ -237,8 +274,9 @@ def condensed_blocks(system: KKTSystem, d: jax.Array, delta_w: jax.Array) -> tup
     has_next = _split_last(K)
     w = 1.0 / d
     if pattern is not None:
-        diag, upper = pattern.condensed(A, B, w)
+        diag, upper = pattern.condensed(A, w)
     else:
+        assert B is not None, "dense blocks need B"
         Bm = B * has_next[:, None, None]
         AtW = jnp.swapaxes(A * w[:, :, None], 1, 2)
         BtW = jnp.swapaxes(Bm * w[:, :, None], 1, 2)
@@ -331,7 +369,7 @@ def factor_with_correction(
 def _apply_J(A, B, x, pattern: JacobianPattern | None = None):
     """J x: (K, m) rows of knot k from x_k and x_{k+1}."""
     if pattern is not None:
-        return pattern.apply_J(A, B, x)
+        return pattern.apply_J(A, x)
     K = x.shape[0]
     x_next = jnp.concatenate([x[1:], jnp.zeros_like(x[:1])], axis=0)
     return jnp.einsum("kmn,kn->km", A, x) + jnp.einsum("kmn,kn->km", B * _split_last(K)[:, None, None], x_next)
@@ -340,7 +378,7 @@ def _apply_J(A, B, x, pattern: JacobianPattern | None = None):
 def _apply_JT(A, B, y, pattern: JacobianPattern | None = None):
     """J^T y: (K, n)."""
     if pattern is not None:
-        return pattern.apply_JT(A, B, y)
+        return pattern.apply_JT(A, y)
     K = y.shape[0]
     out = jnp.einsum("kmn,km->kn", A, y)
     from_prev = jnp.einsum("kmn,km->kn", B * _split_last(K)[:, None, None], y)

@@ -9,7 +9,9 @@ once here, so the view stays exact for any group the NLP holds.
 
 Shapes: K knots, n = nz variables per knot, m rows per knot.
 - ``C`` (K, m): constraint values (0 on inactive slots);
-- ``A`` (K, m, n) = dC_k/dz_k, ``B`` (K, m, n) = dC_k/dz_{k+1} (B[K-1] = 0);
+- ``A`` (K, m, n) = dC_k/dz_k, ``B`` (K, m, n) = dC_k/dz_{k+1} (B[K-1] = 0), held as the vector
+  of their nonzeros in the order of the view's `JacobianPattern` (``pattern.dense`` gives the
+  blocks);
 - ``H`` (K, 2n, 2n): element Hessians on (z_k, z_{k+1}) whose sum is the Lagrangian's Hessian.
 """
 
@@ -65,6 +67,13 @@ class StageView:
         slot_flat = self.row_flat[nlp.jac_rows]
         #: the blocks' static sparsity, for the KKT solve's products (`kkt.JacobianPattern`)
         self.pattern = JacobianPattern(K, m, n, slot_flat // m, slot_flat % m, off * n + nlp.jac_cols % n)
+        # the NLP's Jacobian values -> the pattern's vector: a gather when each nonzero is given
+        # once (the usual case), else a scatter-add of the repeats
+        pos = self.pattern.index(self._jac_flat)
+        self._jac_gather = None
+        if pos.size == self.pattern.nnz and np.unique(pos).size == pos.size:
+            self._jac_gather = np.argsort(pos).astype(np.int32)
+        self._jac_pos = pos.astype(np.int32)
         # an NLP with parameters has bounds(theta) and functions of (x, theta) (`jtraj.solvers.base.bind`)
         self._theta = callable(getattr(nlp, "bounds", None))
 
@@ -106,14 +115,14 @@ class StageView:
         c = self._call(self.nlp.constraints, x, theta=theta)
         return f, self.to_stage_rows(c)
 
-    def derivatives(self, Z: jax.Array, theta: Any = None) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
-        """Objective gradient (K, n) and the Jacobian blocks A, B (K, m, n) at Z."""
+    def derivatives(self, Z: jax.Array, theta: Any = None) -> tuple[jax.Array, jax.Array]:
+        """Objective gradient (K, n) and the Jacobian's nonzeros (pattern.nnz,) at Z."""
         x = Z.reshape(-1)
-        K, n, m = self.K, self.n, self.m
-        grad = self._call(self.nlp.gradient, x, theta=theta).reshape(K, n)
+        grad = self._call(self.nlp.gradient, x, theta=theta).reshape(self.K, self.n)
         vals = self._call(self.nlp.jacobian, x, theta=theta)
-        J2 = jnp.zeros(K * m * 2 * n, vals.dtype).at[self._jac_flat].add(vals).reshape(K, m, 2 * n)
-        return grad, J2[..., :n], J2[..., n:]
+        if self._jac_gather is not None:
+            return grad, vals[self._jac_gather]
+        return grad, jnp.zeros(self.pattern.nnz, vals.dtype).at[self._jac_pos].add(vals)
 
     def prepare_hessian(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Build the NLP's Hessian structure (host work: call before tracing) and the scatter
