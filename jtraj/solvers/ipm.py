@@ -1088,10 +1088,10 @@ class JtrajSolver(AbstractSolver):
           lengths (a resumed study's missing replicates) reuse one program.
         - ``"threads"``: the one-problem program of `solve`, each member on its own, ``threads``
           at a time (default: the CPU count; JAX releases the GIL while a program runs). On a
-          CPU this is the faster way: a member's Newton step streams its block factor (K n^2
-          numbers, 6.5 MB on Talos) through memory several times, which stays in cache for one
-          member but not for a vectorized batch, and each member stops at its own last
-          iteration. ``batch_size`` is ignored.
+          CPU this is the faster way: the Newton step is mostly block sweeps over the knots
+          (small dense products in a `lax.scan`), which XLA's CPU code runs several times
+          slower vectorized over members than member after member (``bench/vmap_cpu.py``), and
+          each member stops at its own last iteration. ``batch_size`` is ignored.
         - None (default): `default_strategy` (``"threads"`` on a CPU, ``"vmap"`` otherwise).
 
         Returns the B solutions, the wall seconds of the batch (compiling excluded; each

@@ -1,0 +1,68 @@
+"""Why `JtrajSolver.solve_batch` runs members one after another on a CPU: one block sweep of the
+KKT solve, vectorized over a batch (`jax.vmap`) against the same members one after another
+(`lax.map`), in the same run.
+
+    python bench/vmap_cpu.py [--members 4] [--knots 47] [--sizes 32,132] [--repeats 50]
+
+The sweep is the shape of `jtraj.solvers.kkt.solve_factored`'s: a `lax.scan` over the knots of
+an n x n block times a vector, repeated. At n = 132 (Talos, big_jump) one member's blocks are
+K n^2 doubles (6.5 MB); several members' do not fit in the cache together, and the vectorized
+batch streams them all from memory on every sweep. Prints one line per size:
+``n=N: one X ms, one after another Y ms, vmapped Z ms, vmapped / one after another R``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+jax.config.update("jax_enable_x64", True)
+
+
+def sweeps(blocks: jax.Array, b: jax.Array, repeats: int) -> jax.Array:
+    """``repeats`` forward sweeps over the knots: y_k = tanh(L_k (b_k + y_{k-1}))."""
+
+    def one(_, y):
+        def step(prev, inp):
+            L_k, b_k = inp
+            out = jnp.tanh(L_k @ (b_k + prev))
+            return out, out
+
+        return jax.lax.scan(step, y[0], (blocks, b + y))[1]
+
+    return jax.lax.fori_loop(0, repeats, one, b)
+
+
+def timed(fn, *args, reps: int = 3) -> float:
+    jax.block_until_ready(fn(*args))  # compile
+    t0 = time.perf_counter()
+    for _ in range(reps):
+        jax.block_until_ready(fn(*args))
+    return (time.perf_counter() - t0) / reps
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--members", type=int, default=4)
+    ap.add_argument("--knots", type=int, default=47)
+    ap.add_argument("--sizes", default="32,132")
+    ap.add_argument("--repeats", type=int, default=50)
+    args = ap.parse_args()
+    rng = np.random.default_rng(0)
+    print(f"JAX {jax.__version__} on {jax.devices()[0].platform}; {args.members} members, {args.knots} knots, {args.repeats} sweeps", flush=True)
+    for n in (int(s) for s in args.sizes.split(",")):
+        L = jnp.asarray(0.01 * rng.standard_normal((args.members, args.knots, n, n)))
+        b = jnp.asarray(rng.standard_normal((args.members, args.knots, n)))
+        run = lambda L, b: sweeps(L, b, args.repeats)  # noqa: E731
+        one = timed(jax.jit(run), L[0], b[0])
+        mapped = timed(jax.jit(lambda L, b, run=run: jax.lax.map(lambda a: run(*a), (L, b))), L, b)
+        vmapped = timed(jax.jit(jax.vmap(run)), L, b)
+        print(f"n={n}: one {one * 1e3:.1f} ms, one after another {mapped * 1e3:.1f} ms, vmapped {vmapped * 1e3:.1f} ms, vmapped / one after another {vmapped / mapped:.2f}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
