@@ -44,13 +44,15 @@ Differences from Ipopt, and why:
   for 23 iterations (without them they parted at the first; README).
 - Globalization: Ipopt's filter line search with its second-order corrections (``max_soc``;
   the factorization of the direction is kept in the loop state, so a correction costs one KKT
-  solve; under ``vmap`` every trial pass pays it, as a batched ``cond`` runs both branches),
+  solve; it runs in a loop that a vmapped batch enters only when one of its members corrects),
   without a feasibility restoration phase: a failed line search takes its last (tiny) step and
   the solve stops after several in a row. A trial point
   costs the objective and constraints only; the Jacobian is evaluated at accepted points.
 - Everything is one `jax.jit` program (`lax.while_loop`); `jax.vmap` of `IPM.solve` over
   initial guesses (and parameters theta) runs replicates together, a converged replicate's
-  state no longer changes (the batched while loop only updates unfinished members).
+  state no longer changes (the batched while loop only updates unfinished members). On a CPU
+  a vectorized batch is slower than its members one after another (`JtrajSolver.solve_batch`
+  says why), so there `solve_batch` runs the one-problem program on every core instead.
 
 State: `bench/solve.py TASK --variants compact,jtraj` measures it on the six tasks (the
 README quotes the run). Ipopt stays the default.
