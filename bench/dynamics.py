@@ -23,7 +23,8 @@ import numpy as np
 import pinocchio as pin
 
 import jtraj  # noqa: F401  (float64)
-from jtraj import dynamics, robot as robot_lib
+from jtraj import dynamics
+from jtraj import robot as robot_lib
 from jtraj.parameterization import PARAMETERIZATIONS
 
 
@@ -95,7 +96,7 @@ def main():
     model, frames, q_index, v_index = pinocchio_model(robot)
     data = model.createData()
     perm = np.concatenate([np.arange(6), v_index])
-    qs, vs, as_, fexts, fs = [], [], [], [], []
+    qs, vs, as_, fexts = [], [], [], []
     for k in range(K):
         T = param.to_pose(Q[k, : param.nq])
         qp = np.zeros(model.nq)

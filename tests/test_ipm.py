@@ -256,6 +256,8 @@ def test_solve_batch_equals_solve_and_padding_keeps_the_members(toy):
         backend.solve_batch(nlp, np.zeros((4, nlp.n)), None, opts, batch_size=3)
     with pytest.raises(ValueError, match="unknown strategy 'pmap'"):
         backend.solve_batch(nlp, x0s, None, opts, strategy="pmap")
+    with pytest.raises(ValueError, match="threads=0"):
+        backend.solve_batch(nlp, x0s, None, opts, strategy="threads", threads=0)
 
 
 def test_lbfgs_iterates_follow_ipopt_with_skipped_pairs():

@@ -1103,6 +1103,8 @@ class JtrajSolver(AbstractSolver):
         strategy = strategy or self.default_strategy()
         if strategy not in self.STRATEGIES:
             raise ValueError(f"solve_batch: unknown strategy {strategy!r}; expected one of {', '.join(self.STRATEGIES)}")
+        if threads is not None and threads < 1:
+            raise ValueError(f"solve_batch: threads={threads}; expected a positive count or None (the CPU count)")
         opts = self.options(options)
         ipm = self.ipm(nlp, opts)
         view = ipm.view
@@ -1128,7 +1130,7 @@ class JtrajSolver(AbstractSolver):
         from concurrent.futures import ThreadPoolExecutor
 
         count = len(x0s)
-        threads = max(1, min(count, threads or os.cpu_count() or 1))
+        threads = min(count, threads or os.cpu_count() or 1)
         program, compile_time = self._program(ipm, "", ipm.solve, jnp.asarray(x0s[0]), theta)
         run = lambda x0: jax.block_until_ready(program(jnp.asarray(x0), theta))  # noqa: E731
         t0 = time.perf_counter()
