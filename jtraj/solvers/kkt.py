@@ -130,7 +130,7 @@ class JacobianPattern:
         self.rows = i32(np.concatenate([ra, rb]))
         #: the flat key (knot m + slot) 2n + column of every nonzero, in the vector's order
         self.keys = np.concatenate([flat[~is_b], flat[is_b]])
-        # every nonzero: its row, the knot of its column, its column, its position in [A.ravel(), B.ravel()]
+        # every nonzero, in the vector's order: its row, the knot of its column, its column
         e_row = np.concatenate([ra, rb])
         e_knot = np.concatenate([ka, kb + 1])
         e_col = np.concatenate([ca, cb])
