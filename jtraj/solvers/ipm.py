@@ -835,15 +835,9 @@ class IPM:
         o = self.options
         view = self.view
         x = st.x
-        sigma_x, d0, r_c, right_hand_side, full_step, barrier_gradients = self._newton_maps(p, st)
-        low_rank = None
-        if o.hessian == "lbfgs":
-            H = None  # the Hessian is sigma I plus the low-rank term
-            sigma_x = sigma_x + jnp.where(p.free, st.lsigma, 0.0)
-            low_rank = self._lbfgs_low_rank(st)
-        else:
-            H = view.hessian(x, st.y, 1.0, theta) if o.hessian == "exact" else st.H
-        system = kkt.KKTSystem(H=H, sigma=sigma_x, A=st.J, B=None, d0=d0, free=p.free, pattern=view.pattern)
+        # with L-BFGS the Hessian is sigma I plus the low-rank term: no block part
+        H = None if o.hessian == "lbfgs" else view.hessian(x, st.y, 1.0, theta) if o.hessian == "exact" else st.H
+        system, low_rank, r_c, right_hand_side, full_step, barrier_gradients = self._newton_system(p, st, H)
         # Ipopt's dual regularization, shrinking with mu (its kappa_c = 1/4)
         delta_c = o.delta_c * st.mu ** 0.25 if o.delta_c_mu_scaled else jnp.asarray(o.delta_c)
         fac, delta_w, ok = kkt.factor_with_correction(system, delta_c, st.delta_w)
@@ -912,20 +906,27 @@ class IPM:
 
         return sigma_x, d0, r_c, right_hand_side, full_step, barrier_gradients
 
+    def _newton_system(self, p: _Problem, st: _State, H):
+        """The Newton matrix at the iterate ``st`` with block Hessian ``H`` (None with L-BFGS):
+        its `kkt.KKTSystem` (L-BFGS's sigma on the diagonal), the limited-memory low-rank term
+        (None otherwise), and `_newton_maps`'s r_c, right_hand_side, full_step and
+        barrier_gradients."""
+        sigma_x, d0, r_c, right_hand_side, full_step, barrier_gradients = self._newton_maps(p, st)
+        low_rank = None
+        if self.options.hessian == "lbfgs":
+            sigma_x = sigma_x + jnp.where(p.free, st.lsigma, 0.0)
+            low_rank = self._lbfgs_low_rank(st)
+        system = kkt.KKTSystem(H=H, sigma=sigma_x, A=st.J, B=None, d0=d0, free=p.free, pattern=self.view.pattern)
+        return system, low_rank, r_c, right_hand_side, full_step, barrier_gradients
+
     def _soc_step(self, p: _Problem, st: _State, c_soc):
         """Ipopt's second-order correction: the Newton step at the iterate for its barrier
         parameter with the factorization of the current direction, the constraint residual
         replaced by ``c_soc``. Returns (step, primal and dual fraction-to-the-boundary
         lengths)."""
         o = self.options
-        # the iterate is the direction's, so these are the factored matrix's pieces
-        sigma_x, d0, _, right_hand_side, full_step, _ = self._newton_maps(p, st)
-        H = st.H if o.hessian in ("exact", "bfgs") else None
-        low_rank = None
-        if o.hessian == "lbfgs":
-            sigma_x = sigma_x + jnp.where(p.free, st.lsigma, 0.0)
-            low_rank = self._lbfgs_low_rank(st)
-        system = kkt.KKTSystem(H=H, sigma=sigma_x, A=st.J, B=None, d0=d0, free=p.free, pattern=self.view.pattern)
+        # the iterate is the direction's, so this is the factored matrix
+        system, low_rank, _, right_hand_side, full_step, _ = self._newton_system(p, st, st.H if o.hessian in ("exact", "bfgs") else None)
         rx, rc = right_hand_side(st.mu, c_soc)
         dx, dy = kkt.solve(system, kkt.BlockFactor(st.fac_diag, st.fac_sub), st.delta_w, st.delta_c, rx, rc, o.refine_steps, remove_delta_c=not o.delta_c_mu_scaled, low_rank=low_rank)
         step = full_step(st.mu, dx, dy)
