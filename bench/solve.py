@@ -5,7 +5,7 @@ time and iterations measured in the same run (never remembered figures: machines
 day to day).
 
     python bench/solve.py big_jump [sideflip ...] [--param se3] [--variants paper,compact,lean]
-        [--peer PATH | --no-peer] [--out DIR]
+        [--ipopt NAME=VALUE ...] [--jtraj NAME=VALUE ...] [--peer PATH | --no-peer] [--out DIR]
 
 Variants (Ipopt with the study's settings: L-BFGS Hessian, tol 1e-3, MUMPS; or jtraj's solver):
     paper    the study's variables per knot (q, v, a, f, c)
@@ -13,7 +13,11 @@ Variants (Ipopt with the study's settings: L-BFGS Hessian, tol 1e-3, MUMPS; or j
     lean     accelerations substituted too (q, v, f)
     exact    the paper's variables with the exact Hessian of the Lagrangian from JAX
     jtraj    the compact variables with jtraj's own interior point (solver="jtraj", tol 1e-3);
-             its time is the whole jitted solve (the "Ipopt own" column then holds it all)
+             its time is the whole jitted solve (the "Ipopt own" column then holds it all);
+             ``--jtraj NAME=VALUE`` sets its options (`jtraj.solvers.IpmOptions`; e.g.
+             ``constr_viol_tol=1e-6``), shown in its row's variant cell
+
+``--ipopt NAME=VALUE`` adds an Ipopt option to the Ipopt variants.
 
 ``--peer`` is a command that runs the public code on one task and prints one JSON line with
 at least ``iterations`` and ``time_s`` (its wall time around Ipopt's solve, model building
@@ -72,10 +76,10 @@ def run_peer(peer: str, task: str) -> dict:
     return json.loads(lines[-1])
 
 
-def run_variant(task: str, param: str, variant: str, extra: dict) -> dict:
+def run_variant(task: str, param: str, variant: str, extra: dict, extra_jtraj: dict) -> dict:
     v = VARIANTS[variant]
     if v.get("solver") == "jtraj":
-        return run_jtraj(task, param, variant, v)
+        return run_jtraj(task, param, variant, v, extra_jtraj)
     opts = dict(print_timing_statistics="yes", print_level=3, **extra)
     # Ipopt prints its timing table on the C side: capture it from file descriptor 1
     with tempfile.TemporaryFile(mode="w+") as tmp:
@@ -109,25 +113,33 @@ def _record(variant: str, r, time_linear_solver: float | None) -> dict:
     )
 
 
-def run_jtraj(task: str, param: str, variant: str, v: dict) -> dict:
-    """jtraj's own interior point (compiled before its clock starts; no Ipopt timing table)."""
+def run_jtraj(task: str, param: str, variant: str, v: dict, options: dict) -> dict:
+    """jtraj's own interior point (compiled before its clock starts; no Ipopt timing table),
+    with ``options`` over its defaults."""
     t0 = time.perf_counter()
-    r = solve(task, param, variables=v["variables"], solver="jtraj", progress=io.StringIO())
+    r = solve(task, param, variables=v["variables"], solver="jtraj", options=dict(options), progress=io.StringIO())
     total = time.perf_counter() - t0
     print(f"{task} [{variant}]: solver program compiled and run in {total:.1f} s", flush=True)
-    return _record(variant, r, None)
+    return _record(variant, r, None) | {"options": dict(options)}
+
+
+def _label(v: dict) -> str:
+    """A row's variant cell: its name, and the solver options given on the command line."""
+    opts = v.get("options") or {}
+    return v["variant"] + "".join(f", {k}={val}" for k, val in opts.items())
 
 
 def markdown(records: list[dict]) -> str:
     with_peer = any(r.get("peer") for r in records)
-    head = "| task | variant | status | iterations | time (s) | s/iter | JAX eval (s) | Ipopt own (s) |"
-    head += " peer iterations | peer time (s) | peer / jtraj |" if with_peer else ""
+    head = "| task | variant | status | iterations | cost | violation | time (s) | s/iter | JAX eval (s) | Ipopt own (s) |"
+    head += " peer iterations | peer cost | peer violation | peer time (s) | peer / jtraj |" if with_peer else ""
     lines = [head, "|" + "---|" * head.count(" | ") + "---|"]
     for rec in records:
         peer = rec.get("peer")
         for v in rec["variants"]:
             row = (
-                f"| {rec['task']} | {v['variant']} | {v['status']} | {v['iterations']} | {v['time_s']:.2f} | {v['time_s'] / max(v['iterations'], 1):.3f} "
+                f"| {rec['task']} | {_label(v)} | {v['status']} | {v['iterations']} | {v['cost']:.4g} | {v['constraint_violation']:.1e} "
+                f"| {v['time_s']:.2f} | {v['time_s'] / max(v['iterations'], 1):.3f} "
                 f"| {v['time_derivatives']:.2f} | {v['time_ipopt']:.2f} |"
             )
             if with_peer and peer:
@@ -136,14 +148,18 @@ def markdown(records: list[dict]) -> str:
                 done = peer.get("status") in (0, 1)
                 bound = "" if done else ">= "
                 note = "" if done else f" (stopped, Ipopt status {peer.get('status')})"
-                row += f" {peer['iterations']}{note} | {bound}{peer['time_s']:.2f} | {bound}{peer['time_s'] / v['time_s']:.1f}x |"
+                cost = f"{peer['obj']:.4g}" if peer.get("obj") is not None else ""
+                viol = f"{peer['cons']:.1e}" if peer.get("cons") is not None else ""
+                row += f" {peer['iterations']}{note} | {cost} | {viol} | {bound}{peer['time_s']:.2f} | {bound}{peer['time_s'] / v['time_s']:.1f}x |"
             elif with_peer:
-                row += " | | |"
+                row += " | | | | |"
             lines.append(row)
     loads = [x for r in records for x in (r.get("machine", {}).get("load_1min"), r.get("load_1min_after")) if x is not None]
     if loads:
         cpus = records[0].get("machine", {}).get("cpus")
         lines.append(f"\nMachine: {cpus} CPUs, 1-minute load average {min(loads):.1f} to {max(loads):.1f} during these runs (the public code and jtraj ran one after the other).")
+    if with_peer:
+        lines.append("\nCost and violation: jtraj's objective and largest violation of a constraint or bound (unscaled); the peer's are the final objective and constraint violation in its Ipopt log (Ipopt's scaled values).")
     return "\n".join(lines) + "\n"
 
 
@@ -152,7 +168,8 @@ def main() -> None:
     ap.add_argument("tasks", nargs="*")
     ap.add_argument("--param", default="se3")
     ap.add_argument("--variants", default="paper,compact,lean")
-    ap.add_argument("--ipopt", action="append", default=[], metavar="NAME=VALUE", help="extra Ipopt option for every variant")
+    ap.add_argument("--ipopt", action="append", default=[], metavar="NAME=VALUE", help="extra Ipopt option for every Ipopt variant")
+    ap.add_argument("--jtraj", action="append", default=[], metavar="NAME=VALUE", help="option of jtraj's solver for the jtraj variant (e.g. constr_viol_tol=1e-6)")
     ap.add_argument("--peer", default=str(DEFAULT_PEER) if DEFAULT_PEER.exists() else None, help=f"command running the public code (default {DEFAULT_PEER} when it exists)")
     ap.add_argument("--no-peer", action="store_true", help="do not run the public code")
     ap.add_argument("--out", help="write DIR/speed.json and DIR/speed.md")
@@ -169,10 +186,14 @@ def main() -> None:
     for v in variants:
         if v not in VARIANTS:
             ap.error(f"--variants: {v!r}: expected some of {sorted(VARIANTS)}")
-    extra = {}
-    for item in args.ipopt:
-        k, _, v = item.partition("=")
-        extra[k] = _parse_value(v)
+    extra: dict = {}
+    extra_jtraj: dict = {}
+    for items, into in ((args.ipopt, extra), (args.jtraj, extra_jtraj)):
+        for item in items:
+            k, sep, val = item.partition("=")
+            if not sep or not k:
+                ap.error(f"expected NAME=VALUE, got {item!r}")
+            into[k] = _parse_value(val)
     peer = None if args.no_peer else args.peer
     records = []
     for task in args.tasks:
@@ -185,7 +206,7 @@ def main() -> None:
         rec["compile_s"] = time.perf_counter() - t0
         print(f"{task} [{args.param}]: {prep.nlp.n} variables, {prep.nlp.m} constraints; compile {rec['compile_s']:.1f} s", flush=True)
         for name in variants:
-            rec["variants"].append(run_variant(task, args.param, name, extra))
+            rec["variants"].append(run_variant(task, args.param, name, extra, extra_jtraj))
         rec["load_1min_after"] = os.getloadavg()[0]
         records.append(rec)
         print(markdown([rec]), flush=True)
