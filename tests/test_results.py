@@ -107,3 +107,34 @@ def test_side_by_side_jtraj_task_follows_robot_and_code_costs():
     assert sideflip.robot == "go2" and sideflip == mod.jtraj_task("sideflip", {}, code_costs=False)  # no code cost differs there
     assert mod.jtraj_label("paper", {"talos": "talos_full"}, True) == "jtraj paper, talos_full, code's costs"
     assert mod.jtraj_label("paper", {}, False) == "jtraj paper"
+
+
+def _bench_module(name: str):
+    spec = importlib.util.spec_from_file_location(f"bench_{name}", ROOT / "bench" / f"{name}.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_speed_markdown_is_rendered_from_its_json():
+    folders = [p for p in _results_dirs() if (p / "speed.json").exists()]
+    assert folders, "results/ holds no speed.json"
+    markdown = _bench_module("solve").markdown
+    for folder in folders:
+        records = json.loads((folder / "speed.json").read_text())
+        assert records
+        assert (folder / "speed.md").read_text() == markdown(records), f"{folder}/speed.md was not rendered from its JSON"
+
+
+def test_speed_markdown_cells():
+    markdown = _bench_module("solve").markdown
+    row = dict(status="solved", iterations=10, time_s=2.0, time_derivatives=0.0, time_ipopt=2.0, cost=0.5, constraint_violation=3e-9)
+    records = [
+        dict(task="big_jump", peer=dict(iterations=11, time_s=20.0, status=0, obj=0.0, cons=1.4e-6), variants=[dict(row, variant="jtraj", options={"constr_viol_tol": 1e-6})]),
+        dict(task="walk", peer=dict(iterations=50, time_s=600.0, status=-5), variants=[dict(row, variant="compact")]),
+    ]
+    lines = markdown(records).splitlines()
+    assert lines[0].startswith("| task | variant | status | iterations | cost | violation |")
+    assert lines[2] == "| big_jump | jtraj, constr_viol_tol=1e-06 | solved | 10 | 0.5 | 3.0e-09 | 2.00 | 0.200 | 0.00 | 2.00 | 11 | 0 | 1.4e-06 | 20.00 | 10.0x |"
+    # a peer stopped by its wall-time limit: its time and the ratio are lower bounds; no cost logged
+    assert lines[3] == "| walk | compact | solved | 10 | 0.5 | 3.0e-09 | 2.00 | 0.200 | 0.00 | 2.00 | 50 (stopped, Ipopt status -5) |  |  | >= 600.00 | >= 300.0x |"
