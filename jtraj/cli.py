@@ -115,7 +115,7 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
     from jtraj.provenance import write_provenance
 
     sigmas = args.sigmas_checked
-    robustness(args.tasks_checked, _split(args.params), sigmas, replicates=args.replicates, seed=args.seed, out=args.out, variables=args.variables, workers=args.workers, resume=not args.no_resume, executor=args.executor, ray_address=args.ray_address, solver=args.solver)
+    robustness(args.tasks_checked, _split(args.params), sigmas, replicates=args.replicates, seed=args.seed, out=args.out, variables=args.variables, workers=args.workers, resume=not args.no_resume, ipopt_options=args.ipopt_checked or None, executor=args.executor, ray_address=args.ray_address, solver=args.solver)
     write_provenance(args.out)
     print((__import__("pathlib").Path(args.out) / "table_iii.md").read_text())
     return 0
@@ -286,6 +286,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, default=1, help="solve (task, parameterization) groups in this many processes")
     p.add_argument("--no-resume", action="store_true", help="solve again the runs already in OUT/runs.jsonl (the old file is kept as runs.jsonl.previous)")
     p.add_argument("--solver", default="ipopt", choices=_solver_names(), help="NLP solver backend (default ipopt); jtraj solves each (task, parameterization, sigma) group's replicates in one batched call (vmapped on a GPU, one per core on a CPU)")
+    p.add_argument("--ipopt", action="append", metavar="NAME=VALUE", help="any solver option (Ipopt's names for ipopt), repeatable, over the study's settings (e.g. --solver jtraj --ipopt constr_viol_tol=1e-6); runs keep their options, so a resumed study solves only the runs of these options")
     _robot_argument(p)
     _executor_arguments(p, workers=False)
     p.set_defaults(func=_cmd_robustness)
@@ -408,6 +409,13 @@ def _check_ipopt(items: list[str] | None, solver: str = "ipopt") -> dict[str, An
         from jtraj.solvers.ipopt_catalog import check_all
 
         options = check_all(options)
+    elif options:
+        from jtraj import solvers
+
+        try:
+            solvers.get(solver).options(options)
+        except (TypeError, ValueError) as err:
+            raise InputError("--ipopt", " ".join(items or []), str(err)) from None
     return options
 
 
@@ -446,6 +454,7 @@ def _check_inputs(args: argparse.Namespace) -> None:
             sigmas.append(sigma)
         args.sigmas_checked = sigmas
         _check_positive_int("--replicates", args.replicates)
+        args.ipopt_checked = _check_ipopt(args.ipopt, args.solver)
     elif cmd == "wahba":
         _check_positive_int("--trials", args.trials)
         _check_positive_int("--iterations", args.iterations)

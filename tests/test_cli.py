@@ -50,6 +50,9 @@ def _run(argv, capsys):
         (["solve", "big_jump", "--ipopt", "max_iter=2.5"], "jtraj solve: --ipopt max_iter: 2.5: expected an integer in [0, inf)"),
         (["solve", "big_jump", "--ipopt", "mu_strategy=fast"], "jtraj solve: --ipopt mu_strategy: 'fast': expected one of ['monotone', 'adaptive']"),
         (["solve", "big_jump", "--ipopt", "linear_solver=ma27"], "jtraj solve: --ipopt linear_solver: 'ma27': not available in this Ipopt build"),
+        (["solve", "big_jump", "--solver", "jtraj", "--ipopt", "constr_viol_tol=-1"], "jtraj solve: --ipopt: 'constr_viol_tol=-1': jtraj option constr_viol_tol=-1: expected a positive number"),
+        (["robustness", "--tasks", "big_jump", "--solver", "jtraj", "--ipopt", "foo=1"], "jtraj robustness: --ipopt: 'foo=1': unknown jtraj option(s) ['foo']"),
+        (["robustness", "--tasks", "big_jump", "--ipopt", "max_itr=3"], "jtraj robustness: --ipopt max_itr: 3: unknown Ipopt option; did you mean max_iter"),
     ],
 )
 def test_bad_command_lines(argv, line, capsys, no_solve):
@@ -168,6 +171,9 @@ def test_robustness_passes_the_solver(monkeypatch, tmp_path):
     monkeypatch.setattr(jtraj.provenance, "write_provenance", lambda out: None)
     assert cli.main(["robustness", "--tasks", "big_jump", "--sigmas", "0.1", "--solver", "jtraj", "--out", str(tmp_path)]) == 0
     assert seen["solver"] == "jtraj" and seen["sigmas"] == [0.1]
+    assert seen["ipopt_options"] is None  # the study's settings
+    assert cli.main(["robustness", "--tasks", "big_jump", "--solver", "jtraj", "--ipopt", "constr_viol_tol=1e-6", "--out", str(tmp_path)]) == 0
+    assert seen["ipopt_options"] == {"constr_viol_tol": 1e-6}
 
 
 def test_robot_option_moves_the_tasks_to_that_model(monkeypatch, tmp_path, capsys):
