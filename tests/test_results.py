@@ -64,11 +64,16 @@ def test_results_folder_has_provenance(folder):
     assert not list(folder.rglob("*.npz"))
 
 
-def _side_by_side_module():
-    spec = importlib.util.spec_from_file_location("side_by_side", ROOT / "bench" / "side_by_side.py")
+def _bench_module(name: str):
+    """``bench/NAME.py`` imported as a module (bench/ is not a package)."""
+    spec = importlib.util.spec_from_file_location(f"bench_{name}", ROOT / "bench" / f"{name}.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
+
+
+def _side_by_side_module():
+    return _bench_module("side_by_side")
 
 
 def test_side_by_side_markdown_is_rendered_from_its_json():
@@ -107,13 +112,6 @@ def test_side_by_side_jtraj_task_follows_robot_and_code_costs():
     assert sideflip.robot == "go2" and sideflip == mod.jtraj_task("sideflip", {}, code_costs=False)  # no code cost differs there
     assert mod.jtraj_label("paper", {"talos": "talos_full"}, True) == "jtraj paper, talos_full, code's costs"
     assert mod.jtraj_label("paper", {}, False) == "jtraj paper"
-
-
-def _bench_module(name: str):
-    spec = importlib.util.spec_from_file_location(f"bench_{name}", ROOT / "bench" / f"{name}.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def test_speed_markdown_is_rendered_from_its_json():
