@@ -43,7 +43,7 @@ import time
 from pathlib import Path
 
 from jtraj import io as jio
-from jtraj.cli import _parse_value  # the command line's NAME=VALUE parsing
+from jtraj.cli import _check_ipopt  # the command line's NAME=VALUE parsing and checks
 from jtraj.provenance import write_provenance
 from jtraj.solver import prepare, solve
 
@@ -186,14 +186,11 @@ def main() -> None:
     for v in variants:
         if v not in VARIANTS:
             ap.error(f"--variants: {v!r}: expected some of {sorted(VARIANTS)}")
-    extra: dict = {}
-    extra_jtraj: dict = {}
-    for items, into in ((args.ipopt, extra), (args.jtraj, extra_jtraj)):
-        for item in items:
-            k, sep, val = item.partition("=")
-            if not sep or not k:
-                ap.error(f"expected NAME=VALUE, got {item!r}")
-            into[k] = _parse_value(val)
+    try:  # the command line's own parsing and checks of solver options
+        extra = _check_ipopt(args.ipopt, "ipopt")
+        extra_jtraj = _check_ipopt(args.jtraj, "jtraj", field="--jtraj")
+    except ValueError as err:  # InputError, or Ipopt's catalog's IpoptOptionError
+        ap.error(str(err))
     peer = None if args.no_peer else args.peer
     records = []
     for task in args.tasks:

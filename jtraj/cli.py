@@ -396,14 +396,16 @@ def _check_params(field: str, text: str) -> list[str]:
     return _check_names(field, text, list(PARAMETERIZATIONS), "parameterizations")
 
 
-def _check_ipopt(items: list[str] | None, solver: str = "ipopt") -> dict[str, Any]:
-    """``--ipopt NAME=VALUE`` items as Ipopt's option values, checked against Ipopt's own
-    option list (names, types, ranges, available linear solvers)."""
+def _check_ipopt(items: list[str] | None, solver: str = "ipopt", field: str = "--ipopt") -> dict[str, Any]:
+    """``--ipopt NAME=VALUE`` items as option values of ``solver``: for Ipopt checked against
+    Ipopt's own option list (names, types, ranges, available linear solvers), for another
+    backend against its options class. ``field`` names the flag in errors (``bench/solve.py``
+    also reads ``--jtraj`` items with it)."""
     options: dict[str, Any] = {}
     for item in items or []:
         key, sep, value = item.partition("=")
         if not sep or not key:
-            raise InputError("--ipopt", item, "expected NAME=VALUE, e.g. --ipopt max_iter=50")
+            raise InputError(field, item, f"expected NAME=VALUE, e.g. {field} max_iter=50")
         options[key] = _parse_value(value)
     if options and solver == "ipopt":
         from jtraj.solvers.ipopt_catalog import check_all
@@ -415,7 +417,7 @@ def _check_ipopt(items: list[str] | None, solver: str = "ipopt") -> dict[str, An
         try:
             solvers.get(solver).options(options)
         except (TypeError, ValueError) as err:
-            raise InputError("--ipopt", " ".join(items or []), str(err)) from None
+            raise InputError(field, " ".join(items or []), str(err)) from None
     return options
 
 
