@@ -47,7 +47,8 @@ def test_sparse_jacobian_equals_dense_jacfwd(prepared):
     nlp = prepared.nlp
     rng = np.random.default_rng(0)
     x = prepared.transcription.warm_start().reshape(-1) + 0.05 * rng.standard_normal(nlp.n)
-    dense = np.asarray(jax.jacfwd(nlp._constraints_py)(jnp.asarray(x), nlp.theta))
+    # jitted: one compile of the dense Jacobian (12.8 s) instead of op by op (24.9 s)
+    dense = np.asarray(jax.jit(jax.jacfwd(nlp._constraints_py))(jnp.asarray(x), nlp.theta))
     sparse = nlp.dense_jacobian(jnp.asarray(x))
     np.testing.assert_allclose(sparse, dense, atol=1e-9 * max(1.0, np.abs(dense).max()))
 
