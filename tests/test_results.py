@@ -72,14 +72,10 @@ def _bench_module(name: str):
     return mod
 
 
-def _side_by_side_module():
-    return _bench_module("side_by_side")
-
-
 def test_side_by_side_markdown_is_rendered_from_its_json():
     folders = [p for p in _results_dirs() if (p / "side_by_side.json").exists()]
     assert folders, "results/ holds no side_by_side.json"
-    render = _side_by_side_module().render
+    render = _bench_module("side_by_side").render
     for folder in folders:
         rows = json.loads((folder / "side_by_side.json").read_text())
         assert rows
@@ -87,7 +83,7 @@ def test_side_by_side_markdown_is_rendered_from_its_json():
 
 
 def test_side_by_side_render_cells():
-    render = _side_by_side_module().render
+    render = _bench_module("side_by_side").render
     rows = [
         dict(code="jtraj paper", task="walk", sigma=0.0, seed=0, converged=False, iterations=50),
         dict(code="paper", task="walk", sigma=0.0, seed=0, converged=True, iterations=12),
@@ -103,7 +99,7 @@ def test_side_by_side_render_cells():
 
 
 def test_side_by_side_jtraj_task_follows_robot_and_code_costs():
-    mod = _side_by_side_module()
+    mod = _bench_module("side_by_side")
     walk = mod.jtraj_task("walk", {"talos": "talos_full"}, code_costs=True)
     assert (walk.robot, walk.configuration_weight) == ("talos_full", 1e-6)
     plain = mod.jtraj_task("walk", {}, code_costs=False)
