@@ -223,3 +223,36 @@ def test_jacobian_pattern_index_finds_each_nonzero(rng):
 def test_jacobian_pattern_rejects_a_last_knot_reading_beyond():
     with pytest.raises(ValueError, match="last knot"):
         kkt.JacobianPattern(2, 1, 1, np.array([1]), np.array([0]), np.array([1]))
+
+
+def test_adaptive_refinement_removes_delta_c_and_stops_early(rng):
+    """Iterative refinement against the system without ``delta_c``: a large ``delta_c`` leaves
+    the unrefined solution off the dense solve, the adaptive rule refines it to the dense
+    solution, and a ratio already met (or ``min_refine_steps``) sets the number of steps."""
+    system = random_system(rng)
+    K, n = system.sigma.shape
+    m = system.A.shape[1]
+    r_x, r_c = jnp.asarray(rng.normal(size=(K, n))), jnp.asarray(rng.normal(size=(K, m)))
+    delta_c = jnp.asarray(1e-3)
+    fac, delta_w, ok = kkt.factor_with_correction(system, delta_c, jnp.asarray(0.0))
+    assert bool(ok) and float(delta_w) == 0.0
+    M, keep = dense_kkt(system, 0.0)
+    ref = np.linalg.solve(M, np.concatenate([np.asarray(r_x).reshape(-1)[keep], np.asarray(r_c).reshape(-1)]))
+    solve = jax.jit(kkt.solve, static_argnames=("refine_steps", "min_refine_steps", "residual_ratio_max"))
+
+    def err(steps, **kw):
+        dx, dy = solve(system, fac, delta_w, delta_c, r_x, r_c, refine_steps=steps, **kw)
+        return np.max(np.abs(np.concatenate([np.asarray(dx).reshape(-1)[keep], np.asarray(dy).reshape(-1)]) - ref)), (dx, dy)
+
+    unrefined, sol0 = err(0)
+    assert unrefined > 1e-6
+    refined, _ = err(60, residual_ratio_max=1e-10)
+    assert refined < 1e-8 * max(1.0, np.max(np.abs(ref)))
+    # a ratio already met: no step at all, the same numbers as refine_steps=0
+    _, none = err(60, residual_ratio_max=1e3)
+    np.testing.assert_array_equal(np.asarray(none[0]), np.asarray(sol0[0]))
+    # min_refine_steps forces one step: the same numbers as refine_steps=1 without the rule
+    _, one = err(60, residual_ratio_max=1e3, min_refine_steps=1)
+    _, fixed_one = err(1, residual_ratio_max=0.0)
+    np.testing.assert_array_equal(np.asarray(one[1]), np.asarray(fixed_one[1]))
+    assert not np.array_equal(np.asarray(one[1]), np.asarray(sol0[1]))

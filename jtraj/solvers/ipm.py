@@ -149,7 +149,11 @@ class IpmOptions(AbstractOptions):
             dependent Jacobian (the whole-body tasks' corner-point contacts make the equality
             rows dependent: 12 per stance knot on Talos). Otherwise a fixed value removed by
             iterative refinement.
-        refine_steps: iterative-refinement steps per KKT solve.
+        refine_steps, min_refine_steps, residual_ratio_max: iterative refinement of each KKT
+            solve (Ipopt's ``max_refinement_steps``, ``min_refinement_steps`` and
+            ``residual_ratio_max``): it stops once the residual ratio is at most
+            ``residual_ratio_max``, when a step does not lower the residual, or after
+            ``refine_steps`` steps; ``residual_ratio_max=0`` takes ``refine_steps`` every time.
         max_line_search: backtracking steps per iteration.
         max_soc, kappa_soc: Ipopt's second-order corrections: when the first trial point of an
             iteration is rejected and raised the constraint violation, up to ``max_soc``
@@ -193,6 +197,8 @@ class IpmOptions(AbstractOptions):
     delta_c: float = 1e-8
     delta_c_mu_scaled: bool = True
     refine_steps: int = 3
+    min_refine_steps: int = 0
+    residual_ratio_max: float = 1e-10
     max_line_search: int = 30
     max_soc: int = 4
     kappa_soc: float = 0.99
@@ -227,8 +233,10 @@ class IpmOptions(AbstractOptions):
         if self.adaptive_mu_globalization not in ("obj-constr-filter", "kkt-error"):
             raise InvalidOptionError(f"jtraj option adaptive_mu_globalization={self.adaptive_mu_globalization!r}: expected 'obj-constr-filter' or 'kkt-error'")
         _positive(self, "tol", "constr_viol_tol", "dual_inf_tol", "compl_inf_tol", "mu_init", "delta_c")
+        if isinstance(self.residual_ratio_max, bool) or not isinstance(self.residual_ratio_max, (int, float)) or not self.residual_ratio_max >= 0:
+            raise InvalidOptionError(f"jtraj option residual_ratio_max={self.residual_ratio_max!r}: expected a number >= 0")
         _positive(self, "mu_max", allow_none=True)
-        for name in ("max_iter", "refine_steps", "max_line_search", "max_line_search_failures", "lbfgs_memory", "lbfgs_max_skipping", "max_soc", "quality_function_max_section_steps"):
+        for name in ("max_iter", "refine_steps", "min_refine_steps", "max_line_search", "max_line_search_failures", "lbfgs_memory", "lbfgs_max_skipping", "max_soc", "quality_function_max_section_steps"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
                 raise InvalidOptionError(f"jtraj option {name}={value!r}: expected an integer >= 0")
@@ -843,7 +851,7 @@ class IPM:
         fac, delta_w, ok = kkt.factor_with_correction(system, delta_c, st.delta_w)
         avg = jnp.maximum(self._complementarity(p, st)[0], 1e-300)
         rx, rc = jax.tree.map(lambda a, b: jnp.stack([a, b]), right_hand_side(0.0, r_c), right_hand_side(avg, r_c))
-        dxs, dys = jax.vmap(lambda bx, bc: kkt.solve(system, fac, delta_w, delta_c, bx, bc, o.refine_steps, remove_delta_c=not o.delta_c_mu_scaled, low_rank=low_rank))(rx, rc)
+        dxs, dys = jax.vmap(lambda bx, bc: kkt.solve(system, fac, delta_w, delta_c, bx, bc, o.refine_steps, remove_delta_c=not o.delta_c_mu_scaled, low_rank=low_rank, residual_ratio_max=o.residual_ratio_max, min_refine_steps=o.min_refine_steps))(rx, rc)
         affine = full_step(0.0, dxs[0], dys[0])
         centering = jax.tree.map(lambda a, b: a - b, full_step(avg, dxs[1], dys[1]), affine)  # per unit sigma
         mu = st.mu
@@ -928,7 +936,7 @@ class IPM:
         # the iterate is the direction's, so this is the factored matrix
         system, low_rank, _, right_hand_side, full_step, _ = self._newton_system(p, st, st.H if o.hessian in ("exact", "bfgs") else None)
         rx, rc = right_hand_side(st.mu, c_soc)
-        dx, dy = kkt.solve(system, kkt.BlockFactor(st.fac_diag, st.fac_sub), st.delta_w, st.delta_c, rx, rc, o.refine_steps, remove_delta_c=not o.delta_c_mu_scaled, low_rank=low_rank)
+        dx, dy = kkt.solve(system, kkt.BlockFactor(st.fac_diag, st.fac_sub), st.delta_w, st.delta_c, rx, rc, o.refine_steps, remove_delta_c=not o.delta_c_mu_scaled, low_rank=low_rank, residual_ratio_max=o.residual_ratio_max, min_refine_steps=o.min_refine_steps)
         step = full_step(st.mu, dx, dy)
         a_p, a_d = self._step_bounds(p, st, step, st.tau)
         return step, a_p, a_d

@@ -420,6 +420,8 @@ def solve(
     refine_steps: int = 3,
     remove_delta_c: bool = True,
     low_rank: LowRank | None = None,
+    residual_ratio_max: float = 0.0,
+    min_refine_steps: int = 0,
 ) -> tuple[jax.Array, jax.Array]:
     """Solve the KKT system for right-hand sides r_x (K, n) and r_c (K, m), given the factor of
     the ``delta_c``-regularized condensed matrix.
@@ -431,6 +433,12 @@ def solve(
     Jacobian: ``delta_c`` is part of the system), which keeps the multiplier step bounded by
     ``|r_c| / delta_c`` where the linearized rows are inconsistent.
     Fixed variables get dx = 0 (their r_x entries are ignored).
+
+    Iterative refinement (Ipopt's rule, its ``PDFullSpaceSolver``): after ``min_refine_steps``,
+    it stops once the residual ratio ``|res| / (min(|sol|, 1e6 |rhs|) + |rhs|)`` (max norms) is
+    at most ``residual_ratio_max``, or when a step does not lower the residual, and after
+    ``refine_steps`` steps in any case. ``residual_ratio_max=0`` always takes ``refine_steps``
+    steps, keeping each only where it lowers the residual.
 
     ``low_rank``: the Hessian has that term too (``fac`` factors the matrix without it, which
     must then be positive definite, as with a BFGS matrix); the condensed solve applies the
@@ -466,14 +474,26 @@ def solve(
     dx, dy = condensed_solve(r_x, r_c)
     rx, rc = residual(dx, dy)
 
-    def refine(_, state):
-        dx, dy, rx, rc = state
+    rhs = norm(r_x, r_c)
+
+    def ratio(dx, dy, rx, rc):
+        return norm(rx, rc) / jnp.maximum(jnp.minimum(norm(dx, dy), 1e6 * rhs) + rhs, 1e-300)
+
+    def refine_more(state):
+        i, dx, dy, rx, rc, improved = state
+        return (i < refine_steps) & improved & ((i < min_refine_steps) | (ratio(dx, dy, rx, rc) > residual_ratio_max))
+
+    def refine(state):
+        i, dx, dy, rx, rc, _ = state
         cx, cy = condensed_solve(rx, rc)
         nx, ny = dx + cx, dy + cy
         nrx, nrc = residual(nx, ny)
         better = norm(nrx, nrc) < norm(rx, rc)
         pick = lambda new, old: jnp.where(better, new, old)  # noqa: E731
-        return pick(nx, dx), pick(ny, dy), pick(nrx, rx), pick(nrc, rc)
+        # a step that does not lower the residual ends the refinement only in the adaptive
+        # mode: with residual_ratio_max = 0 the fixed count is kept (each step chooses anew)
+        go_on = better | (residual_ratio_max <= 0.0)
+        return i + 1, pick(nx, dx), pick(ny, dy), pick(nrx, rx), pick(nrc, rc), go_on
 
-    dx, dy, _, _ = lax.fori_loop(0, refine_steps, refine, (dx, dy, rx, rc))
+    _, dx, dy, _, _, _ = lax.while_loop(refine_more, refine, (jnp.asarray(0), dx, dy, rx, rc, jnp.asarray(True)))
     return dx, dy
