@@ -13,6 +13,7 @@ import json
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -132,3 +133,30 @@ def test_speed_markdown_cells():
     assert lines[2] == "| big_jump | jtraj, constr_viol_tol=1e-06 | solved | 10 | 0.5 | 3.0e-09 | 2.00 | 0.200 | 0.00 | 2.00 | 11 | 0 | 1.4e-06 | 20.00 | 10.0x |"
     # a peer stopped by its wall-time limit: its time and the ratio are lower bounds; no cost logged
     assert lines[3] == "| walk | compact | solved | 10 | 0.5 | 3.0e-09 | 2.00 | 0.200 | 0.00 | 2.00 | 50 (stopped, Ipopt status -5) |  |  | >= 600.00 | >= 300.0x |"
+
+
+def test_iterates_markdown_is_rendered_from_its_json():
+    folders = [p for p in _results_dirs() if (p / "iterates.json").exists()]
+    assert folders, "results/ holds no iterates.json"
+    render = _bench_module("trace_iterates").render
+    for folder in folders:
+        runs = json.loads((folder / "iterates.json").read_text())["runs"]
+        assert len(runs) == 2 and all(run["rows"] for run in runs)
+        assert (folder / "iterates.md").read_text().strip() == render(runs).strip()
+
+
+def test_trace_rows_check_each_iterate_as_the_task_check():
+    """A base that somersaults once about -y at the last iterate and stands still at the first:
+    the rows carry Ipopt's figures and the task check's turns and off-axis share per iterate."""
+    rows_of = _bench_module("trace_iterates").rows_of
+    K = 41
+    angles = np.linspace(0.0, -2 * np.pi, K)
+    flip = np.zeros((K, 7))
+    flip[:, 3], flip[:, 5] = np.cos(angles / 2), np.sin(angles / 2)  # wxyz about +y
+    still = np.zeros((K, 7))
+    still[:, 3] = 1.0
+    stats = np.array([[0, 0.0, 3e2, 1.0, 1.0, 0.0], [1, 0.6, 1e-6, 1e-3, 1e-9, 1.0]])
+    rows = rows_of(stats, np.stack([still, flip]), (0.0, 1.0, 0.0), -1)
+    assert [r["iter"] for r in rows] == [0, 1] and rows[0]["inf_pr"] == 3e2 and rows[1]["objective"] == 0.6
+    assert abs(rows[0]["total_turns"]) < 1e-12
+    assert abs(rows[1]["turns"] + 1.0) < 1e-9 and rows[1]["off_axis_share"] < 1e-9

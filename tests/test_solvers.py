@@ -12,6 +12,7 @@ import pytest
 from jtraj import solvers
 from jtraj.nlp import ConstraintGroup, CostGroup, Dep, KnotNLP, Layout
 from jtraj.solvers import AbstractCallback, InvalidOptionError, IpoptOptions, IpoptSolver, Status
+from jtraj.solvers.base import bind
 from jtraj.solvers.ipopt import IPOPT_STATUS
 
 N = 6
@@ -127,6 +128,24 @@ def test_callback_can_stop_the_solve(walk_nlp):
     sol = IpoptSolver().solve(walk_nlp, np.zeros(walk_nlp.n), None, IpoptOptions(tol=1e-12), cb)
     assert sol.status is Status.USER_STOP and not sol.converged
     assert cb.seen == [0, 1, 2]
+
+
+def test_record_iterates_keeps_ipopts_iterates(walk_nlp):
+    """Ipopt's iterates through a callback: the starting point first, the solution
+    last, one per reported iteration; with another callback in a list, both are served; jtraj's
+    compiled solver refuses such a callback."""
+    rec, stop = solvers.RecordIterates(), solvers.PrintProgress(io.StringIO())
+    x0 = np.full(walk_nlp.n, 0.7)
+    sol = IpoptSolver().solve(walk_nlp, x0, None, IpoptOptions(tol=1e-10, hessian="exact"), solvers.CallbackList([rec, stop]))
+    assert sol.converged and len(rec.iterates) == len(sol.history) == sol.stats.iterations + 1 >= 3
+    assert [it.iter for it in rec.iterations] == list(range(len(rec.iterates)))
+    np.testing.assert_array_equal(rec.iterates[-1], sol.x)
+    f = bind(walk_nlp, None)
+    # the start clipped to the bounds, then pushed inside them by Ipopt (bound_push 1e-2)
+    np.testing.assert_allclose(rec.iterates[0], np.clip(x0, f.x_lower, f.x_upper), atol=2e-2)
+    assert not np.allclose(rec.iterates[1], rec.iterates[0])
+    with pytest.raises(ValueError, match="no intermediate iterates"):
+        solvers.get("jtraj").solve(walk_nlp, x0, None, None, solvers.RecordIterates())
 
 
 def test_iteration_limit_is_reported(walk_nlp):

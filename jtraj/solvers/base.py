@@ -203,9 +203,19 @@ def _positive(options: AbstractOptions, *names: str, allow_none: bool = False) -
 
 class AbstractCallback:
     """Hooks a solver calls: ``on_start`` once, ``on_iteration`` after every iteration (return
-    False to stop the solve with `Status.USER_STOP`), ``on_end`` with the `Solution`."""
+    False to stop the solve with `Status.USER_STOP`), ``on_end`` with the `Solution`.
+
+    A callback whose ``wants_iterates`` is True also gets ``on_iterate(it, x)`` with the
+    iterate's variables (unscaled, length ``nlp.n``) before ``on_iteration``. Ipopt provides
+    them (cyipopt's ``get_current_iterate``); jtraj's own solver runs as one compiled program
+    and refuses such a callback."""
+
+    wants_iterates: bool = False
 
     def on_start(self, nlp: Any) -> None:
+        return None
+
+    def on_iterate(self, it: Iteration, x: np.ndarray) -> None:
         return None
 
     def on_iteration(self, it: Iteration) -> bool | None:
@@ -249,10 +259,16 @@ class CallbackList(AbstractCallback):
 
     def __init__(self, callbacks: list[AbstractCallback]):
         self.callbacks = list(callbacks)
+        self.wants_iterates = any(c.wants_iterates for c in self.callbacks)
 
     def on_start(self, nlp: Any) -> None:
         for c in self.callbacks:
             c.on_start(nlp)
+
+    def on_iterate(self, it: Iteration, x: np.ndarray) -> None:
+        for c in self.callbacks:
+            if c.wants_iterates:
+                c.on_iterate(it, x)
 
     def on_iteration(self, it: Iteration) -> bool:
         return all([c.on_iteration(it) is not False for c in self.callbacks])
@@ -260,6 +276,24 @@ class CallbackList(AbstractCallback):
     def on_end(self, solution: Solution) -> None:
         for c in self.callbacks:
             c.on_end(solution)
+
+
+class RecordIterates(AbstractCallback):
+    """Keeps every iterate of an Ipopt solve: ``iterates`` (one array of the NLP's variables per
+    iteration, the starting point first) and ``iterations`` (their `Iteration` records)."""
+
+    wants_iterates = True
+
+    def __init__(self) -> None:
+        self.iterates: list[np.ndarray] = []
+        self.iterations: list[Iteration] = []
+
+    def on_start(self, nlp: Any) -> None:
+        self.iterates, self.iterations = [], []
+
+    def on_iterate(self, it: Iteration, x: np.ndarray) -> None:
+        self.iterates.append(np.array(x, float))
+        self.iterations.append(it)
 
 
 #: What a ``progress=`` argument accepts: True (print to the current sys.stdout), False or None

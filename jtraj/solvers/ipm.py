@@ -1050,6 +1050,8 @@ class JtrajSolver(AbstractSolver):
         return per_nlp[options]
 
     def solve(self, nlp: Any, x0: np.ndarray, theta: Any = None, options: AbstractOptions | dict[str, Any] | None = None, callback: AbstractCallback | None = None) -> Solution:
+        if callback is not None and callback.wants_iterates:
+            raise ValueError("jtraj's solver runs as one compiled program and reports no intermediate iterates: record them with solver='ipopt'")
         opts = self.options(options)
         ipm = self.ipm(nlp, opts)
         if callback is not None:

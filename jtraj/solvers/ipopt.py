@@ -179,6 +179,7 @@ class _Problem:
         self.timer = EvaluationTimer()
         self.callback = callback
         self.history: list[Iteration] = []
+        self.problem: Any = None  # the cyipopt.Problem, for its current iterate
         if exact_hessian:
             self.hessianstructure = lambda: (nlp.hess_rows, nlp.hess_cols)
             self.hessian = self._hessian
@@ -204,6 +205,8 @@ class _Problem:
     def intermediate(self, alg_mod, iter_count, obj_value, inf_pr, inf_du, mu, d_norm, regularization_size, alpha_du, alpha_pr, ls_trials):
         it = Iteration(int(iter_count), float(obj_value), float(inf_pr), float(inf_du), float(mu), float(alpha_pr))
         self.history.append(it)
+        if self.callback is not None and self.callback.wants_iterates and self.problem is not None:
+            self.callback.on_iterate(it, np.asarray(self.problem.get_current_iterate(scaled=False)["x"]))
         if self.callback is not None:
             return self.callback.on_iteration(it) is not False
         return True
@@ -233,6 +236,7 @@ class IpoptSolver(AbstractSolver):
         f = bind(nlp, theta)
         problem_obj = _Problem(nlp, f, exact, callback)
         problem = cyipopt.Problem(n=nlp.n, m=nlp.m, problem_obj=problem_obj, lb=f.x_lower, ub=f.x_upper, cl=f.g_lower, cu=f.g_upper)
+        problem_obj.problem = problem
         for key, value in opts.to_ipopt().items():
             try:
                 problem.add_option(key, value)

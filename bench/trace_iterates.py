@@ -1,0 +1,170 @@
+"""Where the study's public code and jtraj part: the base motion at every Ipopt iterate.
+
+    python bench/trace_iterates.py backflip [--variables paper] [--code-costs]
+        [--robot g1=OTHER] [--peer-src DIR] [--peer-python PATH] [--no-peer] [--out DIR]
+
+Both codes run Ipopt with the study's settings from the same warm start. At every iteration
+the iterate's base poses are decoded and checked as the task check does (`jtraj.success`):
+the accumulated rotation about the task's flip axis (turns), the whole rotation (total turns)
+and the share of it off the flip axis, beside Ipopt's objective, primal and dual
+infeasibility, barrier parameter and step. The public code runs in its own environment (the
+one its runner ``run-se3-trajopt`` creates on first use; ``--peer-python``), with a driver
+that records cyipopt's current iterate in the code's ``intermediate`` callback and decodes
+its SE(3)-tangent base variables with pinocchio's ``exp6``; the code itself is not changed.
+jtraj records its iterates with `jtraj.solvers.RecordIterates`.
+
+Writes ``OUT/iterates.json`` (per iteration: the Ipopt figures and the task-check values, no
+trajectories), ``OUT/iterates.md`` (the two tables) and ``OUT/provenance.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+import jtraj
+from jtraj import io as jio
+from jtraj import solvers, success
+from jtraj.provenance import write_provenance
+from jtraj.solver import VARIABLES
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+from side_by_side import CODE_COSTS, jtraj_label, jtraj_task  # noqa: E402  (the same task variants)
+
+#: The public code beside the repository (its runner's folder).
+DEFAULT_PEER_SRC = HERE.parents[1] / "shared" / "peers" / "se3_trajopt" / "src"
+#: The environment the public code's runner creates on first use.
+DEFAULT_PEER_PYTHON = Path(os.environ.get("SE3_TRAJOPT_VENV", Path(tempfile.gettempdir()) / "se3-trajopt-venv")) / "bin" / "python"
+#: The public code's script of each task (as its runner maps them).
+PEER_SCRIPTS = {"big_jump": "humanoid_jump", "backflip": "humanoid_flip", "sideflip": "quad_sideflip", "walk": "walk", "hopscotch": "hopscotch", "handstand": "handstand"}
+
+# Run inside the public code's environment: argv = script, output .npz. Records cyipopt's
+# current iterate at every iteration of the code's own `intermediate` callback, and the base
+# pose of every knot (its SE(3)-tangent q[:6] through pinocchio's exp6, quaternion wxyz).
+PEER_DRIVER = r"""
+import runpy, sys
+script, out = sys.argv[1], sys.argv[2]
+sys.argv = [script]  # the code parses the command line when its modules are imported
+import numpy as np
+import cyipopt
+import pinocchio as pin
+from nltrajopt.trajectory_optimization import NLTrajOpt
+
+held, xs, stats, nodes = {}, [], [], []
+
+class Problem(cyipopt.Problem):
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        held["problem"] = self
+
+cyipopt.Problem = Problem
+code_intermediate = NLTrajOpt.intermediate
+
+def intermediate(self, alg_mod, iter_count, obj_value, inf_pr, inf_du, mu, d_norm, reg, alpha_du, alpha_pr, ls):
+    xs.append(np.array(held["problem"].get_current_iterate(scaled=False)["x"]))
+    stats.append([iter_count, obj_value, inf_pr, inf_du, mu, alpha_pr])
+    nodes[:] = [(n.q_id.start, n.q_id.stop) for n in self.nodes]
+    return code_intermediate(self, alg_mod, iter_count, obj_value, inf_pr, inf_du, mu, d_norm, reg, alpha_du, alpha_pr, ls)
+
+NLTrajOpt.intermediate = intermediate
+runpy.run_path(script, run_name="__main__")
+base = []
+for x in xs:
+    poses = []
+    for a, b in nodes:
+        T = pin.exp6(pin.Motion(x[a:a + 6]))
+        q = pin.Quaternion(T.rotation)
+        poses.append(np.r_[T.translation, q.w, q.x, q.y, q.z])
+    base.append(poses)
+np.savez(out, stats=np.array(stats), base=np.array(base))
+"""
+
+
+def rows_of(stats: np.ndarray, base: np.ndarray, flip_axis, flip_turns) -> list[dict]:
+    """One row per iterate: Ipopt's figures and the task check of its base motion."""
+    rows = []
+    for (it, obj, inf_pr, inf_du, mu, alpha_pr), b in zip(stats, base):
+        check = success.evaluate(b, flip_axis, flip_turns)
+        rows.append(
+            dict(
+                iter=int(it), objective=float(obj), inf_pr=float(inf_pr), inf_du=float(inf_du), mu=float(mu), alpha_pr=float(alpha_pr),
+                turns=check.turns, total_turns=check.total_turns, off_axis_share=check.off_axis_share, base_z_max=float(np.max(b[:, 2])),
+            )
+        )
+    return rows
+
+
+def run_peer(task: str, peer_src: Path, peer_python: Path, flip_axis, flip_turns) -> dict:
+    if not peer_python.exists():
+        raise FileNotFoundError(f"{peer_python} does not exist: run the public code's runner once (it creates its environment), or pass --peer-python")
+    script = peer_src / "examples" / "agile_exps" / f"{PEER_SCRIPTS[task]}.py"
+    with tempfile.TemporaryDirectory() as work:
+        out = Path(work) / "iterates.npz"
+        driver = Path(work) / "driver.py"
+        driver.write_text(PEER_DRIVER)
+        run = subprocess.run([str(peer_python), str(driver), str(script), str(out)], cwd=work, env=os.environ | {"PYTHONPATH": str(peer_src)}, capture_output=True, text=True)
+        if run.returncode != 0:
+            raise RuntimeError(f"the public code failed on {task}: {run.stderr[-800:]}")
+        d = np.load(out)
+        return dict(code="paper's code", knots=int(d["base"].shape[1]), rows=rows_of(d["stats"], d["base"], flip_axis, flip_turns))
+
+
+def run_jtraj(task_name: str, variables: str, robots: dict[str, str], code_costs: bool) -> dict:
+    task = jtraj_task(task_name, robots, code_costs)
+    rec = solvers.RecordIterates()
+    res = jtraj.solve(task, "se3", variables=variables, progress=rec, keep_trajectory=False)
+    tr = jtraj.solver.prepare(task, "se3", variables).transcription
+    theta = tr.resolve_theta(None)
+    base = np.array([tr.decode(x, theta).base_xyz_wxyz for x in rec.iterates])
+    stats = np.array([[it.iter, it.objective, it.inf_pr, it.inf_du, it.mu, it.alpha_pr] for it in rec.iterations])
+    label = jtraj_label(variables, robots, code_costs)
+    return dict(code=label, knots=int(base.shape[1]), status=res.status.value, rows=rows_of(stats, base, task.flip_axis, task.flip_turns))
+
+
+def render(runs: list[dict]) -> str:
+    out = []
+    for run in runs:
+        out += [f"**{run['code']}** ({run['knots']} knots)", "", "| iter | objective | inf_pr | inf_du | lg(mu) | alpha_pr | turns | total turns | off-axis share | max base z |", "|---|---|---|---|---|---|---|---|---|---|"]
+        for r in run["rows"]:
+            turns = "" if r["turns"] is None else f"{r['turns']:.3f}"
+            share = "" if r["off_axis_share"] is None else f"{r['off_axis_share']:.3f}"
+            out.append(f"| {r['iter']} | {r['objective']:.4g} | {r['inf_pr']:.2e} | {r['inf_du']:.2e} | {np.log10(r['mu']):.2f} | {r['alpha_pr']:.2e} | {turns} | {r['total_turns']:.3f} | {share} | {r['base_z_max']:.3f} |")
+        out.append("")
+    return "\n".join(out)
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("task", choices=sorted(PEER_SCRIPTS))
+    ap.add_argument("--variables", default="paper", choices=sorted(VARIABLES))
+    ap.add_argument("--code-costs", action="store_true", help=f"jtraj with the cost weights of the code's scripts ({CODE_COSTS})")
+    ap.add_argument("--robot", action="append", default=[], metavar="ROBOT=OTHER")
+    ap.add_argument("--peer-src", type=Path, default=DEFAULT_PEER_SRC)
+    ap.add_argument("--peer-python", type=Path, default=DEFAULT_PEER_PYTHON)
+    ap.add_argument("--no-peer", action="store_true")
+    ap.add_argument("--out", type=Path)
+    args = ap.parse_args(argv)
+    robots = dict(r.split("=", 1) for r in args.robot)
+    task = jtraj_task(args.task, robots, args.code_costs)
+    runs = []
+    if not args.no_peer:
+        runs.append(run_peer(args.task, args.peer_src, args.peer_python, task.flip_axis, task.flip_turns))
+    runs.append(run_jtraj(args.task, args.variables, robots, args.code_costs))
+    text = render(runs)
+    print(text)
+    if args.out:
+        args.out.mkdir(parents=True, exist_ok=True)
+        jio.write_json(args.out / "iterates.json", {"task": args.task, "runs": runs})
+        (args.out / "iterates.md").write_text(text)
+        write_provenance(args.out, ["python", "bench/trace_iterates.py", *(sys.argv[1:] if argv is None else argv)])
+
+
+if __name__ == "__main__":
+    main()
