@@ -134,10 +134,13 @@ def test_record_iterates_keeps_ipopts_iterates(walk_nlp):
     """Ipopt's iterates through a callback: the starting point first, the solution
     last, one per reported iteration; with another callback in a list, both are served; jtraj's
     compiled solver refuses such a callback."""
-    rec, stop = solvers.RecordIterates(), solvers.PrintProgress(io.StringIO())
+    stream = io.StringIO()
+    rec, progress = solvers.RecordIterates(), solvers.PrintProgress(stream)
     x0 = np.full(walk_nlp.n, 0.7)
-    sol = IpoptSolver().solve(walk_nlp, x0, None, IpoptOptions(tol=1e-10, hessian="exact"), solvers.CallbackList([rec, stop]))
+    sol = IpoptSolver().solve(walk_nlp, x0, None, IpoptOptions(tol=1e-10, hessian="exact"), solvers.CallbackList([rec, progress]))
     assert sol.converged and len(rec.iterates) == len(sol.history) == sol.stats.iterations + 1 >= 3
+    # the progress lines (a header, then one per iteration) were printed beside the recording
+    assert len(stream.getvalue().splitlines()) == len(rec.iterates) + 1
     assert [it.iter for it in rec.iterations] == list(range(len(rec.iterates)))
     np.testing.assert_array_equal(rec.iterates[-1], sol.x)
     f = bind(walk_nlp, None)
