@@ -205,11 +205,11 @@ class _Problem:
     def intermediate(self, alg_mod, iter_count, obj_value, inf_pr, inf_du, mu, d_norm, regularization_size, alpha_du, alpha_pr, ls_trials):
         it = Iteration(int(iter_count), float(obj_value), float(inf_pr), float(inf_du), float(mu), float(alpha_pr))
         self.history.append(it)
-        if self.callback is not None and self.callback.wants_iterates and self.problem is not None:
+        if self.callback is None:
+            return True
+        if self.callback.wants_iterates:
             self.callback.on_iterate(it, np.asarray(self.problem.get_current_iterate(scaled=False)["x"]))
-        if self.callback is not None:
-            return self.callback.on_iteration(it) is not False
-        return True
+        return self.callback.on_iteration(it) is not False
 
 
 class IpoptSolver(AbstractSolver):

@@ -480,8 +480,8 @@ def solve(
         return norm(rx, rc) / jnp.maximum(jnp.minimum(norm(dx, dy), 1e6 * rhs) + rhs, 1e-300)
 
     def refine_more(state):
-        i, dx, dy, rx, rc, improved = state
-        return (i < refine_steps) & improved & ((i < min_refine_steps) | (ratio(dx, dy, rx, rc) > residual_ratio_max))
+        i, dx, dy, rx, rc, go_on = state
+        return (i < refine_steps) & go_on & ((i < min_refine_steps) | (ratio(dx, dy, rx, rc) > residual_ratio_max))
 
     def refine(state):
         i, dx, dy, rx, rc, _ = state
