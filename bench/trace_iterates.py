@@ -1,7 +1,7 @@
 """Where the study's public code and jtraj part: the base motion at every Ipopt iterate.
 
     python bench/trace_iterates.py backflip [--variables paper] [--code-costs]
-        [--robot g1=OTHER] [--peer-src DIR] [--peer-python PATH] [--no-peer] [--out DIR]
+        [--set FIELD=VALUE ...] [--robot g1=OTHER] [--peer-src DIR] [--peer-python PATH] [--no-peer] [--out DIR]
 
 Both codes run Ipopt with the study's settings from the same warm start. At every iteration
 the iterate's base poses are decoded and checked as the task check does (`jtraj.success`):
@@ -20,6 +20,7 @@ trajectories), ``OUT/iterates.md`` (the two tables) and ``OUT/provenance.json``.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import subprocess
 import sys
@@ -33,6 +34,7 @@ from jtraj import io as jio
 from jtraj import solvers, success
 from jtraj.provenance import write_provenance
 from jtraj.solver import VARIABLES
+from jtraj.transcription import TranscriptionOptions
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
@@ -116,15 +118,17 @@ def run_peer(task: str, peer_src: Path, peer_python: Path, flip_axis, flip_turns
         return dict(code="paper's code", knots=int(d["base"].shape[1]), rows=rows_of(d["stats"], d["base"], flip_axis, flip_turns))
 
 
-def run_jtraj(task_name: str, variables: str, robots: dict[str, str], code_costs: bool) -> dict:
+def run_jtraj(task_name: str, variables: str, robots: dict[str, str], code_costs: bool, changes: dict[str, str] | None = None) -> dict:
+    """jtraj's run; ``changes`` replace fields of the named variables' `TranscriptionOptions`."""
     task = jtraj_task(task_name, robots, code_costs)
+    options = dataclasses.replace(VARIABLES[variables], **(changes or {}))
     rec = solvers.RecordIterates()
-    res = jtraj.solve(task, "se3", variables=variables, progress=rec, keep_trajectory=False)
-    tr = jtraj.solver.prepare(task, "se3", variables).transcription
+    res = jtraj.solve(task, "se3", variables=options, progress=rec, keep_trajectory=False)
+    tr = jtraj.solver.prepare(task, "se3", options).transcription
     theta = tr.resolve_theta(None)
     base = np.array([tr.decode(x, theta).base_xyz_wxyz for x in rec.iterates])
     stats = np.array([[it.iter, it.objective, it.inf_pr, it.inf_du, it.mu, it.alpha_pr] for it in rec.iterations])
-    label = jtraj_label(variables, robots, code_costs)
+    label = ", ".join([jtraj_label(variables, robots, code_costs), *(f"{k}={v}" for k, v in (changes or {}).items())])
     return dict(code=label, knots=int(base.shape[1]), status=res.status.value, rows=rows_of(stats, base, task.flip_axis, task.flip_turns))
 
 
@@ -146,6 +150,10 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--variables", default="paper", choices=sorted(VARIABLES))
     ap.add_argument("--code-costs", action="store_true", help=f"jtraj with the cost weights of the code's scripts ({CODE_COSTS})")
     ap.add_argument("--robot", action="append", default=[], metavar="ROBOT=OTHER")
+    ap.add_argument(
+        "--set", action="append", default=[], metavar="FIELD=VALUE",
+        help="replace a field of the variables' TranscriptionOptions, e.g. force_limits=rows (string fields)",
+    )
     ap.add_argument("--peer-src", type=Path, default=DEFAULT_PEER_SRC)
     ap.add_argument("--peer-python", type=Path, default=DEFAULT_PEER_PYTHON)
     ap.add_argument("--no-peer", action="store_true")
@@ -156,7 +164,11 @@ def main(argv: list[str] | None = None) -> None:
     runs = []
     if not args.no_peer:
         runs.append(run_peer(args.task, args.peer_src, args.peer_python, task.flip_axis, task.flip_turns))
-    runs.append(run_jtraj(args.task, args.variables, robots, args.code_costs))
+    changes = dict(c.split("=", 1) for c in args.set)
+    unknown = set(changes) - {f.name for f in dataclasses.fields(TranscriptionOptions) if f.type in (str, "str")}
+    if unknown:
+        ap.error(f"--set {sorted(unknown)}: not a string field of TranscriptionOptions")
+    runs.append(run_jtraj(args.task, args.variables, robots, args.code_costs, changes))
     text = render(runs)
     print(text)
     if args.out:

@@ -77,6 +77,7 @@ __all__ = [
     "contact_stage",
     "clearance_stage",
     "friction_stage",
+    "force_limit_stage",
     "force_rate_stage",
     "chart_stage",
     "cost_terms",
@@ -103,6 +104,18 @@ class TranscriptionOptions:
             row makes ``v_{k+1} = v_k + a_k h``), different linearizations off it: measured on
             the walk with the code's configuration cost, 39 Ipopt iterations with ``"next"``,
             27 with ``"stepped"`` (docs/reproduction.md). Needs ``acceleration_variables``.
+        force_limits: how a touching point's force is limited. ``"bounds"``: variable bounds
+            ``0 <= f_z <= F``, ``|f_x|, |f_y| <= F`` (F = force_limit_factor m g). ``"rows"``
+            (the study's code, `TerrainGridFrictionConstraints`): the force is a free variable
+            with the rows ``f_z >= 0`` and ``|f| <= F`` (Euclidean norm). The box contains the
+            ball, and the friction pyramid (``|f_x|, |f_y| <= mu f_z``) keeps both inside
+            ``|f| <= F`` wherever ``f_z sqrt(1 + 2 mu^2) <= F``.
+        contact_height: how a touching point's contact position keeps to the terrain (with
+            ``contact_variables``). ``"bound"``: ``c_z`` fixed by its bounds (Ipopt removes
+            it). ``"row"`` (the study's code, `TerrainGridContactConstraints`): ``c_z`` a free
+            variable with the row ``c_z - terrain = 0``, and the stationarity rows keep z as
+            well as x, y while the point touches at k and k+1 (three rows, the z row dependent
+            on the two height rows, as in the code).
         liftoff_force_rate: the force-change bound ``|f_{k+1} - f_k| <= max_delta_force``
             also where a point lifts off (``f_{k+1} = 0``): the push-off force must end below
             the bound, as in the study's code (`TerrainGridFrictionConstraints`). False bounds
@@ -115,10 +128,18 @@ class TranscriptionOptions:
     acceleration_variables: bool = True
     position_step: str = "next"
     liftoff_force_rate: bool = False
+    force_limits: str = "bounds"
+    contact_height: str = "bound"
 
     def __post_init__(self):
         if self.position_step not in ("next", "stepped"):
             raise ValueError(f"position_step={self.position_step!r}: expected 'next' or 'stepped'")
+        if self.force_limits not in ("bounds", "rows"):
+            raise ValueError(f"force_limits={self.force_limits!r}: expected 'bounds' or 'rows'")
+        if self.contact_height not in ("bound", "row"):
+            raise ValueError(f"contact_height={self.contact_height!r}: expected 'bound' or 'row'")
+        if self.contact_height == "row" and not self.contact_variables:
+            raise ValueError("contact_height='row' writes a row on the contact positions c: it needs contact_variables=True")
         if self.position_step == "stepped" and not self.acceleration_variables:
             raise ValueError("position_step='stepped' writes the position row with a_k: it needs acceleration_variables=True")
 
@@ -430,18 +451,23 @@ class Transcription:
         contact = self.schedule.in_contact
         if self.options.contact_variables:
             # contact positions: touching points on the terrain (z fixed), others unused (0)
-            cz = self.task.terrain_height
+            # (with contact_height="row" c_z is free and a row holds it on the terrain)
+            bound = self.options.contact_height == "bound"
+            cz_lo, cz_hi = (self.task.terrain_height,) * 2 if bound else (-np.inf, np.inf)
             sc = L.slice("c")
-            lower[:, sc] = np.where(contact[:, :, None], np.array([-np.inf, -np.inf, cz]), 0.0).reshape(n_knots, 3 * P)
-            upper[:, sc] = np.where(contact[:, :, None], np.array([np.inf, np.inf, cz]), 0.0).reshape(n_knots, 3 * P)
+            lower[:, sc] = np.where(contact[:, :, None], np.array([-np.inf, -np.inf, cz_lo]), 0.0).reshape(n_knots, 3 * P)
+            upper[:, sc] = np.where(contact[:, :, None], np.array([np.inf, np.inf, cz_hi]), 0.0).reshape(n_knots, 3 * P)
         if self.options.acceleration_variables:
             lower[-1, L.slice("a")] = upper[-1, L.slice("a")] = 0.0
         lower[[0, -1], sv] = upper[[0, -1], sv] = 0.0
         lower, upper = jnp.asarray(lower), jnp.asarray(upper)
-        # forces: touching points f_z in [0, F], |f_x|, |f_y| <= F; others 0
+        # forces: touching points f_z in [0, F], |f_x|, |f_y| <= F (force_limits="rows": free,
+        # limited by rows); others 0
         F = theta.force_limit_factor * jnp.sum(theta.body_masses) * GRAVITY
+        if self.options.force_limits == "rows":
+            F = jnp.inf
         touching = np.repeat(contact, 3, axis=1)
-        lateral = touching & np.tile([True, True, False], P)[None]
+        lateral = touching & (np.tile([True, True, False], P)[None] | (self.options.force_limits == "rows"))
         lower = lower.at[:, sf].set(jnp.where(lateral, -F, 0.0))
         upper = upper.at[:, sf].set(jnp.where(touching, F, 0.0))
         # boundary conditions: at rest (above) at the standing and the target pose
@@ -648,18 +674,25 @@ def contact_stage(tr: Transcription) -> list[ConstraintGroup]:
     knots, pairs = np.arange(n_knots), np.arange(N)
     stay = np.zeros((N, 2 * P))
     if tr.options.contact_variables:
-        # FK = c; c_z is the terrain height (a bound)
-        return [
+        # FK = c; c_z is the terrain height (a bound, or with contact_height="row" a row, and
+        # the stationarity rows keep z too)
+        rows = tr.options.contact_height == "row"
+        kept = 3 if rows else 2
+        groups = [
             ConstraintGroup(
                 "contact", (Dep("q"), Dep("c")), lambda theta, data, q, c: (fk(q) - c.reshape(P, 3)).reshape(-1), knots,
                 np.zeros((n_knots, 3 * P)), np.zeros((n_knots, 3 * P)), np.repeat(contact, 3, axis=1),
             ),
             ConstraintGroup(
                 "stationary", (Dep("c"), Dep("c", 1)),
-                lambda theta, data, c, c1: (c1.reshape(P, 3)[:, :2] - c.reshape(P, 3)[:, :2]).reshape(-1), pairs,
-                stay, stay, np.repeat(both, 2, axis=1),
+                lambda theta, data, c, c1: (c1.reshape(P, 3)[:, :kept] - c.reshape(P, 3)[:, :kept]).reshape(-1), pairs,
+                np.zeros((N, kept * P)), np.zeros((N, kept * P)), np.repeat(both, kept, axis=1),
             ),
         ]
+        if rows:
+            height = np.full((n_knots, P), tr.task.terrain_height)
+            groups.insert(1, ConstraintGroup("height", (Dep("c"),), lambda theta, data, c: c.reshape(P, 3)[:, 2], knots, height, height, contact))
+        return groups
     terrain = np.full((n_knots, P), tr.task.terrain_height)
     return [
         ConstraintGroup("contact", (Dep("q"),), lambda theta, data, q: fk(q)[:, 2], knots, terrain, terrain, contact),
@@ -703,6 +736,29 @@ def friction_stage(tr: Transcription) -> list[ConstraintGroup]:
     ]
 
 
+def force_limit_stage(tr: Transcription) -> list[ConstraintGroup]:
+    """With `TranscriptionOptions.force_limits` ``"rows"``: ``f_z >= 0`` and ``|f| <= F`` (F =
+    force_limit_factor m g, the Euclidean norm) of touching points, as the study's code writes
+    them; with ``"bounds"`` (the default) variable bounds do this and there are no rows."""
+    n_knots, P = tr.N + 1, tr.P
+    if not P or tr.options.force_limits == "bounds":
+        return []
+
+    def limits(theta, data, f):
+        F = theta.force_limit_factor * jnp.sum(theta.body_masses) * GRAVITY
+        f = f.reshape(P, 3)
+        # the norm's gradient f / |f| is 0 rather than NaN at f = 0
+        norm = jnp.sqrt(jnp.maximum(jnp.sum(f * f, axis=1), 1e-300))
+        return jnp.stack([f[:, 2], F - norm], axis=1).reshape(-1)
+
+    return [
+        ConstraintGroup(
+            "force_limit", (Dep("f"),), limits, np.arange(n_knots),
+            np.zeros((n_knots, 2 * P)), np.full((n_knots, 2 * P), np.inf), np.repeat(tr.schedule.in_contact, 2, axis=1),
+        )
+    ]
+
+
 def force_rate_stage(tr: Transcription) -> list[ConstraintGroup]:
     """``|f_j' - f_j| <= max_delta_force`` per component while a point keeps touching (with
     `TranscriptionOptions.liftoff_force_rate` also where it lifts off: f_j' is 0 there, fixed by
@@ -735,7 +791,7 @@ def chart_stage(tr: Transcription) -> list[ConstraintGroup]:
 
 
 #: The constraint stages of a transcription, in the order of the NLP's rows.
-CONSTRAINT_STAGES = (dynamics_stage, integration_stage, contact_stage, clearance_stage, friction_stage, force_rate_stage, chart_stage)
+CONSTRAINT_STAGES = (dynamics_stage, integration_stage, contact_stage, clearance_stage, friction_stage, force_limit_stage, force_rate_stage, chart_stage)
 
 
 def cost_terms(tr: Transcription) -> list[CostGroup]:

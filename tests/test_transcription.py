@@ -11,13 +11,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jtraj import dynamics
-from jtraj.parameterization import PARAMETERIZATIONS
-from jtraj import success
+from jtraj import dynamics, success
 from jtraj.io import to_jsonable
+from jtraj.parameterization import PARAMETERIZATIONS
 from jtraj.result import Outcome, Result
 from jtraj.solver import prepare, solve
 from jtraj.task import Phase, Task
+from jtraj.transcription import PAPER_VARIABLES
 
 FEET = ("FL_foot", "FR_foot", "RL_foot", "RR_foot")
 #: a short hop: 2 stance intervals, 2 in the air, 2 stance (7 knots)
@@ -78,6 +78,64 @@ def test_variables_options_are_checked():
         TranscriptionOptions(acceleration_variables=False, position_step="stepped")
     with pytest.raises(ValueError, match="expected 'next' or 'stepped'"):
         TranscriptionOptions(position_step="implicit")
+    with pytest.raises(ValueError, match="expected 'bounds' or 'rows'"):
+        TranscriptionOptions(force_limits="row")
+    with pytest.raises(ValueError, match="expected 'bound' or 'row'"):
+        TranscriptionOptions(contact_height="rows")
+    with pytest.raises(ValueError, match="needs contact_variables"):
+        TranscriptionOptions(contact_variables=False, contact_height="row")
+
+
+def test_force_limit_and_contact_height_rows_of_the_code():
+    """``force_limits="rows"`` and ``contact_height="row"`` (the study's code): a touching
+    point's force and contact height are free variables held by rows, counted as the code
+    counts them; the Jacobian is autodiff's; the solution keeps the limits that the default
+    variables impose by bounds, and each variables' solution is feasible in the other's NLP
+    (they may be different local minima)."""
+    rows_variables = dataclasses.replace(PAPER_VARIABLES, force_limits="rows", contact_height="row")
+    prep = prepare(HOP, "se3", rows_variables)
+    tr, nlp, L = prep.transcription, prep.nlp, prep.transcription.layout
+    P, touching = 4, 5
+    rows = nlp.row_groups_summary()
+    assert rows["height"] == touching * P
+    assert rows["stationary"] == 3 * 3 * P  # x, y and z of the pairs (0,1), (4,5), (5,6)
+    assert rows["force_limit"] == touching * 2 * P  # f_z >= 0 and |f| <= F
+    lower, upper = (np.asarray(b) for b in tr.bounds())
+    contact = tr.schedule.in_contact
+    for name in ("f", "c"):
+        lo, hi = lower[:, L.slice(name)].reshape(-1, P, 3), upper[:, L.slice(name)].reshape(-1, P, 3)
+        assert np.all(np.isinf(lo[contact])) and np.all(np.isinf(hi[contact])), name
+        assert np.all(lo[~contact] == 0.0) and np.all(hi[~contact] == 0.0), name
+    x = tr.warm_start().reshape(-1) + 0.05 * np.random.default_rng(1).standard_normal(nlp.n)
+    dense = np.asarray(jax.jit(jax.jacfwd(nlp._constraints_py))(jnp.asarray(x), nlp.theta))
+    np.testing.assert_allclose(nlp.dense_jacobian(jnp.asarray(x)), dense, atol=1e-9 * max(1.0, np.abs(dense).max()))
+
+    result = solve(HOP, "se3", variables=rows_variables, progress=None)
+    assert result.converged and result.constraint_violation < 1e-6, result.status_msg
+    traj = result.trajectory
+    F = HOP.force_limit_factor * tr.robot.total_mass * 9.81
+    forces = traj.forces[traj.in_contact]
+    assert forces[:, 2].min() > -1e-6
+    assert np.linalg.norm(forces, axis=1).max() <= F * (1 + 1e-6)
+    np.testing.assert_allclose(traj.contact_positions[traj.in_contact][:, 2], HOP.terrain_height, atol=1e-6)
+    # the same feasible set: each solution satisfies the other variables' rows and bounds
+    by_bounds = prepare(HOP, "se3", "paper")
+    other = solve(HOP, "se3", variables="paper", progress=None)
+    assert other.converged
+    # (to the violation each solve left in its own NLP, Ipopt's constr_viol_tol being 1e-4)
+    for res, nlp_ in ((result, by_bounds.nlp), (other, nlp)):
+        assert nlp_.violation(_variables_of(res.trajectory, tr)) <= max(1.01 * res.constraint_violation, 1e-7)
+
+
+def _variables_of(traj, tr):
+    """The NLP's variables (paper: q, v, a, f, c per knot) of a decoded trajectory."""
+    L, contact = tr.layout, traj.in_contact
+    Z = np.zeros((tr.N + 1, L.nz))
+    Z[:, L.slice("q")] = np.concatenate([traj.q_base, traj.q_joints], axis=1)
+    Z[:, L.slice("v")], Z[:, L.slice("a")] = traj.v, traj.a
+    Z[:, L.slice("f")] = traj.forces.reshape(tr.N + 1, -1)
+    Z[:, L.slice("c")] = np.where(contact[:, :, None], traj.contact_positions, 0.0).reshape(tr.N + 1, -1)
+    return Z.reshape(-1)
 
 
 def _rollout(tr, tau_joints, f0):
