@@ -2,7 +2,7 @@
 
     python bench/side_by_side.py --out results/side_by_side [--tasks walk,big_jump,...]
         [--variables paper] [--peer ../shared/peers/run-se3-trajopt] [--sigma 0.5 --seeds 0,1,2]
-        [--robot talos=talos_full] [--code-costs]
+        [--robot talos=talos_full] [--code-costs] [--set FIELD=VALUE ...]
 
 For every task (and noise draw): the paper's code (SE(3) tangent, its own settings, through its
 runner script, which prints one JSON line), then ``jtraj.solve(task, "se3", variables=...)`` for
@@ -16,7 +16,8 @@ two codes order and size their variables differently).
 
 ``--robot talos=talos_full`` solves jtraj's side on the study's Talos model (`robots/talos_full.toml`)
 and ``--code-costs`` with the cost weights of the code's task scripts where they differ from the
-paper's Table II (`CODE_COSTS`); both show in the jtraj column's name.
+paper's Table II (`CODE_COSTS`); both show in the jtraj column's name, as do ``--set``'s
+changes to the variables (``--set force_limits=rows --set contact_height=row``: the code's rows).
 """
 
 from __future__ import annotations
@@ -29,10 +30,12 @@ import sys
 from pathlib import Path
 
 import jtraj
-from jtraj import io
+from jtraj import io, success
 from jtraj.provenance import write_provenance
+from jtraj.solver import VARIABLES
 from jtraj.task import Task, retarget
 from jtraj.task import load as load_task
+from jtraj.transcription import TranscriptionOptions
 
 #: The public code's runner: ../shared/peers/run-se3-trajopt beside the repository (pass
 #: --peer from a worktree elsewhere).
@@ -73,11 +76,17 @@ def jtraj_label(variables: str, robots: dict[str, str], code_costs: bool) -> str
     return ", ".join([f"jtraj {variables}", *robots.values(), *(["code's costs"] if code_costs else [])])
 
 
-def run_jtraj(task: str, variables: str, sigma: float, seed: int, robots: dict[str, str] | None = None, code_costs: bool = False) -> dict:
+def run_jtraj(
+    task: str, variables: str, sigma: float, seed: int, robots: dict[str, str] | None = None, code_costs: bool = False, changes: dict[str, str] | None = None
+) -> dict:
+    """jtraj's solve; ``changes`` replace fields of the named variables' `TranscriptionOptions`
+    (e.g. ``force_limits="rows"``) and show in the column's name."""
     problem = jtraj_task(task, robots or {}, code_costs)
-    r = jtraj.solve(problem, "se3", variables=variables, noise=sigma, seed=seed, progress=None, keep_trajectory=False)
+    options = dataclasses.replace(VARIABLES[variables], **(changes or {}))
+    r = jtraj.solve(problem, "se3", variables=options, noise=sigma, seed=seed, progress=None)
+    check = success.evaluate(r.trajectory.base_xyz_wxyz, problem.flip_axis, problem.flip_turns)
     return dict(
-        code=jtraj_label(variables, robots or {}, code_costs),
+        code=", ".join([jtraj_label(variables, robots or {}, code_costs), *(f"{k}={v}" for k, v in (changes or {}).items())]),
         robot=problem.robot,
         configuration_weight=problem.configuration_weight,
         task=task,
@@ -89,6 +98,7 @@ def run_jtraj(task: str, variables: str, sigma: float, seed: int, robots: dict[s
         cost=float(r.cost),
         time_s=round(float(r.time_s), 3),
         turns=r.turns,
+        off_axis_share=check.off_axis_share,
     )
 
 
@@ -130,9 +140,17 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--peer", default=str(DEFAULT_PEER), help="the paper code's runner script ('' to skip it)")
     ap.add_argument("--robot", action="append", default=[], metavar="ROBOT=OTHER", help="jtraj solves tasks on ROBOT with the model OTHER (e.g. talos=talos_full: the study's Talos)")
     ap.add_argument("--code-costs", action="store_true", help="jtraj uses the cost weights of the code's task scripts (CODE_COSTS) where they differ from Table II")
+    ap.add_argument(
+        "--set", action="append", default=[], metavar="FIELD=VALUE",
+        help="replace a string field of the variables' TranscriptionOptions, e.g. force_limits=rows (repeatable)",
+    )
     ap.add_argument("--out", default="results/side_by_side")
     args = ap.parse_args(argv)
     robots = dict(item.split("=", 1) for item in args.robot)
+    changes = dict(item.split("=", 1) for item in args.set)
+    unknown = set(changes) - {f.name for f in dataclasses.fields(TranscriptionOptions) if f.type in (str, "str")}
+    if unknown:
+        ap.error(f"--set {sorted(unknown)}: not a string field of TranscriptionOptions")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     path = out / "side_by_side.json"
@@ -142,7 +160,10 @@ def main(argv: list[str] | None = None) -> None:
     for task in args.tasks.split(","):
         for seed in seeds:
             jobs = ([("paper", lambda task=task, seed=seed: run_peer(Path(args.peer), task, args.sigma, seed))] if args.peer else []) + [
-                (jtraj_label(lay, robots, args.code_costs), lambda lay=lay, task=task, seed=seed: run_jtraj(task, lay, args.sigma, seed, robots, args.code_costs))
+                (
+                    ", ".join([jtraj_label(lay, robots, args.code_costs), *(f"{k}={v}" for k, v in changes.items())]),
+                    lambda lay=lay, task=task, seed=seed: run_jtraj(task, lay, args.sigma, seed, robots, args.code_costs, changes),
+                )
                 for lay in args.variables.split(",")
                 if lay
             ]

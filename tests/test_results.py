@@ -1,6 +1,6 @@
 """The README's result tables are the files in results/, and those files are what their command wrote.
 
-A table in README.md that quotes a result is preceded by a marker line
+A table in README.md (or a page of docs/) that quotes a result is preceded by a marker line
 ``<!-- results: results/DIR/NAME.md -->``; the table under it must be that file's table, row for
 row. Each results folder holds the JSON its command wrote, the Markdown rendered from it and
 ``provenance.json`` (command, date, machine, versions).
@@ -17,15 +17,17 @@ import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-MARKER = re.compile(r"<!--\s*results:\s*(\S+)\s*-->")
+MARKER = re.compile(r"^\s*<!--\s*results:\s*(\S+)\s*-->")
+#: The pages whose quoted tables are checked.
+PAGES = ("README.md", *sorted(str(p.relative_to(ROOT)) for p in (ROOT / "docs").glob("*.md")))
 
 
-def _table_after(lines: list[str], start: int) -> list[str]:
+def _table_after(lines: list[str], start: int, page: str = "README.md") -> list[str]:
     """The Markdown table (lines starting with '|') that begins at or after ``start``."""
     i = start
     while i < len(lines) and not lines[i].lstrip().startswith("|"):
         if lines[i].strip() and not lines[i].lstrip().startswith("<!--"):
-            raise AssertionError(f"README.md line {i + 1}: expected a table after the results marker, found {lines[i]!r}")
+            raise AssertionError(f"{page} line {i + 1}: expected a table after the results marker, found {lines[i]!r}")
         i += 1
     table = []
     while i < len(lines) and lines[i].lstrip().startswith("|"):
@@ -34,9 +36,9 @@ def _table_after(lines: list[str], start: int) -> list[str]:
     return table
 
 
-def _quoted_tables() -> list[tuple[str, list[str]]]:
-    lines = (ROOT / "README.md").read_text().splitlines()
-    return [(m.group(1), _table_after(lines, i + 1)) for i, line in enumerate(lines) if (m := MARKER.search(line))]
+def _quoted_tables(page: str = "README.md") -> list[tuple[str, list[str]]]:
+    lines = (ROOT / page).read_text().splitlines()
+    return [(m.group(1), _table_after(lines, i + 1, page)) for i, line in enumerate(lines) if (m := MARKER.search(line))]
 
 
 def _results_dirs() -> list[Path]:
@@ -44,14 +46,15 @@ def _results_dirs() -> list[Path]:
 
 
 def test_readme_quotes_results_files():
-    quoted = _quoted_tables()
-    assert quoted, "README.md quotes no results/ table (marker <!-- results: results/DIR/NAME.md -->)"
-    for rel, table in quoted:
-        path = ROOT / rel
-        assert path.is_file(), f"README.md quotes {rel}, which does not exist"
-        file_table = [line.strip() for line in path.read_text().splitlines() if line.lstrip().startswith("|")]
-        assert table, f"README.md: no table under the marker for {rel}"
-        assert table == file_table, f"README.md's table for {rel} differs from the file:\nREADME:\n" + "\n".join(table) + "\nfile:\n" + "\n".join(file_table)
+    assert _quoted_tables(), "README.md quotes no results/ table (marker <!-- results: results/DIR/NAME.md -->)"
+    assert "docs/reproduction.md" in PAGES and _quoted_tables("docs/reproduction.md"), "docs/reproduction.md quotes no results/ table"
+    for page in PAGES:
+        for rel, table in _quoted_tables(page):
+            path = ROOT / rel
+            assert path.is_file(), f"{page} quotes {rel}, which does not exist"
+            file_table = [line.strip() for line in path.read_text().splitlines() if line.lstrip().startswith("|")]
+            assert table, f"{page}: no table under the marker for {rel}"
+            assert table == file_table, f"{page}'s table for {rel} differs from the file:\n{page}:\n" + "\n".join(table) + "\nfile:\n" + "\n".join(file_table)
 
 
 @pytest.mark.parametrize("folder", _results_dirs(), ids=lambda p: p.name)
