@@ -32,10 +32,9 @@ from pathlib import Path
 import jtraj
 from jtraj import io, success
 from jtraj.provenance import write_provenance
-from jtraj.solver import VARIABLES
+from jtraj.solver import with_changes
 from jtraj.task import Task, retarget
 from jtraj.task import load as load_task
-from jtraj.transcription import TranscriptionOptions
 
 #: The public code's runner: ../shared/peers/run-se3-trajopt beside the repository (pass
 #: --peer from a worktree elsewhere).
@@ -82,7 +81,7 @@ def run_jtraj(
     """jtraj's solve; ``changes`` replace fields of the named variables' `TranscriptionOptions`
     (e.g. ``force_limits="rows"``) and show in the column's name."""
     problem = jtraj_task(task, robots or {}, code_costs)
-    options = dataclasses.replace(VARIABLES[variables], **(changes or {}))
+    options = with_changes(variables, changes)
     r = jtraj.solve(problem, "se3", variables=options, noise=sigma, seed=seed, progress=None)
     check = success.evaluate(r.trajectory.base_xyz_wxyz, problem.flip_axis, problem.flip_turns)
     return dict(
@@ -148,9 +147,10 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
     robots = dict(item.split("=", 1) for item in args.robot)
     changes = dict(item.split("=", 1) for item in args.set)
-    unknown = set(changes) - {f.name for f in dataclasses.fields(TranscriptionOptions) if f.type in (str, "str")}
-    if unknown:
-        ap.error(f"--set {sorted(unknown)}: not a string field of TranscriptionOptions")
+    try:
+        with_changes(args.variables.split(",")[0] or "paper", changes)
+    except ValueError as e:
+        ap.error(f"--set: {e}")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     path = out / "side_by_side.json"

@@ -20,7 +20,6 @@ trajectories), ``OUT/iterates.md`` (the two tables) and ``OUT/provenance.json``.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import os
 import subprocess
 import sys
@@ -33,8 +32,7 @@ import jtraj
 from jtraj import io as jio
 from jtraj import solvers, success
 from jtraj.provenance import write_provenance
-from jtraj.solver import VARIABLES
-from jtraj.transcription import TranscriptionOptions
+from jtraj.solver import VARIABLES, with_changes
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
@@ -121,7 +119,7 @@ def run_peer(task: str, peer_src: Path, peer_python: Path, flip_axis, flip_turns
 def run_jtraj(task_name: str, variables: str, robots: dict[str, str], code_costs: bool, changes: dict[str, str] | None = None) -> dict:
     """jtraj's run; ``changes`` replace fields of the named variables' `TranscriptionOptions`."""
     task = jtraj_task(task_name, robots, code_costs)
-    options = dataclasses.replace(VARIABLES[variables], **(changes or {}))
+    options = with_changes(variables, changes)
     rec = solvers.RecordIterates()
     res = jtraj.solve(task, "se3", variables=options, progress=rec, keep_trajectory=False)
     tr = jtraj.solver.prepare(task, "se3", options).transcription
@@ -165,9 +163,10 @@ def main(argv: list[str] | None = None) -> None:
     if not args.no_peer:
         runs.append(run_peer(args.task, args.peer_src, args.peer_python, task.flip_axis, task.flip_turns))
     changes = dict(c.split("=", 1) for c in args.set)
-    unknown = set(changes) - {f.name for f in dataclasses.fields(TranscriptionOptions) if f.type in (str, "str")}
-    if unknown:
-        ap.error(f"--set {sorted(unknown)}: not a string field of TranscriptionOptions")
+    try:
+        with_changes(args.variables.split(",")[0] or "paper", changes)
+    except ValueError as e:
+        ap.error(f"--set: {e}")
     runs.append(run_jtraj(args.task, args.variables, robots, args.code_costs, changes))
     text = render(runs)
     print(text)

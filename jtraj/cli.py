@@ -90,6 +90,10 @@ def _executor_arguments(p: argparse.ArgumentParser, workers: bool = True) -> Non
 def _variables_argument(p: argparse.ArgumentParser, default: str, help: str) -> None:
     # --layout is the option's former name, still parsed so that existing scripts run
     p.add_argument("--variables", "--layout", dest="variables", default=default, choices=["compact", "paper", "lean"], help=help + " (--layout: its former name)")
+    p.add_argument(
+        "--set", dest="variable_changes", action="append", metavar="FIELD=VALUE",
+        help="change a field of the variables' TranscriptionOptions, repeatable (e.g. --set force_limits=rows --set contact_height=row: the study's code's rows)",
+    )
 
 
 def _robot_argument(p: argparse.ArgumentParser) -> None:
@@ -431,6 +435,7 @@ def _check_inputs(args: argparse.Namespace) -> None:
     cmd = args.command
     if cmd in ("solve", "compare", "robustness"):
         args.robots_checked = _check_robots(args.robot)
+        args.variables = _check_variable_changes(args.variables, args.variable_changes)
     if cmd == "solve":
         args.task_checked = _load_valid_task(args.task, args.robots_checked)
         _check_out(args.out)
@@ -465,6 +470,25 @@ def _check_inputs(args: argparse.Namespace) -> None:
         if args.knots is not None:
             _check_positive_int("--knots", args.knots, 3)
         _check_out(args.out)
+
+
+def _check_variable_changes(variables: str, items: list[str] | None):
+    """``--variables`` with the ``--set FIELD=VALUE`` changes: the name itself when there are
+    none, else a `TranscriptionOptions`."""
+    if not items:
+        return variables
+    from jtraj.solver import with_changes
+
+    changes = {}
+    for item in items:
+        field, sep, value = item.partition("=")
+        if not sep or not field or not value:
+            raise InputError("--set", item, "expected FIELD=VALUE, e.g. force_limits=rows")
+        changes[field] = value
+    try:
+        return with_changes(variables, changes)
+    except ValueError as e:
+        raise InputError("--set", " ".join(items), str(e)) from None
 
 
 def _input_errors() -> tuple[type[BaseException], ...]:

@@ -28,11 +28,12 @@ from jtraj import solvers
 from jtraj.deprecation import renamed_argument
 from jtraj.executors import executor_for
 from jtraj.parameterization import PARAMETERIZATIONS
-from jtraj.solver import evaluate, prepare, solve, solver_options
+from jtraj.solver import evaluate, prepare, solve, solver_options, variables_label
 from jtraj.success import FEASIBILITY_TOL
 from jtraj.tables import markdown_table
 from jtraj.task import Task
 from jtraj.task import load as load_task
+from jtraj.transcription import TranscriptionOptions
 
 __all__ = ["compare", "robustness", "noisy_warm_starts", "noise_key", "run_key", "read_runs", "summarize_robustness", "TABLE_IV_PAPER_SE3"]
 
@@ -57,7 +58,7 @@ def compare(
     tasks: Sequence[str | Task] = ALL_TASKS,
     params: Sequence[str] = tuple(PARAMETERIZATIONS),
     out: str | Path = "runs/table_iv",
-    variables: str = "paper",
+    variables: str | TranscriptionOptions = "paper",
     exact_hessian: bool = False,
     progress: TextIO | bool | None = True,
     save_trajectories: bool = True,
@@ -70,7 +71,8 @@ def compare(
     """Table IV: solve every task with every parameterization; write table_iv.{json,md}.
 
     ``solver``: the backend of every cell (`jtraj.solvers.SOLVERS`; each row records it).
-    ``variables``: the variables per knot (`jtraj.solver.VARIABLES`; default the study's);
+    ``variables``: the variables per knot (a `jtraj.solver.VARIABLES` name, default the study's,
+    or a `TranscriptionOptions`, e.g. `jtraj.solver.with_changes("paper", {...})`);
     ``layout`` is its deprecated former name. ``progress``: True (default) prints to the
     ``sys.stdout`` of the call, a text stream prints there, False or None is quiet.
 
@@ -207,7 +209,7 @@ def _robustness_group(task, p, sigmas, replicates, seed, variables, exact_hessia
     vmapped program on an accelerator, the one-problem program on every core of a CPU), with
     one compile per group; Ipopt solves them one by one. Returns the number solved."""
     task = load_task(task)
-    base = dict(task_hash=task.content_hash(), parameterization=p, layout=variables, hessian="exact" if exact_hessian else "limited-memory", options_hash=_options_hash(options), seed=seed, solver=solver)
+    base = dict(task_hash=task.content_hash(), parameterization=p, layout=variables_label(variables), hessian="exact" if exact_hessian else "limited-memory", options_hash=_options_hash(options), seed=seed, solver=solver)
     todo = [(s, r) for s in sigmas for r in range(replicates) if run_key(base | {"sigma": float(s), "replicate": r}) not in done]
     if not todo:
         return 0
@@ -281,7 +283,7 @@ def robustness(
     replicates: int = 10,
     seed: int = 0,
     out: str | Path = "runs/robustness",
-    variables: str = "paper",
+    variables: str | TranscriptionOptions = "paper",
     exact_hessian: bool = False,
     progress: TextIO | bool | None = True,
     workers: int = 1,
@@ -349,10 +351,10 @@ def robustness(
     return runs
 
 
-def _select(runs: list[dict], task: Task, p: str, sigmas, replicates: int, seed: int, variables: str, exact_hessian: bool, options, solver: str) -> list[dict]:
+def _select(runs: list[dict], task: Task, p: str, sigmas, replicates: int, seed: int, variables: str | TranscriptionOptions, exact_hessian: bool, options, solver: str) -> list[dict]:
     """The runs of one group of this call's settings, in (sigma, replicate) order."""
     keys = {
-        (task.content_hash(), p, variables, "exact" if exact_hessian else "limited-memory", _options_hash(options), seed, float(s), r, solver): (i, r)
+        (task.content_hash(), p, variables_label(variables), "exact" if exact_hessian else "limited-memory", _options_hash(options), seed, float(s), r, solver): (i, r)
         for i, s in enumerate(sigmas)
         for r in range(replicates)
     }

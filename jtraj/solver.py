@@ -33,6 +33,37 @@ def transcription_options(variables: str | TranscriptionOptions) -> Transcriptio
     return lookup(VARIABLES, variables, "variables", hint=" or a TranscriptionOptions")
 
 
+def variables_label(variables: str | TranscriptionOptions) -> str:
+    """A name for ``variables`` in tables and run keys: a `VARIABLES` key as it is, an options
+    object by the key it equals, else by the nearest key and the fields that differ from it
+    (``"paper+force_limits=rows+contact_height=row"``)."""
+    if isinstance(variables, str):
+        transcription_options(variables)  # an unknown name fails here, with the known ones
+        return variables
+    options = transcription_options(variables)
+
+    def changes(base: TranscriptionOptions) -> list[str]:
+        return [f"{f.name}={getattr(options, f.name)}" for f in dataclasses.fields(options) if getattr(options, f.name) != getattr(base, f.name)]
+
+    name = min(VARIABLES, key=lambda key: len(changes(VARIABLES[key])))
+    return "+".join([name, *changes(VARIABLES[name])])
+
+
+def with_changes(variables: str | TranscriptionOptions, changes: dict[str, str] | None) -> str | TranscriptionOptions:
+    """``variables`` with fields of its `TranscriptionOptions` replaced (``changes``: field name
+    to value, the values of the string fields); no changes: ``variables`` as it is. Raises
+    ValueError for a field that is not a string field, and the options' own checks."""
+    if not changes:
+        return variables
+    options = transcription_options(variables)
+    settable = {f.name for f in dataclasses.fields(options) if f.type in (str, "str")}
+    unknown = sorted(set(changes) - settable)
+    if unknown:
+        raise ValueError(f"{unknown}: not a field of the variables that can be set; expected some of {sorted(settable)}")
+    fields: dict[str, Any] = dict(changes)
+    return dataclasses.replace(options, **fields)
+
+
 def __getattr__(name: str) -> Any:
     if name == "LAYOUTS":  # its former name
         warn_renamed("jtraj.solver.LAYOUTS", "jtraj.solver.VARIABLES")
@@ -40,7 +71,7 @@ def __getattr__(name: str) -> Any:
     raise AttributeError(f"module 'jtraj.solver' has no attribute {name!r}")
 
 
-__all__ = ["solve", "prepare", "Prepared", "VARIABLES", "transcription_options", "solver_options", "evaluate"]
+__all__ = ["solve", "prepare", "Prepared", "VARIABLES", "transcription_options", "variables_label", "with_changes", "solver_options", "evaluate"]
 
 
 class Prepared:

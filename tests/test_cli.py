@@ -1,6 +1,7 @@
 """The command line's input checks: every bad input ends with exit status 2 and one line
 naming the field, the value and what was expected, before anything compiles or solves."""
 
+import dataclasses
 import types
 
 import pytest
@@ -174,6 +175,41 @@ def test_robustness_passes_the_solver(monkeypatch, tmp_path):
     assert seen["ipopt_options"] is None  # the study's settings
     assert cli.main(["robustness", "--tasks", "big_jump", "--solver", "jtraj", "--ipopt", "constr_viol_tol=1e-6", "--out", str(tmp_path)]) == 0
     assert seen["ipopt_options"] == {"constr_viol_tol": 1e-6}
+
+
+def test_set_changes_the_variables_options(monkeypatch, tmp_path, capsys):
+    """``--set FIELD=VALUE`` gives the sweep a TranscriptionOptions with those fields changed;
+    a field that is not a string field, a value the options refuse or a malformed item is one
+    line and exit status 2, before anything is solved."""
+    import jtraj.experiments
+    import jtraj.provenance
+    from jtraj.transcription import PAPER_VARIABLES
+
+    seen = {}
+
+    def fake_robustness(tasks, params, sigmas, **kwargs):
+        seen.update(kwargs)
+        (tmp_path / "table_iii.md").write_text("table\n")
+        return []
+
+    monkeypatch.setattr(jtraj.experiments, "robustness", fake_robustness)
+    monkeypatch.setattr(jtraj.provenance, "write_provenance", lambda out: None)
+    argv = ["robustness", "--tasks", "big_jump", "--out", str(tmp_path)]
+    assert cli.main([*argv, "--set", "force_limits=rows", "--set", "contact_height=row"]) == 0
+    assert seen["variables"] == dataclasses.replace(PAPER_VARIABLES, force_limits="rows", contact_height="row")
+    assert cli.main(argv) == 0 and seen["variables"] == "paper"  # no --set: the name itself
+    for bad, expected in [
+        (["--set", "force_limit=rows"], "not a field of the variables that can be set"),
+        (["--set", "liftoff_force_rate=False"], "not a field of the variables that can be set"),
+        (["--set", "force_limits=ball"], "expected 'bounds' or 'rows'"),
+        (["--set", "force_limits"], "expected FIELD=VALUE"),
+        (["--variables", "compact", "--set", "contact_height=row"], "needs contact_variables"),
+    ]:
+        seen.clear()
+        assert cli.main([*argv, *bad]) == cli.EXIT_BAD_INPUT
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("jtraj robustness: --set") and expected in err and "\n" not in err
+        assert not seen
 
 
 def test_robot_option_moves_the_tasks_to_that_model(monkeypatch, tmp_path, capsys):

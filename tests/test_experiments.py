@@ -62,6 +62,22 @@ def test_robustness_resumes_a_stopped_study(tmp_path):
     assert {r["seed"] for r in read_runs(tmp_path / RUNS_FILE)} == {5, 6}
 
 
+def test_robustness_keys_changed_variables_by_their_label(tmp_path):
+    """A study with a TranscriptionOptions records it as its nearest named variables plus the
+    changed fields, and those runs are not the named variables' runs."""
+    from jtraj.solver import variables_label, with_changes
+
+    rows_variables = with_changes("paper", {"force_limits": "rows"})
+    assert variables_label(rows_variables) == "paper+force_limits=rows"
+    assert variables_label(with_changes("paper", {"force_limits": "bounds"})) == "paper"
+    runs = robustness([HOP], ["se3"], sigmas=[1e-3], replicates=1, variables=rows_variables, out=tmp_path, progress=None)
+    assert [r["layout"] for r in runs] == ["paper+force_limits=rows"] and runs[0]["converged"]
+    # the same study again reuses the run; the paper variables' study solves its own
+    assert robustness([HOP], ["se3"], sigmas=[1e-3], replicates=1, variables=rows_variables, out=tmp_path, progress=None) == runs
+    paper = robustness([HOP], ["se3"], sigmas=[1e-3], replicates=1, out=tmp_path, progress=None)
+    assert paper[0]["layout"] == "paper" and len(read_runs(tmp_path / RUNS_FILE)) == 2
+
+
 def test_noise_of_a_run_does_not_depend_on_the_other_runs():
     x0 = np.zeros(5)
     a = noisy_warm_starts(x0, [1e-3, 0.1], replicates=2, seed=4)
