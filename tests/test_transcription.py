@@ -32,6 +32,8 @@ HOP = Task(
     acceleration_weight=1e-4,
 )
 PARAM_IDS = list(PARAMETERIZATIONS)
+#: the study's code's rows for the force limits and the contact heights (docs/reproduction.md)
+CODE_ROWS = dataclasses.replace(PAPER_VARIABLES, force_limits="rows", contact_height="row")
 
 
 CASES = [(p, "paper") for p in PARAM_IDS] + [("se3", "compact"), ("se3", "lean"), ("euler", "lean")]
@@ -92,7 +94,7 @@ def test_force_limit_and_contact_height_rows_of_the_code():
     counts them; the Jacobian is autodiff's; the solution keeps the limits that the default
     variables impose by bounds, and each variables' solution is feasible in the other's NLP
     (they may be different local minima)."""
-    rows_variables = dataclasses.replace(PAPER_VARIABLES, force_limits="rows", contact_height="row")
+    rows_variables = CODE_ROWS
     prep = prepare(HOP, "se3", rows_variables)
     tr, nlp, L = prep.transcription, prep.nlp, prep.transcription.layout
     P, touching = 4, 5
@@ -125,6 +127,16 @@ def test_force_limit_and_contact_height_rows_of_the_code():
     # (to the violation each solve left in its own NLP, Ipopt's constr_viol_tol being 1e-4)
     for res, nlp_ in ((result, by_bounds.nlp), (other, nlp)):
         assert nlp_.violation(_variables_of(res.trajectory, tr)) <= max(1.01 * res.constraint_violation, 1e-7)
+
+
+def test_jtraj_solver_solves_with_the_code_rows():
+    """jtraj's interior point on the rows variant: the force rows are stage-local groups of its
+    Riccati structure like any other; the solution keeps the limits."""
+    result = solve(HOP, "se3", variables=CODE_ROWS, solver="jtraj", progress=None)
+    assert result.converged and result.constraint_violation < 1e-6, result.status_msg
+    forces = result.trajectory.forces[result.trajectory.in_contact]
+    assert forces[:, 2].min() > -1e-6
+    assert np.linalg.norm(forces, axis=1).max() <= HOP.force_limit_factor * prepare(HOP, "se3", CODE_ROWS).transcription.robot.total_mass * 9.81 * (1 + 1e-6)
 
 
 def _variables_of(traj, tr):
