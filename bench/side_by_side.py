@@ -70,9 +70,21 @@ def jtraj_task(name: str, robots: dict[str, str], code_costs: bool) -> Task:
     return dataclasses.replace(task, **CODE_COSTS.get(name, {})) if code_costs else task
 
 
-def jtraj_label(variables: str, robots: dict[str, str], code_costs: bool) -> str:
-    """The jtraj column: ``jtraj paper``, ``jtraj paper, talos_full, code's costs``."""
-    return ", ".join([f"jtraj {variables}", *robots.values(), *(["code's costs"] if code_costs else [])])
+def jtraj_label(variables: str, robots: dict[str, str], code_costs: bool, changes: dict[str, str] | None = None) -> str:
+    """The jtraj column: ``jtraj paper``, ``jtraj paper, talos_full, code's costs``, then the
+    ``--set`` changes (``..., force_limits=rows``)."""
+    return ", ".join([f"jtraj {variables}", *robots.values(), *(["code's costs"] if code_costs else []), *(f"{k}={v}" for k, v in (changes or {}).items())])
+
+
+def parse_changes(ap: argparse.ArgumentParser, items: list[str], variables: str) -> dict[str, str]:
+    """``--set FIELD=VALUE`` items as a dict, checked against ``variables``' options (a parser
+    error otherwise)."""
+    changes = dict(item.split("=", 1) for item in items)
+    try:
+        with_changes(variables, changes)
+    except ValueError as e:
+        ap.error(f"--set: {e}")
+    return changes
 
 
 def run_jtraj(
@@ -85,7 +97,7 @@ def run_jtraj(
     r = jtraj.solve(problem, "se3", variables=options, noise=sigma, seed=seed, progress=None)
     check = success.evaluate(r.trajectory.base_xyz_wxyz, problem.flip_axis, problem.flip_turns)
     return dict(
-        code=", ".join([jtraj_label(variables, robots or {}, code_costs), *(f"{k}={v}" for k, v in (changes or {}).items())]),
+        code=jtraj_label(variables, robots or {}, code_costs, changes),
         robot=problem.robot,
         configuration_weight=problem.configuration_weight,
         task=task,
@@ -146,11 +158,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--out", default="results/side_by_side")
     args = ap.parse_args(argv)
     robots = dict(item.split("=", 1) for item in args.robot)
-    changes = dict(item.split("=", 1) for item in args.set)
-    try:
-        with_changes(args.variables.split(",")[0] or "paper", changes)
-    except ValueError as e:
-        ap.error(f"--set: {e}")
+    changes = parse_changes(ap, args.set, args.variables.split(",")[0] or "paper")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     path = out / "side_by_side.json"
@@ -160,10 +168,7 @@ def main(argv: list[str] | None = None) -> None:
     for task in args.tasks.split(","):
         for seed in seeds:
             jobs = ([("paper", lambda task=task, seed=seed: run_peer(Path(args.peer), task, args.sigma, seed))] if args.peer else []) + [
-                (
-                    ", ".join([jtraj_label(lay, robots, args.code_costs), *(f"{k}={v}" for k, v in changes.items())]),
-                    lambda lay=lay, task=task, seed=seed: run_jtraj(task, lay, args.sigma, seed, robots, args.code_costs, changes),
-                )
+                (jtraj_label(lay, robots, args.code_costs, changes), lambda lay=lay, task=task, seed=seed: run_jtraj(task, lay, args.sigma, seed, robots, args.code_costs, changes))
                 for lay in args.variables.split(",")
                 if lay
             ]

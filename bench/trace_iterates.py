@@ -36,7 +36,7 @@ from jtraj.solver import VARIABLES, with_changes
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-from side_by_side import CODE_COSTS, jtraj_label, jtraj_task  # noqa: E402  (the same task variants)
+from side_by_side import CODE_COSTS, jtraj_label, jtraj_task, parse_changes  # noqa: E402  (the same task variants)
 
 #: The public code beside the repository (its runner's folder).
 DEFAULT_PEER_SRC = HERE.parents[1] / "shared" / "peers" / "se3_trajopt" / "src"
@@ -126,7 +126,7 @@ def run_jtraj(task_name: str, variables: str, robots: dict[str, str], code_costs
     theta = tr.resolve_theta(None)
     base = np.array([tr.decode(x, theta).base_xyz_wxyz for x in rec.iterates])
     stats = np.array([[it.iter, it.objective, it.inf_pr, it.inf_du, it.mu, it.alpha_pr] for it in rec.iterations])
-    label = ", ".join([jtraj_label(variables, robots, code_costs), *(f"{k}={v}" for k, v in (changes or {}).items())])
+    label = jtraj_label(variables, robots, code_costs, changes)
     return dict(code=label, knots=int(base.shape[1]), status=res.status.value, rows=rows_of(stats, base, task.flip_axis, task.flip_turns))
 
 
@@ -162,11 +162,7 @@ def main(argv: list[str] | None = None) -> None:
     runs = []
     if not args.no_peer:
         runs.append(run_peer(args.task, args.peer_src, args.peer_python, task.flip_axis, task.flip_turns))
-    changes = dict(c.split("=", 1) for c in args.set)
-    try:
-        with_changes(args.variables.split(",")[0] or "paper", changes)
-    except ValueError as e:
-        ap.error(f"--set: {e}")
+    changes = parse_changes(ap, args.set, args.variables)
     runs.append(run_jtraj(args.task, args.variables, robots, args.code_costs, changes))
     text = render(runs)
     print(text)

@@ -77,6 +77,7 @@ __all__ = [
     "contact_stage",
     "clearance_stage",
     "friction_stage",
+    "force_limit",
     "force_limit_stage",
     "force_rate_stage",
     "chart_stage",
@@ -463,12 +464,11 @@ class Transcription:
         lower, upper = jnp.asarray(lower), jnp.asarray(upper)
         # forces: touching points f_z in [0, F], |f_x|, |f_y| <= F (force_limits="rows": free,
         # limited by rows); others 0
-        F = theta.force_limit_factor * jnp.sum(theta.body_masses) * GRAVITY
-        if self.options.force_limits == "rows":
-            F = jnp.inf
+        rows = self.options.force_limits == "rows"
+        F = jnp.inf if rows else force_limit(theta)
         touching = np.repeat(contact, 3, axis=1)
-        lateral = touching & (np.tile([True, True, False], P)[None] | (self.options.force_limits == "rows"))
-        lower = lower.at[:, sf].set(jnp.where(lateral, -F, 0.0))
+        below = touching & (np.tile([True, True, False], P)[None] | rows)  # bounded below by -F
+        lower = lower.at[:, sf].set(jnp.where(below, -F, 0.0))
         upper = upper.at[:, sf].set(jnp.where(touching, F, 0.0))
         # boundary conditions: at rest (above) at the standing and the target pose
         q0, qN = self._coords(
@@ -736,6 +736,12 @@ def friction_stage(tr: Transcription) -> list[ConstraintGroup]:
     ]
 
 
+def force_limit(theta: TaskParams) -> jax.Array:
+    """F = force_limit_factor m g (N): the largest contact force of a point (its components'
+    bound, or with `TranscriptionOptions.force_limits` ``"rows"`` its norm's)."""
+    return theta.force_limit_factor * jnp.sum(theta.body_masses) * GRAVITY
+
+
 def force_limit_stage(tr: Transcription) -> list[ConstraintGroup]:
     """With `TranscriptionOptions.force_limits` ``"rows"``: ``f_z >= 0`` and ``|f| <= F`` (F =
     force_limit_factor m g, the Euclidean norm) of touching points, as the study's code writes
@@ -745,7 +751,7 @@ def force_limit_stage(tr: Transcription) -> list[ConstraintGroup]:
         return []
 
     def limits(theta, data, f):
-        F = theta.force_limit_factor * jnp.sum(theta.body_masses) * GRAVITY
+        F = force_limit(theta)
         f = f.reshape(P, 3)
         # the norm's gradient f / |f| is 0 rather than NaN at f = 0
         norm = jnp.sqrt(jnp.maximum(jnp.sum(f * f, axis=1), 1e-300))
