@@ -12,7 +12,10 @@ quotes) and ``OUT/provenance.json``. Rows already in the JSON are kept (resume).
 
 The noise of the paper's runner is numpy's ``default_rng(seed)`` on its own variable vector,
 jtraj's is ``numpy default_rng(seed)`` on jtraj's: same distribution, not the same draws (the
-two codes order and size their variables differently).
+two codes order and size their variables differently). A noisy draw of a flip runs the code
+through a driver (`PEER_DRIVER`, the code itself unchanged, its runner's noise) that keeps its
+iterates, so that jtraj's task check (`jtraj.success`) reads the code's last one as it reads
+jtraj's: the cell then counts the converged draws that did the task ("task done").
 
 ``--robot talos=talos_full`` solves jtraj's side on the study's Talos model (`robots/talos_full.toml`)
 and ``--code-costs`` with the cost weights of the code's task scripts where they differ from the
@@ -23,11 +26,16 @@ changes to the variables (``--set force_limits=rows --set contact_height=row``: 
 from __future__ import annotations
 
 import argparse
+import ast
 import dataclasses
 import json
+import os
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
+
+import numpy as np
 
 import jtraj
 from jtraj import io, success
@@ -46,6 +54,100 @@ TASKS = ("walk", "hopscotch", "big_jump", "handstand", "backflip", "sideflip")
 #: ``walk.py`` adds a configuration cost of 1e-6 (Table II: none), ``humanoid_flip.py`` weighs
 #: the back-flip's configuration cost 1e-6 (Table II: 1e-9).
 CODE_COSTS = {"walk": {"configuration_weight": 1e-6}, "backflip": {"configuration_weight": 1e-6}}
+
+
+#: The public code's sources, beside its runner.
+DEFAULT_PEER_SRC = DEFAULT_PEER.parent / "se3_trajopt" / "src"
+#: The environment the public code's runner creates on first use.
+DEFAULT_PEER_PYTHON = Path(os.environ.get("SE3_TRAJOPT_VENV", Path(tempfile.gettempdir()) / "se3-trajopt-venv")) / "bin" / "python"
+#: The public code's script of each task (as its runner maps them).
+PEER_SCRIPTS = {"big_jump": "humanoid_jump", "backflip": "humanoid_flip", "sideflip": "quad_sideflip", "walk": "walk", "hopscotch": "hopscotch", "handstand": "handstand"}
+
+# Run inside the public code's environment: argv = script, output .npz. Records cyipopt's
+# current iterate at every iteration of the code's own `intermediate` callback, and the base
+# pose of every knot (its SE(3)-tangent q[:6] through pinocchio's exp6, quaternion wxyz).
+PEER_DRIVER = r"""
+import runpy, sys
+script, out = sys.argv[1], sys.argv[2]
+sys.argv = [script]  # the code parses the command line when its modules are imported
+import numpy as np
+import cyipopt
+import pinocchio as pin
+from nltrajopt.trajectory_optimization import NLTrajOpt
+
+held, xs, stats, nodes = {}, [], [], []
+
+class Problem(cyipopt.Problem):
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        held["problem"] = self
+
+cyipopt.Problem = Problem
+code_intermediate = NLTrajOpt.intermediate
+
+def intermediate(self, alg_mod, iter_count, obj_value, inf_pr, inf_du, mu, d_norm, reg, alpha_du, alpha_pr, ls):
+    xs.append(np.array(held["problem"].get_current_iterate(scaled=False)["x"]))
+    stats.append([iter_count, obj_value, inf_pr, inf_du, mu, alpha_pr])
+    nodes[:] = [(n.q_id.start, n.q_id.stop) for n in self.nodes]
+    return code_intermediate(self, alg_mod, iter_count, obj_value, inf_pr, inf_du, mu, d_norm, reg, alpha_du, alpha_pr, ls)
+
+NLTrajOpt.intermediate = intermediate
+runpy.run_path(script, run_name="__main__")
+base = []
+for x in xs:
+    poses = []
+    for a, b in nodes:
+        T = pin.exp6(pin.Motion(x[a:a + 6]))
+        q = pin.Quaternion(T.rotation)
+        poses.append(np.r_[T.translation, q.w, q.x, q.y, q.z])
+    base.append(poses)
+np.savez(out, stats=np.array(stats), base=np.array(base))
+"""
+
+
+def peer_iterates(task: str, peer_src: Path = DEFAULT_PEER_SRC, peer_python: Path = DEFAULT_PEER_PYTHON, sigma: float = 0.0, seed: int = 0) -> dict:
+    """The public code's solve of ``task`` through `PEER_DRIVER`, with its runner's noise on
+    the warm start (``sigma``, ``seed``; the code reads them from the environment as its
+    runner sets them). Returns ``stats`` (iterations, 6), ``base`` (iterations, knots, 7) and
+    ``peerstats``, the code's own line of Ipopt statistics (iterations, time, status)."""
+    if not peer_python.exists():
+        raise FileNotFoundError(f"{peer_python} does not exist: run the public code's runner once (it creates its environment), or pass --peer-python")
+    script = peer_src / "examples" / "agile_exps" / f"{PEER_SCRIPTS[task]}.py"
+    env = os.environ | {"PYTHONPATH": str(peer_src), "SE3_TRAJOPT_NOISE_SIGMA": repr(float(sigma)), "SE3_TRAJOPT_NOISE_SEED": str(int(seed))}
+    with tempfile.TemporaryDirectory() as work:
+        out = Path(work) / "iterates.npz"
+        driver = Path(work) / "driver.py"
+        driver.write_text(PEER_DRIVER)
+        run = subprocess.run([str(peer_python), str(driver), str(script), str(out)], cwd=work, env=env, capture_output=True, text=True)
+        if run.returncode != 0:
+            raise RuntimeError(f"the public code failed on {task}: {run.stderr[-800:]}")
+        line = next(line for line in run.stdout.splitlines() if line.startswith("PEERSTATS"))
+        d = np.load(out)
+        return dict(stats=d["stats"], base=d["base"], peerstats=ast.literal_eval(line[len("PEERSTATS") :].strip()))
+
+
+def run_peer_checked(task: str, sigma: float, seed: int, peer_src: Path = DEFAULT_PEER_SRC, peer_python: Path = DEFAULT_PEER_PYTHON) -> dict:
+    """One solve of the paper's code through `peer_iterates`, its last iterate's base motion
+    put through jtraj's task check (`jtraj.success`): the row `run_peer` gives, with ``turns``,
+    ``off_axis_share`` and ``task_ok``."""
+    problem = load_task(task)
+    d = peer_iterates(task, peer_src, peer_python, sigma, seed)
+    check = success.evaluate(d["base"][-1], problem.flip_axis, problem.flip_turns)
+    st = d["peerstats"]
+    return dict(
+        code="paper",
+        task=task,
+        sigma=sigma,
+        seed=seed,
+        status=int(st["status"]),
+        converged=int(st["status"]) in (0, 1),
+        iterations=int(st["iter"]),
+        cost=float(d["stats"][-1][1]),
+        time_s=round(float(st["time"]), 3),
+        turns=check.turns,
+        off_axis_share=check.off_axis_share,
+        task_ok=bool(check.ok),
+    )
 
 
 def run_peer(peer: Path, task: str, sigma: float, seed: int) -> dict:
@@ -87,9 +189,7 @@ def parse_changes(ap: argparse.ArgumentParser, items: list[str], variables: str)
     return changes
 
 
-def run_jtraj(
-    task: str, variables: str, sigma: float, seed: int, robots: dict[str, str] | None = None, code_costs: bool = False, changes: dict[str, str] | None = None
-) -> dict:
+def run_jtraj(task: str, variables: str, sigma: float, seed: int, robots: dict[str, str] | None = None, code_costs: bool = False, changes: dict[str, str] | None = None) -> dict:
     """jtraj's solve; ``changes`` replace fields of the named variables' `TranscriptionOptions`
     (e.g. ``force_limits="rows"``) and show in the column's name."""
     problem = jtraj_task(task, robots or {}, code_costs)
@@ -110,6 +210,7 @@ def run_jtraj(
         time_s=round(float(r.time_s), 3),
         turns=r.turns,
         off_axis_share=check.off_axis_share,
+        task_ok=bool(check.ok),
     )
 
 
@@ -127,7 +228,9 @@ def _cell(rows: list[dict]) -> str:
         return f"{r['iterations']}, task failed" if r.get("status") == "converged_but_task_failed" else f"{r['iterations']}"
     conv = sorted(r["iterations"] for r in rows if r["converged"])
     med = f", median {conv[len(conv) // 2]}" if conv else ""
-    return f"{len(conv)}/{len(rows)} conv.{med}"
+    # rows with the task check of their last iterate (the flips' draws): how many converged and did the task
+    done = f", {sum(bool(r['converged'] and r['task_ok']) for r in rows)} task done" if all("task_ok" in r for r in rows) else ""
+    return f"{len(conv)}/{len(rows)} conv.{done}{med}"
 
 
 def render(rows: list[dict]) -> str:
@@ -149,10 +252,15 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--sigma", type=float, default=0.0)
     ap.add_argument("--seeds", default="0")
     ap.add_argument("--peer", default=str(DEFAULT_PEER), help="the paper code's runner script ('' to skip it)")
+    ap.add_argument("--peer-src", type=Path, default=DEFAULT_PEER_SRC, help="the public code's sources (noisy flips run them through a driver that reads the last iterate)")
+    ap.add_argument("--peer-python", type=Path, default=DEFAULT_PEER_PYTHON, help="the Python of the environment the runner creates")
     ap.add_argument("--robot", action="append", default=[], metavar="ROBOT=OTHER", help="jtraj solves tasks on ROBOT with the model OTHER (e.g. talos=talos_full: the study's Talos)")
     ap.add_argument("--code-costs", action="store_true", help="jtraj uses the cost weights of the code's task scripts (CODE_COSTS) where they differ from Table II")
     ap.add_argument(
-        "--set", action="append", default=[], metavar="FIELD=VALUE",
+        "--set",
+        action="append",
+        default=[],
+        metavar="FIELD=VALUE",
         help="replace a string field of the variables' TranscriptionOptions, e.g. force_limits=rows (repeatable)",
     )
     ap.add_argument("--out", default="results/side_by_side")
@@ -167,7 +275,13 @@ def main(argv: list[str] | None = None) -> None:
     seeds = [int(s) for s in args.seeds.split(",")] if args.sigma else [0]
     for task in args.tasks.split(","):
         for seed in seeds:
-            jobs = ([("paper", lambda task=task, seed=seed: run_peer(Path(args.peer), task, args.sigma, seed))] if args.peer else []) + [
+            # a flip's draw goes through the driver, whose last iterate the task check reads
+            peer = (
+                (lambda task=task, seed=seed: run_peer_checked(task, args.sigma, seed, args.peer_src, args.peer_python))
+                if args.sigma and load_task(task).flip_axis is not None
+                else (lambda task=task, seed=seed: run_peer(Path(args.peer), task, args.sigma, seed))
+            )
+            jobs = ([("paper", peer)] if args.peer else []) + [
                 (jtraj_label(lay, robots, args.code_costs, changes), lambda lay=lay, task=task, seed=seed: run_jtraj(task, lay, args.sigma, seed, robots, args.code_costs, changes))
                 for lay in args.variables.split(",")
                 if lay

@@ -20,10 +20,7 @@ trajectories), ``OUT/iterates.md`` (the two tables) and ``OUT/provenance.json``.
 from __future__ import annotations
 
 import argparse
-import os
-import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -36,55 +33,16 @@ from jtraj.solver import VARIABLES, with_changes
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-from side_by_side import CODE_COSTS, jtraj_label, jtraj_task, parse_changes  # noqa: E402  (the same task variants)
-
-#: The public code beside the repository (its runner's folder).
-DEFAULT_PEER_SRC = HERE.parents[1] / "shared" / "peers" / "se3_trajopt" / "src"
-#: The environment the public code's runner creates on first use.
-DEFAULT_PEER_PYTHON = Path(os.environ.get("SE3_TRAJOPT_VENV", Path(tempfile.gettempdir()) / "se3-trajopt-venv")) / "bin" / "python"
-#: The public code's script of each task (as its runner maps them).
-PEER_SCRIPTS = {"big_jump": "humanoid_jump", "backflip": "humanoid_flip", "sideflip": "quad_sideflip", "walk": "walk", "hopscotch": "hopscotch", "handstand": "handstand"}
-
-# Run inside the public code's environment: argv = script, output .npz. Records cyipopt's
-# current iterate at every iteration of the code's own `intermediate` callback, and the base
-# pose of every knot (its SE(3)-tangent q[:6] through pinocchio's exp6, quaternion wxyz).
-PEER_DRIVER = r"""
-import runpy, sys
-script, out = sys.argv[1], sys.argv[2]
-sys.argv = [script]  # the code parses the command line when its modules are imported
-import numpy as np
-import cyipopt
-import pinocchio as pin
-from nltrajopt.trajectory_optimization import NLTrajOpt
-
-held, xs, stats, nodes = {}, [], [], []
-
-class Problem(cyipopt.Problem):
-    def __init__(self, *args, **kwargs):
-        super().__init__(*args, **kwargs)
-        held["problem"] = self
-
-cyipopt.Problem = Problem
-code_intermediate = NLTrajOpt.intermediate
-
-def intermediate(self, alg_mod, iter_count, obj_value, inf_pr, inf_du, mu, d_norm, reg, alpha_du, alpha_pr, ls):
-    xs.append(np.array(held["problem"].get_current_iterate(scaled=False)["x"]))
-    stats.append([iter_count, obj_value, inf_pr, inf_du, mu, alpha_pr])
-    nodes[:] = [(n.q_id.start, n.q_id.stop) for n in self.nodes]
-    return code_intermediate(self, alg_mod, iter_count, obj_value, inf_pr, inf_du, mu, d_norm, reg, alpha_du, alpha_pr, ls)
-
-NLTrajOpt.intermediate = intermediate
-runpy.run_path(script, run_name="__main__")
-base = []
-for x in xs:
-    poses = []
-    for a, b in nodes:
-        T = pin.exp6(pin.Motion(x[a:a + 6]))
-        q = pin.Quaternion(T.rotation)
-        poses.append(np.r_[T.translation, q.w, q.x, q.y, q.z])
-    base.append(poses)
-np.savez(out, stats=np.array(stats), base=np.array(base))
-"""
+from side_by_side import (  # noqa: E402  (the same task variants and the same driver of the public code)
+    CODE_COSTS,
+    DEFAULT_PEER_PYTHON,
+    DEFAULT_PEER_SRC,
+    PEER_SCRIPTS,
+    jtraj_label,
+    jtraj_task,
+    parse_changes,
+    peer_iterates,
+)
 
 
 def rows_of(stats: np.ndarray, base: np.ndarray, flip_axis, flip_turns) -> list[dict]:
@@ -94,26 +52,24 @@ def rows_of(stats: np.ndarray, base: np.ndarray, flip_axis, flip_turns) -> list[
         check = success.evaluate(b, flip_axis, flip_turns)
         rows.append(
             dict(
-                iter=int(it), objective=float(obj), inf_pr=float(inf_pr), inf_du=float(inf_du), mu=float(mu), alpha_pr=float(alpha_pr),
-                turns=check.turns, total_turns=check.total_turns, off_axis_share=check.off_axis_share, base_z_max=float(np.max(b[:, 2])),
+                iter=int(it),
+                objective=float(obj),
+                inf_pr=float(inf_pr),
+                inf_du=float(inf_du),
+                mu=float(mu),
+                alpha_pr=float(alpha_pr),
+                turns=check.turns,
+                total_turns=check.total_turns,
+                off_axis_share=check.off_axis_share,
+                base_z_max=float(np.max(b[:, 2])),
             )
         )
     return rows
 
 
 def run_peer(task: str, peer_src: Path, peer_python: Path, flip_axis, flip_turns) -> dict:
-    if not peer_python.exists():
-        raise FileNotFoundError(f"{peer_python} does not exist: run the public code's runner once (it creates its environment), or pass --peer-python")
-    script = peer_src / "examples" / "agile_exps" / f"{PEER_SCRIPTS[task]}.py"
-    with tempfile.TemporaryDirectory() as work:
-        out = Path(work) / "iterates.npz"
-        driver = Path(work) / "driver.py"
-        driver.write_text(PEER_DRIVER)
-        run = subprocess.run([str(peer_python), str(driver), str(script), str(out)], cwd=work, env=os.environ | {"PYTHONPATH": str(peer_src)}, capture_output=True, text=True)
-        if run.returncode != 0:
-            raise RuntimeError(f"the public code failed on {task}: {run.stderr[-800:]}")
-        d = np.load(out)
-        return dict(code="paper's code", knots=int(d["base"].shape[1]), rows=rows_of(d["stats"], d["base"], flip_axis, flip_turns))
+    d = peer_iterates(task, peer_src, peer_python)
+    return dict(code="paper's code", knots=int(d["base"].shape[1]), rows=rows_of(d["stats"], d["base"], flip_axis, flip_turns))
 
 
 def run_jtraj(task_name: str, variables: str, robots: dict[str, str], code_costs: bool, changes: dict[str, str] | None = None) -> dict:
@@ -133,11 +89,18 @@ def run_jtraj(task_name: str, variables: str, robots: dict[str, str], code_costs
 def render(runs: list[dict]) -> str:
     out = []
     for run in runs:
-        out += [f"**{run['code']}** ({run['knots']} knots)", "", "| iter | objective | inf_pr | inf_du | lg(mu) | alpha_pr | turns | total turns | off-axis share | max base z |", "|---|---|---|---|---|---|---|---|---|---|"]
+        out += [
+            f"**{run['code']}** ({run['knots']} knots)",
+            "",
+            "| iter | objective | inf_pr | inf_du | lg(mu) | alpha_pr | turns | total turns | off-axis share | max base z |",
+            "|---|---|---|---|---|---|---|---|---|---|",
+        ]
         for r in run["rows"]:
             turns = "" if r["turns"] is None else f"{r['turns']:.3f}"
             share = "" if r["off_axis_share"] is None else f"{r['off_axis_share']:.3f}"
-            out.append(f"| {r['iter']} | {r['objective']:.4g} | {r['inf_pr']:.2e} | {r['inf_du']:.2e} | {np.log10(r['mu']):.2f} | {r['alpha_pr']:.2e} | {turns} | {r['total_turns']:.3f} | {share} | {r['base_z_max']:.3f} |")
+            out.append(
+                f"| {r['iter']} | {r['objective']:.4g} | {r['inf_pr']:.2e} | {r['inf_du']:.2e} | {np.log10(r['mu']):.2f} | {r['alpha_pr']:.2e} | {turns} | {r['total_turns']:.3f} | {share} | {r['base_z_max']:.3f} |"
+            )
         out.append("")
     return "\n".join(out)
 
@@ -149,7 +112,10 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--code-costs", action="store_true", help=f"jtraj with the cost weights of the code's scripts ({CODE_COSTS})")
     ap.add_argument("--robot", action="append", default=[], metavar="ROBOT=OTHER")
     ap.add_argument(
-        "--set", action="append", default=[], metavar="FIELD=VALUE",
+        "--set",
+        action="append",
+        default=[],
+        metavar="FIELD=VALUE",
         help="replace a field of the variables' TranscriptionOptions, e.g. force_limits=rows (string fields)",
     )
     ap.add_argument("--peer-src", type=Path, default=DEFAULT_PEER_SRC)
