@@ -214,6 +214,12 @@ def run_jtraj(task: str, variables: str, sigma: float, seed: int, robots: dict[s
     )
 
 
+def _turned(row: dict) -> bool:
+    """The row's motion turns its task's number of turns about the flip axis (within
+    `jtraj.success.TURN_TOLERANCE`), however much of its rotation is off that axis."""
+    return abs(row["turns"] - load_task(row["task"]).flip_turns) <= success.TURN_TOLERANCE
+
+
 def _cell(rows: list[dict]) -> str:
     """'12' for one converged solve, '50, limit' when it stopped, 'k/n converged, median m' for draws."""
     if not rows:
@@ -229,7 +235,11 @@ def _cell(rows: list[dict]) -> str:
     conv = sorted(r["iterations"] for r in rows if r["converged"])
     med = f", median {conv[len(conv) // 2]}" if conv else ""
     # rows with the task check of their last iterate (the flips' draws): how many converged and did the task
-    done = f", {sum(bool(r['converged'] and r['task_ok']) for r in rows)} task done" if all("task_ok" in r for r in rows) else ""
+    done = ""
+    if all("task_ok" in r for r in rows):
+        done = f", {sum(bool(r['converged'] and r['task_ok']) for r in rows)} task done"
+        if all(r.get("turns") is not None for r in rows):  # a flip: also count the somersaults whatever their twist
+            done += f" ({sum(bool(r['converged'] and _turned(r)) for r in rows)} turned)"
     return f"{len(conv)}/{len(rows)} conv.{done}{med}"
 
 

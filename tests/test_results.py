@@ -102,11 +102,12 @@ def test_side_by_side_render_cells():
     assert lines[4] == "| walk | 0.5 |  | 1/2 conv., median 38 |  |"
     # draws checked for the task (noisy flips): converged and done, among all
     flips = [
-        dict(code="paper", task="backflip", sigma=0.1, seed=0, converged=True, iterations=40, task_ok=True),
-        dict(code="paper", task="backflip", sigma=0.1, seed=1, converged=True, iterations=30, task_ok=False),
-        dict(code="paper", task="backflip", sigma=0.1, seed=2, converged=False, iterations=200, task_ok=True),
+        dict(code="paper", task="backflip", sigma=0.1, seed=0, converged=True, iterations=40, task_ok=True, turns=-0.99),
+        dict(code="paper", task="backflip", sigma=0.1, seed=1, converged=True, iterations=30, task_ok=False, turns=-0.8),  # twisted
+        dict(code="paper", task="backflip", sigma=0.1, seed=2, converged=False, iterations=200, task_ok=True, turns=-1.0),
+        dict(code="paper", task="backflip", sigma=0.1, seed=3, converged=True, iterations=50, task_ok=False, turns=-0.5),  # half a turn
     ]
-    assert render(flips).splitlines()[2] == "| backflip | 0.1 |  | 2/3 conv., 1 task done, median 40 |"
+    assert render(flips).splitlines()[2] == "| backflip | 0.1 |  | 3/4 conv., 1 task done (2 turned), median 40 |"
 
 
 def test_side_by_side_jtraj_task_follows_robot_and_code_costs():
