@@ -121,6 +121,16 @@ class TranscriptionOptions:
             also where a point lifts off (``f_{k+1} = 0``): the push-off force must end below
             the bound, as in the study's code (`TerrainGridFrictionConstraints`). False bounds
             only knots where the point touches at k and k+1.
+        warm_start_quaternions: how the warm start writes a quaternion parameterization's rho
+            (Quaternion #1-#3; the others ignore it). ``"continuous"``: the quaternion carried
+            along the warm start's rotation, so a flip's warm start turns rho_0 into -rho_0
+            (the double cover) while the last knot is held at the target's rho_0.
+            ``"matrix"``: each knot's quaternion converted from its rotation matrix
+            (``SO3.from_matrix``, one sign per rotation as Eigen's and Pinocchio's conversions
+            choose). The study's code builds its warm starts through rotation matrices
+            (`rpy2rep`), so this sign changes mid-flip and the warm start ends at rho_0.
+            Measured on the back-flip (docs/reproduction.md, section 6): ``"matrix"`` takes
+            Quaternion #1 and #2 to the plain jump the paper reports.
     Both substitutions eliminate equality constraints exactly: the feasible trajectories are
     the same, the NLP is smaller.
     """
@@ -131,8 +141,11 @@ class TranscriptionOptions:
     liftoff_force_rate: bool = False
     force_limits: str = "bounds"
     contact_height: str = "bound"
+    warm_start_quaternions: str = "continuous"
 
     def __post_init__(self):
+        if self.warm_start_quaternions not in ("continuous", "matrix"):
+            raise ValueError(f"warm_start_quaternions={self.warm_start_quaternions!r}: expected 'continuous' or 'matrix'")
         if self.position_step not in ("next", "stepped"):
             raise ValueError(f"position_step={self.position_step!r}: expected 'next' or 'stepped'")
         if self.force_limits not in ("bounds", "rows"):
@@ -305,9 +318,14 @@ class Transcription:
             """Rotations Exp(axis_angle) R about world axes, batched."""
             return jax.vmap(lambda w, R: (lie.exp(SO3, w) @ SO3(R)).wxyz)(axis_angle, wxyz)
 
+        def from_matrix(wxyz):
+            """The quaternion a rotation-matrix conversion gives for each rotation, batched."""
+            return jax.vmap(lambda w: SO3.from_matrix(SO3(w).as_matrix()).wxyz)(wxyz)
+
         return dict(
             coords=jax.jit(self._coords),
             rotate=jax.jit(rotate),
+            from_matrix=jax.jit(from_matrix),
             fk=jax.jit(jax.vmap(self._fk)),
             initial=jax.jit(self._initial_xyz_wxyz),
             target=jax.jit(self._target_xyz_wxyz),
@@ -496,6 +514,8 @@ class Transcription:
         poses = np.tile(initial, (n_knots, 1))
         for axis, angles in self.task.warm_start_angles():
             poses[:, 3:] = np.asarray(host["rotate"](axis[None] * angles[:, None], poses[:, 3:]))
+        if self.options.warm_start_quaternions == "matrix" and self.param.name.startswith("quat"):
+            poses[:, 3:] = np.asarray(host["from_matrix"](poses[:, 3:]))
         qj = np.tile(np.asarray(theta.q_joints_standing, float), (n_knots, 1))
         placed = np.zeros(n_knots, bool)
         for rule in self.task.warm_start_joints:

@@ -396,3 +396,36 @@ def test_target_rotation_is_roll_pitch_yaw_about_world_axes():
     R0 = np.asarray(SO3(jnp.asarray(tr.initial_xyz_wxyz[3:])).as_matrix())
     np.testing.assert_allclose(np.asarray(SO3(jnp.asarray(target[3:])).as_matrix()), np.asarray(euler.rotation_matrix(rpy)) @ R0, atol=1e-14)
     np.testing.assert_allclose(target[:3], tr.initial_xyz_wxyz[:3] + np.asarray(HOP.target_translation), atol=1e-14)
+
+
+def test_warm_start_quaternions_from_rotation_matrices():
+    """A full turn in the warm start: carried along, Quaternion #1's rho ends at -rho_0 (the
+    double cover); converted from each knot's rotation matrix it changes sign mid-turn and ends
+    at rho_0, the same rotations. SE(3) tangent ignores the option."""
+    from jtraj import robot as robots
+    from jtraj.parameterization import get
+    from jtraj.task import Profile, RotationRule
+    from jtraj.transcription import Transcription
+
+    turn = dataclasses.replace(
+        HOP, phases=(HOP.phases[0], Phase((), 0.4), HOP.phases[2]), warm_start_rules=(RotationRule(Profile.RAMP, (0.0, 1.0, 0.0), -2 * np.pi, (1,)),)
+    )
+    go2 = robots.load("go2")
+    matrix = dataclasses.replace(PAPER_VARIABLES, warm_start_quaternions="matrix")
+
+    def rho(param, options):
+        tr = Transcription(go2, turn, get(param), options)
+        return tr.warm_start()[:, tr.layout.slice("q")][:, 3:7], tr
+
+    carried, tr = rho("quat1", PAPER_VARIABLES)
+    converted, _ = rho("quat1", matrix)
+    np.testing.assert_allclose(carried[-1], -carried[0], atol=1e-12)  # a full turn: -rho_0
+    np.testing.assert_allclose(converted[-1], carried[0], atol=1e-12)  # back at rho_0
+    assert np.all(np.abs(np.diff(carried, axis=0)) < 0.5)  # continuous along the turn
+    flipped = np.sum(carried * converted, axis=1) < 0
+    assert flipped.any() and not flipped.all()  # the sign changes partway
+    np.testing.assert_allclose(np.where(flipped[:, None], -converted, converted), carried, atol=1e-12)  # same rotations
+    np.testing.assert_allclose(converted[0], tr.target_xyz_wxyz[3:], atol=1e-12)  # the target's rho, as the last knot's bound
+    np.testing.assert_array_equal(rho("se3", matrix)[0], rho("se3", PAPER_VARIABLES)[0])  # its log winds through the turn
+    with pytest.raises(ValueError, match="warm_start_quaternions='sign'"):
+        dataclasses.replace(PAPER_VARIABLES, warm_start_quaternions="sign")
