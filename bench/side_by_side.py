@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import ast
 import dataclasses
+import functools
 import json
 import os
 import subprocess
@@ -54,6 +55,13 @@ TASKS = ("walk", "hopscotch", "big_jump", "handstand", "backflip", "sideflip")
 #: ``walk.py`` adds a configuration cost of 1e-6 (Table II: none), ``humanoid_flip.py`` weighs
 #: the back-flip's configuration cost 1e-6 (Table II: 1e-9).
 CODE_COSTS = {"walk": {"configuration_weight": 1e-6}, "backflip": {"configuration_weight": 1e-6}}
+
+
+@functools.cache
+def builtin_task(name: str) -> Task:
+    """The built-in task ``name`` (a frozen dataclass), parsed once: the table's cells and the
+    peer's checks look up its flip axis and turns row by row."""
+    return load_task(name)
 
 
 #: The public code's sources, beside its runner.
@@ -130,7 +138,7 @@ def run_peer_checked(task: str, sigma: float, seed: int, peer_src: Path = DEFAUL
     """One solve of the paper's code through `peer_iterates`, its last iterate's base motion
     put through jtraj's task check (`jtraj.success`): the row `run_peer` gives, with ``turns``,
     ``off_axis_share`` and ``task_ok``."""
-    problem = load_task(task)
+    problem = builtin_task(task)
     d = peer_iterates(task, peer_src, peer_python, sigma, seed)
     check = success.evaluate(d["base"][-1], problem.flip_axis, problem.flip_turns)
     st = d["peerstats"]
@@ -168,7 +176,7 @@ def run_peer(peer: Path, task: str, sigma: float, seed: int) -> dict:
 def jtraj_task(name: str, robots: dict[str, str], code_costs: bool) -> Task:
     """The task jtraj solves: the built-in one, on the robot ``robots`` maps its robot to, with
     the code's cost weights if ``code_costs``."""
-    task = retarget(load_task(name), robots)
+    task = retarget(builtin_task(name), robots)
     return dataclasses.replace(task, **CODE_COSTS.get(name, {})) if code_costs else task
 
 
@@ -217,7 +225,7 @@ def run_jtraj(task: str, variables: str, sigma: float, seed: int, robots: dict[s
 def _turned(row: dict) -> bool:
     """The row's motion turns its task's number of turns about the flip axis (within
     `jtraj.success.TURN_TOLERANCE`), however much of its rotation is off that axis."""
-    return abs(row["turns"] - load_task(row["task"]).flip_turns) <= success.TURN_TOLERANCE
+    return abs(row["turns"] - builtin_task(row["task"]).flip_turns) <= success.TURN_TOLERANCE
 
 
 def _cell(rows: list[dict]) -> str:
@@ -288,7 +296,7 @@ def main(argv: list[str] | None = None) -> None:
             # a flip's draw goes through the driver, whose last iterate the task check reads
             peer = (
                 (lambda task=task, seed=seed: run_peer_checked(task, args.sigma, seed, args.peer_src, args.peer_python))
-                if args.sigma and load_task(task).flip_axis is not None
+                if args.sigma and builtin_task(task).flip_axis is not None
                 else (lambda task=task, seed=seed: run_peer(Path(args.peer), task, args.sigma, seed))
             )
             jobs = ([("paper", peer)] if args.peer else []) + [
