@@ -130,7 +130,9 @@ class TranscriptionOptions:
             choose). The study's code builds its warm starts through rotation matrices
             (`rpy2rep`), so this sign changes mid-flip and the warm start ends at rho_0.
             Measured on the back-flip (docs/reproduction.md, section 6): ``"matrix"`` takes
-            Quaternion #1 and #2 to the plain jump the paper reports.
+            Quaternion #1 and #2 to the plain jump the paper reports. `PAPER_VARIABLES` uses
+            ``"matrix"``; tasks whose warm start turns less than half a turn get the same warm
+            start either way.
     Both substitutions eliminate equality constraints exactly: the feasible trajectories are
     the same, the NLP is smaller.
     """
@@ -158,9 +160,10 @@ class TranscriptionOptions:
             raise ValueError("position_step='stepped' writes the position row with a_k: it needs acceleration_variables=True")
 
 
-#: The study's public code: its variables per knot (q, v, a, f, c), its position row and its
-#: force-change bound at lift-off (docs/reproduction.md lists what else differs and why).
-PAPER_VARIABLES = TranscriptionOptions(position_step="stepped", liftoff_force_rate=True)
+#: The study's public code: its variables per knot (q, v, a, f, c), its position row, its
+#: force-change bound at lift-off and its warm start's quaternions written from rotation
+#: matrices (docs/reproduction.md lists what else differs and why).
+PAPER_VARIABLES = TranscriptionOptions(position_step="stepped", liftoff_force_rate=True, warm_start_quaternions="matrix")
 #: Contact positions substituted by forward kinematics: (q, v, a, f) at every knot.
 COMPACT_VARIABLES = TranscriptionOptions(contact_variables=False, acceleration_variables=True)
 #: Contact positions and accelerations substituted: (q, v, f) at every knot.

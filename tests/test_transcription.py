@@ -411,13 +411,15 @@ def test_warm_start_quaternions_from_rotation_matrices():
         HOP, phases=(HOP.phases[0], Phase((), 0.4), HOP.phases[2]), warm_start_rules=(RotationRule(Profile.RAMP, (0.0, 1.0, 0.0), -2 * np.pi, (1,)),)
     )
     go2 = robots.load("go2")
-    matrix = dataclasses.replace(PAPER_VARIABLES, warm_start_quaternions="matrix")
+    matrix = PAPER_VARIABLES  # the study's variables convert from matrices, as its code does
+    continuous = dataclasses.replace(PAPER_VARIABLES, warm_start_quaternions="continuous")
+    assert matrix.warm_start_quaternions == "matrix"
 
     def rho(param, options):
         tr = Transcription(go2, turn, get(param), options)
         return tr.warm_start()[:, tr.layout.slice("q")][:, 3:7], tr
 
-    carried, tr = rho("quat1", PAPER_VARIABLES)
+    carried, tr = rho("quat1", continuous)
     converted, _ = rho("quat1", matrix)
     np.testing.assert_allclose(carried[-1], -carried[0], atol=1e-12)  # a full turn: -rho_0
     np.testing.assert_allclose(converted[-1], carried[0], atol=1e-12)  # back at rho_0
@@ -426,6 +428,6 @@ def test_warm_start_quaternions_from_rotation_matrices():
     assert flipped.any() and not flipped.all()  # the sign changes partway
     np.testing.assert_allclose(np.where(flipped[:, None], -converted, converted), carried, atol=1e-12)  # same rotations
     np.testing.assert_allclose(converted[0], tr.target_xyz_wxyz[3:], atol=1e-12)  # the target's rho, as the last knot's bound
-    np.testing.assert_array_equal(rho("se3", matrix)[0], rho("se3", PAPER_VARIABLES)[0])  # its log winds through the turn
+    np.testing.assert_array_equal(rho("se3", matrix)[0], rho("se3", continuous)[0])  # its log winds through the turn
     with pytest.raises(ValueError, match="warm_start_quaternions='sign'"):
         dataclasses.replace(PAPER_VARIABLES, warm_start_quaternions="sign")
