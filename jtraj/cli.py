@@ -418,6 +418,9 @@ def _check_ipopt(items: list[str] | None, solver: str = "ipopt", field: str = "-
     elif options:
         from jtraj import solvers
 
+        # jtraj's options take None where a feature can be off (e.g. feasibility_polish_tol=none);
+        # Ipopt's string options take "none" as a value of their own, so only here
+        options = {k: None if isinstance(v, str) and v.lower() == "none" else v for k, v in options.items()}
         try:
             solvers.get(solver).options(options)
         except (TypeError, ValueError) as err:

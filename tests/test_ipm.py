@@ -316,3 +316,42 @@ def test_second_order_corrections_let_the_full_step_through():
         assert sol.history[1].alpha_pr == ref.history[1].alpha_pr == (0.5 if max_soc == 0 else 1.0)
         runs[max_soc] = sol.stats.iterations
     assert runs[4] < runs[0]
+
+
+def test_feasibility_polish_after_a_loose_convergence_test():
+    """Converged at a loose violation limit, the solve goes on while the violation is above
+    feasibility_polish_tol (at most feasibility_polish_iter iterations, never past max_iter),
+    returns a converged iterate whatever happens, and does the same under vmap."""
+    nlp = double_integrator()
+    loose = IpmOptions(tol=1e-2, constr_viol_tol=1e-2, compl_inf_tol=1e-2, max_iter=100, feasibility_polish_tol=None)
+    x0 = jnp.zeros((K, 3))
+    plain = IPM(nlp, loose).solve(x0, None)
+    n, v = int(plain.iterations), float(plain.constr_viol)
+    assert int(plain.status) == IpmStatus.CONVERGED and 1e-12 < v < 1e-2
+    history = np.asarray(plain.history)[: n + 1]
+
+    polished = IPM(nlp, dataclasses.replace(loose, feasibility_polish_tol=v / 10)).solve(x0, None)
+    assert int(polished.status) == IpmStatus.CONVERGED
+    assert int(polished.iterations) > n and float(polished.constr_viol) <= v / 10
+    np.testing.assert_array_equal(np.asarray(polished.history)[: n + 1], history)  # the same run up to there
+    assert nlp.violation(np.asarray(polished.x).reshape(-1)) <= v / 10 * (1 + 1e-9)
+
+    # an unreachable tolerance: exactly feasibility_polish_iter more iterations, the lower violation kept
+    capped = IPM(nlp, dataclasses.replace(loose, feasibility_polish_tol=1e-300, feasibility_polish_iter=2)).solve(x0, None)
+    assert int(capped.status) == IpmStatus.CONVERGED and int(capped.iterations) == n + 2
+    assert float(capped.constr_viol) <= v
+
+    # converged at the iteration limit: nothing to polish with
+    at_limit = IPM(nlp, dataclasses.replace(loose, feasibility_polish_tol=1e-300, max_iter=n)).solve(x0, None)
+    assert int(at_limit.status) == IpmStatus.CONVERGED and int(at_limit.iterations) == n
+    assert float(at_limit.constr_viol) == v
+
+    ipm = IPM(nlp, dataclasses.replace(loose, feasibility_polish_tol=v / 10))
+    starts = jnp.stack([x0, x0.at[1:-1, 0].set(0.5)])
+    batched = jax.jit(jax.vmap(ipm.solve, in_axes=(0, None)))(starts, None)
+    for i in range(2):
+        one = ipm.solve(starts[i], None)
+        assert int(batched.iterations[i]) == int(one.iterations) and int(batched.status[i]) == int(one.status)
+        np.testing.assert_allclose(np.asarray(batched.x[i]), np.asarray(one.x), atol=1e-8)
+    with pytest.raises(solvers.InvalidOptionError, match="feasibility_polish_tol"):
+        IpmOptions(feasibility_polish_tol=0.0)

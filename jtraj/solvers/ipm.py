@@ -167,6 +167,15 @@ class IpmOptions(AbstractOptions):
         bfgs_scaling: rescale each element's initial matrix by its first curvature pair.
         lbfgs_memory, lbfgs_init_val, lbfgs_init_min, lbfgs_init_max: Ipopt's
             ``limited_memory_max_history`` and ``limited_memory_init_val(_min, _max)``.
+        feasibility_polish_tol, feasibility_polish_iter: once an iterate passes the
+            convergence test with a constraint violation above ``feasibility_polish_tol``
+            (default 1e-6; None: off), up to ``feasibility_polish_iter`` more iterations are
+            taken while the violation stays above it; the solve returns the first of those
+            that gets below it, else whichever converged iterate has the lower violation
+            (always a converged one: a polishing iteration that fails the convergence test,
+            fails its line search or reaches ``max_iter`` hands back the first converged
+            iterate). Ipopt has no such step; the convergence test itself is Ipopt's. Measured
+            on the G1 side-flip: 1.2e-6 at convergence, 5.8e-11 one iteration later.
         lbfgs_max_skipping: Ipopt's ``limited_memory_max_skipping``: after this many
             successive pairs skipped for want of curvature, the next iteration forgets the
             memory and restarts from ``lbfgs_init_val`` times the identity (on the whole-body
@@ -220,6 +229,8 @@ class IpmOptions(AbstractOptions):
     quality_function_section_sigma_tol: float = 1e-2
     adaptive_mu_kkterror_red_fact: float = 0.9999
     adaptive_mu_monotone_init_factor: float = 0.8
+    feasibility_polish_tol: float | None = 1e-6
+    feasibility_polish_iter: int = 5
 
     solver_name: ClassVar[str] = "jtraj"
 
@@ -235,8 +246,8 @@ class IpmOptions(AbstractOptions):
         _positive(self, "tol", "constr_viol_tol", "dual_inf_tol", "compl_inf_tol", "mu_init", "delta_c")
         if isinstance(self.residual_ratio_max, bool) or not isinstance(self.residual_ratio_max, (int, float)) or not self.residual_ratio_max >= 0:
             raise InvalidOptionError(f"jtraj option residual_ratio_max={self.residual_ratio_max!r}: expected a number >= 0")
-        _positive(self, "mu_max", allow_none=True)
-        for name in ("max_iter", "refine_steps", "min_refine_steps", "max_line_search", "max_line_search_failures", "lbfgs_memory", "lbfgs_max_skipping", "max_soc", "quality_function_max_section_steps"):
+        _positive(self, "mu_max", "feasibility_polish_tol", allow_none=True)
+        for name in ("feasibility_polish_iter", "max_iter", "refine_steps", "min_refine_steps", "max_line_search", "max_line_search_failures", "lbfgs_memory", "lbfgs_max_skipping", "max_soc", "quality_function_max_section_steps"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
                 raise InvalidOptionError(f"jtraj option {name}={value!r}: expected an integer >= 0")
@@ -548,12 +559,35 @@ class IPM:
             st, passes = carry
             return (st.status == int(IpmStatus.RUNNING)) & (passes < self._max_passes)
 
-        def body(carry):
-            st, passes = carry
-            return self._iteration(p, st, passes, theta)
+        o = self.options
+        if o.feasibility_polish_tol is None:
 
-        st, passes = lax.while_loop(cond, body, (st, jnp.zeros((), jnp.int32)))
-        return self._finish(p, st, passes)
+            def body(carry):
+                st, passes = carry
+                return self._iteration(p, st, passes, theta)
+
+            st, passes = lax.while_loop(cond, body, (st, jnp.zeros((), jnp.int32)))
+            return self._finish(p, st, passes)
+
+        # feasibility polish (IpmOptions.feasibility_polish_tol): the first converged iterate
+        # above the tolerance is kept aside while up to feasibility_polish_iter more are taken
+        converged = int(IpmStatus.CONVERGED)
+        pick = lambda flag, a, b: jax.tree.map(lambda u, v: jnp.where(flag, u, v), a, b)  # noqa: E731
+
+        def polish_body(carry):
+            st, passes, saved, has_saved = carry
+            new, passes = self._iteration(p, st, passes, theta)
+            loose = (new.status == converged) & (self._constr_viol(p, new.c) > o.feasibility_polish_tol)
+            keep = loose & ~has_saved
+            saved, has_saved = pick(keep, new, saved), has_saved | keep
+            more = loose & (new.it - saved.it < o.feasibility_polish_iter) & (new.it < o.max_iter)
+            return new._replace(status=jnp.where(more, int(IpmStatus.RUNNING), new.status).astype(jnp.int32)), passes, saved, has_saved
+
+        st, passes, saved, has_saved = lax.while_loop(
+            lambda carry: cond(carry[:2]), polish_body, (st, jnp.zeros((), jnp.int32), st, jnp.asarray(False))
+        )
+        back = has_saved & ((st.status != converged) | (self._constr_viol(p, saved.c) < self._constr_viol(p, st.c)))
+        return self._finish(p, pick(back, saved, st), passes)
 
     @property
     def _max_passes(self) -> int:
