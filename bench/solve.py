@@ -157,7 +157,8 @@ def markdown(records: list[dict]) -> str:
     loads = [x for r in records for x in (r.get("machine", {}).get("load_1min"), r.get("load_1min_after")) if x is not None]
     if loads:
         cpus = records[0].get("machine", {}).get("cpus")
-        lines.append(f"\nMachine: {cpus} CPUs, 1-minute load average {min(loads):.1f} to {max(loads):.1f} during these runs (the public code and jtraj ran one after the other).")
+        order = " (the public code and jtraj ran one after the other)" if with_peer else ""
+        lines.append(f"\nMachine: {cpus} CPUs, 1-minute load average {min(loads):.1f} to {max(loads):.1f} during these runs{order}.")
     if with_peer:
         lines.append("\nCost and violation: jtraj's objective and largest violation of a constraint or bound (unscaled); the peer's are the final objective and constraint violation in its Ipopt log (Ipopt's scaled values).")
     return "\n".join(lines) + "\n"
