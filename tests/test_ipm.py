@@ -341,6 +341,16 @@ def test_feasibility_polish_after_a_loose_convergence_test():
     assert int(capped.status) == IpmStatus.CONVERGED and int(capped.iterations) == n + 2
     assert float(capped.constr_viol) <= v
 
+    # the polishing iteration after iteration 4 fails the convergence test (the dual
+    # infeasibility jumps from 0.016 to 0.31): iteration 4 comes back, after one more evaluation
+    early = dataclasses.replace(loose, tol=0.05, compl_inf_tol=1.0)
+    first = IPM(nlp, early).solve(x0, None)
+    assert int(first.iterations) == 4 and 1e-9 < float(first.constr_viol) < 1e-8
+    handed_back = IPM(nlp, dataclasses.replace(early, feasibility_polish_tol=1e-9)).solve(x0, None)
+    assert int(handed_back.status) == IpmStatus.CONVERGED and int(handed_back.iterations) == 4
+    assert int(handed_back.passes) > int(first.passes)
+    np.testing.assert_array_equal(np.asarray(handed_back.x), np.asarray(first.x))
+
     # converged at the iteration limit: nothing to polish with
     at_limit = IPM(nlp, dataclasses.replace(loose, feasibility_polish_tol=1e-300, max_iter=n)).solve(x0, None)
     assert int(at_limit.status) == IpmStatus.CONVERGED and int(at_limit.iterations) == n

@@ -575,18 +575,24 @@ class IPM:
         pick = lambda flag, a, b: jax.tree.map(lambda u, v: jnp.where(flag, u, v), a, b)  # noqa: E731
 
         def polish_body(carry):
-            st, passes, saved, has_saved = carry
+            st, passes, saved, polishing = carry
             new, passes = self._iteration(p, st, passes, theta)
             loose = (new.status == converged) & (self._constr_viol(p, new.c) > o.feasibility_polish_tol)
-            keep = loose & ~has_saved
-            saved, has_saved = pick(keep, new, saved), has_saved | keep
+            keep = loose & ~polishing
+            saved = pick(keep, new, saved)
+            # a polishing iteration that fails the convergence test (or its line search, or
+            # reaches max_iter) hands back the converged iterate kept aside, which ends the loop
+            back = polishing & (new.status != converged)
             more = loose & (new.it - saved.it < o.feasibility_polish_iter) & (new.it < o.max_iter)
-            return new._replace(status=jnp.where(more, int(IpmStatus.RUNNING), new.status).astype(jnp.int32)), passes, saved, has_saved
+            new = pick(back, saved, new)
+            return new._replace(status=jnp.where(more, int(IpmStatus.RUNNING), new.status).astype(jnp.int32)), passes, saved, polishing | keep
 
-        st, passes, saved, has_saved = lax.while_loop(
+        st, passes, saved, polishing = lax.while_loop(
             lambda carry: cond(carry[:2]), polish_body, (st, jnp.zeros((), jnp.int32), st, jnp.asarray(False))
         )
-        back = has_saved & ((st.status != converged) | (self._constr_viol(p, saved.c) < self._constr_viol(p, st.c)))
+        # polished to the limit without reaching the tolerance: the converged iterate of lower
+        # violation (the loop also ends, RUNNING, when the evaluation bound is reached)
+        back = polishing & ((st.status != converged) | (self._constr_viol(p, saved.c) < self._constr_viol(p, st.c)))
         return self._finish(p, pick(back, saved, st), passes)
 
     @property
