@@ -93,6 +93,13 @@ def test_real_options_accept_integers():
     assert type(options["tol"]) is float and type(options["max_iter"]) is int
 
 
+def test_none_turns_off_a_jtraj_option_and_stays_a_word_for_ipopt():
+    assert cli._check_ipopt(["feasibility_polish_tol=none", "feasibility_polish_iter=3"], solver="jtraj") == {"feasibility_polish_tol": None, "feasibility_polish_iter": 3}
+    assert cli._check_ipopt(["nlp_scaling_method=none"]) == {"nlp_scaling_method": "none"}
+    with pytest.raises(cli.InputError, match="feasibility_polish_tol=0: expected a positive number"):
+        cli._check_ipopt(["feasibility_polish_tol=0"], solver="jtraj")
+
+
 @pytest.mark.parametrize("converged, success, code", [(True, True, 0), (True, False, cli.EXIT_TASK_FAILED), (False, False, cli.EXIT_NOT_CONVERGED)])
 def test_solve_exit_status_says_what_happened(converged, success, code, monkeypatch, tmp_path, capsys):
     import jtraj.plots
