@@ -131,8 +131,8 @@ class TranscriptionOptions:
             (`rpy2rep`), so this sign changes mid-flip and the warm start ends at rho_0.
             Measured on the back-flip (docs/reproduction.md, section 6): ``"matrix"`` takes
             Quaternion #1 and #2 to the plain jump the paper reports. `PAPER_VARIABLES` uses
-            ``"matrix"``; tasks whose warm start turns less than half a turn get the same warm
-            start either way.
+            ``"matrix"``; a warm start that turns less than half a turn gets the same quaternions
+            either way, to rounding (bitwise on the walk, hopscotch and big_jump).
     Both substitutions eliminate equality constraints exactly: the feasible trajectories are
     the same, the NLP is smaller.
     """

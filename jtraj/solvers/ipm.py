@@ -167,6 +167,11 @@ class IpmOptions(AbstractOptions):
         bfgs_scaling: rescale each element's initial matrix by its first curvature pair.
         lbfgs_memory, lbfgs_init_val, lbfgs_init_min, lbfgs_init_max: Ipopt's
             ``limited_memory_max_history`` and ``limited_memory_init_val(_min, _max)``.
+        lbfgs_max_skipping: Ipopt's ``limited_memory_max_skipping``: after this many
+            successive pairs skipped for want of curvature, the next iteration forgets the
+            memory and restarts from ``lbfgs_init_val`` times the identity (on the whole-body
+            tasks' first iterations almost every pair is skipped, and Ipopt restarts every
+            third iteration).
         feasibility_polish_tol, feasibility_polish_iter: once an iterate passes the
             convergence test with a constraint violation above ``feasibility_polish_tol``
             (default 1e-6; None: off), up to ``feasibility_polish_iter`` more iterations are
@@ -176,11 +181,6 @@ class IpmOptions(AbstractOptions):
             fails its line search or reaches ``max_iter`` hands back the first converged
             iterate). Ipopt has no such step; the convergence test itself is Ipopt's. Measured
             on the G1 side-flip: 1.2e-6 at convergence, 5.8e-11 one iteration later.
-        lbfgs_max_skipping: Ipopt's ``limited_memory_max_skipping``: after this many
-            successive pairs skipped for want of curvature, the next iteration forgets the
-            memory and restarts from ``lbfgs_init_val`` times the identity (on the whole-body
-            tasks' first iterations almost every pair is skipped, and Ipopt restarts every
-            third iteration).
     """
 
     tol: float = 1e-3
