@@ -147,14 +147,18 @@ def test_low_rank_hessian_term_equals_dense_solve(rng):
     np.testing.assert_allclose(np.asarray(dy).reshape(-1), ref[nf:], rtol=1e-8, atol=1e-8)
 
 
-def sparse_system(rng, K=6, n=5, m=7):
+def sparse_system(rng, K=6, n=5, m=7, b_cols=None):
     """A random system whose A and B have a sparsity pattern (one dense row slot in A, sparse
-    rows elsewhere, B on some rows only), with that pattern; the element Hessians are None."""
+    rows elsewhere, B on some rows only, and on the columns ``b_cols`` only if given), with
+    that pattern; the element Hessians are None."""
     system = random_system(rng, K, n, m)
     mask_a = rng.uniform(size=(K, m, n)) < 0.3
     mask_a[:, 2, :] = True  # a dense row slot, as the dynamics rows are
     mask_a[:, np.arange(m), np.arange(m) % n] = True  # no empty row (the dense KKT stays regular)
     mask_b = (rng.uniform(size=(K, m, n)) < 0.3) & (np.arange(m)[None, :, None] < 4)
+    if b_cols is not None:
+        mask_b &= np.isin(np.arange(n), b_cols)[None, None, :]
+        mask_b[:-1, 0, b_cols] = True  # every listed column is read
     mask_b[-1] = False
     knot, slot, col = np.nonzero(np.concatenate([mask_a, mask_b], axis=2))
     A = np.where(mask_a, np.asarray(system.A), 0.0)
@@ -198,6 +202,50 @@ def test_kkt_solve_with_pattern_equals_dense_solve(rng):
     r_x, r_c = rng.normal(size=(K, n)), rng.normal(size=(K, m))
     dx, dy = jax.jit(kkt.solve)(system, fac, delta_w, jnp.asarray(1e-9), jnp.asarray(r_x), jnp.asarray(r_c))
     M, keep = dense_kkt(dense_system._replace(H=jnp.zeros((K, 2 * n, 2 * n))), float(delta_w))
+    ref = np.linalg.solve(M, np.concatenate([r_x.reshape(-1)[keep], r_c.reshape(-1)]))
+    np.testing.assert_allclose(np.asarray(dx).reshape(-1)[keep], ref[: keep.sum()], rtol=1e-8, atol=1e-8)
+    np.testing.assert_allclose(np.asarray(dy).reshape(-1), ref[keep.sum() :], rtol=1e-8, atol=1e-8)
+
+
+def test_factor_on_the_coupled_columns_equals_the_whole_factor(rng):
+    """When rows read only some columns of the next knot (the integration rows read its
+    configuration and velocity, not its accelerations), the factor keeps only those rows of
+    L[k+1, k]: the same factor as the whole one (whose other rows are zero), the same solves,
+    and the whole KKT solve (with a limited-memory term) still equals the dense one."""
+    K, m, n = 6, 7, 6
+    cols = np.array([1, 3, 4])
+    system, args = sparse_system(rng, K, n, m, b_cols=cols)
+    pattern = kkt.JacobianPattern(*args)
+    np.testing.assert_array_equal(pattern.coupled, cols)
+    np.testing.assert_array_equal(kkt.coupled_columns(pattern, block_hessian=False), cols)
+    assert kkt.coupled_columns(pattern, block_hessian=True) is None
+    assert kkt.coupled_columns(None, block_hessian=False) is None
+    d = jnp.asarray(rng.uniform(0.5, 2.0, size=(K, m)))
+    diag, upper = kkt.condensed_blocks(system, d, jnp.asarray(0.1))
+    np.testing.assert_array_equal(np.asarray(upper)[:, :, np.setdiff1d(np.arange(n), cols)], 0.0)
+    whole, ok = kkt.factor(diag, upper)
+    part, ok_part = jax.jit(lambda a, b: kkt.factor(a, b, cols))(diag, upper)
+    assert bool(ok) and bool(ok_part) and part.sub.shape == (K, cols.size, n)
+    np.testing.assert_allclose(part.diag, whole.diag, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(part.sub, np.asarray(whole.sub)[:, cols], rtol=1e-12, atol=1e-12)
+    np.testing.assert_array_equal(np.asarray(whole.sub)[:, np.setdiff1d(np.arange(n), cols)], 0.0)
+    # the columns alone (K, n, c) give the same factor as the whole blocks
+    same, _ = kkt.factor(diag, upper[:, :, cols], cols)
+    np.testing.assert_array_equal(same.sub, part.sub)
+    b = jnp.asarray(rng.normal(size=(K, n)))
+    np.testing.assert_allclose(kkt.solve_factored(part, b, cols), kkt.solve_factored(whole, b), rtol=1e-10, atol=1e-12)
+    # the whole KKT solve through the pattern, with a limited-memory term, against the dense one
+    sys_p = system._replace(A=pattern.values(system.A, system.B), B=None, pattern=pattern)
+    fac, delta_w, ok = jax.jit(kkt.factor_with_correction)(sys_p, jnp.asarray(1e-9), jnp.asarray(0.0))
+    assert bool(ok) and fac.sub.shape == (K, cols.size, n)
+    W = jnp.asarray(rng.normal(size=(2, K, n)) * 0.1)
+    low_rank = kkt.LowRank(W=W, M=jnp.asarray(np.diag([4.0, 5.0])))
+    r_x, r_c = rng.normal(size=(K, n)), rng.normal(size=(K, m))
+    dx, dy = jax.jit(kkt.solve)(sys_p, fac, delta_w, jnp.asarray(1e-9), jnp.asarray(r_x), jnp.asarray(r_c), low_rank=low_rank)
+    Wd = np.asarray(W).reshape(2, -1)
+    H_low = -Wd.T @ np.linalg.solve(np.asarray(low_rank.M), Wd)
+    M, keep = dense_kkt(system._replace(H=jnp.zeros((K, 2 * n, 2 * n))), float(delta_w))
+    M[: keep.sum(), : keep.sum()] += H_low[np.ix_(keep, keep)]
     ref = np.linalg.solve(M, np.concatenate([r_x.reshape(-1)[keep], r_c.reshape(-1)]))
     np.testing.assert_allclose(np.asarray(dx).reshape(-1)[keep], ref[: keep.sum()], rtol=1e-8, atol=1e-8)
     np.testing.assert_allclose(np.asarray(dy).reshape(-1), ref[keep.sum() :], rtol=1e-8, atol=1e-8)

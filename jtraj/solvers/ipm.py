@@ -521,6 +521,8 @@ class IPM:
         zx, zc = jnp.zeros((K, n)), jnp.zeros((K, m))
         ones_x, ones_c = jnp.ones((K, n)), jnp.ones((K, m))
         zero = jnp.zeros(())
+        # the factor's off-diagonal rows: all n, or the coupled columns (`kkt.factor`)
+        coupled = kkt.coupled_columns(view.pattern, block_hessian=o.hessian != "lbfgs")
         st = _State(
             x=Z, s=zc, y=zc,
             zl=jnp.where(p.has_xl, ones_x, 0.0), zu=jnp.where(p.has_xu, ones_x, 0.0),
@@ -537,7 +539,7 @@ class IPM:
             H=jnp.broadcast_to(o.bfgs_init * jnp.eye(2 * n), (K, 2 * n, 2 * n)) if o.hessian == "bfgs" else jnp.zeros((K, 2 * n, 2 * n)) if o.hessian == "exact" else jnp.zeros((0,)), scaled=jnp.zeros((K,), bool), delta_w=zero,
             S=jnp.zeros((l, K, n)), Y=jnp.zeros((l, K, n)), used=jnp.zeros((l,), bool), lsigma=jnp.asarray(o.lbfgs_init_val),
             lskip=jnp.zeros((), jnp.int32),
-            fac_diag=jnp.zeros((K, n, n)), fac_sub=jnp.zeros((K, n, n)), delta_c=zero,
+            fac_diag=jnp.zeros((K, n, n)), fac_sub=jnp.zeros((K, n if coupled is None else coupled.size, n)), delta_c=zero,
             first=jnp.asarray(True), it=jnp.zeros((), jnp.int32),
             status=jnp.asarray(int(IpmStatus.RUNNING), jnp.int32), ls_fail=jnp.zeros((), jnp.int32),
             history=jnp.full((o.max_iter + 1, 5), jnp.nan),

@@ -47,6 +47,7 @@ __all__ = [
     "BlockFactor",
     "condensed_blocks",
     "factor",
+    "coupled_columns",
     "solve_factored",
     "factor_with_correction",
     "solve",
@@ -126,6 +127,9 @@ class JacobianPattern:
         self._a = (i32(ra * n + ca), i32(ra), i32(ka * n + ca))
         self._b = (i32(rb * n + cb), i32(rb), i32((kb + 1) * n + cb))
         self.n_a = int(ka.size)
+        #: the columns of a knot that rows of the knot before read (B's columns, over all
+        #: knots): the only columns of the condensed matrix's off-diagonal blocks (`factor`)
+        self.coupled = np.unique(cb).astype(np.int32)
         #: the (K * m) stage row of every nonzero, in the vector's order
         self.rows = i32(np.concatenate([ra, rb]))
         #: the flat key (knot m + slot) 2n + column of every nonzero, in the vector's order
@@ -242,10 +246,10 @@ def _low_rank_apply(low_rank: LowRank, x: jax.Array) -> jax.Array:
 
 class BlockFactor(NamedTuple):
     """Block Cholesky factor of a block-tridiagonal matrix: ``L[k,k] = diag[k]``, ``L[k,k-1] =
-    sub[k]`` (sub[0] = 0)."""
+    sub[k]`` (sub[0] = 0), or, factored with ``coupled`` columns (`factor`), those rows of it."""
 
     diag: jax.Array  # (K, n, n) lower triangular
-    sub: jax.Array  # (K, n, n)
+    sub: jax.Array  # (K, n, n), or (K, c, n) with c coupled columns
 
 
 class InertiaOptions(NamedTuple):
@@ -293,32 +297,68 @@ def condensed_blocks(system: KKTSystem, d: jax.Array, delta_w: jax.Array) -> tup
     return diag, upper
 
 
-def factor(diag: jax.Array, upper: jax.Array) -> tuple[BlockFactor, jax.Array]:
+def coupled_columns(pattern: JacobianPattern | None, block_hessian: bool) -> np.ndarray | None:
+    """The static columns of the next knot in which the condensed matrix's off-diagonal blocks
+    can be nonzero (`JacobianPattern.coupled`), or None for all of them: with a pattern and no
+    block Hessian (whose element blocks couple every column), when they are fewer than n."""
+    if pattern is None or block_hessian or pattern.coupled.size >= pattern.n:
+        return None
+    return pattern.coupled
+
+
+def factor(diag: jax.Array, upper: jax.Array, coupled: np.ndarray | None = None) -> tuple[BlockFactor, jax.Array]:
     """Block Cholesky of the symmetric block-tridiagonal matrix (diag, upper); returns the
-    factor and whether it succeeded (the matrix is numerically positive definite)."""
+    factor and whether it succeeded (the matrix is numerically positive definite).
 
-    def step(sub_k, blocks):
-        D_k, U_k = blocks
-        S = D_k - sub_k @ sub_k.T
-        L_k = jnp.linalg.cholesky(S)
-        # L[k+1, k] = U_k^T L_k^-T
-        sub_next = solve_triangular(L_k, U_k, lower=True).T
-        return sub_next, (L_k, sub_k)
-
+    ``coupled`` (static, c of the n columns): the only columns in which the blocks ``upper``
+    may be nonzero (`coupled_columns`). Then ``L[k+1, k] = upper[k]^T L_k^-T`` is nonzero on
+    those rows only, and the factor keeps them alone (``sub`` (K, c, n)): the off-diagonal
+    solve costs n^2 c instead of n^3 and the Schur update ``L[k+1,k] L[k+1,k]^T`` c^2 n instead
+    of n^3 (the walk: c = 88 of n = 156). ``upper`` may be given whole (K, n, n) or as those
+    columns (K, n, c)."""
     n = diag.shape[-1]
-    _, (L, sub) = lax.scan(step, jnp.zeros((n, n), diag.dtype), (diag, upper))
+    if coupled is None:
+
+        def step(sub_k, blocks):
+            D_k, U_k = blocks
+            S = D_k - sub_k @ sub_k.T
+            L_k = jnp.linalg.cholesky(S)
+            # L[k+1, k] = U_k^T L_k^-T
+            sub_next = solve_triangular(L_k, U_k, lower=True).T
+            return sub_next, (L_k, sub_k)
+
+        sub0 = jnp.zeros((n, n), diag.dtype)
+    else:
+        cols = np.asarray(coupled)
+        if upper.shape[-1] != cols.size:
+            upper = upper[:, :, cols]
+
+        def step(sub_k, blocks):
+            D_k, U_k = blocks
+            S = D_k.at[cols[:, None], cols[None, :]].add(-(sub_k @ sub_k.T))
+            L_k = jnp.linalg.cholesky(S)
+            sub_next = solve_triangular(L_k, U_k, lower=True).T  # (c, n): L[k+1, k]'s rows `cols`
+            return sub_next, (L_k, sub_k)
+
+        sub0 = jnp.zeros((cols.size, n), diag.dtype)
+    _, (L, sub) = lax.scan(step, sub0, (diag, upper))
     pivots = jnp.diagonal(L, axis1=1, axis2=2)
     ok = jnp.all(jnp.isfinite(L)) & jnp.all(pivots > 0.0)
     return BlockFactor(L, sub), ok
 
 
-def solve_factored(fac: BlockFactor, b: jax.Array) -> jax.Array:
-    """``M^-1 b`` for b of shape (K, n), by a forward and a backward block sweep."""
+def solve_factored(fac: BlockFactor, b: jax.Array, coupled: np.ndarray | None = None) -> jax.Array:
+    """``M^-1 b`` for b of shape (K, n), by a forward and a backward block sweep; ``coupled``
+    as given to `factor`."""
     L, sub = fac
+    cols = None if coupled is None else np.asarray(coupled)
+    # L[k,k-1] y_{k-1} and L[k+1,k]^T x_{k+1}, with L[k,k-1] whole or as its rows `cols`
+    below = (lambda S, y: S @ y) if cols is None else (lambda S, y: jnp.zeros(S.shape[1], y.dtype).at[cols].set(S @ y))
+    above = (lambda S, x: S.T @ x) if cols is None else (lambda S, x: S.T @ x[cols])
 
     def forward(y_prev, inp):
         L_k, S_k, b_k = inp
-        y = solve_triangular(L_k, b_k - S_k @ y_prev, lower=True)
+        y = solve_triangular(L_k, b_k - below(S_k, y_prev), lower=True)
         return y, y
 
     _, y = lax.scan(forward, jnp.zeros_like(b[0]), (L, sub, b))
@@ -327,7 +367,7 @@ def solve_factored(fac: BlockFactor, b: jax.Array) -> jax.Array:
 
     def backward(x_next, inp):
         L_k, S_next, y_k = inp
-        x = solve_triangular(L_k, y_k - S_next.T @ x_next, lower=True, trans="T")
+        x = solve_triangular(L_k, y_k - above(S_next, x_next), lower=True, trans="T")
         return x, x
 
     _, x = lax.scan(backward, jnp.zeros_like(b[0]), (L, sub_next, y), reverse=True)
@@ -347,8 +387,10 @@ def factor_with_correction(
     d = system.d0 + delta_c
     n = system.sigma.shape[1]
     # one factorization in the program (attempt 0 is delta_w = 0), to keep compile time low
-    zeros = jnp.zeros((system.sigma.shape[0], n, n), system.sigma.dtype)
-    empty = BlockFactor(zeros, zeros)
+    coupled = coupled_columns(system.pattern, system.H is not None)
+    K = system.sigma.shape[0]
+    zeros = jnp.zeros((K, n, n), system.sigma.dtype)
+    empty = BlockFactor(zeros, zeros if coupled is None else jnp.zeros((K, coupled.size, n), zeros.dtype))
 
     def cond(state):
         _, ok, dw, i = state
@@ -359,7 +401,7 @@ def factor_with_correction(
         first = jnp.where(delta_w_last == 0.0, options.delta_w_first, jnp.maximum(options.delta_w_min, options.kappa_minus * delta_w_last))
         grow = jnp.where(delta_w_last == 0.0, options.kappa_plus_first, options.kappa_plus) * dw
         dw_new = jnp.where(i == 0, 0.0, jnp.where(i == 1, first, grow))
-        fac, ok = factor(*condensed_blocks(system, d, dw_new))
+        fac, ok = factor(*condensed_blocks(system, d, dw_new), coupled=coupled)
         return fac, ok, dw_new, i + 1
 
     fac, ok, dw, _ = lax.while_loop(cond, body, (empty, jnp.asarray(False), jnp.zeros(()), jnp.zeros((), jnp.int32)))
@@ -449,16 +491,17 @@ def solve(
     d = system.d0 + delta_c
     f = system.free.astype(r_x.dtype)
     r_x = r_x * f
+    coupled = coupled_columns(system.pattern, system.H is not None)
 
     if low_rank is not None:
         # (M0 - W^T M^-1 W)^-1 = M0^-1 + M0^-1 W^T (M - W M0^-1 W^T)^-1 W M0^-1
         Wf = low_rank.W * f
-        Z = jax.vmap(lambda w: solve_factored(fac, w) * f)(Wf)
+        Z = jax.vmap(lambda w: solve_factored(fac, w, coupled) * f)(Wf)
         capacitance = low_rank.M - jnp.einsum("rkn,skn->rs", Wf, Z)
 
     def condensed_solve(rx, rc):
         b = rx + _apply_JT(A, B, rc / d, system.pattern) * f
-        dx = solve_factored(fac, b) * f
+        dx = solve_factored(fac, b, coupled) * f
         if low_rank is not None:
             dx = dx + jnp.einsum("rkn,r->kn", Z, jnp.linalg.solve(capacitance, jnp.einsum("rkn,kn->r", Wf, dx)))
         dy = (_apply_J(A, B, dx, system.pattern) - rc) / d
