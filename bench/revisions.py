@@ -1,0 +1,125 @@
+"""Time jtraj's own solver at another revision of this repository and at the working tree, in
+one run: what a change to the solver is worth, measured on the same machine under the same
+load, never against remembered figures.
+
+    python bench/revisions.py REV [TASK ...] [--param se3] [--variables compact]
+        [--repeats 3] [--out DIR]
+
+``REV`` (for example ``HEAD~1``) is checked out into a temporary git worktree, removed at the
+end. Every (task, revision) pair runs in its own process whose ``PYTHONPATH`` puts that tree's
+``jtraj`` first; the process reports the file it imported ``jtraj`` from, and the benchmark
+refuses a result that came from the wrong tree. The two revisions alternate task by task, the
+earlier revision first. Each process compiles, then solves the task's warm start ``--repeats``
+times (`jtraj.solve(..., solver="jtraj")`; each solve's time is the jitted solve alone, as
+``stats.time_total``), and the table gives the fastest. Iterations, status and cost are printed
+beside the times, so a change that alters the iterates shows. ``--out DIR`` writes
+``DIR/revisions.json`` (every record), ``DIR/revisions.md`` (the table) and
+``DIR/provenance.json``. Default tasks: walk big_jump backflip sideflip.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+
+CHILD = """
+import json, sys
+import jtraj
+task, param, variables, repeats = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4])
+runs = [jtraj.solve(task, param, variables=variables, solver="jtraj", progress=False, keep_trajectory=False) for _ in range(repeats + 1)]
+r = runs[-1]
+print("REVISIONS " + json.dumps(dict(
+    jtraj=jtraj.__file__, task=task, iterations=r.stats.iterations, status=r.status.value,
+    cost=r.cost, violation=r.constraint_violation, time_compile=runs[0].time_compile,
+    times=[x.stats.time_total for x in runs[1:]],
+)))
+"""
+
+
+def run_child(tree: Path, task: str, param: str, variables: str, repeats: int) -> dict:
+    """One process solving ``task`` with the jtraj of ``tree``; its record."""
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tree), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep))
+    proc = subprocess.run([sys.executable, "-c", CHILD, task, param, variables, str(repeats)], env=env, capture_output=True, text=True, cwd=tree)
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("REVISIONS ")]
+    if proc.returncode != 0 or not lines:
+        raise RuntimeError(f"{task} at {tree}: exit {proc.returncode}\n{proc.stderr[-3000:]}")
+    record = json.loads(lines[-1][len("REVISIONS ") :])
+    if Path(record["jtraj"]).resolve().parent.parent != tree.resolve():
+        raise RuntimeError(f"{task}: the child imported jtraj from {record['jtraj']}, not from {tree}")
+    return record
+
+
+def table(records: list[dict], labels: tuple[str, str]) -> str:
+    """The Markdown table: per task, both revisions' iterations, cost and fastest time."""
+    a, b = labels
+    rows = [
+        f"| task | iterations ({a} / {b}) | cost ({a} / {b}) | fastest solve {a} (s) | fastest solve {b} (s) | s/iter {a} | s/iter {b} | {a} / {b} |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    tasks = list(dict.fromkeys(r["task"] for r in records))
+    for t in tasks:
+        ra = next(r for r in records if r["task"] == t and r["label"] == a)
+        rb = next(r for r in records if r["task"] == t and r["label"] == b)
+        ta, tb = min(ra["times"]), min(rb["times"])
+        rows.append(
+            f"| {t} | {ra['iterations']} / {rb['iterations']} | {ra['cost']:.4g} / {rb['cost']:.4g} | {ta:.2f} | {tb:.2f} | "
+            f"{ta / max(ra['iterations'], 1):.3f} | {tb / max(rb['iterations'], 1):.3f} | {ta / tb:.2f}x |"
+        )
+    return "\n".join(rows) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("rev", help="the earlier revision (git rev, e.g. HEAD~1)")
+    ap.add_argument("tasks", nargs="*", default=["walk", "big_jump", "backflip", "sideflip"])
+    ap.add_argument("--param", default="se3")
+    ap.add_argument("--variables", default="compact")
+    ap.add_argument("--repeats", type=int, default=3, help="timed solves per task and revision (after one that compiles)")
+    ap.add_argument("--out", help="write DIR/revisions.json, DIR/revisions.md, DIR/provenance.json")
+    args = ap.parse_args(argv)
+    if args.repeats < 1:
+        ap.error("--repeats must be at least 1")
+    sha = subprocess.run(["git", "rev-parse", "--short", args.rev], cwd=REPO, capture_output=True, text=True)
+    if sha.returncode != 0:
+        ap.error(f"unknown revision {args.rev!r}: {sha.stderr.strip()}")
+    head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True, text=True).stdout.strip()
+    dirty = bool(subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=REPO, capture_output=True, text=True).stdout.strip())
+    labels = (sha.stdout.strip(), head + ("+changes" if dirty else ""))
+    records: list[dict] = []
+    with tempfile.TemporaryDirectory(prefix="jtraj-rev-") as tmp:
+        tree = Path(tmp) / "tree"
+        subprocess.run(["git", "worktree", "add", "--detach", str(tree), args.rev], cwd=REPO, check=True, capture_output=True)
+        try:
+            for task in args.tasks:
+                for label, where in zip(labels, (tree, REPO)):
+                    rec = run_child(where, task, args.param, args.variables, args.repeats)
+                    rec["label"] = label
+                    records.append(rec)
+                    print(f"{task:10s} {label:14s} {rec['iterations']:4d} it  {rec['status']:26s} cost {rec['cost']:.4g}  fastest {min(rec['times']):.2f} s  (all: {', '.join(f'{t:.2f}' for t in rec['times'])})", flush=True)
+        finally:
+            subprocess.run(["git", "worktree", "remove", "--force", str(tree)], cwd=REPO, capture_output=True)
+    md = table(records, labels)
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    note = f"\nMachine: {os.cpu_count()} CPUs, 1-minute load average {load:.1f} at the end; {args.param}, {args.variables} variables, jtraj's solver, the fastest of {args.repeats} solves (compile excluded), one process per task and revision.\n"
+    print()
+    print(md + note)
+    if args.out:
+        from jtraj.provenance import write_provenance
+
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "revisions.json").write_text(json.dumps(records, indent=1) + "\n")
+        (out / "revisions.md").write_text(md + note)
+        write_provenance(out, ["python", "bench/revisions.py", *(argv if argv is not None else sys.argv[1:])])
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
