@@ -7,7 +7,7 @@ load, never against remembered figures.
 
 ``REV`` (for example ``HEAD~1``) is checked out into a temporary git worktree, removed at the
 end. Every (task, revision) pair runs in its own process whose ``PYTHONPATH`` puts that tree's
-``jtraj`` first; the process reports the file it imported ``jtraj`` from, and the benchmark
+``jtraj`` first; the process checks the file it imported ``jtraj`` from, and the benchmark
 refuses a result that came from the wrong tree. The two revisions alternate task by task, the
 earlier revision first. Each process compiles, then solves the task's warm start ``--repeats``
 times (`jtraj.solve(..., solver="jtraj")`; each solve's time is the jitted solve alone, as
@@ -31,7 +31,10 @@ REPO = Path(__file__).resolve().parents[1]
 
 CHILD = """
 import json, sys
+from pathlib import Path
 import jtraj
+if Path(jtraj.__file__).resolve().parent.parent != Path.cwd().resolve():
+    sys.exit(f"jtraj imported from {jtraj.__file__}, not from {Path.cwd()}")
 task, param, variables, repeats = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4])
 runs = [jtraj.solve(task, param, variables=variables, solver="jtraj", progress=False, keep_trajectory=False) for _ in range(repeats + 1)]
 r = runs[-1]
