@@ -120,7 +120,10 @@ def main(argv: list[str] | None = None) -> int:
         out.mkdir(parents=True, exist_ok=True)
         (out / "revisions.json").write_text(json.dumps(records, indent=1) + "\n")
         (out / "revisions.md").write_text(md + note)
-        write_provenance(out, ["python", "bench/revisions.py", *(argv if argv is not None else sys.argv[1:])])
+        path = write_provenance(out, ["python", "bench/revisions.py", *(argv if argv is not None else sys.argv[1:])])
+        prov = json.loads(path.read_text())
+        prov["revisions"] = {"earlier": labels[0], "later": labels[1]}
+        path.write_text(json.dumps(prov, indent=2) + "\n")
     return 0
 
 
