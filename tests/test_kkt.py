@@ -223,6 +223,12 @@ def test_factor_on_the_coupled_columns_equals_the_whole_factor(rng):
     d = jnp.asarray(rng.uniform(0.5, 2.0, size=(K, m)))
     diag, upper = kkt.condensed_blocks(system, d, jnp.asarray(0.1))
     np.testing.assert_array_equal(np.asarray(upper)[:, :, np.setdiff1d(np.arange(n), cols)], 0.0)
+    # through the pattern, the off-diagonal blocks come as their coupled columns alone
+    sys_p = system._replace(A=pattern.values(system.A, system.B), B=None, pattern=pattern)
+    diag_p, upper_p = jax.jit(kkt.condensed_blocks)(sys_p, d, jnp.asarray(0.1))
+    assert upper_p.shape == (K, n, cols.size)
+    np.testing.assert_allclose(diag_p, diag, atol=1e-12)
+    np.testing.assert_allclose(upper_p, np.asarray(upper)[:, :, cols], atol=1e-12)
     whole, ok = kkt.factor(diag, upper)
     part, ok_part = jax.jit(lambda a, b: kkt.factor(a, b, cols))(diag, upper)
     assert bool(ok) and bool(ok_part) and part.sub.shape == (K, cols.size, n)
@@ -235,7 +241,6 @@ def test_factor_on_the_coupled_columns_equals_the_whole_factor(rng):
     b = jnp.asarray(rng.normal(size=(K, n)))
     np.testing.assert_allclose(kkt.solve_factored(part, b, cols), kkt.solve_factored(whole, b), rtol=1e-10, atol=1e-12)
     # the whole KKT solve through the pattern, with a limited-memory term, against the dense one
-    sys_p = system._replace(A=pattern.values(system.A, system.B), B=None, pattern=pattern)
     fac, delta_w, ok = jax.jit(kkt.factor_with_correction)(sys_p, jnp.asarray(1e-9), jnp.asarray(0.0))
     assert bool(ok) and fac.sub.shape == (K, cols.size, n)
     W = jnp.asarray(rng.normal(size=(2, K, n)) * 0.1)

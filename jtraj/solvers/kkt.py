@@ -160,8 +160,14 @@ class JacobianPattern:
         q = order[first + offset]
         keep = (e_knot[p] <= e_knot[q]) & ~(dense_row[e_row[p]] & e_a[p] & e_a[q])
         p, q = p[keep], q[keep]
-        # target: diag (offset 0) or upper (offset 1) block of knot(p), entry (col p, col q)
-        target = (e_knot[q] - e_knot[p]) * (K * n * n) + e_knot[p] * (n * n) + e_col[p] * n + e_col[q]
+        # target: diag (offset 0) block of knot(p), entry (col p, col q), or upper (offset 1)
+        # block of knot(p) stored by its coupled columns only (q reads the next knot, so its
+        # column is one of them): entry (col p, place of col q among the coupled)
+        c = self.coupled.size
+        place = np.zeros(n, np.int64)
+        place[self.coupled] = np.arange(c)
+        upper_pair = e_knot[q] > e_knot[p]
+        target = np.where(upper_pair, K * n * n + e_knot[p] * (n * c) + e_col[p] * c + place[e_col[q]], e_knot[p] * (n * n) + e_col[p] * n + e_col[q])
         srt = np.argsort(target, kind="stable")
         self._pairs = (i32(p[srt]), i32(q[srt]), i32(e_row[p[srt]]), i32(target[srt]))
         self.n_pairs = int(p.size)
@@ -210,12 +216,13 @@ class JacobianPattern:
 
     def condensed(self, v: jax.Array, w: jax.Array) -> tuple[jax.Array, jax.Array]:
         """The blocks of ``J^T diag(w) J`` for the nonzeros v and w (K, m): (diag (K, n, n),
-        upper (K, n, n)), upper[k] = the (k, k+1) block; the B-B products land on diag[k + 1]."""
-        K, n = self.K, self.n
+        upper (K, n, c)), upper[k] = the (k, k+1) block's `coupled` columns (its others are
+        zero); the B-B products land on diag[k + 1]."""
+        K, n, c = self.K, self.n, self.coupled.size
         p, q, row, target = self._pairs
         prods = v[p] * v[q] * w.reshape(-1)[row]
-        out = jax.ops.segment_sum(prods, target, num_segments=2 * K * n * n, indices_are_sorted=True)
-        diag, upper = out[: K * n * n].reshape(K, n, n), out[K * n * n :].reshape(K, n, n)
+        out = jax.ops.segment_sum(prods, target, num_segments=K * n * n + K * n * c, indices_are_sorted=True)
+        diag, upper = out[: K * n * n].reshape(K, n, n), out[K * n * n :].reshape(K, n, c)
         # (the pairs of one knot's columns come in both orders, so diag is symmetric)
         if self.dense_slots.size:
             s = self.dense_slots.size
@@ -272,13 +279,17 @@ def _split_last(K: int) -> jax.Array:
 def condensed_blocks(system: KKTSystem, d: jax.Array, delta_w: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Blocks of ``M = H + diag(sigma) + delta_w I + J^T diag(1/d) J`` restricted to the free
     variables (identity on fixed ones): (diag (K, n, n), upper (K, n, n) with upper[k] =
-    M[k, k+1], upper[K-1] = 0)."""
+    M[k, k+1], upper[K-1] = 0). Where `coupled_columns` gives columns (a pattern, no block
+    Hessian), upper is those columns of the blocks alone, (K, n, c), as `factor` takes them."""
     H, sigma, A, B, free, pattern = system.H, system.sigma, system.A, system.B, system.free, system.pattern
     K, n = sigma.shape
     has_next = _split_last(K)
     w = 1.0 / d
+    coupled = coupled_columns(pattern, H is not None)
     if pattern is not None:
         diag, upper = pattern.condensed(A, w)
+        if coupled is None:  # the whole blocks
+            upper = jnp.zeros((K, n, n), upper.dtype).at[:, :, pattern.coupled].set(upper)
     else:
         assert B is not None, "dense blocks need B"
         Bm = B * has_next[:, None, None]
@@ -292,6 +303,8 @@ def condensed_blocks(system: KKTSystem, d: jax.Array, delta_w: jax.Array) -> tup
     diag = diag + jax.vmap(jnp.diag)(sigma + delta_w)
     f = free.astype(diag.dtype)
     f_next = jnp.concatenate([f[1:], jnp.zeros_like(f[:1])], axis=0)
+    if coupled is not None:
+        f_next = f_next[:, coupled]
     diag = diag * f[:, :, None] * f[:, None, :] + jax.vmap(jnp.diag)(1.0 - f)
     upper = upper * f[:, :, None] * f_next[:, None, :]
     return diag, upper
