@@ -333,30 +333,20 @@ def factor(diag: jax.Array, upper: jax.Array, coupled: np.ndarray | None = None)
     of n^3 (the walk: c = 88 of n = 156). ``upper`` may be given whole (K, n, n) or as those
     columns (K, n, c)."""
     n = diag.shape[-1]
-    if coupled is None:
+    cols = None if coupled is None else np.asarray(coupled)
+    # S_k = D_k - L[k,k-1] L[k,k-1]^T, with L[k,k-1] whole or as its rows `cols`
+    schur = (lambda D, S: D - S @ S.T) if cols is None else (lambda D, S: D.at[cols[:, None], cols[None, :]].add(-(S @ S.T)))
+    if cols is not None and upper.shape[-1] != cols.size:
+        upper = upper[:, :, cols]
 
-        def step(sub_k, blocks):
-            D_k, U_k = blocks
-            S = D_k - sub_k @ sub_k.T
-            L_k = jnp.linalg.cholesky(S)
-            # L[k+1, k] = U_k^T L_k^-T
-            sub_next = solve_triangular(L_k, U_k, lower=True).T
-            return sub_next, (L_k, sub_k)
+    def step(sub_k, blocks):
+        D_k, U_k = blocks
+        L_k = jnp.linalg.cholesky(schur(D_k, sub_k))
+        # L[k+1, k] = U_k^T L_k^-T: (n, n), or (c, n) for its rows `cols`
+        sub_next = solve_triangular(L_k, U_k, lower=True).T
+        return sub_next, (L_k, sub_k)
 
-        sub0 = jnp.zeros((n, n), diag.dtype)
-    else:
-        cols = np.asarray(coupled)
-        if upper.shape[-1] != cols.size:
-            upper = upper[:, :, cols]
-
-        def step(sub_k, blocks):
-            D_k, U_k = blocks
-            S = D_k.at[cols[:, None], cols[None, :]].add(-(sub_k @ sub_k.T))
-            L_k = jnp.linalg.cholesky(S)
-            sub_next = solve_triangular(L_k, U_k, lower=True).T  # (c, n): L[k+1, k]'s rows `cols`
-            return sub_next, (L_k, sub_k)
-
-        sub0 = jnp.zeros((cols.size, n), diag.dtype)
+    sub0 = jnp.zeros((n if cols is None else cols.size, n), diag.dtype)
     _, (L, sub) = lax.scan(step, sub0, (diag, upper))
     pivots = jnp.diagonal(L, axis1=1, axis2=2)
     ok = jnp.all(jnp.isfinite(L)) & jnp.all(pivots > 0.0)
