@@ -15,6 +15,11 @@ times (`jtraj.solve(..., solver="jtraj")`; each solve's time is the jitted solve
 beside the times, so a change that alters the iterates shows. ``--out DIR`` writes
 ``DIR/revisions.json`` (every record), ``DIR/revisions.md`` (the table) and
 ``DIR/provenance.json``. Default tasks: walk big_jump backflip sideflip.
+
+A record's ``time_compile`` is the first solve's `Result.time_compile`: building the NLP and
+compiling the solver's program, in seconds (short where the persistent compilation cache held them;
+`jtraj.solve` counts the solver's program since this was written; the records in
+``results/solver_coupled_factor`` are older and count the NLP alone).
 """
 
 from __future__ import annotations

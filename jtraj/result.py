@@ -64,7 +64,8 @@ class Result:
         status: the `Outcome`.
         solver_status: the backend's `Status`; ``status_msg`` its own wording.
         stats: iterations, evaluation counts, time split (compilation excluded).
-        time_compile: seconds spent compiling before the solve (0 when cached).
+        time_compile: seconds spent compiling for this solve: the NLP and, with jtraj's solver,
+            its program (0 when both were compiled before in this process).
         cost: objective at the solution.
         constraint_violation: max violation of the constraint rows and bounds.
         violation_by_group: the same per constraint group (and ``"bounds"``).

@@ -190,6 +190,7 @@ def solve(
             + (f" (compiled in {compile_time:.1f} s)" if compile_time else "")
         )
     solution = backend.solve(nlp, x0.reshape(-1), theta, opts, callback)
+    compile_time += solution.time_compile  # the backend's own program (jtraj's solver)
     traj = tr.decode(solution.x, theta)
     result = evaluate(tr, solution, traj, compile_time, {"solver": backend.name, **opts.as_dict(), "layout": dataclasses.asdict(tr.options)}, nlp.nnz_jac, nlp.violation_by_group(solution.x, theta), theta, backend.name)
     if not keep_trajectory:

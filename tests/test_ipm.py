@@ -229,6 +229,18 @@ def test_registered_backend_returns_the_shared_solution(toy):
         backend.options({"hessian": "newton"})
 
 
+def test_solve_reports_its_program_compile_once(toy):
+    """The first solve of an (NLP, options) pair compiles the solver's program and says how long
+    it took (`Solution.time_compile`, outside ``stats.time_total``); the next reuses it."""
+    nlp, _ = toy
+    backend = solvers.get("jtraj")
+    opts = backend.options({"tol": 1e-7, "max_iter": 99})  # options no other test compiles
+    first = backend.solve(nlp, np.zeros(nlp.n), None, opts)
+    again = backend.solve(nlp, np.zeros(nlp.n), None, opts)
+    assert first.time_compile > 0 and again.time_compile == 0.0
+    assert first.stats.iterations == again.stats.iterations and first.converged
+
+
 def test_solve_batch_equals_solve_and_padding_keeps_the_members(toy):
     """`JtrajSolver.solve_batch` with ``strategy="vmap"``: one vmapped call; each member has the
     counts and status of `solve` from the same guess (the toy rounds alike: the solutions agree

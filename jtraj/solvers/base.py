@@ -139,6 +139,9 @@ class Solution:
         mult_x_lower, mult_x_upper: (n,) multipliers of the lower and upper variable bounds.
         stats: iteration and evaluation counts and the time split.
         history: one `Iteration` per iteration, in order.
+        time_compile: seconds the backend spent compiling its own program for this solve
+            (jtraj's solver, the first time it meets an NLP, options and parameter shapes; 0
+            for Ipopt, whose callbacks are compiled with the NLP). Not in ``stats``' times.
     """
 
     x: np.ndarray
@@ -151,6 +154,7 @@ class Solution:
     mult_x_upper: np.ndarray
     stats: Stats
     history: tuple[Iteration, ...] = ()
+    time_compile: float = 0.0
 
     @property
     def converged(self) -> bool:

@@ -1103,10 +1103,11 @@ class JtrajSolver(AbstractSolver):
         x0 = np.clip(np.asarray(x0, float).reshape(-1), f.x_lower, f.x_upper).reshape(view.K, view.n)
         # compile ahead (once per NLP, options and parameter shapes), so that the time below is
         # the solve's alone
-        program, _ = self._program(ipm, "", ipm.solve, jnp.asarray(x0), theta)
+        program, compile_time = self._program(ipm, "", ipm.solve, jnp.asarray(x0), theta)
         t0 = time.perf_counter()
         r = jax.block_until_ready(program(jnp.asarray(x0), theta))
         solution = self._solution(ipm, f, r, opts, time.perf_counter() - t0, callback)
+        solution = dataclasses.replace(solution, time_compile=compile_time)
         if callback is not None:
             callback.on_end(solution)
         return solution
