@@ -11,7 +11,7 @@ prints and writes how many converge and do the task::
     python bench/quaternion_noise.py [--task walk] [--params quat1,quat2] [--sigma 0.5]
         [--draws 20] [--max-iter 200] [--variables paper] [--out DIR]
 
-``--out DIR`` writes ``DIR/runs.json`` (one record per solve), ``DIR/table.md`` and
+``--out DIR`` writes ``DIR/quaternion_noise.json`` (one record per solve), ``DIR/quaternion_noise.md`` and
 ``DIR/provenance.json``. A walk with a quaternion at sigma 0.5 takes 10 to 60 s per draw on
 two cores.
 """
@@ -99,10 +99,10 @@ def main(argv: list[str] | None = None) -> None:
         from jtraj.provenance import write_provenance
 
         a.out.mkdir(parents=True, exist_ok=True)
-        io.write_json(a.out / "runs.json", records)
-        (a.out / "table.md").write_text(text)
+        io.write_json(a.out / "quaternion_noise.json", records)
+        (a.out / "quaternion_noise.md").write_text(text)
         write_provenance(a.out, [sys.argv[0], *(sys.argv[1:] if argv is None else argv)])
-        print(f"wrote {a.out}/runs.json, table.md, provenance.json")
+        print(f"wrote {a.out}/quaternion_noise.json, quaternion_noise.md, provenance.json")
 
 
 if __name__ == "__main__":

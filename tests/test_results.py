@@ -122,6 +122,16 @@ def test_side_by_side_jtraj_task_follows_robot_and_code_costs():
     assert mod.jtraj_label("paper", {}, False) == "jtraj paper"
 
 
+def test_quaternion_noise_markdown_is_rendered_from_its_json():
+    folders = [p for p in _results_dirs() if (p / "quaternion_noise.json").exists()]
+    assert folders, "results/ holds no quaternion_noise.json"
+    table = _bench_module("quaternion_noise").table
+    for folder in folders:
+        records = json.loads((folder / "quaternion_noise.json").read_text())
+        assert records
+        assert (folder / "quaternion_noise.md").read_text() == table(records), f"{folder}/quaternion_noise.md was not rendered from its JSON"
+
+
 def test_speed_markdown_is_rendered_from_its_json():
     folders = [p for p in _results_dirs() if (p / "speed.json").exists()]
     assert folders, "results/ holds no speed.json"
