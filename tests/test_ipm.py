@@ -1,6 +1,7 @@
 """jtraj's own interior-point solver on small knot problems and on a small Go2 hop."""
 
 import dataclasses
+import io
 
 import jax
 import jax.numpy as jnp
@@ -235,9 +236,13 @@ def test_solve_reports_its_program_compile_once(toy):
     nlp, _ = toy
     backend = solvers.get("jtraj")
     opts = backend.options({"tol": 1e-7, "max_iter": 99})  # options no other test compiles
-    first = backend.solve(nlp, np.zeros(nlp.n), None, opts)
-    again = backend.solve(nlp, np.zeros(nlp.n), None, opts)
+    texts = [io.StringIO(), io.StringIO()]
+    first = backend.solve(nlp, np.zeros(nlp.n), None, opts, solvers.PrintProgress(texts[0]))
+    again = backend.solve(nlp, np.zeros(nlp.n), None, opts, solvers.PrintProgress(texts[1]))
     assert first.time_compile > 0 and again.time_compile == 0.0
+    # a printing callback hears of the compile before it starts, and not of a reused program
+    assert texts[0].getvalue().startswith("jtraj solver: compiling its program")
+    assert "compiling" not in texts[1].getvalue() and " iter " in texts[1].getvalue()
     assert first.stats.iterations == again.stats.iterations and first.converged
 
 

@@ -83,6 +83,7 @@ from jtraj.solvers.base import (
     AbstractSolver,
     InvalidOptionError,
     Iteration,
+    PrintProgress,
     Solution,
     Stats,
     Status,
@@ -1102,8 +1103,10 @@ class JtrajSolver(AbstractSolver):
         f = bind(nlp, theta)
         x0 = np.clip(np.asarray(x0, float).reshape(-1), f.x_lower, f.x_upper).reshape(view.K, view.n)
         # compile ahead (once per NLP, options and parameter shapes), so that the time below is
-        # the solve's alone
-        program, compile_time = self._program(ipm, "", ipm.solve, jnp.asarray(x0), theta)
+        # the solve's alone; a printing callback says so first (about a minute on a whole-body
+        # task without the compilation cache)
+        say = callback.write if isinstance(callback, PrintProgress) else None
+        program, compile_time = self._program(ipm, "", ipm.solve, jnp.asarray(x0), theta, say)
         t0 = time.perf_counter()
         r = jax.block_until_ready(program(jnp.asarray(x0), theta))
         solution = self._solution(ipm, f, r, opts, time.perf_counter() - t0, callback)
@@ -1194,15 +1197,21 @@ class JtrajSolver(AbstractSolver):
         return [self._solution(ipm, f, r, opts, total / count) for r in rs], total, compile_time
 
     @staticmethod
-    def _program(ipm: IPM, kind: str, jitted: Any, x0: jax.Array, theta: Any) -> tuple[Any, float]:
+    def _program(ipm: IPM, kind: str, jitted: Any, x0: jax.Array, theta: Any, say: Any = None) -> tuple[Any, float]:
         """``jitted`` compiled ahead of time for these argument shapes, once per (NLP, options,
-        kind, parameter shapes); returns it and the seconds spent compiling in this call."""
+        kind, parameter shapes); returns it and the seconds spent compiling in this call.
+        ``say(text)``, if given, is told before and after a compile."""
         key = kind + str(jax.tree.map(lambda a: (np.shape(a), jnp.result_type(a)), theta))
         if key in ipm.compiled:
             return ipm.compiled[key], 0.0
+        if say is not None:
+            say(f"jtraj solver: compiling its {kind}program (once per NLP and options)")
         t0 = time.perf_counter()
         ipm.compiled[key] = jitted.lower(x0, theta).compile()
-        return ipm.compiled[key], time.perf_counter() - t0
+        seconds = time.perf_counter() - t0
+        if say is not None:
+            say(f"jtraj solver: compiled in {seconds:.1f} s")
+        return ipm.compiled[key], seconds
 
     @staticmethod
     def _solution(ipm: IPM, f: Any, r: IpmResult, opts: IpmOptions, total: float, callback: AbstractCallback | None = None) -> Solution:
