@@ -331,7 +331,9 @@ class Transcription:
             from_matrix=jax.jit(from_matrix),
             fk=jax.jit(jax.vmap(self._fk)),
             initial=jax.jit(self._initial_xyz_wxyz),
-            target=jax.jit(self._target_xyz_wxyz),
+            # the target from the initial pose: its forward kinematics are initial's, compiled
+            # once (a jit of _target_xyz_wxyz compiled them again: 2.5 to 5 s per task)
+            target=jax.jit(self._target_from_initial),
         )
 
     def _coords(self, xyz_wxyz: jax.Array, qj: jax.Array) -> jax.Array:
@@ -350,7 +352,11 @@ class Transcription:
 
     def _target_xyz_wxyz(self, theta: TaskParams) -> jax.Array:
         """(7,) target base pose: theta's displacement and rotation applied to the initial pose."""
-        T0 = self._initial_xyz_wxyz(theta)
+        return self._target_from_initial(self._initial_xyz_wxyz(theta), theta)
+
+    @staticmethod
+    def _target_from_initial(T0: jax.Array, theta: TaskParams) -> jax.Array:
+        """`_target_xyz_wxyz` given the initial pose ``T0`` (7,)."""
         roll, pitch, yaw = theta.target_rotation_rpy
         # jaxlie's from_rpy_radians is Rz(yaw) Ry(pitch) Rx(roll) (jtraj.euler's convention),
         # applied about world axes
@@ -385,7 +391,8 @@ class Transcription:
         """Target base pose (7,) for parameters ``theta`` (None: the task's)."""
         if theta is None:
             _ = self.initial_xyz_wxyz  # checks the standing pose
-        return np.asarray(self._host["target"](self.resolve_theta(theta)))
+        theta = self.resolve_theta(theta)
+        return np.asarray(self._host["target"](self._host["initial"](theta), theta))
 
     @property
     def initial_pose(self) -> SE3:
