@@ -132,6 +132,16 @@ def test_quaternion_noise_markdown_is_rendered_from_its_json():
         assert (folder / "quaternion_noise.md").read_text() == table(records), f"{folder}/quaternion_noise.md was not rendered from its JSON"
 
 
+def test_compile_markdown_is_rendered_from_its_json():
+    folders = [p for p in _results_dirs() if (p / "compile.json").exists()]
+    assert folders, "results/ holds no compile.json"
+    table = _bench_module("compile").table
+    for folder in folders:
+        records = json.loads((folder / "compile.json").read_text())
+        assert records
+        assert (folder / "compile.md").read_text() == table(records), f"{folder}/compile.md was not rendered from its JSON"
+
+
 def test_speed_markdown_is_rendered_from_its_json():
     folders = [p for p in _results_dirs() if (p / "speed.json").exists()]
     assert folders, "results/ holds no speed.json"

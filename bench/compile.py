@@ -1,0 +1,91 @@
+"""Where a cold start's time goes with jtraj's solver: building the NLP (its structure probe and
+Ipopt's callbacks compile here), compiling the solver's program, and the solve, under XLA flag
+settings given on the command line.
+
+    python bench/compile.py [TASK ...] [--param se3] [--variables paper]
+        [--flags="|--xla_llvm_disable_expensive_passes=true"] [--repeats 3] [--out DIR]
+
+Each (task, flags) pair runs in a fresh process with ``JTRAJ_NO_CACHE=1`` (no persistent
+compilation cache) and ``XLA_FLAGS`` set to one of ``--flags``' settings (separated by ``|``;
+an empty one is none; write ``--flags=...``, since the settings start with dashes): `jtraj.solver.prepare`, then
+`jtraj.solve(..., solver="jtraj")` once (its ``time_compile`` less prepare's is the program's
+compile) and ``--repeats`` more times (the table gives the fastest solve). ``--out DIR``
+writes ``DIR/compile.json``, ``DIR/compile.md`` and ``DIR/provenance.json``. Default: big_jump,
+no flags. Run it on an otherwise idle machine: compiles are single-threaded and slow down under
+load.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+CHILD = """
+import json, sys
+import jtraj
+from jtraj.solver import prepare
+task, param, variables, repeats = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4])
+build = prepare(task, param, variables).time_compile  # counted once, in the first solve's too
+kw = dict(variables=variables, solver="jtraj", progress=False, keep_trajectory=False)
+first = jtraj.solve(task, param, **kw)
+runs = [jtraj.solve(task, param, **kw) for _ in range(repeats)]
+print("COMPILE " + json.dumps(dict(
+    task=task, build=build, program=first.time_compile - build, iterations=first.iterations,
+    status=first.status.value, times=[r.time_s for r in runs],
+)))
+"""
+
+
+def run_child(task: str, param: str, variables: str, flags: str, repeats: int) -> dict:
+    """One fresh process; its record, with the flags it ran under."""
+    env = dict(os.environ, JTRAJ_NO_CACHE="1", XLA_FLAGS=flags)
+    proc = subprocess.run([sys.executable, "-c", CHILD, task, param, variables, str(repeats)], env=env, capture_output=True, text=True)
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("COMPILE ")]
+    if proc.returncode != 0 or not lines:
+        raise RuntimeError(f"{task} with XLA_FLAGS={flags!r}: exit {proc.returncode}\n{proc.stderr[-3000:]}")
+    return json.loads(lines[-1][len("COMPILE ") :]) | dict(flags=flags, param=param, variables=variables)
+
+
+def table(records: list[dict]) -> str:
+    """Markdown: one row per record, times in seconds."""
+    lines = ["| task | XLA_FLAGS | build the NLP (s) | compile the solver (s) | solve (s, fastest) | iterations |", "|---|---|---|---|---|---|"]
+    for r in records:
+        flags = f"`{r['flags']}`" if r["flags"] else "(none)"
+        lines.append(f"| {r['task']} | {flags} | {r['build']:.1f} | {r['program']:.1f} | {min(r['times']):.2f} | {r['iterations']} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("tasks", nargs="*", default=["big_jump"])
+    ap.add_argument("--param", default="se3")
+    ap.add_argument("--variables", default="paper")
+    ap.add_argument("--flags", default="", help="XLA_FLAGS settings separated by '|', one process each (empty: none)")
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--out", type=Path)
+    a = ap.parse_args(argv)
+    records = []
+    for task in a.tasks:
+        for flags in a.flags.split("|"):
+            records.append(run_child(task, a.param, a.variables, flags, a.repeats))
+            r = records[-1]
+            print(f"{task} XLA_FLAGS={flags!r}: build {r['build']:.1f} s, program {r['program']:.1f} s, solve {min(r['times']):.2f} s", flush=True)
+    text = table(records)
+    print(text, end="")
+    if a.out is not None:
+        from jtraj import io
+        from jtraj.provenance import write_provenance
+
+        a.out.mkdir(parents=True, exist_ok=True)
+        io.write_json(a.out / "compile.json", records)
+        (a.out / "compile.md").write_text(text)
+        write_provenance(a.out, ["python", "bench/compile.py", *(sys.argv[1:] if argv is None else argv)])
+        print(f"wrote {a.out}/compile.json, compile.md, provenance.json")
+
+
+if __name__ == "__main__":
+    main()
