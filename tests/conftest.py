@@ -1,6 +1,9 @@
 """Shared test helpers. jtraj enables float64 on import; import it first."""
 
+import importlib.util
 import os
+import sys
+from pathlib import Path
 
 # The suite is bound by XLA compiles of small problems: LLVM's optimization level 0 compiles
 # them about a fifth faster (measured: an interior-point test 32.7 -> 25.7 s, the Go2-hop
@@ -19,6 +22,17 @@ import jtraj  # noqa: E402, F401  (float64)
 @pytest.fixture
 def rng():
     return np.random.default_rng(1234)
+
+
+def bench_module(name: str):
+    """``bench/NAME.py`` imported as the module ``bench_NAME`` (bench/ is not a package); it is
+    registered in ``sys.modules``, where dataclasses defined in it look their module up."""
+    path = Path(__file__).resolve().parents[1] / "bench" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(f"bench_{name}", path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
 
 
 def central_difference(f, x, eps=1e-6):

@@ -1,18 +1,6 @@
 """bench/compile.py: its table."""
 
-import importlib.util
-import sys
-from pathlib import Path
-
-BENCH = Path(__file__).resolve().parents[1] / "bench"
-
-
-def _module():
-    spec = importlib.util.spec_from_file_location("bench_compile", BENCH / "compile.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+from conftest import bench_module
 
 
 def test_table_gives_the_fastest_solve_and_names_the_flags():
@@ -20,7 +8,7 @@ def test_table_gives_the_fastest_solve_and_names_the_flags():
         dict(task="big_jump", flags="", build=36.04, program=42.26, times=[1.7, 1.65, 1.66], iterations=12),
         dict(task="big_jump", flags="--xla_backend_optimization_level=0", build=25.1, program=34.7, times=[6.2, 5.72], iterations=12),
     ]
-    lines = _module().table(records).splitlines()
+    lines = bench_module("compile").table(records).splitlines()
     assert lines[0].startswith("| task | XLA_FLAGS |")
     assert lines[2] == "| big_jump | (none) | 36.0 | 42.3 | 1.65 | 12 |"
     assert lines[3] == "| big_jump | `--xla_backend_optimization_level=0` | 25.1 | 34.7 | 5.72 | 12 |"

@@ -1,22 +1,13 @@
 """bench/quaternion_noise.py: its renormalization of the warm start's quaternions, and its table."""
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
-
-BENCH = Path(__file__).resolve().parents[1] / "bench"
+from conftest import bench_module
 
 
 @pytest.fixture(scope="module")
 def qn():
-    spec = importlib.util.spec_from_file_location("bench_quaternion_noise", BENCH / "quaternion_noise.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+    return bench_module("quaternion_noise")
 
 
 def test_unit_quaternions_normalizes_rho_alone(qn):

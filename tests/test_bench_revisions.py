@@ -1,21 +1,12 @@
 """bench/revisions.py: its table, and its refusal of a process that imported the wrong jtraj."""
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import pytest
-
-BENCH = Path(__file__).resolve().parents[1] / "bench"
+from conftest import bench_module
 
 
 @pytest.fixture(scope="module")
 def revisions():
-    spec = importlib.util.spec_from_file_location("bench_revisions", BENCH / "revisions.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+    return bench_module("revisions")
 
 
 def test_table_gives_each_revision_its_fastest_solve_and_the_ratio(revisions):

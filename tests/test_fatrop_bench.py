@@ -2,26 +2,18 @@
 
 Skipped without casadi (the ``bench`` extra; CI does not install it)."""
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import bench_module
 
 casadi = pytest.importorskip("casadi")
-
-BENCH = Path(__file__).resolve().parents[1] / "bench"
 
 
 @pytest.fixture(scope="module")
 def hop():
-    spec = importlib.util.spec_from_file_location("bench_fatrop", BENCH / "fatrop.py")
-    F = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = F  # its dataclasses look their module up
-    spec.loader.exec_module(F)
+    F = bench_module("fatrop")
     from jtraj import solver
     from jtraj.task import Phase, Task
 

@@ -8,13 +8,13 @@ row. Each results folder holds the JSON its command wrote, the Markdown rendered
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import re
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import bench_module
 
 ROOT = Path(__file__).resolve().parents[1]
 MARKER = re.compile(r"^\s*<!--\s*results:\s*(\S+)\s*-->")
@@ -68,26 +68,23 @@ def test_results_folder_has_provenance(folder):
     assert not list(folder.rglob("*.npz"))
 
 
-def _bench_module(name: str):
-    """``bench/NAME.py`` imported as a module (bench/ is not a package)."""
-    spec = importlib.util.spec_from_file_location(f"bench_{name}", ROOT / "bench" / f"{name}.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+#: (file stem in a results folder, bench script, its function that renders the Markdown)
+RENDERED = [("side_by_side", "side_by_side", "render"), ("speed", "solve", "markdown"), ("quaternion_noise", "quaternion_noise", "table"), ("compile", "compile", "table")]
 
 
-def test_side_by_side_markdown_is_rendered_from_its_json():
-    folders = [p for p in _results_dirs() if (p / "side_by_side.json").exists()]
-    assert folders, "results/ holds no side_by_side.json"
-    render = _bench_module("side_by_side").render
+@pytest.mark.parametrize(("stem", "script", "function"), RENDERED, ids=[r[0] for r in RENDERED])
+def test_markdown_is_rendered_from_its_json(stem, script, function):
+    folders = [p for p in _results_dirs() if (p / f"{stem}.json").exists()]
+    assert folders, f"results/ holds no {stem}.json"
+    render = getattr(bench_module(script), function)
     for folder in folders:
-        rows = json.loads((folder / "side_by_side.json").read_text())
-        assert rows
-        assert (folder / "side_by_side.md").read_text() == render(rows), f"{folder}/side_by_side.md was not rendered from its JSON"
+        records = json.loads((folder / f"{stem}.json").read_text())
+        assert records
+        assert (folder / f"{stem}.md").read_text() == render(records), f"{folder}/{stem}.md was not rendered from its JSON"
 
 
 def test_side_by_side_render_cells():
-    render = _bench_module("side_by_side").render
+    render = bench_module("side_by_side").render
     rows = [
         dict(code="jtraj paper", task="walk", sigma=0.0, seed=0, converged=False, iterations=50),
         dict(code="paper", task="walk", sigma=0.0, seed=0, converged=True, iterations=12),
@@ -111,7 +108,7 @@ def test_side_by_side_render_cells():
 
 
 def test_side_by_side_jtraj_task_follows_robot_and_code_costs():
-    mod = _bench_module("side_by_side")
+    mod = bench_module("side_by_side")
     walk = mod.jtraj_task("walk", {"talos": "talos_full"}, code_costs=True)
     assert (walk.robot, walk.configuration_weight) == ("talos_full", 1e-6)
     plain = mod.jtraj_task("walk", {}, code_costs=False)
@@ -122,38 +119,8 @@ def test_side_by_side_jtraj_task_follows_robot_and_code_costs():
     assert mod.jtraj_label("paper", {}, False) == "jtraj paper"
 
 
-def test_quaternion_noise_markdown_is_rendered_from_its_json():
-    folders = [p for p in _results_dirs() if (p / "quaternion_noise.json").exists()]
-    assert folders, "results/ holds no quaternion_noise.json"
-    table = _bench_module("quaternion_noise").table
-    for folder in folders:
-        records = json.loads((folder / "quaternion_noise.json").read_text())
-        assert records
-        assert (folder / "quaternion_noise.md").read_text() == table(records), f"{folder}/quaternion_noise.md was not rendered from its JSON"
-
-
-def test_compile_markdown_is_rendered_from_its_json():
-    folders = [p for p in _results_dirs() if (p / "compile.json").exists()]
-    assert folders, "results/ holds no compile.json"
-    table = _bench_module("compile").table
-    for folder in folders:
-        records = json.loads((folder / "compile.json").read_text())
-        assert records
-        assert (folder / "compile.md").read_text() == table(records), f"{folder}/compile.md was not rendered from its JSON"
-
-
-def test_speed_markdown_is_rendered_from_its_json():
-    folders = [p for p in _results_dirs() if (p / "speed.json").exists()]
-    assert folders, "results/ holds no speed.json"
-    markdown = _bench_module("solve").markdown
-    for folder in folders:
-        records = json.loads((folder / "speed.json").read_text())
-        assert records
-        assert (folder / "speed.md").read_text() == markdown(records), f"{folder}/speed.md was not rendered from its JSON"
-
-
 def test_speed_markdown_cells():
-    markdown = _bench_module("solve").markdown
+    markdown = bench_module("solve").markdown
     row = dict(status="solved", iterations=10, time_s=2.0, time_derivatives=0.0, time_ipopt=2.0, cost=0.5, constraint_violation=3e-9)
     records = [
         dict(task="big_jump", peer=dict(iterations=11, time_s=20.0, status=0, obj=0.0, cons=1.4e-6), variants=[dict(row, variant="jtraj", options={"constr_viol_tol": 1e-6})]),
@@ -169,7 +136,7 @@ def test_speed_markdown_cells():
 def test_iterates_markdown_is_rendered_from_its_json():
     folders = [p for p in _results_dirs() if (p / "iterates.json").exists()]
     assert folders, "results/ holds no iterates.json"
-    render = _bench_module("trace_iterates").render
+    render = bench_module("trace_iterates").render
     for folder in folders:
         runs = json.loads((folder / "iterates.json").read_text())["runs"]
         assert len(runs) == 2 and all(run["rows"] for run in runs)
@@ -179,7 +146,7 @@ def test_iterates_markdown_is_rendered_from_its_json():
 def test_trace_rows_check_each_iterate_as_the_task_check():
     """A base that somersaults once about -y at the last iterate and stands still at the first:
     the rows carry Ipopt's figures and the task check's turns and off-axis share per iterate."""
-    rows_of = _bench_module("trace_iterates").rows_of
+    rows_of = bench_module("trace_iterates").rows_of
     K = 41
     angles = np.linspace(0.0, -2 * np.pi, K)
     flip = np.zeros((K, 7))
