@@ -101,7 +101,7 @@ def main(argv: list[str] | None = None) -> None:
         a.out.mkdir(parents=True, exist_ok=True)
         io.write_json(a.out / "quaternion_noise.json", records)
         (a.out / "quaternion_noise.md").write_text(text)
-        write_provenance(a.out, [sys.argv[0], *(sys.argv[1:] if argv is None else argv)])
+        write_provenance(a.out, ["python", "bench/quaternion_noise.py", *(sys.argv[1:] if argv is None else argv)])
         print(f"wrote {a.out}/quaternion_noise.json, quaternion_noise.md, provenance.json")
 
 
