@@ -110,6 +110,9 @@ def test_solve_exit_status_says_what_happened(converged, success, code, monkeypa
     monkeypatch.setattr(jtraj.plots, "plot_result", lambda *a, **k: None)
     monkeypatch.setattr(jtraj.plots, "plot_convergence", lambda *a, **k: None)
     assert cli.main(["solve", "big_jump", "--out", str(tmp_path / "r")]) == code
+
+
+def test_exit_statuses_are_distinct():
     assert len({0, cli.EXIT_BAD_INPUT, cli.EXIT_TASK_FAILED, cli.EXIT_NOT_CONVERGED}) == 4
 
 

@@ -147,6 +147,7 @@ def test_robustness_with_worker_processes_matches_in_process(tmp_path):
     serial = robustness([HOP], ["se3", "euler"], out=tmp_path / "a", **kw)
     parallel = robustness([HOP], ["se3", "euler"], out=tmp_path / "b", workers=2, **kw)
     key = lambda r: r["parameterization"]
+    assert len(serial) == len(parallel) == 2
     for a, b in zip(sorted(serial, key=key), sorted(parallel, key=key)):
         assert (a["parameterization"], a["status"], a["iterations"]) == (b["parameterization"], b["status"], b["iterations"])
         np.testing.assert_allclose(a["cost"], b["cost"], rtol=1e-6)

@@ -172,7 +172,7 @@ def test_regression_se3_q_block_fourth_coefficient_sign(rng):
 
 @settings(max_examples=40, deadline=None)
 @given(arrays(np.float64, 6, elements=st.floats(-3.0, 3.0)))
-def test_property_exp_of_minus_plus(xi):
+def test_property_log_exp_round_trip(xi):
     """Hypothesis: Log(Exp(xi)) == xi whenever the rotation angle is below pi."""
     xi = np.asarray(xi)
     if np.linalg.norm(xi[3:]) > np.pi - 1e-3:

@@ -73,6 +73,10 @@ def test_interpolation_follows_the_constant_twist_and_hits_the_knots(result):
     # forces are interpolated linearly, contact flags taken from the nearest knot
     half = interpolate(traj, [0.5 * (traj.t[2] + traj.t[3])])
     np.testing.assert_allclose(half.forces[0], 0.5 * (traj.forces[2] + traj.forces[3]))
+    # knot 2 is in stance and knot 3 in flight: a quarter of the way takes knot 2's flags, three quarters knot 3's
+    near = interpolate(traj, [0.75 * traj.t[2] + 0.25 * traj.t[3], 0.25 * traj.t[2] + 0.75 * traj.t[3]])
+    assert traj.in_contact[2].all() and not traj.in_contact[3].any()
+    assert near.in_contact[0].all() and not near.in_contact[1].any()
 
 
 def test_video_frames_have_the_size_are_not_blank_and_move(frames, result):
@@ -87,8 +91,9 @@ def test_speed_sets_the_number_of_frames(result):
     import jtraj
 
     # jtraj.render is the module and, called, its render()
-    slow = jtraj.render(result, SMALL, speed=0.5, fps=4, label=False)
-    assert len(slow) == round(0.5 / 0.5 * 4) + 1 and slow.shape[1:] == (H, W, 3)
+    # a 0.5 s motion at a quarter of real time lasts 2 s: 8 frame intervals at 4 frames per second
+    slow = jtraj.render(result, SMALL, speed=0.25, fps=4, label=False)
+    assert len(slow) == round(0.5 / 0.25 * 4) + 1 and slow.shape[1:] == (H, W, 3)
 
 
 def test_flight_is_marked_and_forces_are_drawn(result, frames):
@@ -224,6 +229,7 @@ def test_attitude_bodies_along_their_paths(tmp_path):
     # a satellite turns in place: one panel per keyframe, no ground
     still = render_rigid_body(t, np.zeros((9, 3)), wxyz, "satellite", strip=3, options=SMALL)
     assert still.shape == (H, 3 * W + 4, 3)
+    assert blue(still) == 0  # it does not move, so no path is drawn
     trajectory = SimpleNamespace(t=t, X=np.concatenate([xyz, wxyz, np.zeros((9, 6))], axis=1))
     result = SimpleNamespace(problem="quadflip", variant="attitude", trajectory=trajectory)
     paths = render_benchmark(result, tmp_path, options=dataclasses.replace(SMALL, fps=4), keyframes=3)

@@ -41,8 +41,10 @@ def test_builtin_tasks_load_with_paper_knot_counts():
 
 
 def test_builtin_tasks_validate():
-    for name in tasks.available():
-        tasks.load(name).validate()
+    names = tasks.available()
+    assert {"walk", "hopscotch", "big_jump", "handstand", "backflip", "sideflip"} <= set(names)
+    for name in names:
+        assert tasks.load(name).validate().name == name
 
 
 def test_schedule_of_big_jump():
