@@ -347,7 +347,8 @@ def test_feasibility_polish_after_a_loose_convergence_test():
     assert int(plain.status) == IpmStatus.CONVERGED and 1e-12 < v < 1e-2
     history = np.asarray(plain.history)[: n + 1]
 
-    polished = IPM(nlp, dataclasses.replace(loose, feasibility_polish_tol=v / 10)).solve(x0, None)
+    ipm = IPM(nlp, dataclasses.replace(loose, feasibility_polish_tol=v / 10))  # compiled once, used again under vmap below
+    polished = ipm.solve(x0, None)
     assert int(polished.status) == IpmStatus.CONVERGED
     assert int(polished.iterations) > n and float(polished.constr_viol) <= v / 10
     np.testing.assert_array_equal(np.asarray(polished.history)[: n + 1], history)  # the same run up to there
@@ -373,7 +374,6 @@ def test_feasibility_polish_after_a_loose_convergence_test():
     assert int(at_limit.status) == IpmStatus.CONVERGED and int(at_limit.iterations) == n
     assert float(at_limit.constr_viol) == v
 
-    ipm = IPM(nlp, dataclasses.replace(loose, feasibility_polish_tol=v / 10))
     starts = jnp.stack([x0, x0.at[1:-1, 0].set(0.5)])
     batched = jax.jit(jax.vmap(ipm.solve, in_axes=(0, None)))(starts, None)
     for i in range(2):
