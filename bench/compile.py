@@ -77,13 +77,9 @@ def main(argv: list[str] | None = None) -> None:
     text = table(records)
     print(text, end="")
     if a.out is not None:
-        from jtraj import io
-        from jtraj.provenance import write_provenance
+        from jtraj.provenance import write_results
 
-        a.out.mkdir(parents=True, exist_ok=True)
-        io.write_json(a.out / "compile.json", records)
-        (a.out / "compile.md").write_text(text)
-        write_provenance(a.out, ["python", "bench/compile.py", *(sys.argv[1:] if argv is None else argv)])
+        write_results(a.out, "compile", records, text, "bench/compile.py", argv)
         print(f"wrote {a.out}/compile.json, compile.md, provenance.json")
 
 

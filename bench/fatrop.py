@@ -78,19 +78,16 @@ import argparse
 import dataclasses
 import io
 import os
-import sys
 import time
 from collections.abc import Callable, Sequence
-from pathlib import Path
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jtraj import io as jio
 from jtraj.nlp import ConstraintGroup, Dep, KnotNLP, Layout
-from jtraj.provenance import write_provenance
+from jtraj.provenance import write_results
 from jtraj.solver import prepare, solve
 
 #: The NLP's group whose rows encode ``x_{k+1} = step(x_k, u_k)`` (jtraj.transcription).
@@ -632,9 +629,7 @@ def main() -> None:
         rec["load_1min_after"] = os.getloadavg()[0]
         records.append(rec)
         if args.out:
-            jio.write_json(Path(args.out) / "fatrop.json", records)
-            jio.write_text(Path(args.out) / "fatrop.md", markdown(records))
-            write_provenance(args.out, ["python", "bench/fatrop.py", *sys.argv[1:]])
+            write_results(args.out, "fatrop", records, markdown(records), "bench/fatrop.py")
     print(markdown(records))
 
 

@@ -16,11 +16,9 @@ parameterization is a compile of its own, so the others are measured here. Print
 from __future__ import annotations
 
 import argparse
-import sys
 
 import jtraj
-from jtraj import io
-from jtraj.provenance import write_provenance
+from jtraj.provenance import write_results
 from jtraj.task import Phase, Task
 
 FEET = ("FL_foot", "FR_foot", "RL_foot", "RR_foot")
@@ -52,9 +50,7 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
     rows = run([p for p in args.params.split(",") if p])
     if args.out:
-        write_provenance(args.out, ["python", "bench/params_hop.py", *(argv if argv is not None else sys.argv[1:])])
-        io.write_json(f"{args.out}/params_hop.json", rows)
-        io.write_text(f"{args.out}/params_hop.md", render(rows))
+        write_results(args.out, "params_hop", rows, render(rows), "bench/params_hop.py", argv)
 
 
 if __name__ == "__main__":

@@ -19,7 +19,6 @@ two cores.
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -95,13 +94,9 @@ def main(argv: list[str] | None = None) -> None:
     text = table(records)
     print(text, end="")
     if a.out is not None:
-        from jtraj import io
-        from jtraj.provenance import write_provenance
+        from jtraj.provenance import write_results
 
-        a.out.mkdir(parents=True, exist_ok=True)
-        io.write_json(a.out / "quaternion_noise.json", records)
-        (a.out / "quaternion_noise.md").write_text(text)
-        write_provenance(a.out, ["python", "bench/quaternion_noise.py", *(sys.argv[1:] if argv is None else argv)])
+        write_results(a.out, "quaternion_noise", records, text, "bench/quaternion_noise.py", argv)
         print(f"wrote {a.out}/quaternion_noise.json, quaternion_noise.md, provenance.json")
 
 

@@ -44,7 +44,7 @@ from pathlib import Path
 
 from jtraj import io as jio
 from jtraj.cli import _check_ipopt  # the command line's NAME=VALUE parsing and checks
-from jtraj.provenance import write_provenance
+from jtraj.provenance import write_results
 from jtraj.solver import prepare, solve
 
 VARIANTS = {
@@ -209,9 +209,7 @@ def main() -> None:
         records.append(rec)
         print(markdown([rec]), flush=True)
         if args.out:
-            jio.write_json(Path(args.out) / "speed.json", records)
-            jio.write_text(Path(args.out) / "speed.md", markdown(records))
-            write_provenance(args.out, ["python", "bench/solve.py", *sys.argv[1:]])
+            write_results(args.out, "speed", records, markdown(records), "bench/solve.py")
 
 
 if __name__ == "__main__":

@@ -26,9 +26,8 @@ from pathlib import Path
 import numpy as np
 
 import jtraj
-from jtraj import io as jio
 from jtraj import solvers, success
-from jtraj.provenance import write_provenance
+from jtraj.provenance import write_results
 from jtraj.solver import VARIABLES, with_changes
 
 HERE = Path(__file__).resolve().parent
@@ -133,10 +132,7 @@ def main(argv: list[str] | None = None) -> None:
     text = render(runs)
     print(text)
     if args.out:
-        args.out.mkdir(parents=True, exist_ok=True)
-        jio.write_json(args.out / "iterates.json", {"task": args.task, "runs": runs})
-        (args.out / "iterates.md").write_text(text)
-        write_provenance(args.out, ["python", "bench/trace_iterates.py", *(sys.argv[1:] if argv is None else argv)])
+        write_results(args.out, "iterates", {"task": args.task, "runs": runs}, text, "bench/trace_iterates.py", argv)
 
 
 if __name__ == "__main__":

@@ -14,7 +14,7 @@ import sys
 from importlib import metadata
 from pathlib import Path
 
-__all__ = ["provenance", "write_provenance"]
+__all__ = ["provenance", "write_provenance", "write_results"]
 
 
 def _version(dist: str) -> str | None:
@@ -53,3 +53,15 @@ def write_provenance(out: str | Path, argv: list[str] | None = None) -> Path:
 
     Path(out).mkdir(parents=True, exist_ok=True)
     return io.write_json(Path(out) / "provenance.json", provenance(argv))
+
+
+def write_results(out: str | Path, name: str, records: object, markdown: str, script: str, argv: list[str] | None = None) -> list[Path]:
+    """A benchmark's results folder: ``out/NAME.json`` (its records, strict JSON), ``out/NAME.md``
+    (the table rendered from them) and ``out/provenance.json``, whose command is ``python SCRIPT``
+    with ``argv`` (default: this process's arguments). Returns the three paths."""
+    from jtraj import io
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    command = ["python", script, *(sys.argv[1:] if argv is None else argv)]
+    return [io.write_json(out / f"{name}.json", records), io.write_text(out / f"{name}.md", markdown), write_provenance(out, command)]

@@ -81,3 +81,14 @@ def test_written_files_get_the_usual_permissions(tmp_path):
     finally:
         os.umask(old)
     assert path.stat().st_mode & 0o777 == 0o644
+
+
+def test_write_results_writes_records_table_and_the_command(tmp_path):
+    from jtraj.provenance import write_results
+
+    records = [{"task": "walk", "time_s": float("nan"), "iterations": 12}]
+    paths = write_results(tmp_path / "r", "speed", records, "| task |\n|---|\n| walk |\n", "bench/solve.py", ["walk", "--out", "r"])
+    assert [p.name for p in paths] == ["speed.json", "speed.md", "provenance.json"]
+    assert io.read_json(tmp_path / "r" / "speed.json") == [{"task": "walk", "time_s": None, "iterations": 12}]
+    assert (tmp_path / "r" / "speed.md").read_text() == "| task |\n|---|\n| walk |\n"
+    assert io.read_json(tmp_path / "r" / "provenance.json")["command"] == "python bench/solve.py walk --out r"
