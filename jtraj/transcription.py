@@ -813,15 +813,19 @@ def force_rate_stage(tr: Transcription) -> list[ConstraintGroup]:
 
 
 def chart_stage(tr: Transcription) -> list[ConstraintGroup]:
-    """The parameterization's own constraint (a unit quaternion norm), if it has one."""
-    param, n_knots = tr.param, tr.N + 1
+    """The parameterization's own constraint (a unit quaternion norm), if it has one, at the
+    interior knots: the first and last knots' coordinates are fixed by their bounds (the
+    standing and the target pose, unit quaternions), so a row there would read no free variable,
+    an empty row of the Jacobian that makes the KKT matrix singular (with it, the noise-free
+    big_jump with Quaternion #1 stopped at 200 iterations with both Ipopt and jtraj's solver)."""
+    param, n_inner = tr.param, tr.N - 1
     if not param.ncon:
         return []
-    zeros = np.zeros((n_knots, param.ncon))
+    zeros = np.zeros((n_inner, param.ncon))
     return [
         ConstraintGroup(
-            "chart", (Dep("q"),), lambda theta, data, q: param.constraint(q[: param.nq]), np.arange(n_knots),
-            zeros, zeros, np.ones((n_knots, param.ncon), bool),
+            "chart", (Dep("q"),), lambda theta, data, q: param.constraint(q[: param.nq]), np.arange(1, tr.N),
+            zeros, zeros, np.ones((n_inner, param.ncon), bool),
         )
     ]
 

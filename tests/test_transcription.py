@@ -431,3 +431,21 @@ def test_warm_start_quaternions_from_rotation_matrices():
     np.testing.assert_array_equal(rho("se3", matrix)[0], rho("se3", continuous)[0])  # its log winds through the turn
     with pytest.raises(ValueError, match="warm_start_quaternions='sign'"):
         dataclasses.replace(PAPER_VARIABLES, warm_start_quaternions="sign")
+
+
+def test_unit_norm_rows_only_where_the_quaternion_is_free():
+    """With ``unit_norm=True`` the chart's row |rho|^2 - 1 = 0 stands at the interior knots only:
+    the first and last knots' coordinates are fixed by bounds, where a row would be empty."""
+    from jtraj import robot as robots
+    from jtraj.parameterization import get
+    from jtraj.transcription import Transcription, chart_stage
+
+    assert chart_stage(Transcription(robots.load("go2"), HOP, get("quat1"))) == []
+    tr = Transcription(robots.load("go2"), HOP, dataclasses.replace(get("quat1"), unit_norm=True))
+    (group,) = chart_stage(tr)
+    np.testing.assert_array_equal(group.knots, np.arange(1, tr.N))
+    lower, upper = (np.asarray(b) for b in tr.bounds())
+    rho = slice(tr.layout.slice("q").start + 3, tr.layout.slice("q").start + 7)
+    fixed = np.all(lower[:, rho] == upper[:, rho], axis=1)
+    assert fixed[[0, -1]].all() and not fixed[group.knots].any()
+    np.testing.assert_allclose(np.linalg.norm(lower[[0, -1], rho], axis=1), 1.0)  # the fixed ones are unit quaternions
