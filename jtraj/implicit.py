@@ -16,6 +16,7 @@ transposed triangular solve plus the JAX evaluation of ``(dr/dtheta)^T w``.
 from __future__ import annotations
 
 import collections
+import contextlib
 import dataclasses
 import itertools
 from collections.abc import Callable
@@ -28,6 +29,22 @@ import numpy as np
 from jtraj.sensitivity import ActiveArrays, KKTSystem, ParametricNLP, kkt_system, residual
 
 __all__ = ["ImplicitSolution", "implicit_solution"]
+
+
+def _main_thread_device() -> contextlib.AbstractContextManager:
+    """The device setting of the main thread, for host code run inside `jax.pure_callback`.
+
+    JAX runs a callback under ``jax.default_device(cpu)``, and that setting is part of the key
+    of every traced and compiled function. So the NLP functions that the host code calls (the
+    forward solve, `kkt_system`'s Hessian) missed the caches the main thread had filled with
+    the same functions and compiled again (measured on a Go2 hop: the Hessian's blocks twice,
+    about 30 s). On a CPU-only JAX, where the CPU is the default device anyway, the host code
+    runs with the setting cleared, as in the main thread. Elsewhere it is left alone: there
+    the cleared setting would dispatch to the accelerator from inside a running computation.
+    """
+    if jax.default_backend() == "cpu":
+        return jax.default_device(None)
+    return contextlib.nullcontext()
 
 
 @jax.tree_util.register_dataclass
@@ -95,6 +112,10 @@ def implicit_solution(
     bool_m = jax.ShapeDtypeStruct((m,), jnp.bool_)
 
     def host_forward(theta):
+        with _main_thread_device():
+            return _host_forward(theta)
+
+    def _host_forward(theta):
         theta = jax.tree_util.tree_map(np.asarray, theta)
         x, lam = forward(theta)
         x = np.asarray(x, float)
@@ -118,6 +139,10 @@ def implicit_solution(
         return ImplicitSolution(x, lam, deg, ActiveArrays(ab, au, ra, ru), token)
 
     def host_solve(transpose, token, x, lam, theta, b):
+        with _main_thread_device():
+            return _host_solve(transpose, token, x, lam, theta, b)
+
+    def _host_solve(transpose, token, x, lam, theta, b):
         # broadcast_all: every argument carries the batch axes of b (if any)
         token = np.asarray(token)
         b = np.asarray(b, float)
@@ -148,6 +173,29 @@ def implicit_solution(
             vmap_method="broadcast_all",
         )
 
+    # The tangent (dx, dlam) is one compiled program, made once here. `jax.grad` of the
+    # solution called eagerly (outside `jax.jit`) used to differentiate the rule's body op by
+    # op: the linear solve transposes its matvec at trace time, which ran the matvec's primal
+    # part (the Lagrangian's gradient) eagerly, and every transformation compiled fresh pieces
+    # of the NLP's jitted functions (measured on a Go2 hop: 10 compiles of ``constraints``,
+    # 61 s, in one gradient test). Inside this jit those traces are abstract, and an eager
+    # gradient compiles this program's known and linear parts once per shape. Under an outer
+    # `jax.jit` it inlines as before.
+    @jax.jit
+    def tangent(sol: ImplicitSolution, theta, dtheta):
+        x, lam, act = sol.x, sol.lam, sol.active
+
+        def matvec(dz):
+            return jax.jvp(lambda z: residual(nlp, z[:n], z[n:], theta, act), (jnp.concatenate([x, lam]),), (dz,))[1]
+
+        _, r_dot = jax.jvp(lambda th: residual(nlp, x, lam, th, act), (theta,), (dtheta,))
+        return jax.lax.custom_linear_solve(
+            matvec,
+            -r_dot,
+            solve=lambda _, b: linear_solve(sol, theta, b, False),
+            transpose_solve=lambda _, b: linear_solve(sol, theta, b, True),
+        )
+
     @jax.custom_jvp
     def solution(theta):
         return primal(theta)
@@ -156,21 +204,7 @@ def implicit_solution(
     def solution_jvp(primals, tangents):
         (theta,), (dtheta,) = primals, tangents
         sol = primal(theta)
-        x, lam, act = sol.x, sol.lam, sol.active
-
-        def r_of_theta(th):
-            return residual(nlp, x, lam, th, act)
-
-        def matvec(dz):
-            return jax.jvp(lambda z: residual(nlp, z[:n], z[n:], theta, act), (jnp.concatenate([x, lam]),), (dz,))[1]
-
-        _, r_dot = jax.jvp(r_of_theta, (theta,), (dtheta,))
-        dz = jax.lax.custom_linear_solve(
-            matvec,
-            -r_dot,
-            solve=lambda _, b: linear_solve(sol, theta, b, False),
-            transpose_solve=lambda _, b: linear_solve(sol, theta, b, True),
-        )
+        dz = tangent(sol, theta, dtheta)
         zero = jax.tree_util.tree_map(lambda a: np.zeros(np.shape(a), jax.dtypes.float0), (sol.degenerate, sol.active, sol.token))
         return sol, ImplicitSolution(dz[:n], dz[n:], zero[0], zero[1], zero[2])
 
