@@ -140,7 +140,7 @@ def test_vmap_equals_one_by_one_and_no_recompile(toy):
         assert int(one.iterations) == int(batched.iterations[i])  # a finished replicate is frozen
         assert int(one.passes) == int(batched.passes[i])  # and so is its count of evaluations
         np.testing.assert_allclose(np.asarray(batched.x[i]), np.asarray(one.x), atol=1e-9)
-    assert ipm.solve._cache_size() == 1  # new initial guesses did not recompile
+    assert ipm.program._cache_size() == 1  # new initial guesses did not recompile
 
 
 def test_vmap_keeps_members_line_searches_apart():
@@ -355,9 +355,15 @@ def test_feasibility_polish_after_a_loose_convergence_test():
     assert nlp.violation(np.asarray(polished.x).reshape(-1)) <= v / 10 * (1 + 1e-9)
 
     # an unreachable tolerance: exactly feasibility_polish_iter more iterations, the lower violation kept
-    capped = IPM(nlp, dataclasses.replace(loose, feasibility_polish_tol=1e-300, feasibility_polish_iter=2)).solve(x0, None)
+    capping = IPM(nlp, dataclasses.replace(loose, feasibility_polish_tol=1e-300, feasibility_polish_iter=2))
+    capped = capping.solve(x0, None)
     assert int(capped.status) == IpmStatus.CONVERGED and int(capped.iterations) == n + 2
     assert float(capped.constr_viol) <= v
+    # the tolerances are inputs of the program: the two IPMs ran one program, compiled once;
+    # turning the polish off (None) or another iteration limit is another program
+    assert capping.program is ipm.program and ipm.program._cache_size() == 1
+    assert IPM(nlp, loose).program is not ipm.program
+    assert IPM(nlp, dataclasses.replace(loose, feasibility_polish_tol=v / 10, max_iter=99)).program is not ipm.program
 
     # the polishing iteration after iteration 4 fails the convergence test (the dual
     # infeasibility jumps from 0.016 to 0.31): iteration 4 comes back, after one more evaluation

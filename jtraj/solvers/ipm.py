@@ -182,7 +182,15 @@ class IpmOptions(AbstractOptions):
             fails its line search or reaches ``max_iter`` hands back the first converged
             iterate). Ipopt has no such step; the convergence test itself is Ipopt's. Measured
             on the G1 side-flip: 1.2e-6 at convergence, 5.8e-11 one iteration later.
+
+    The tolerances of the convergence test and of the polish (`RUNTIME_FIELDS`) are inputs of
+    the compiled program: options that differ only in them share one program (`IPM`). Whether
+    the polish is on (``feasibility_polish_tol`` None or not) and every other option are
+    compiled in.
     """
+
+    #: the options passed to the compiled program as values (a change does not recompile)
+    RUNTIME_FIELDS: ClassVar[tuple[str, ...]] = ("tol", "constr_viol_tol", "dual_inf_tol", "compl_inf_tol", "feasibility_polish_tol", "feasibility_polish_iter")
 
     tol: float = 1e-3
     max_iter: int = 200
@@ -254,6 +262,29 @@ class IpmOptions(AbstractOptions):
                 raise InvalidOptionError(f"jtraj option {name}={value!r}: expected an integer >= 0")
 
 
+    def compiled_part(self) -> "IpmOptions":
+        """These options with the `RUNTIME_FIELDS` at fixed values: the key of the program."""
+        fixed = {name: 1.0 for name in self.RUNTIME_FIELDS[:4]}
+        return dataclasses.replace(self, **fixed, feasibility_polish_tol=None if self.feasibility_polish_tol is None else 1.0, feasibility_polish_iter=1)
+
+    def runtime_part(self) -> "_Tolerances":
+        """The `RUNTIME_FIELDS` as the program's input (the polish tolerance +inf when off)."""
+        polish = np.inf if self.feasibility_polish_tol is None else self.feasibility_polish_tol
+        f = np.float64
+        return _Tolerances(f(self.tol), f(self.constr_viol_tol), f(self.dual_inf_tol), f(self.compl_inf_tol), f(polish), np.int32(self.feasibility_polish_iter))
+
+
+class _Tolerances(NamedTuple):
+    """`IpmOptions.RUNTIME_FIELDS` as arrays, an input of the compiled solve."""
+
+    tol: Any
+    constr_viol_tol: Any
+    dual_inf_tol: Any
+    compl_inf_tol: Any
+    feasibility_polish_tol: Any
+    feasibility_polish_iter: Any
+
+
 class IpmResult(NamedTuple):
     """Outcome of `IPM.solve` (arrays; a leading batch axis under vmap).
 
@@ -300,6 +331,7 @@ class _Problem(NamedTuple):
     ineq: jax.Array  # active inequality rows with at least one finite bound
     has_sl: jax.Array
     has_su: jax.Array
+    tols: _Tolerances  # the run-time options (`IpmOptions.RUNTIME_FIELDS`)
 
 
 class _State(NamedTuple):
@@ -370,21 +402,39 @@ def _safe(num, den, mask):
 
 class IPM:
     """The interior-point solver for one `KnotNLP` (its shapes are static; bounds, initial
-    guess and parameters theta are inputs, so new values do not recompile).
+    guess, parameters theta and the tolerances are inputs, so new values do not recompile).
 
-    ``IPM(nlp, options).solve(x0, theta)`` is jitted; ``jax.vmap(ipm.solve)`` batches it.
+    ``IPM(nlp, options).solve(x0, theta)`` runs the jitted program ``ipm.program(x0, theta,
+    tolerances)``; ``jax.vmap(ipm.solve)`` batches it. IPMs of one NLP whose options differ
+    only in `IpmOptions.RUNTIME_FIELDS` share one program (and its compilations).
     """
+
+    #: nlp -> {options' compiled part: the IPM that traces the program}
+    _SHARED: ClassVar[weakref.WeakKeyDictionary] = weakref.WeakKeyDictionary()
 
     def __init__(self, nlp, options: IpmOptions | None = None):
         self.options = options or IpmOptions()
-        self.view = StageView(nlp)
-        if self.options.hessian == "exact":
-            self.view.prepare_hessian()
-        self.solve = jax.jit(self._solve)
-        self.compiled: dict[str, Any] = {}  # ahead-of-time compiled solves (`JtrajSolver`)
+        self.tolerances = self.options.runtime_part()
+        key = self.options.compiled_part()
+        shared = IPM._SHARED.setdefault(nlp, {})
+        owner = shared.get(key)
+        if owner is None:
+            # this IPM traces the program; its options' run-time fields are never read there
+            self.view = StageView(nlp)
+            if self.options.hessian == "exact":
+                self.view.prepare_hessian()
+            self.program = jax.jit(self._solve)
+            self.compiled: dict[str, Any] = {}  # ahead-of-time compiled programs (`JtrajSolver`)
+            shared[key] = self
+        else:
+            self.view, self.program, self.compiled = owner.view, owner.program, owner.compiled
+
+    def solve(self, x0: jax.Array, theta: Any = None) -> IpmResult:
+        """Solve from x0 (K, n) at theta (the jitted program with this IPM's tolerances)."""
+        return self.program(x0, theta, self.tolerances)
 
     # ------------------------------------------------------------------ pieces
-    def _problem(self, theta) -> _Problem:
+    def _problem(self, theta, tols: _Tolerances) -> _Problem:
         view = self.view
         xl, xu, cl, cu = view.bounds(theta)
         free = ~(xl == xu)
@@ -395,7 +445,7 @@ class IPM:
         has_sl = active & ~eq & jnp.isfinite(cl)
         has_su = active & ~eq & jnp.isfinite(cu)
         ineq = has_sl | has_su
-        return _Problem(xl, xu, cl, cu, free, has_xl, has_xu, eq, ineq, has_sl, has_su)
+        return _Problem(xl, xu, cl, cu, free, has_xl, has_xu, eq, ineq, has_sl, has_su, tols)
 
     @staticmethod
     def _push(v, lo, hi, has_lo, has_hi, push, frac):
@@ -508,14 +558,15 @@ class IPM:
         return jax.vmap(one)(H, scaled, s_el, y_el)
 
     # ------------------------------------------------------------------ the solve
-    def _start(self, x0: jax.Array, theta: Any = None) -> tuple[_Problem, _State]:
+    def _start(self, x0: jax.Array, theta: Any = None, tols: _Tolerances | None = None) -> tuple[_Problem, _State]:
         """The problem's bounds and masks, and the loop's first state (its first pass
-        evaluates x0)."""
+        evaluates x0); ``tols`` None: this IPM's own."""
+        tols = self.tolerances if tols is None else tols
         o = self.options
         view = self.view
         K, n, m = view.K, view.n, view.m
         l = o.lbfgs_memory if o.hessian == "lbfgs" else 1  # noqa: E741
-        p = self._problem(theta)
+        p = self._problem(theta, tols)
         Z = jnp.asarray(x0, jnp.float64).reshape(K, n)
         Z = jnp.where(p.free, Z, jnp.where(jnp.isfinite(p.xl), p.xl, Z))
         Z = self._push(Z, p.xl, p.xu, p.has_xl, p.has_xu, o.bound_push, o.bound_frac)
@@ -555,8 +606,8 @@ class IPM:
             error=err, mu=st.mu, passes=passes, history=st.history,
         )
 
-    def _solve(self, x0: jax.Array, theta: Any = None) -> IpmResult:
-        p, st = self._start(x0, theta)
+    def _solve(self, x0: jax.Array, theta: Any, tols: _Tolerances) -> IpmResult:
+        p, st = self._start(x0, theta, tols)
 
         def cond(carry):
             st, passes = carry
@@ -580,13 +631,13 @@ class IPM:
         def polish_body(carry):
             st, passes, saved, polishing = carry
             new, passes = self._iteration(p, st, passes, theta)
-            loose = (new.status == converged) & (self._constr_viol(p, new.c) > o.feasibility_polish_tol)
+            loose = (new.status == converged) & (self._constr_viol(p, new.c) > p.tols.feasibility_polish_tol)
             keep = loose & ~polishing
             saved = pick(keep, new, saved)
             # a polishing iteration that fails the convergence test (or its line search, or
             # reaches max_iter) hands back the converged iterate kept aside, which ends the loop
             back = polishing & (new.status != converged)
-            more = loose & (new.it - saved.it < o.feasibility_polish_iter) & (new.it < o.max_iter)
+            more = loose & (new.it - saved.it < p.tols.feasibility_polish_iter) & (new.it < o.max_iter)
             new = pick(back, saved, new)
             return new._replace(status=jnp.where(more, int(IpmStatus.RUNNING), new.status).astype(jnp.int32)), passes, saved, polishing | keep
 
@@ -777,7 +828,8 @@ class IPM:
         new = new._replace(mu=mu_new, tau=tau, free_mode=free_mode, refs=refs, mu_max=mu_max, mu_filter=mu_filter)
         # convergence and limits at the new iterate
         viol = self._constr_viol(p, ct)
-        converged = (err <= o.tol) & (viol <= o.constr_viol_tol) & (dual_inf <= o.dual_inf_tol) & (compl <= o.compl_inf_tol)
+        t = p.tols
+        converged = (err <= t.tol) & (viol <= t.constr_viol_tol) & (dual_inf <= t.dual_inf_tol) & (compl <= t.compl_inf_tol)
         finite = jnp.isfinite(err) & jnp.all(jnp.isfinite(xt))
         status = jnp.where(
             converged, int(IpmStatus.CONVERGED),
@@ -825,7 +877,7 @@ class IPM:
         """
         o = self.options
         mu = st.mu
-        mu_floor = min(o.tol, o.compl_inf_tol) / (o.kappa_eps + 1.0)
+        mu_floor = jnp.minimum(p.tols.tol, p.tols.compl_inf_tol) / (o.kappa_eps + 1.0)
 
         def mu_body(_, mu):
             err_mu = self._error(p, st, mu)[0]
@@ -1071,7 +1123,8 @@ _MESSAGES = {
 class JtrajSolver(AbstractSolver):
     """jtraj's own interior-point solver (`IPM`) as a backend of `jtraj.solvers.SOLVERS`.
 
-    One compiled program per NLP and options (kept while the NLP lives), compiled before the
+    One compiled program per NLP and options (kept while the NLP lives; options that differ
+    only in the tolerances, `IpmOptions.RUNTIME_FIELDS`, share it), compiled before the
     clock starts: later solves with other initial guesses or parameters do not compile again,
     and ``stats.time_total`` is the solve alone. The solve runs inside one
     `jax.jit` call, so the callback receives the iterations after it ends, and the time is
@@ -1106,9 +1159,9 @@ class JtrajSolver(AbstractSolver):
         # the solve's alone; a printing callback says so first (about a minute on a whole-body
         # task without the compilation cache)
         say = callback.write if isinstance(callback, PrintProgress) else None
-        program, compile_time = self._program(ipm, "", ipm.solve, jnp.asarray(x0), theta, say)
+        program, compile_time = self._program(ipm, "", ipm.program, jnp.asarray(x0), theta, say)
         t0 = time.perf_counter()
-        r = jax.block_until_ready(program(jnp.asarray(x0), theta))
+        r = jax.block_until_ready(program(jnp.asarray(x0), theta, ipm.tolerances))
         solution = self._solution(ipm, f, r, opts, time.perf_counter() - t0, callback)
         solution = dataclasses.replace(solution, time_compile=compile_time)
         if callback is not None:
@@ -1175,9 +1228,9 @@ class JtrajSolver(AbstractSolver):
         if strategy == "threads":
             return self._solve_threads(ipm, f, x0s, theta, opts, threads)
         padded = jnp.asarray(np.concatenate([x0s, np.repeat(x0s[:1], size - count, axis=0)]))
-        program, compile_time = self._program(ipm, f"vmap {size} ", jax.jit(jax.vmap(ipm.solve, in_axes=(0, None))), padded, theta)
+        program, compile_time = self._program(ipm, f"vmap {size} ", jax.jit(jax.vmap(ipm.program, in_axes=(0, None, None))), padded, theta)
         t0 = time.perf_counter()
-        rs = jax.block_until_ready(program(padded, theta))
+        rs = jax.block_until_ready(program(padded, theta, ipm.tolerances))
         total = time.perf_counter() - t0
         members = [jax.tree.map(lambda a, i=i: a[i], rs) for i in range(count)]
         return [self._solution(ipm, f, r, opts, total / count) for r in members], total, compile_time
@@ -1188,8 +1241,8 @@ class JtrajSolver(AbstractSolver):
 
         count = len(x0s)
         threads = min(count, threads or os.cpu_count() or 1)
-        program, compile_time = self._program(ipm, "", ipm.solve, jnp.asarray(x0s[0]), theta)
-        run = lambda x0: jax.block_until_ready(program(jnp.asarray(x0), theta))  # noqa: E731
+        program, compile_time = self._program(ipm, "", ipm.program, jnp.asarray(x0s[0]), theta)
+        run = lambda x0: jax.block_until_ready(program(jnp.asarray(x0), theta, ipm.tolerances))  # noqa: E731
         t0 = time.perf_counter()
         with ThreadPoolExecutor(threads) as pool:
             rs = list(pool.map(run, x0s))
@@ -1198,16 +1251,17 @@ class JtrajSolver(AbstractSolver):
 
     @staticmethod
     def _program(ipm: IPM, kind: str, jitted: Any, x0: jax.Array, theta: Any, say: Any = None) -> tuple[Any, float]:
-        """``jitted`` compiled ahead of time for these argument shapes, once per (NLP, options,
-        kind, parameter shapes); returns it and the seconds spent compiling in this call.
-        ``say(text)``, if given, is told before and after a compile."""
+        """``jitted(x0, theta, tolerances)`` compiled ahead of time for these argument shapes, once
+        per (NLP, options but the run-time ones, kind, parameter shapes); returns it and the
+        seconds spent compiling in this call. ``say(text)``, if given, is told before and after
+        a compile."""
         key = kind + str(jax.tree.map(lambda a: (np.shape(a), jnp.result_type(a)), theta))
         if key in ipm.compiled:
             return ipm.compiled[key], 0.0
         if say is not None:
-            say(f"jtraj solver: compiling its {kind}program (once per NLP and options)")
+            say(f"jtraj solver: compiling its {kind}program (once per NLP and options other than the tolerances)")
         t0 = time.perf_counter()
-        ipm.compiled[key] = jitted.lower(x0, theta).compile()
+        ipm.compiled[key] = jitted.lower(x0, theta, ipm.tolerances).compile()
         seconds = time.perf_counter() - t0
         if say is not None:
             say(f"jtraj solver: compiled in {seconds:.1f} s")
