@@ -18,6 +18,7 @@ from __future__ import annotations
 import collections
 import contextlib
 import dataclasses
+import functools
 import itertools
 from collections.abc import Callable
 from typing import Any
@@ -31,8 +32,9 @@ from jtraj.sensitivity import ActiveArrays, KKTSystem, ParametricNLP, kkt_system
 __all__ = ["ImplicitSolution", "implicit_solution"]
 
 
-def _main_thread_device() -> contextlib.AbstractContextManager:
-    """The device setting of the main thread, for host code run inside `jax.pure_callback`.
+def _in_main_thread_device(host: Callable) -> Callable:
+    """``host``, host code run inside `jax.pure_callback`, run with the main thread's device
+    setting.
 
     JAX runs a callback under ``jax.default_device(cpu)``, and that setting is part of the key
     of every traced and compiled function. So the NLP functions that the host code calls (the
@@ -42,9 +44,13 @@ def _main_thread_device() -> contextlib.AbstractContextManager:
     runs with the setting cleared, as in the main thread. Elsewhere it is left alone: there
     the cleared setting would dispatch to the accelerator from inside a running computation.
     """
-    if jax.default_backend() == "cpu":
-        return jax.default_device(None)
-    return contextlib.nullcontext()
+
+    @functools.wraps(host)
+    def wrapped(*args):
+        with jax.default_device(None) if jax.default_backend() == "cpu" else contextlib.nullcontext():
+            return host(*args)
+
+    return wrapped
 
 
 @jax.tree_util.register_dataclass
@@ -111,11 +117,8 @@ def implicit_solution(
     bool_n = jax.ShapeDtypeStruct((n,), jnp.bool_)
     bool_m = jax.ShapeDtypeStruct((m,), jnp.bool_)
 
+    @_in_main_thread_device
     def host_forward(theta):
-        with _main_thread_device():
-            return _host_forward(theta)
-
-    def _host_forward(theta):
         theta = jax.tree_util.tree_map(np.asarray, theta)
         x, lam = forward(theta)
         x = np.asarray(x, float)
@@ -138,11 +141,8 @@ def implicit_solution(
         x, lam, deg, ab, au, ra, ru, token = jax.pure_callback(host_forward, out_shapes, theta, vmap_method="sequential")
         return ImplicitSolution(x, lam, deg, ActiveArrays(ab, au, ra, ru), token)
 
+    @_in_main_thread_device
     def host_solve(transpose, token, x, lam, theta, b):
-        with _main_thread_device():
-            return _host_solve(transpose, token, x, lam, theta, b)
-
-    def _host_solve(transpose, token, x, lam, theta, b):
         # broadcast_all: every argument carries the batch axes of b (if any)
         token = np.asarray(token)
         b = np.asarray(b, float)

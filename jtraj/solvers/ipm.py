@@ -106,6 +106,17 @@ class IpmStatus(enum.IntEnum):
     NUMERICAL_ERROR = 4  # NaN in the iterate, or no delta_w gave a positive-definite matrix
 
 
+class _Tolerances(NamedTuple):
+    """`IpmOptions.RUNTIME_FIELDS` as arrays, an input of the compiled solve."""
+
+    tol: Any
+    constr_viol_tol: Any
+    dual_inf_tol: Any
+    compl_inf_tol: Any
+    feasibility_polish_tol: Any
+    feasibility_polish_iter: Any
+
+
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class IpmOptions(AbstractOptions):
     """Options of the interior-point method (names and defaults follow Ipopt's options).
@@ -190,7 +201,7 @@ class IpmOptions(AbstractOptions):
     """
 
     #: the options passed to the compiled program as values (a change does not recompile)
-    RUNTIME_FIELDS: ClassVar[tuple[str, ...]] = ("tol", "constr_viol_tol", "dual_inf_tol", "compl_inf_tol", "feasibility_polish_tol", "feasibility_polish_iter")
+    RUNTIME_FIELDS: ClassVar[tuple[str, ...]] = _Tolerances._fields
 
     tol: float = 1e-3
     max_iter: int = 200
@@ -261,28 +272,17 @@ class IpmOptions(AbstractOptions):
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
                 raise InvalidOptionError(f"jtraj option {name}={value!r}: expected an integer >= 0")
 
-
     def compiled_part(self) -> "IpmOptions":
-        """These options with the `RUNTIME_FIELDS` at fixed values: the key of the program."""
-        fixed = {name: 1.0 for name in self.RUNTIME_FIELDS[:4]}
-        return dataclasses.replace(self, **fixed, feasibility_polish_tol=None if self.feasibility_polish_tol is None else 1.0, feasibility_polish_iter=1)
+        """These options with the `RUNTIME_FIELDS` at fixed values (the polish kept on or off):
+        the key of the program."""
+        polish = None if self.feasibility_polish_tol is None else 1.0
+        return dataclasses.replace(self, tol=1.0, constr_viol_tol=1.0, dual_inf_tol=1.0, compl_inf_tol=1.0, feasibility_polish_tol=polish, feasibility_polish_iter=1)
 
-    def runtime_part(self) -> "_Tolerances":
+    def runtime_part(self) -> _Tolerances:
         """The `RUNTIME_FIELDS` as the program's input (the polish tolerance +inf when off)."""
         polish = np.inf if self.feasibility_polish_tol is None else self.feasibility_polish_tol
         f = np.float64
         return _Tolerances(f(self.tol), f(self.constr_viol_tol), f(self.dual_inf_tol), f(self.compl_inf_tol), f(polish), np.int32(self.feasibility_polish_iter))
-
-
-class _Tolerances(NamedTuple):
-    """`IpmOptions.RUNTIME_FIELDS` as arrays, an input of the compiled solve."""
-
-    tol: Any
-    constr_viol_tol: Any
-    dual_inf_tol: Any
-    compl_inf_tol: Any
-    feasibility_polish_tol: Any
-    feasibility_polish_iter: Any
 
 
 class IpmResult(NamedTuple):
@@ -1135,15 +1135,11 @@ class JtrajSolver(AbstractSolver):
 
     name: ClassVar[str] = "jtraj"
     Options: ClassVar[type[AbstractOptions]] = IpmOptions
-    _compiled: ClassVar[weakref.WeakKeyDictionary] = weakref.WeakKeyDictionary()
 
-    @classmethod
-    def ipm(cls, nlp: Any, options: IpmOptions) -> IPM:
-        """The (cached) `IPM` of ``nlp`` with ``options``."""
-        per_nlp = cls._compiled.setdefault(nlp, {})
-        if options not in per_nlp:
-            per_nlp[options] = IPM(nlp, options)
-        return per_nlp[options]
+    @staticmethod
+    def ipm(nlp: Any, options: IpmOptions) -> IPM:
+        """The `IPM` of ``nlp`` with ``options`` (its program is shared, see `IPM`)."""
+        return IPM(nlp, options)
 
     def solve(self, nlp: Any, x0: np.ndarray, theta: Any = None, options: AbstractOptions | dict[str, Any] | None = None, callback: AbstractCallback | None = None) -> Solution:
         if callback is not None and callback.wants_iterates:
