@@ -205,9 +205,10 @@ def test_converges_on_small_go2_hop():
     study's variables. That is the program the jtraj robustness tests run (tests/
     test_experiments.py), so the two files compile it once between them: the second finds it
     in the persistent compilation cache."""
+    from test_transcription import HOP
+
     from jtraj import solve
     from jtraj.solver import prepare
-    from test_transcription import HOP
 
     result = solve(HOP, "se3", variables="paper", solver="jtraj", progress=None)
     assert result.solver_status is solvers.Status.SOLVED and result.converged, result.status_msg
