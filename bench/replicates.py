@@ -10,10 +10,12 @@ jtraj's batch goes through `JtrajSolver.solve_batch`, as `jtraj robustness --sol
 Compilation is excluded from every time: the programs are compiled ahead of time (the compile
 time is printed on its own line), and Ipopt's NLP functions are compiled by ``prepare``.
 
-- ``--strategies``: `solve_batch`'s ways to solve the batch, each timed: ``vmap`` (one
-  vectorized program, the members in lockstep) and ``threads`` (the one-problem program, one
-  member per CPU core at a time; what `solve_batch` does on a CPU). The last line is the first
-  strategy's; with both (the default) one line per strategy, ``vmap``'s last.
+- ``--strategies``: `solve_batch`'s ways to solve the batch, each timed: ``vmap`` (one vmapped
+  program: on an accelerator the members step together, on a CPU it runs them one after
+  another, `IpmOptions.cpu_batch`), ``threads`` (the one-problem program, one member per CPU
+  core at a time; what `solve_batch` does on a CPU) and ``vectorized`` (``vmap`` with
+  ``cpu_batch="vectorized"``: the members in lockstep on a CPU too, as before 2026-11-28). The
+  last line is the first strategy's; with several, one line per strategy, the first's last.
 
 - ``--batches``: further batch sizes to time (more noisy starts from the same seed), to see how
   a vmapped solve scales; on a CPU it is about linear, on a GPU it should not be.
@@ -34,6 +36,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import json
 import os
 import platform
@@ -54,7 +57,7 @@ def main() -> None:
     ap.add_argument("--param", default="se3")
     ap.add_argument("--sigma", type=float, default=0.1)
     ap.add_argument("--replicates", type=int, default=10)
-    ap.add_argument("--strategies", default="vmap,threads", help="comma-separated solve_batch strategies to time (vmap, threads)")
+    ap.add_argument("--strategies", default="vmap,threads", help="comma-separated ways to time: vmap, threads (solve_batch's strategies), vectorized (vmap with cpu_batch='vectorized')")
     ap.add_argument("--batches", default="", help="comma-separated further batch sizes to time, e.g. 100,1000")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--jtraj-sequential", action="store_true", help="also time jtraj's solver one replicate at a time")
@@ -65,8 +68,9 @@ def main() -> None:
     strategies = [s.strip() for s in args.strategies.split(",") if s.strip()]
     from jtraj.solvers.ipm import JtrajSolver
 
-    if not strategies or any(s not in JtrajSolver.STRATEGIES for s in strategies):
-        ap.error(f"--strategies takes some of {', '.join(JtrajSolver.STRATEGIES)}")
+    known = (*JtrajSolver.STRATEGIES, "vectorized")
+    if not strategies or any(s not in known for s in strategies):
+        ap.error(f"--strategies takes some of {', '.join(known)}")
     if args.replicates < 1 or any(b < 1 for b in batches):
         ap.error("--replicates and --batches take positive whole numbers")
     if args.no_ipopt:
@@ -86,11 +90,12 @@ def main() -> None:
         "jax": jax.__version__, "device": f"{device.platform} {device.device_kind}", "cpus": os.cpu_count(), "batches": [],
     }
 
-    label = {"vmap": "vmapped", "threads": f"threads ({min(args.replicates, os.cpu_count() or 1)} at a time)"}
+    label = {"vmap": "vmapped", "threads": f"threads ({min(args.replicates, os.cpu_count() or 1)} at a time)", "vectorized": "vmapped (vectorized)"}
     timed: dict[str, float] = {}
     for strategy in strategies:
         for k, size in enumerate([args.replicates, *batches]):
-            sols, total, compile_time = backend.solve_batch(nlp, starts[:size], theta, opts, strategy=strategy)  # type: ignore[attr-defined]
+            how = dict(strategy="vmap", options=dataclasses.replace(opts, cpu_batch="vectorized")) if strategy == "vectorized" else dict(strategy=strategy, options=opts)
+            sols, total, compile_time = backend.solve_batch(nlp, starts[:size], theta, **how)  # type: ignore[attr-defined]
             converged = sum(s.converged for s in sols)
             its = [s.stats.iterations for s in sols]
             print(
@@ -141,6 +146,8 @@ def main() -> None:
         report["vmapped_s"] = timed["vmap"]
     if "threads" in timed:
         report["threads_s"] = timed["threads"]
+    if "vectorized" in timed:
+        report["vectorized_s"] = timed["vectorized"]
     if args.jtraj_sequential:
         print(f"jtraj one at a time: {t_jtraj_seq:.2f} s; " + ", ".join(f"{label[s]} {t:.2f} s, speedup {t_jtraj_seq / t:.2f}" for s, t in timed.items()), flush=True)
     sequential = t_jtraj_seq if args.no_ipopt else t_ipopt

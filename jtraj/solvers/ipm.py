@@ -49,10 +49,13 @@ Differences from Ipopt, and why:
   the solve stops after several in a row. A trial point
   costs the objective and constraints only; the Jacobian is evaluated at accepted points.
 - Everything is one `jax.jit` program (`lax.while_loop`); `jax.vmap` of `IPM.solve` over
-  initial guesses (and parameters theta) runs replicates together, a converged replicate's
-  state no longer changes (the batched while loop only updates unfinished members). On a CPU
-  a vectorized batch is slower than its members one after another (`JtrajSolver.solve_batch`
-  says why), so there `solve_batch` runs the one-problem program on every core instead.
+  initial guesses (and parameters theta) is one program too. On an accelerator it is
+  vectorized: the replicates step together, and a converged replicate's state no longer
+  changes (the batched while loop only updates unfinished members). On a CPU, where a
+  vectorized batch is slower than its members one after another (`_members_apart_on_cpu`
+  says why), its batching rule runs them one after another in the program
+  (`IpmOptions.cpu_batch`), and `JtrajSolver.solve_batch` by default runs the one-problem
+  program on every core instead.
 
 State: `bench/solve.py TASK --variants compact,jtraj` measures it on the six tasks (the
 README quotes the run). Ipopt stays the default.
@@ -193,6 +196,12 @@ class IpmOptions(AbstractOptions):
             fails its line search or reaches ``max_iter`` hands back the first converged
             iterate). Ipopt has no such step; the convergence test itself is Ipopt's. Measured
             on the G1 side-flip: 1.2e-6 at convergence, 5.8e-11 one iteration later.
+        cpu_batch: how ``jax.vmap`` of the solve runs on a CPU: ``"sequential"`` (default:
+            ``lax.map`` of the one-problem solve, each member to its own last iteration, with
+            its results) or ``"vectorized"`` (as on an accelerator, which always vectorizes:
+            the members step together, a converged member's updates masked). Measured on
+            big_jump's noisy replicates, the sequential batch is 2.4x faster on this 2-core CPU
+            (`_members_apart_on_cpu`).
 
     The tolerances of the convergence test and of the polish (`RUNTIME_FIELDS`) are inputs of
     the compiled program: options that differ only in them share one program (`IPM`). Whether
@@ -251,6 +260,7 @@ class IpmOptions(AbstractOptions):
     adaptive_mu_monotone_init_factor: float = 0.8
     feasibility_polish_tol: float | None = 1e-6
     feasibility_polish_iter: int = 5
+    cpu_batch: str = "sequential"
 
     solver_name: ClassVar[str] = "jtraj"
 
@@ -261,6 +271,8 @@ class IpmOptions(AbstractOptions):
             raise InvalidOptionError(f"jtraj option mu_strategy={self.mu_strategy!r}: expected 'adaptive' or 'monotone'")
         if self.mu_oracle not in ("loqo", "quality-function"):
             raise InvalidOptionError(f"jtraj option mu_oracle={self.mu_oracle!r}: expected 'loqo' or 'quality-function'")
+        if self.cpu_batch not in ("sequential", "vectorized"):
+            raise InvalidOptionError(f"jtraj option cpu_batch={self.cpu_batch!r}: expected 'sequential' or 'vectorized'")
         if self.adaptive_mu_globalization not in ("obj-constr-filter", "kkt-error"):
             raise InvalidOptionError(f"jtraj option adaptive_mu_globalization={self.adaptive_mu_globalization!r}: expected 'obj-constr-filter' or 'kkt-error'")
         _positive(self, "tol", "constr_viol_tol", "dual_inf_tol", "compl_inf_tol", "mu_init", "delta_c")
@@ -400,6 +412,52 @@ def _safe(num, den, mask):
     return jnp.where(mask, num / jnp.where(mask, den, 1.0), 0.0)
 
 
+def _members_apart_on_cpu(solve: Any, vectorize_on_cpu: bool = False) -> Any:
+    """``solve(x0, theta, tols)`` whose batching rule, on a CPU, runs the members apart
+    (`IpmOptions.cpu_batch`; ``vectorize_on_cpu``: vectorize there too).
+
+    Under ``jax.vmap`` the vectorized solve steps its members together: every member runs the
+    slowest member's iterations (masked), every batched loop (line search, inertia correction)
+    runs to its longest member's trials, and XLA's CPU code runs the Riccati sweeps' small
+    products several times slower vectorized than member after member (``bench/vmap_cpu.py``).
+    On a CPU the batch is instead ``lax.map`` of the unbatched solve: the members one after
+    another in the same program, each stopping at its own last iteration, with the results of
+    the one-problem program. Elsewhere (GPU) the batch is vectorized. `lax.platform_dependent`
+    picks one per platform when the program is lowered, so one ``jax.vmap(ipm.solve)`` serves
+    both.
+
+    Measured (`bench/replicates.py`, big_jump, 10 replicates at sigma 0.1, 2-core CPU): the
+    vectorized batch took 75.5 s, this 31.4 s. Two lanes of members side by side in the program
+    (two ``lax.map``s, which XLA's CPU runtime may run on two threads) took 33.9 s, and
+    compiled in 109 s against 81 s."""
+    batchable = jax.custom_batching.custom_vmap(solve)
+
+    @batchable.def_vmap
+    def rule(axis_size, in_batched, *args):
+        in_axes = tuple(jax.tree.map(lambda b: 0 if b else None, in_batched))
+
+        def vectorized(*args):
+            return jax.vmap(solve, in_axes=in_axes)(*args)
+
+        def one_after_another(*args):
+            flat, tree = jax.tree.flatten(args)
+            batched = jax.tree.leaves(in_batched)
+
+            def member(leaves):
+                it = iter(leaves)
+                return solve(*jax.tree.unflatten(tree, [next(it) if b else a for a, b in zip(flat, batched)]))
+
+            return lax.map(member, [a for a, b in zip(flat, batched) if b])
+
+        if vectorize_on_cpu:
+            out = vectorized(*args)
+        else:
+            out = lax.platform_dependent(*args, cpu=one_after_another, default=vectorized)
+        return out, jax.tree.map(lambda _: True, out)
+
+    return batchable
+
+
 class IPM:
     """The interior-point solver for one `KnotNLP` (its shapes are static; bounds, initial
     guess, parameters theta and the tolerances are inputs, so new values do not recompile).
@@ -423,7 +481,7 @@ class IPM:
             self.view = StageView(nlp)
             if self.options.hessian == "exact":
                 self.view.prepare_hessian()
-            self.program = jax.jit(self._solve)
+            self.program = jax.jit(_members_apart_on_cpu(self._solve, self.options.cpu_batch == "vectorized"))
             self.compiled: dict[str, Any] = {}  # ahead-of-time compiled programs (`JtrajSolver`)
             shared[key] = self
         else:
@@ -1189,17 +1247,19 @@ class JtrajSolver(AbstractSolver):
         the iterates agree to rounding).
 
         ``strategy``:
-        - ``"vmap"``: one call of the vmapped `IPM` program. Its members step together, and
-          the batch runs until its slowest member is done (the others' updates are masked).
-          ``batch_size`` (>= B; default B): the batch the program is compiled for; a shorter
-          batch is padded with copies of its first guess, so that batches of different
-          lengths (a resumed study's missing replicates) reuse one program.
+        - ``"vmap"``: one call of the vmapped `IPM` program. On an accelerator its members
+          step together, and the batch runs until its slowest member is done (the others'
+          updates are masked); on a CPU the program runs them one after another
+          (`IpmOptions.cpu_batch`). ``batch_size`` (>= B; default B): the batch the program
+          is compiled for; a shorter batch is padded with copies of its first guess, so that
+          batches of different lengths (a resumed study's missing replicates) reuse one
+          program.
         - ``"threads"``: the one-problem program of `solve`, each member on its own, ``threads``
           at a time (default: the CPU count; JAX releases the GIL while a program runs). On a
-          CPU this is the faster way: the Newton step is mostly block sweeps over the knots
-          (small dense products in a `lax.scan`), which XLA's CPU code runs several times
-          slower vectorized over members than member after member (``bench/vmap_cpu.py``), and
-          each member stops at its own last iteration. ``batch_size`` is ignored.
+          CPU this is the faster way: the members run on every core at once, each to its own
+          last iteration (big_jump's 10 noisy replicates on 2 cores: 21.5 s, against 31.4 s
+          for the vmapped program's members one after another; `bench/replicates.py`).
+          ``batch_size`` is ignored.
         - None (default): `default_strategy` (``"threads"`` on a CPU, ``"vmap"`` otherwise).
 
         Returns the B solutions, the wall seconds of the batch (compiling excluded; each
