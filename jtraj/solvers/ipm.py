@@ -200,7 +200,7 @@ class IpmOptions(AbstractOptions):
             ``lax.map`` of the one-problem solve, each member to its own last iteration, with
             its results) or ``"vectorized"`` (as on an accelerator, which always vectorizes:
             the members step together, a converged member's updates masked). Measured on
-            big_jump's noisy replicates, the sequential batch is 2.4x faster on this 2-core CPU
+            big_jump's noisy replicates, the sequential batch is 2.7x faster on this 2-core CPU
             (`_members_apart_on_cpu`).
 
     The tolerances of the convergence test and of the polish (`RUNTIME_FIELDS`) are inputs of
@@ -426,10 +426,11 @@ def _members_apart_on_cpu(solve: Any, vectorize_on_cpu: bool = False) -> Any:
     picks one per platform when the program is lowered, so one ``jax.vmap(ipm.solve)`` serves
     both.
 
-    Measured (`bench/replicates.py`, big_jump, 10 replicates at sigma 0.1, 2-core CPU): the
-    vectorized batch took 75.5 s, this 31.4 s. Two lanes of members side by side in the program
-    (two ``lax.map``s, which XLA's CPU runtime may run on two threads) took 33.9 s, and
-    compiled in 109 s against 81 s."""
+    Measured (`bench/replicates.py --strategies vmap,threads,vectorized`, big_jump, 10
+    replicates at sigma 0.1, 2-core CPU, one run): the vectorized batch took 84.1 s, this
+    31.5 s. Two lanes of members side by side in the program (two ``lax.map``s, which XLA's
+    CPU runtime may run on two threads) took 33.9 s and compiled in 109 s, against 31.4 s and
+    81 s for one lane."""
     batchable = jax.custom_batching.custom_vmap(solve)
 
     @batchable.def_vmap
