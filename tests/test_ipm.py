@@ -352,9 +352,10 @@ def test_second_order_corrections_let_the_full_step_through():
 def test_feasibility_polish_after_a_loose_convergence_test():
     """Converged at a loose violation limit, the solve goes on while the violation is above
     feasibility_polish_tol (at most feasibility_polish_iter iterations, never past max_iter),
-    returns a converged iterate whatever happens, and does the same under vmap."""
+    returns a converged iterate whatever happens, and does the same under vmap (vectorized, as
+    on an accelerator: the polishing member's updates masked apart from the others')."""
     nlp = double_integrator()
-    loose = IpmOptions(tol=1e-2, constr_viol_tol=1e-2, compl_inf_tol=1e-2, max_iter=100, feasibility_polish_tol=None)
+    loose = IpmOptions(tol=1e-2, constr_viol_tol=1e-2, compl_inf_tol=1e-2, max_iter=100, feasibility_polish_tol=None, cpu_batch="vectorized")
     x0 = jnp.zeros((K, 3))
     plain = IPM(nlp, loose).solve(x0, None)
     n, v = int(plain.iterations), float(plain.constr_viol)
