@@ -11,8 +11,8 @@ from pathlib import Path
 # convergence test 69.7 -> 51.7 s). XLA's CPU loop emitters instead of its fusion emitters:
 # 87.4 -> 64.2 s for an interior-point vmap test, a Talos Jacobian test and a Go2 NLP build
 # together (2026-11-28, no compilation cache), and `.ci/run` on a clean clone went from
-# 27 min 56 s (pytest 25:24) to 18 min 8 s (pytest 15:33). Set before the first computation (XLA reads the
-# flags then); notebook kernels inherit them. A flag already in XLA_FLAGS wins.
+# 27 min 56 s (pytest 25:24) to 18 min 8 s (pytest 15:33). Set before the first computation
+# (XLA reads the flags then); notebook kernels inherit them. A flag already in XLA_FLAGS wins.
 for _flag, _value in (("xla_backend_optimization_level", "0"), ("xla_cpu_use_fusion_emitters", "false")):
     if _flag not in os.environ.get("XLA_FLAGS", ""):
         os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + f" --{_flag}={_value}").strip()

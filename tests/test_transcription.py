@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import central_difference
 
 from jtraj import dynamics, success
 from jtraj.io import to_jsonable
@@ -50,16 +51,7 @@ def assert_jacobian_equals_central_differences(nlp, x):
     column per variable (2n calls, under a second). The oracle differentiates nothing; a dense
     `jacfwd` oracle cost a compile of 8-19 s per NLP. Measured, the differences are within
     3e-10 of the largest entry, so a missing or wrong entry (of order one) cannot pass."""
-    def c(y):
-        return np.asarray(nlp.constraints(jnp.asarray(y), nlp.theta))
-
-    h = 1e-6
-    columns = []
-    for i in range(nlp.n):
-        step = np.zeros(nlp.n)
-        step[i] = h
-        columns.append((c(x + step) - c(x - step)) / (2 * h))
-    differences = np.stack(columns, axis=1)
+    differences = central_difference(lambda y: nlp.constraints(jnp.asarray(y), nlp.theta), x, eps=1e-6)
     sparse = nlp.dense_jacobian(jnp.asarray(x))
     assert sparse.shape == differences.shape == (nlp.m, nlp.n)
     np.testing.assert_allclose(sparse, differences, rtol=0, atol=1e-7 * max(1.0, np.abs(differences).max()))

@@ -1258,8 +1258,9 @@ class JtrajSolver(AbstractSolver):
         - ``"threads"``: the one-problem program of `solve`, each member on its own, ``threads``
           at a time (default: the CPU count; JAX releases the GIL while a program runs). On a
           CPU this is the faster way: the members run on every core at once, each to its own
-          last iteration (big_jump's 10 noisy replicates on 2 cores: 21.5 s, against 31.4 s
-          for the vmapped program's members one after another; `bench/replicates.py`).
+          last iteration (big_jump's 10 noisy replicates on 2 cores, one run of
+          `bench/replicates.py`: 19.95 s, against 31.47 s for the vmapped program's members
+          one after another).
           ``batch_size`` is ignored.
         - None (default): `default_strategy` (``"threads"`` on a CPU, ``"vmap"`` otherwise).
 
