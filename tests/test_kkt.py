@@ -107,7 +107,9 @@ def test_block_factor_equals_dense_cholesky(rng):
     assert bool(ok)
     L = np.linalg.cholesky(M)
     for k in range(K):
-        np.testing.assert_allclose(fac.diag[k], L[k * n : (k + 1) * n, k * n : (k + 1) * n], atol=1e-10)
+        # the diagonal blocks are kept transposed (BlockFactor), the blocks below as they are
+        np.testing.assert_allclose(fac.diag[k].T, L[k * n : (k + 1) * n, k * n : (k + 1) * n], atol=1e-10)
+        np.testing.assert_allclose(fac.sub[k], L[k * n : (k + 1) * n, (k - 1) * n : k * n] if k else 0.0, atol=1e-10)
     b = rng.normal(size=(K, n))
     np.testing.assert_allclose(np.asarray(kkt.solve_factored(fac, jnp.asarray(b))).reshape(-1), np.linalg.solve(M, b.reshape(-1)), atol=1e-10)
 

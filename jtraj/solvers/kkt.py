@@ -255,10 +255,14 @@ def _low_rank_apply(low_rank: LowRank, x: jax.Array) -> jax.Array:
 
 
 class BlockFactor(NamedTuple):
-    """Block Cholesky factor of a block-tridiagonal matrix: ``L[k,k] = diag[k]``, ``L[k,k-1] =
-    sub[k]`` (sub[0] = 0), or, factored with ``coupled`` columns (`factor`), those rows of it."""
+    """Block Cholesky factor of a block-tridiagonal matrix: ``L[k,k] = diag[k]^T``, ``L[k,k-1] =
+    sub[k]`` (sub[0] = 0), or, factored with ``coupled`` columns (`factor`), those rows of it.
 
-    diag: jax.Array  # (K, n, n) lower triangular
+    The diagonal blocks are kept transposed (upper triangular): a row-major ``L^T`` is the
+    column-major ``L`` that LAPACK's triangular solves read, so XLA's CPU code slices a block
+    for them without transposing it (measured, `factor`)."""
+
+    diag: jax.Array  # (K, n, n) upper triangular: L[k,k]^T
     sub: jax.Array  # (K, n, n), or (K, c, n) with c coupled columns
 
 
@@ -331,52 +335,73 @@ def factor(diag: jax.Array, upper: jax.Array, coupled: np.ndarray | None = None)
     those rows only, and the factor keeps them alone (``sub`` (K, c, n)): the off-diagonal
     solve costs n^2 c instead of n^3 and the Schur update ``L[k+1,k] L[k+1,k]^T`` c^2 n instead
     of n^3 (the walk: c = 88 of n = 156). ``upper`` may be given whole (K, n, n) or as those
-    columns (K, n, c)."""
+    columns (K, n, c).
+
+    The knot step is written for XLA's CPU code, in which copying a block between layouts
+    cost about as much as the LAPACK calls on it (a profile of big_jump's solve): the Schur
+    update gathers ``L[k+1,k] L[k+1,k]^T`` into the block's coupled rows and columns in one
+    fused subtraction (not a scatter), the matrix is not symmetrized again (the condensed
+    blocks are symmetric, and LAPACK reads one triangle), ``L[k+1, k]`` comes from a
+    right-side triangular solve in its own orientation, and the diagonal factors are kept
+    transposed (`BlockFactor`). On big_jump's shapes (K = 47, n = 132, c = 96), jitted alone,
+    that took a factor from 25-27 ms to 21-22 ms; whole solves, `results/solver_layouts`."""
     n = diag.shape[-1]
     cols = None if coupled is None else np.asarray(coupled)
-    # S_k = D_k - L[k,k-1] L[k,k-1]^T, with L[k,k-1] whole or as its rows `cols`
-    schur = (lambda D, S: D - S @ S.T) if cols is None else (lambda D, S: D.at[cols[:, None], cols[None, :]].add(-(S @ S.T)))
-    if cols is not None and upper.shape[-1] != cols.size:
-        upper = upper[:, :, cols]
+    if cols is None:
+        schur = lambda D, S: D - S @ S.T  # noqa: E731
+    else:
+        # place[j]: column j's place among the coupled columns, or c (a zero row and column)
+        place = np.full(n, cols.size)
+        place[cols] = np.arange(cols.size)
+        schur = lambda D, S: D - jnp.pad(S @ S.T, ((0, 1), (0, 1)))[place[:, None], place[None, :]]  # noqa: E731
+        if upper.shape[-1] != cols.size:
+            upper = upper[:, :, cols]
 
     def step(sub_k, blocks):
         D_k, U_k = blocks
-        L_k = jnp.linalg.cholesky(schur(D_k, sub_k))
-        # L[k+1, k] = U_k^T L_k^-T: (n, n), or (c, n) for its rows `cols`
-        sub_next = solve_triangular(L_k, U_k, lower=True).T
-        return sub_next, (L_k, sub_k)
+        L_k = lax.linalg.cholesky(schur(D_k, sub_k), symmetrize_input=False)
+        # L[k+1, k] = U_k^T L_k^-T, i.e. X L_k^T = U_k^T: (n, n), or (c, n) for its rows `cols`
+        sub_next = lax.linalg.triangular_solve(L_k, U_k.T, left_side=False, lower=True, transpose_a=True)
+        return sub_next, (L_k.T, sub_k)
 
     sub0 = jnp.zeros((n if cols is None else cols.size, n), diag.dtype)
-    _, (L, sub) = lax.scan(step, sub0, (diag, upper))
-    pivots = jnp.diagonal(L, axis1=1, axis2=2)
-    ok = jnp.all(jnp.isfinite(L)) & jnp.all(pivots > 0.0)
-    return BlockFactor(L, sub), ok
+    _, (Lt, sub) = lax.scan(step, sub0, (diag, upper))
+    pivots = jnp.diagonal(Lt, axis1=1, axis2=2)
+    ok = jnp.all(jnp.isfinite(Lt)) & jnp.all(pivots > 0.0)
+    return BlockFactor(Lt, sub), ok
 
 
 def solve_factored(fac: BlockFactor, b: jax.Array, coupled: np.ndarray | None = None) -> jax.Array:
     """``M^-1 b`` for b of shape (K, n), by a forward and a backward block sweep; ``coupled``
     as given to `factor`."""
-    L, sub = fac
+    Lt, sub = fac
+    n = b.shape[-1]
     cols = None if coupled is None else np.asarray(coupled)
     # L[k,k-1] y_{k-1} and L[k+1,k]^T x_{k+1}, with L[k,k-1] whole or as its rows `cols`
-    below = (lambda S, y: S @ y) if cols is None else (lambda S, y: jnp.zeros(S.shape[1], y.dtype).at[cols].set(S @ y))
-    above = (lambda S, x: S.T @ x) if cols is None else (lambda S, x: S.T @ x[cols])
+    if cols is None:
+        below = lambda S, y: S @ y  # noqa: E731
+        above = lambda S, x: S.T @ x  # noqa: E731
+    else:
+        place = np.full(n, cols.size)
+        place[cols] = np.arange(cols.size)
+        below = lambda S, y: jnp.pad(S @ y, (0, 1))[place]  # noqa: E731
+        above = lambda S, x: S.T @ x[cols]  # noqa: E731
 
     def forward(y_prev, inp):
-        L_k, S_k, b_k = inp
-        y = solve_triangular(L_k, b_k - below(S_k, y_prev), lower=True)
+        Lt_k, S_k, b_k = inp
+        y = solve_triangular(Lt_k.T, b_k - below(S_k, y_prev), lower=True)
         return y, y
 
-    _, y = lax.scan(forward, jnp.zeros_like(b[0]), (L, sub, b))
+    _, y = lax.scan(forward, jnp.zeros_like(b[0]), (Lt, sub, b))
     # backward: x_k = L_k^-T (y_k - L[k+1,k]^T x_{k+1})
     sub_next = jnp.concatenate([sub[1:], jnp.zeros_like(sub[:1])], axis=0)
 
     def backward(x_next, inp):
-        L_k, S_next, y_k = inp
-        x = solve_triangular(L_k, y_k - above(S_next, x_next), lower=True, trans="T")
+        Lt_k, S_next, y_k = inp
+        x = solve_triangular(Lt_k.T, y_k - above(S_next, x_next), lower=True, trans="T")
         return x, x
 
-    _, x = lax.scan(backward, jnp.zeros_like(b[0]), (L, sub_next, y), reverse=True)
+    _, x = lax.scan(backward, jnp.zeros_like(b[0]), (Lt, sub_next, y), reverse=True)
     return x
 
 
