@@ -147,6 +147,17 @@ def test_low_rank_hessian_term_equals_dense_solve(rng):
     ref = np.linalg.solve(Md, np.concatenate([r_x.reshape(-1)[keep], r_c.reshape(-1)]))
     np.testing.assert_allclose(np.asarray(dx).reshape(-1)[keep], ref[:nf], rtol=1e-8, atol=1e-8)
     np.testing.assert_allclose(np.asarray(dy).reshape(-1), ref[nf:], rtol=1e-8, atol=1e-8)
+    # several right-hand sides at once (their first solves share the sweeps with W's columns):
+    # each equals the dense solve of its own
+    R_x, R_c = rng.normal(size=(3, K, n)), rng.normal(size=(3, K, m))
+    R_x[1], R_c[1] = r_x, r_c
+    dxs, dys = kkt.solve(blocks, fac, delta_w, jnp.asarray(1e-9), jnp.asarray(R_x), jnp.asarray(R_c), low_rank=low_rank)
+    assert dxs.shape == (3, K, n) and dys.shape == (3, K, m)
+    for j in range(3):
+        ref_j = np.linalg.solve(Md, np.concatenate([R_x[j].reshape(-1)[keep], R_c[j].reshape(-1)]))
+        np.testing.assert_allclose(np.asarray(dxs[j]).reshape(-1)[keep], ref_j[:nf], rtol=1e-8, atol=1e-8)
+        np.testing.assert_allclose(np.asarray(dys[j]).reshape(-1), ref_j[nf:], rtol=1e-8, atol=1e-8)
+    np.testing.assert_allclose(dxs[1], dx, rtol=1e-12, atol=1e-14)
 
 
 def sparse_system(rng, K=6, n=5, m=7, b_cols=None):

@@ -1005,7 +1005,9 @@ class IPM:
         fac, delta_w, ok = kkt.factor_with_correction(system, delta_c, st.delta_w)
         avg = jnp.maximum(self._complementarity(p, st)[0], 1e-300)
         rx, rc = jax.tree.map(lambda a, b: jnp.stack([a, b]), right_hand_side(0.0, r_c), right_hand_side(avg, r_c))
-        dxs, dys = jax.vmap(lambda bx, bc: kkt.solve(system, fac, delta_w, delta_c, bx, bc, o.refine_steps, remove_delta_c=not o.delta_c_mu_scaled, low_rank=low_rank, residual_ratio_max=o.residual_ratio_max, min_refine_steps=o.min_refine_steps))(rx, rc)
+        # both right-hand sides at once: their first block solves share the sweeps with the
+        # low-rank columns' (`kkt.solve`)
+        dxs, dys = kkt.solve(system, fac, delta_w, delta_c, rx, rc, o.refine_steps, remove_delta_c=not o.delta_c_mu_scaled, low_rank=low_rank, residual_ratio_max=o.residual_ratio_max, min_refine_steps=o.min_refine_steps)
         affine = full_step(0.0, dxs[0], dys[0])
         centering = jax.tree.map(lambda a, b: a - b, full_step(avg, dxs[1], dys[1]), affine)  # per unit sigma
         mu = st.mu

@@ -517,57 +517,76 @@ def solve(
     must then be positive definite, as with a BFGS matrix); the condensed solve applies the
     Sherman-Morrison-Woodbury formula with r extra block solves and an r x r system, so the
     block-tridiagonal structure is kept.
+
+    Several right-hand sides: r_x (R, K, n) and r_c (R, K, m) give dx, dy with that leading
+    axis. Their first block solves share the sweeps with the r low-rank columns' (one pass of
+    the factor over R + r columns instead of two passes), and each is then refined on its own.
     """
+    many = r_x.ndim == 3
+    if not many:
+        r_x, r_c = r_x[None], r_c[None]
     A, B = system.A, system.B
     d = system.d0 + delta_c
     f = system.free.astype(r_x.dtype)
     r_x = r_x * f
     coupled = coupled_columns(system.pattern, system.H is not None)
 
+    def block_rhs(rx, rc):
+        return rx + _apply_JT(A, B, rc / d, system.pattern) * f
+
+    def block_solves(bs):
+        return jax.vmap(lambda b: solve_factored(fac, b, coupled))(bs) * f
+
+    first = block_solves(jnp.concatenate([low_rank.W * f, jax.vmap(block_rhs)(r_x, r_c)]) if low_rank is not None else jax.vmap(block_rhs)(r_x, r_c))
     if low_rank is not None:
         # (M0 - W^T M^-1 W)^-1 = M0^-1 + M0^-1 W^T (M - W M0^-1 W^T)^-1 W M0^-1
+        r = low_rank.W.shape[0]
         Wf = low_rank.W * f
-        Z = jax.vmap(lambda w: solve_factored(fac, w, coupled) * f)(Wf)
+        Z, first = first[:r], first[r:]
         capacitance = low_rank.M - jnp.einsum("rkn,skn->rs", Wf, Z)
 
-    def condensed_solve(rx, rc):
-        b = rx + _apply_JT(A, B, rc / d, system.pattern) * f
-        dx = solve_factored(fac, b, coupled) * f
+    def dual(dx, rc):
         if low_rank is not None:
             dx = dx + jnp.einsum("rkn,r->kn", Z, jnp.linalg.solve(capacitance, jnp.einsum("rkn,kn->r", Wf, dx)))
         dy = (_apply_J(A, B, dx, system.pattern) - rc) / d
         return dx, dy
 
-    def residual(dx, dy):
+    def condensed_solve(rx, rc):
+        return dual(solve_factored(fac, block_rhs(rx, rc), coupled) * f, rc)
+
+    def residual(r_x, r_c, dx, dy):
         top, bottom = multiply(system, delta_w, dx, dy, None if remove_delta_c else d, low_rank)
         return r_x - top * f, r_c - bottom
 
     def norm(rx, rc):
         return jnp.maximum(jnp.max(jnp.abs(rx)), jnp.max(jnp.abs(rc)))
 
-    dx, dy = condensed_solve(r_x, r_c)
-    rx, rc = residual(dx, dy)
+    def refined(r_x, r_c, dx0):
+        dx, dy = dual(dx0, r_c)
+        rx, rc = residual(r_x, r_c, dx, dy)
+        rhs = norm(r_x, r_c)
 
-    rhs = norm(r_x, r_c)
+        def ratio(dx, dy, rx, rc):
+            return norm(rx, rc) / jnp.maximum(jnp.minimum(norm(dx, dy), 1e6 * rhs) + rhs, 1e-300)
 
-    def ratio(dx, dy, rx, rc):
-        return norm(rx, rc) / jnp.maximum(jnp.minimum(norm(dx, dy), 1e6 * rhs) + rhs, 1e-300)
+        def refine_more(state):
+            i, dx, dy, rx, rc, go_on = state
+            return (i < refine_steps) & go_on & ((i < min_refine_steps) | (ratio(dx, dy, rx, rc) > residual_ratio_max))
 
-    def refine_more(state):
-        i, dx, dy, rx, rc, go_on = state
-        return (i < refine_steps) & go_on & ((i < min_refine_steps) | (ratio(dx, dy, rx, rc) > residual_ratio_max))
+        def refine(state):
+            i, dx, dy, rx, rc, _ = state
+            cx, cy = condensed_solve(rx, rc)
+            nx, ny = dx + cx, dy + cy
+            nrx, nrc = residual(r_x, r_c, nx, ny)
+            better = norm(nrx, nrc) < norm(rx, rc)
+            pick = lambda new, old: jnp.where(better, new, old)  # noqa: E731
+            # a step that does not lower the residual ends the refinement only in the adaptive
+            # mode: with residual_ratio_max = 0 the fixed count is kept (each step chooses anew)
+            go_on = better | (residual_ratio_max <= 0.0)
+            return i + 1, pick(nx, dx), pick(ny, dy), pick(nrx, rx), pick(nrc, rc), go_on
 
-    def refine(state):
-        i, dx, dy, rx, rc, _ = state
-        cx, cy = condensed_solve(rx, rc)
-        nx, ny = dx + cx, dy + cy
-        nrx, nrc = residual(nx, ny)
-        better = norm(nrx, nrc) < norm(rx, rc)
-        pick = lambda new, old: jnp.where(better, new, old)  # noqa: E731
-        # a step that does not lower the residual ends the refinement only in the adaptive
-        # mode: with residual_ratio_max = 0 the fixed count is kept (each step chooses anew)
-        go_on = better | (residual_ratio_max <= 0.0)
-        return i + 1, pick(nx, dx), pick(ny, dy), pick(nrx, rx), pick(nrc, rc), go_on
+        _, dx, dy, _, _, _ = lax.while_loop(refine_more, refine, (jnp.asarray(0), dx, dy, rx, rc, jnp.asarray(True)))
+        return dx, dy
 
-    _, dx, dy, _, _, _ = lax.while_loop(refine_more, refine, (jnp.asarray(0), dx, dy, rx, rc, jnp.asarray(True)))
-    return dx, dy
+    dx, dy = jax.vmap(refined)(r_x, r_c, first)
+    return (dx, dy) if many else (dx[0], dy[0])
