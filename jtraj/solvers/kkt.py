@@ -366,8 +366,10 @@ def factor(diag: jax.Array, upper: jax.Array, coupled: np.ndarray | None = None)
 
     sub0 = jnp.zeros((n if cols is None else cols.size, n), diag.dtype)
     _, (Lt, sub) = lax.scan(step, sub0, (diag, upper))
+    # a failed block is NaN (LAPACK's info), and a non-finite entry of a row of L_k makes that
+    # row's pivot non-finite: the pivots tell both
     pivots = jnp.diagonal(Lt, axis1=1, axis2=2)
-    ok = jnp.all(jnp.isfinite(Lt)) & jnp.all(pivots > 0.0)
+    ok = jnp.all(jnp.isfinite(pivots) & (pivots > 0.0))
     return BlockFactor(Lt, sub), ok
 
 
@@ -393,15 +395,15 @@ def solve_factored(fac: BlockFactor, b: jax.Array, coupled: np.ndarray | None = 
         return y, y
 
     _, y = lax.scan(forward, jnp.zeros_like(b[0]), (Lt, sub, b))
-    # backward: x_k = L_k^-T (y_k - L[k+1,k]^T x_{k+1})
-    sub_next = jnp.concatenate([sub[1:], jnp.zeros_like(sub[:1])], axis=0)
 
-    def backward(x_next, inp):
-        Lt_k, S_next, y_k = inp
-        x = solve_triangular(Lt_k.T, y_k - above(S_next, x_next), lower=True, trans="T")
-        return x, x
+    # backward: x_k = L_k^-T (y_k - L[k+1,k]^T x_{k+1}); knot k+1's step hands knot k the
+    # product L[k+1,k]^T x_{k+1} (so the scan reads sub[k] at knot k, not a shifted copy)
+    def backward(from_next, inp):
+        Lt_k, S_k, y_k = inp
+        x = solve_triangular(Lt_k.T, y_k - from_next, lower=True, trans="T")
+        return above(S_k, x), x
 
-    _, x = lax.scan(backward, jnp.zeros_like(b[0]), (Lt, sub_next, y), reverse=True)
+    _, x = lax.scan(backward, jnp.zeros_like(b[0]), (Lt, sub, y), reverse=True)
     return x
 
 
