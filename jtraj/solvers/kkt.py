@@ -343,8 +343,9 @@ def factor(diag: jax.Array, upper: jax.Array, coupled: np.ndarray | None = None)
     fused subtraction (not a scatter), the matrix is not symmetrized again (the condensed
     blocks are symmetric, and LAPACK reads one triangle), ``L[k+1, k]`` comes from a
     right-side triangular solve in its own orientation, and the diagonal factors are kept
-    transposed (`BlockFactor`). On big_jump's shapes (K = 47, n = 132, c = 96), jitted alone,
-    that took a factor from 25-27 ms to 21-22 ms; whole solves, `results/solver_layouts`."""
+    transposed (`BlockFactor`). On random blocks of big_jump's shapes (K = 47, n = 132,
+    c = 96), jitted alone in one process, that took a factor from 25.1 to 21.4 ms; whole
+    solves, `results/solver_layouts`."""
     n = diag.shape[-1]
     cols = None if coupled is None else np.asarray(coupled)
     if cols is None:
