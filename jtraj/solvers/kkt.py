@@ -326,6 +326,14 @@ def coupled_columns(pattern: JacobianPattern | None, block_hessian: bool) -> np.
     return pattern.coupled
 
 
+def _places(n: int, cols: np.ndarray) -> np.ndarray:
+    """(n,) each column's place among the coupled columns ``cols``, or ``cols.size`` (the index
+    of a zero padded after them) for the others: a gather that puts c-sized results into n."""
+    place = np.full(n, cols.size)
+    place[cols] = np.arange(cols.size)
+    return place
+
+
 def factor(diag: jax.Array, upper: jax.Array, coupled: np.ndarray | None = None) -> tuple[BlockFactor, jax.Array]:
     """Block Cholesky of the symmetric block-tridiagonal matrix (diag, upper); returns the
     factor and whether it succeeded (the matrix is numerically positive definite).
@@ -351,9 +359,7 @@ def factor(diag: jax.Array, upper: jax.Array, coupled: np.ndarray | None = None)
     if cols is None:
         schur = lambda D, S: D - S @ S.T  # noqa: E731
     else:
-        # place[j]: column j's place among the coupled columns, or c (a zero row and column)
-        place = np.full(n, cols.size)
-        place[cols] = np.arange(cols.size)
+        place = _places(n, cols)
         schur = lambda D, S: D - jnp.pad(S @ S.T, ((0, 1), (0, 1)))[place[:, None], place[None, :]]  # noqa: E731
         if upper.shape[-1] != cols.size:
             upper = upper[:, :, cols]
@@ -385,8 +391,7 @@ def solve_factored(fac: BlockFactor, b: jax.Array, coupled: np.ndarray | None = 
         below = lambda S, y: S @ y  # noqa: E731
         above = lambda S, x: S.T @ x  # noqa: E731
     else:
-        place = np.full(n, cols.size)
-        place[cols] = np.arange(cols.size)
+        place = _places(n, cols)
         below = lambda S, y: jnp.pad(S @ y, (0, 1))[place]  # noqa: E731
         above = lambda S, x: S.T @ x[cols]  # noqa: E731
 
@@ -540,12 +545,14 @@ def solve(
     def block_solves(bs):
         return jax.vmap(lambda b: solve_factored(fac, b, coupled))(bs) * f
 
-    first = block_solves(jnp.concatenate([low_rank.W * f, jax.vmap(block_rhs)(r_x, r_c)]) if low_rank is not None else jax.vmap(block_rhs)(r_x, r_c))
-    if low_rank is not None:
+    rhs = jax.vmap(block_rhs)(r_x, r_c)
+    if low_rank is None:
+        first = block_solves(rhs)
+    else:
         # (M0 - W^T M^-1 W)^-1 = M0^-1 + M0^-1 W^T (M - W M0^-1 W^T)^-1 W M0^-1
-        r = low_rank.W.shape[0]
         Wf = low_rank.W * f
-        Z, first = first[:r], first[r:]
+        both = block_solves(jnp.concatenate([Wf, rhs]))
+        Z, first = both[: Wf.shape[0]], both[Wf.shape[0] :]
         capacitance = low_rank.M - jnp.einsum("rkn,skn->rs", Wf, Z)
 
     def dual(dx, rc):
