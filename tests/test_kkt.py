@@ -322,3 +322,37 @@ def test_adaptive_refinement_removes_delta_c_and_stops_early(rng):
     _, fixed_one = err(1, residual_ratio_max=0.0)
     np.testing.assert_array_equal(np.asarray(one[1]), np.asarray(fixed_one[1]))
     assert not np.array_equal(np.asarray(one[1]), np.asarray(sol0[1]))
+
+
+@pytest.mark.parametrize("with_cols", [False, True])
+def test_factor_finishes_the_blocks_as_condensed_blocks_does(rng, with_cols):
+    """`factor` given the product blocks with ``shift`` and ``keep`` (what
+    `factor_with_correction` hands it) is the factor of `condensed_blocks`' matrix: the shift
+    on the diagonal, the fixed variables' rows and columns the identity's (the system has fixed
+    variables at the first and last knot), the whole blocks and the coupled columns."""
+    K, m, n = 6, 7, 6
+    cols = np.array([1, 3, 4])
+    system, args = sparse_system(rng, K, n, m, b_cols=cols)
+    pattern = kkt.JacobianPattern(*args)
+    sys_p = system._replace(A=pattern.values(system.A, system.B), B=None, pattern=pattern)
+    assert not bool(np.all(system.free))
+    d = jnp.asarray(rng.uniform(0.5, 2.0, size=(K, m)))
+    dw = jnp.asarray(0.3)
+    diag, upper = kkt.condensed_blocks(sys_p, d, dw)
+    raw_diag, raw_upper = kkt._product_blocks(sys_p, d)
+    coupled = cols if with_cols else None
+    if not with_cols:
+        upper = jnp.zeros((K, n, n)).at[:, :, cols].set(upper)
+        raw_upper = jnp.zeros((K, n, n)).at[:, :, cols].set(raw_upper)
+    ref, ok_ref = kkt.factor(diag, upper, coupled)
+    keep = system.free.astype(float)
+    got, ok = jax.jit(lambda a, b, s, f: kkt.factor(a, b, coupled, shift=s, keep=f))(raw_diag, raw_upper, system.sigma + dw, keep)
+    assert bool(ok) and bool(ok_ref)
+    np.testing.assert_allclose(got.diag, ref.diag, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(got.sub, ref.sub, rtol=1e-12, atol=1e-12)
+    # a fixed variable's pivot is 1 and its row of the factor is the identity's
+    Lt = np.asarray(got.diag)
+    np.testing.assert_array_equal(Lt[0, 0], np.eye(n)[0])
+    # the blocks differ from the unfinished ones (the check can fail)
+    raw, _ = kkt.factor(raw_diag + jax.vmap(jnp.diag)(system.sigma + dw), raw_upper, coupled)
+    assert not np.allclose(raw.diag, ref.diag)

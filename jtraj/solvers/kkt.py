@@ -37,6 +37,7 @@ nonzero columns of the off-diagonal blocks, and so the only nonzero rows of the 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import NamedTuple
 
 import jax
@@ -174,6 +175,8 @@ class JacobianPattern:
         srt = np.argsort(target, kind="stable")
         self._pairs = (i32(p[srt]), i32(q[srt]), i32(e_row[p[srt]]), i32(target[srt]))
         self.n_pairs = int(p.size)
+        # the targets are sorted, diag's (< K n n) first: how many pairs land on diag
+        self._n_diag_pairs = int(np.searchsorted(target[srt], K * n * n))
         # A's nonzeros in the dense slots: their index in the vector, their place in (K, slots, n)
         where = np.full(m, -1)
         where[self.dense_slots] = np.arange(self.dense_slots.size)
@@ -223,15 +226,21 @@ class JacobianPattern:
         zero); the B-B products land on diag[k + 1]."""
         K, n, c = self.K, self.n, self.coupled.size
         p, q, row, target = self._pairs
+        nd = self._n_diag_pairs
         prods = v[p] * v[q] * w.reshape(-1)[row]
-        out = jax.ops.segment_sum(prods, target, num_segments=K * n * n + K * n * c, indices_are_sorted=True)
-        diag, upper = out[: K * n * n].reshape(K, n, n), out[K * n * n :].reshape(K, n, c)
-        # (the pairs of one knot's columns come in both orders, so diag is symmetric)
+        # diag's pairs are added into the dense slots' product (or zeros), upper's into zeros:
+        # two sorted scatter-adds, with no zero-filled buffer and no add pass for diag (a
+        # profile of big_jump's solve: those were about 2 % of it)
         if self.dense_slots.size:
             s = self.dense_slots.size
             Ad = jnp.zeros(K * s * n, v.dtype).at[self._dense[1]].set(v[self._dense[0]]).reshape(K, s, n)
-            diag = diag + jnp.swapaxes(Ad * w[:, self.dense_slots, None], 1, 2) @ Ad
-        return diag, upper
+            base = (jnp.swapaxes(Ad * w[:, self.dense_slots, None], 1, 2) @ Ad).reshape(-1)
+        else:
+            base = jnp.zeros(K * n * n, v.dtype)
+        diag = base.at[target[:nd]].add(prods[:nd], indices_are_sorted=True, mode="promise_in_bounds").reshape(K, n, n)
+        upper = jnp.zeros(K * n * c, v.dtype).at[target[nd:] - K * n * n].add(prods[nd:], indices_are_sorted=True, mode="promise_in_bounds")
+        # (the pairs of one knot's columns come in both orders, so diag is symmetric)
+        return diag, upper.reshape(K, n, c)
 
 
 class LowRank(NamedTuple):
@@ -287,8 +296,22 @@ def condensed_blocks(system: KKTSystem, d: jax.Array, delta_w: jax.Array) -> tup
     """Blocks of ``M = H + diag(sigma) + delta_w I + J^T diag(1/d) J`` restricted to the free
     variables (identity on fixed ones): (diag (K, n, n), upper (K, n, n) with upper[k] =
     M[k, k+1], upper[K-1] = 0). Where `coupled_columns` gives columns (a pattern, no block
-    Hessian), upper is those columns of the blocks alone, (K, n, c), as `factor` takes them."""
-    H, sigma, A, B, free, pattern = system.H, system.sigma, system.A, system.B, system.free, system.pattern
+    Hessian), upper is those columns of the blocks alone, (K, n, c), as `factor` takes them.
+
+    `factor_with_correction` does not form these: it hands `factor` the blocks of
+    `_product_blocks` with the diagonal and the free variables' mask, which the factor applies
+    to each block as it reads it (the same matrix)."""
+    diag, upper = _product_blocks(system, d)
+    f = system.free.astype(diag.dtype)
+    keep_next = _keep_next(f, coupled_columns(system.pattern, system.H is not None))
+    blocks: tuple[jax.Array, jax.Array] = jax.vmap(_finish)(diag, upper, system.sigma + delta_w, f, keep_next)
+    return blocks
+
+
+def _product_blocks(system: KKTSystem, d: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """The blocks of ``H + J^T diag(1/d) J`` (no diagonal terms, no mask), shaped as
+    `condensed_blocks`'."""
+    H, sigma, A, B, pattern = system.H, system.sigma, system.A, system.B, system.pattern
     K, n = sigma.shape
     has_next = _split_last(K)
     w = 1.0 / d
@@ -307,14 +330,23 @@ def condensed_blocks(system: KKTSystem, d: jax.Array, delta_w: jax.Array) -> tup
     if H is not None:
         diag = (diag + H[:, :n, :n]).at[1:].add(H[:-1, n:, n:])
         upper = upper + H[:, :n, n:] * has_next[:, None, None]
-    diag = diag + jax.vmap(jnp.diag)(sigma + delta_w)
-    f = free.astype(diag.dtype)
-    f_next = jnp.concatenate([f[1:], jnp.zeros_like(f[:1])], axis=0)
-    if coupled is not None:
-        f_next = f_next[:, coupled]
-    diag = diag * f[:, :, None] * f[:, None, :] + jax.vmap(jnp.diag)(1.0 - f)
-    upper = upper * f[:, :, None] * f_next[:, None, :]
     return diag, upper
+
+
+def _keep_next(f: jax.Array, coupled: np.ndarray | None) -> jax.Array:
+    """(K, n) or (K, c): the free mask of knot k + 1 (0 after the last), on ``coupled``'s
+    columns where given."""
+    f_next = jnp.concatenate([f[1:], jnp.zeros_like(f[:1])], axis=0)
+    return f_next if coupled is None else f_next[:, coupled]
+
+
+def _finish(D: jax.Array, U: jax.Array, shift: jax.Array, keep: jax.Array, keep_next: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """One knot's blocks of `condensed_blocks` from `_product_blocks`': ``shift`` (n,) added to
+    the diagonal, the rows and columns of the fixed variables (``keep`` 0) replaced by the
+    identity's, and U's columns of fixed variables of the next knot zeroed."""
+    eye = jnp.eye(D.shape[-1], dtype=D.dtype)
+    D = D * (keep[:, None] * keep[None, :]) + eye * (shift * keep + 1.0 - keep)[None, :]
+    return D, U * (keep[:, None] * keep_next[None, :])
 
 
 def coupled_columns(pattern: JacobianPattern | None, block_hessian: bool) -> np.ndarray | None:
@@ -334,9 +366,17 @@ def _places(n: int, cols: np.ndarray) -> np.ndarray:
     return place
 
 
-def factor(diag: jax.Array, upper: jax.Array, coupled: np.ndarray | None = None) -> tuple[BlockFactor, jax.Array]:
+def factor(
+    diag: jax.Array, upper: jax.Array, coupled: np.ndarray | None = None, shift: jax.Array | None = None, keep: jax.Array | None = None
+) -> tuple[BlockFactor, jax.Array]:
     """Block Cholesky of the symmetric block-tridiagonal matrix (diag, upper); returns the
     factor and whether it succeeded (the matrix is numerically positive definite).
+
+    ``shift`` and ``keep`` (K, n), given together: factor instead the matrix whose blocks
+    `condensed_blocks` makes of these (``shift`` added to the diagonal, the variables with
+    ``keep`` 0 fixed: their rows and columns the identity's), each block finished as the knot
+    step reads it, with no pass over the whole blocks (in a profile of big_jump's solve, the
+    passes that made the diagonal and the mask took about 3 % of it).
 
     ``coupled`` (static, c of the n columns): the only columns in which the blocks ``upper``
     may be nonzero (`coupled_columns`). Then ``L[k+1, k] = upper[k]^T L_k^-T`` is nonzero on
@@ -364,15 +404,24 @@ def factor(diag: jax.Array, upper: jax.Array, coupled: np.ndarray | None = None)
         if upper.shape[-1] != cols.size:
             upper = upper[:, :, cols]
 
+    finish: Callable[..., tuple[jax.Array, jax.Array]]
+    if shift is None:
+        finish = lambda D, U: (D, U)  # noqa: E731
+        extra: tuple[jax.Array, ...] = ()
+    else:
+        assert keep is not None, "shift and keep go together"
+        finish = _finish
+        extra = (shift, keep, _keep_next(keep, cols))
+
     def step(sub_k, blocks):
-        D_k, U_k = blocks
+        D_k, U_k = finish(*blocks)
         L_k = lax.linalg.cholesky(schur(D_k, sub_k), symmetrize_input=False)
         # L[k+1, k] = U_k^T L_k^-T, i.e. X L_k^T = U_k^T: (n, n), or (c, n) for its rows `cols`
         sub_next = lax.linalg.triangular_solve(L_k, U_k.T, left_side=False, lower=True, transpose_a=True)
         return sub_next, (L_k.T, sub_k)
 
     sub0 = jnp.zeros((n if cols is None else cols.size, n), diag.dtype)
-    _, (Lt, sub) = lax.scan(step, sub0, (diag, upper))
+    _, (Lt, sub) = lax.scan(step, sub0, (diag, upper, *extra))
     # a failed block is NaN (LAPACK's info), and a non-finite entry of a row of L_k makes that
     # row's pivot non-finite: the pivots tell both
     pivots = jnp.diagonal(Lt, axis1=1, axis2=2)
@@ -424,12 +473,14 @@ def factor_with_correction(
     Returns (factor, delta_w used, ok).
     """
     d = system.d0 + delta_c
-    n = system.sigma.shape[1]
-    # one factorization in the program (attempt 0 is delta_w = 0), to keep compile time low
     coupled = coupled_columns(system.pattern, system.H is not None)
-    K = system.sigma.shape[0]
-    zeros = jnp.zeros((K, n, n), system.sigma.dtype)
-    empty = BlockFactor(zeros, zeros if coupled is None else jnp.zeros((K, coupled.size, n), zeros.dtype))
+    # the products J^T D^-1 J (and H) once; each attempt's delta_w and the free mask are
+    # applied by the factor's knot step
+    diag, upper = _product_blocks(system, d)
+    keep = system.free.astype(diag.dtype)
+
+    def attempt(dw):
+        return factor(diag, upper, coupled=coupled, shift=system.sigma + dw, keep=keep)
 
     def cond(state):
         _, ok, dw, i = state
@@ -439,11 +490,16 @@ def factor_with_correction(
         _, _, dw, i = state
         first = jnp.where(delta_w_last == 0.0, options.delta_w_first, jnp.maximum(options.delta_w_min, options.kappa_minus * delta_w_last))
         grow = jnp.where(delta_w_last == 0.0, options.kappa_plus_first, options.kappa_plus) * dw
-        dw_new = jnp.where(i == 0, 0.0, jnp.where(i == 1, first, grow))
-        fac, ok = factor(*condensed_blocks(system, d, dw_new), coupled=coupled)
+        dw_new = jnp.where(i == 1, first, grow)
+        fac, ok = attempt(dw_new)
         return fac, ok, dw_new, i + 1
 
-    fac, ok, dw, _ = lax.while_loop(cond, body, (empty, jnp.asarray(False), jnp.zeros(()), jnp.zeros((), jnp.int32)))
+    # attempt 0 (delta_w = 0) before the loop, whose state it starts: no zero-filled factor
+    # for the loop's first state (2 % of a profiled big_jump solve), at the price of a second
+    # factorization in the program
+    zero = jnp.zeros((), system.sigma.dtype)
+    fac0, ok0 = attempt(zero)
+    fac, ok, dw, _ = lax.while_loop(cond, body, (fac0, ok0, zero, jnp.ones((), jnp.int32)))
     return fac, dw, ok
 
 
