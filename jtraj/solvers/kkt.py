@@ -495,8 +495,8 @@ def factor_with_correction(
         return fac, ok, dw_new, i + 1
 
     # attempt 0 (delta_w = 0) before the loop, whose state it starts: no zero-filled factor
-    # for the loop's first state (2 % of a profiled big_jump solve), at the price of a second
-    # factorization in the program
+    # for the loop's first state (about 1 % of a profiled big_jump solve), at the price of a
+    # second factorization in the program
     zero = jnp.zeros((), system.sigma.dtype)
     fac0, ok0 = attempt(zero)
     fac, ok, dw, _ = lax.while_loop(cond, body, (fac0, ok0, zero, jnp.ones((), jnp.int32)))
