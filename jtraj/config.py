@@ -1,4 +1,4 @@
-"""Process-wide settings: JAX's persistent compilation cache."""
+"""Process-wide settings: JAX's CPU devices and its persistent compilation cache."""
 
 from __future__ import annotations
 
@@ -11,6 +11,41 @@ _enabled: Path | None = None
 
 #: Size limit of the persistent compilation cache (least recently used entries go first).
 CACHE_MAX_BYTES = 4 * 2**30
+
+
+def cpu_count() -> int:
+    """The cores this process may run on (its CPU affinity, not the machine's count)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+def split_cpu(count: int | None = None) -> int | None:
+    """Give JAX one CPU device per core (``count`` devices; default ``JTRAJ_CPU_DEVICES``, else
+    `cpu_count`), so that a vmapped jtraj solve on the CPU splits its batch over every core in
+    one program (`jtraj.solvers.ipm`); a one-problem program still runs on one device. Called
+    by ``import jtraj``. Leaves things as they are, and returns None, where the count is
+    already chosen (``jax_num_cpu_devices``, ``JAX_NUM_CPU_DEVICES`` or XLA's
+    ``--xla_force_host_platform_device_count``) or JAX has started its backends (the setting
+    must come before the first computation); returns the count set otherwise.
+    ``JTRAJ_CPU_DEVICES=1`` keeps JAX's single CPU device."""
+    chosen = jax.config.jax_num_cpu_devices  # type: ignore[attr-defined]  # (-1: not chosen)
+    if chosen != -1 or "xla_force_host_platform_device_count" in os.environ.get("XLA_FLAGS", ""):
+        return None
+    if count is None:
+        given = os.environ.get("JTRAJ_CPU_DEVICES")
+        try:
+            count = int(given) if given else cpu_count()
+        except ValueError:
+            raise ValueError(f"JTRAJ_CPU_DEVICES={given!r}: expected a positive whole number of CPU devices") from None
+    if count < 1:
+        raise ValueError(f"jtraj: {count} CPU devices; expected a positive count")
+    try:
+        jax.config.update("jax_num_cpu_devices", count)
+    except RuntimeError:  # JAX computed before jtraj was imported: its devices are fixed
+        return None
+    return count
 
 
 def default_cache_dir() -> Path:

@@ -17,10 +17,14 @@ for _flag, _value in (("xla_backend_optimization_level", "0"), ("xla_cpu_use_fus
     if _flag not in os.environ.get("XLA_FLAGS", ""):
         os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + f" --{_flag}={_value}").strip()
 
+# Two CPU devices whatever the machine (`jtraj.config.split_cpu` gives one per core): the vmapped
+# interior point's split over devices is what the tests check.
+os.environ.setdefault("JTRAJ_CPU_DEVICES", "2")
+
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-import jtraj  # noqa: E402, F401  (float64)
+import jtraj  # noqa: E402, F401  (float64, the CPU devices)
 
 
 @pytest.fixture

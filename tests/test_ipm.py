@@ -131,21 +131,34 @@ def test_quality_function_and_loqo_oracles_reach_the_same_solution(toy):
         IpmOptions(mu_oracle="probing")
 
 
-def test_vmap_equals_one_by_one_and_no_recompile(toy):
-    """On a CPU the vmapped program runs its members one after another (``cpu_batch=
-    "sequential"``, `lax.map` of the one-problem solve): each member's result is the
-    one-problem program's. (The vectorized batch of an accelerator: the next test.)"""
+def test_vmap_equals_one_by_one_and_no_recompile(toy, monkeypatch):
+    """On a CPU the vmapped program splits its batch over the CPU devices (two in the tests,
+    conftest), each running its share one member after another (``cpu_batch="sequential"``,
+    `lax.map` of the one-problem solve); three members on two devices are padded to four.
+    Each member's result is the one-problem program's, and so it is on one CPU device (the
+    program of a machine with one core). (The vectorized batch of an accelerator: the next
+    test.)"""
+    from jtraj.solvers import ipm as ipm_module
+
     _nlp, ipm = toy
     assert ipm.options.cpu_batch == "sequential"
+    assert len(ipm_module._batch_devices()) == 2
     x0s = 0.3 * np.random.default_rng(0).standard_normal((3, K, 3))
     batched = jax.jit(jax.vmap(ipm.solve, in_axes=(0, None)))(jnp.asarray(x0s), None)
+    assert len(batched.x.sharding.device_set) == 2  # one program on both devices
+    # a fresh NLP, so that its program is traced again, with one CPU device
+    monkeypatch.setattr(ipm_module, "_batch_devices", lambda: jax.local_devices(backend="cpu")[:1])
+    alone = IPM(double_integrator(), ipm.options)
+    one_device = jax.jit(jax.vmap(alone.solve, in_axes=(0, None)))(jnp.asarray(x0s), None)
+    assert len(one_device.x.sharding.device_set) == 1
     for i, x0 in enumerate(x0s):
         one = ipm.solve(jnp.asarray(x0), None)
-        assert int(one.iterations) == int(batched.iterations[i])
-        assert int(one.passes) == int(batched.passes[i])
-        # (measured: equal to the last bit; the map's body is compiled apart from the
-        # one-problem program, so rounding may differ)
-        np.testing.assert_allclose(np.asarray(batched.x[i]), np.asarray(one.x), rtol=0, atol=1e-12)
+        for batch in (batched, one_device):
+            assert int(one.iterations) == int(batch.iterations[i])
+            assert int(one.passes) == int(batch.passes[i])
+            # (measured: equal to the last bit; the map's body is compiled apart from the
+            # one-problem program, so rounding may differ)
+            np.testing.assert_allclose(np.asarray(batch.x[i]), np.asarray(one.x), rtol=0, atol=1e-12)
     assert ipm.program._cache_size() == 1  # new initial guesses did not recompile
 
 

@@ -53,9 +53,10 @@ Differences from Ipopt, and why:
   vectorized: the replicates step together, and a converged replicate's state no longer
   changes (the batched while loop only updates unfinished members). On a CPU, where a
   vectorized batch is slower than its members one after another (`_members_apart_on_cpu`
-  says why), its batching rule runs them one after another in the program
-  (`IpmOptions.cpu_batch`), and `JtrajSolver.solve_batch` by default runs the one-problem
-  program on every core instead.
+  says why), its batching rule splits the batch over JAX's CPU devices (one per core, set by
+  ``import jtraj``), each running its share one member after another in the same program
+  (`IpmOptions.cpu_batch`); `JtrajSolver.solve_batch` by default runs the one-problem
+  program on every core instead, which balances uneven members better.
 
 State: `bench/solve.py TASK --variants compact,jtraj` measures it on the six tasks (the
 README quotes the run). Ipopt stays the default.
@@ -197,11 +198,13 @@ class IpmOptions(AbstractOptions):
             iterate). Ipopt has no such step; the convergence test itself is Ipopt's. Measured
             on the G1 side-flip: 1.2e-6 at convergence, 5.8e-11 one iteration later.
         cpu_batch: how ``jax.vmap`` of the solve runs on a CPU: ``"sequential"`` (default:
-            ``lax.map`` of the one-problem solve, each member to its own last iteration, with
-            its results) or ``"vectorized"`` (as on an accelerator, which always vectorizes:
-            the members step together, a converged member's updates masked). Measured on
-            big_jump's noisy replicates, the sequential batch is 2.7x faster on this 2-core CPU
-            (`_members_apart_on_cpu`).
+            the batch split in contiguous shares over JAX's CPU devices, one per core, each
+            share ``lax.map`` of the one-problem solve, each member to its own last iteration,
+            with its results) or ``"vectorized"`` (as on an accelerator, which always
+            vectorizes: the members step together, a converged member's updates masked).
+            Measured on big_jump's noisy replicates, the sequential batch on one device was
+            2.7x faster than the vectorized one on this 2-core CPU, and two devices took it
+            from 19.2 to 12.4 s (`_members_apart_on_cpu`).
 
     The tolerances of the convergence test and of the polish (`RUNTIME_FIELDS`) are inputs of
     the compiled program: options that differ only in them share one program (`IPM`). Whether
@@ -422,15 +425,19 @@ def _members_apart_on_cpu(solve: Any, vectorize_on_cpu: bool = False) -> Any:
     products several times slower vectorized than member after member (``bench/vmap_cpu.py``).
     On a CPU the batch is instead ``lax.map`` of the unbatched solve: the members one after
     another in the same program, each stopping at its own last iteration, with the results of
-    the one-problem program. Elsewhere (GPU) the batch is vectorized. `lax.platform_dependent`
-    picks one per platform when the program is lowered, so one ``jax.vmap(ipm.solve)`` serves
-    both.
+    the one-problem program; with several CPU devices (`jtraj.config.split_cpu`, one per core)
+    the batch is split over them (`_split_over_devices`), and each runs its share so. Elsewhere
+    (GPU) the batch is vectorized. `lax.platform_dependent` picks one per platform when the
+    program is lowered, so one ``jax.vmap(ipm.solve)`` serves both.
 
     Measured (`bench/replicates.py --strategies vmap,threads,vectorized`, big_jump, 10
     replicates at sigma 0.1, 2-core CPU, one run): the vectorized batch took 84.1 s, this
     31.5 s. Two lanes of members side by side in the program (two ``lax.map``s, which XLA's
     CPU runtime may run on two threads) took 33.9 s and compiled in 109 s, against 31.4 s and
-    81 s for one lane."""
+    81 s for one lane. Split over two CPU devices instead (2026-12-01, a faster day of the same
+    machine, ``--no-ipopt``): 12.41 s against 19.15 s on one device, ten one-problem solves
+    17.8-19.1 s; the shares were 131 and 159 iterations, so the split cannot beat 159/290 of
+    one lane."""
     batchable = jax.custom_batching.custom_vmap(solve)
 
     @batchable.def_vmap
@@ -452,11 +459,44 @@ def _members_apart_on_cpu(solve: Any, vectorize_on_cpu: bool = False) -> Any:
 
         if vectorize_on_cpu:
             out = vectorized(*args)
+        elif len(devices := _batch_devices()) > 1:
+            out = _split_over_devices(one_after_another, devices, axis_size, args, in_batched)
         else:
             out = lax.platform_dependent(*args, cpu=one_after_another, default=vectorized)
         return out, jax.tree.map(lambda _: True, out)
 
     return batchable
+
+
+def _batch_devices() -> list:
+    """The devices a vmapped solve splits its batch over: JAX's CPU devices when it computes on
+    the CPU (`jtraj.config.split_cpu`: one per core), else none (an accelerator vectorizes)."""
+    return jax.local_devices(backend="cpu") if jax.default_backend() == "cpu" else []
+
+
+def _split_over_devices(batch: Any, devices: list, size: int, args: tuple, in_batched: tuple) -> Any:
+    """``batch(*args)`` (batched along axis 0 where ``in_batched``) with the batch split in
+    contiguous shares over ``devices`` (`jax.shard_map`; no more devices than members): each
+    device runs ``batch`` of its share, all at once, so the one program computes on every CPU
+    device (`jtraj.config.split_cpu`: one per core). A batch that does not divide is padded
+    with copies of its first member, whose results are dropped."""
+    from jax.sharding import Mesh, PartitionSpec
+
+    devices = devices[: min(len(devices), size)]
+    count = len(devices)
+    pad = -size % count
+    in_batched = tuple(in_batched)
+    spec = jax.tree.map(lambda b: PartitionSpec("batch") if b else PartitionSpec(), in_batched)
+
+    def padded(a, b):
+        return jnp.concatenate([a, jnp.repeat(a[:1], pad, axis=0)]) if b and pad else a
+
+    args = jax.tree.map(padded, args, in_batched)
+    mesh = Mesh(np.asarray(devices), ("batch",))
+    # each device's share is its own problem: no collectives, and no check of the loops'
+    # carries for values that vary over the mesh (every carry does)
+    out = jax.shard_map(batch, mesh=mesh, in_specs=spec, out_specs=PartitionSpec("batch"), check_vma=False)(*args)
+    return jax.tree.map(lambda a: a[:size], out) if pad else out
 
 
 class IPM:
@@ -1252,17 +1292,17 @@ class JtrajSolver(AbstractSolver):
         ``strategy``:
         - ``"vmap"``: one call of the vmapped `IPM` program. On an accelerator its members
           step together, and the batch runs until its slowest member is done (the others'
-          updates are masked); on a CPU the program runs them one after another
-          (`IpmOptions.cpu_batch`). ``batch_size`` (>= B; default B): the batch the program
+          updates are masked); on a CPU the program splits them over the CPU devices (one per
+          core), each running its share one member after another (`IpmOptions.cpu_batch`). ``batch_size`` (>= B; default B): the batch the program
           is compiled for; a shorter batch is padded with copies of its first guess, so that
           batches of different lengths (a resumed study's missing replicates) reuse one
           program.
         - ``"threads"``: the one-problem program of `solve`, each member on its own, ``threads``
           at a time (default: the CPU count; JAX releases the GIL while a program runs). On a
-          CPU this is the faster way: the members run on every core at once, each to its own
-          last iteration (big_jump's 10 noisy replicates on 2 cores, one run of
-          `bench/replicates.py`: 19.95 s, against 31.47 s for the vmapped program's members
-          one after another).
+          CPU this balances uneven members better: each core takes the next member when it
+          is done (big_jump's 10 noisy replicates on 2 cores, one run of `bench/replicates.py`
+          on 2026-12-01: 10.03 s, against 10.77 s for the vmapped program split over two CPU
+          devices, whose fixed shares held 131 and 159 of the 290 iterations).
           ``batch_size`` is ignored.
         - None (default): `default_strategy` (``"threads"`` on a CPU, ``"vmap"`` otherwise).
 

@@ -1,0 +1,55 @@
+"""Process-wide settings (`jtraj.config`): JAX's CPU devices, chosen by ``import jtraj``."""
+
+import os
+import subprocess
+import sys
+
+import jax
+import pytest
+
+from jtraj import config
+
+
+def _devices_after_import(env: dict[str, str], before: str = "") -> subprocess.CompletedProcess:
+    """A fresh interpreter imports jtraj (after ``before``) and prints its CPU device count."""
+    code = f"import jax\n{before}\nimport jtraj\nprint(len(jax.devices('cpu')))"
+    clean = {k: v for k, v in os.environ.items() if k not in ("JTRAJ_CPU_DEVICES", "JAX_NUM_CPU_DEVICES")}
+    clean["XLA_FLAGS"] = " ".join(f for f in clean.get("XLA_FLAGS", "").split() if "device_count" not in f)
+    return subprocess.run([sys.executable, "-c", code], env={**clean, **env}, capture_output=True, text=True, timeout=120)
+
+
+def test_import_gives_one_cpu_device_per_core():
+    out = _devices_after_import({})
+    assert out.returncode == 0, out.stderr
+    assert int(out.stdout) == config.cpu_count()
+
+
+@pytest.mark.parametrize(
+    "env, before, expected",
+    [
+        ({"JTRAJ_CPU_DEVICES": "3"}, "", 3),
+        ({"JTRAJ_CPU_DEVICES": "1"}, "", 1),
+        # the user's own choice wins, and so does a JAX that has computed already
+        ({"JAX_NUM_CPU_DEVICES": "4", "JTRAJ_CPU_DEVICES": "3"}, "", 4),
+        ({"XLA_FLAGS": "--xla_force_host_platform_device_count=5"}, "", 5),
+        ({"JTRAJ_CPU_DEVICES": "3"}, "jax.numpy.zeros(1)", 1),
+    ],
+)
+def test_cpu_devices_follow_the_environment(env, before, expected):
+    out = _devices_after_import(env, before)
+    assert out.returncode == 0, out.stderr
+    assert int(out.stdout) == expected
+
+
+def test_a_bad_device_count_says_what_is_expected():
+    out = _devices_after_import({"JTRAJ_CPU_DEVICES": "two"})
+    assert out.returncode != 0 and "JTRAJ_CPU_DEVICES='two': expected a positive whole number" in out.stderr
+    out = _devices_after_import({"JTRAJ_CPU_DEVICES": "0"})
+    assert out.returncode != 0 and "0 CPU devices; expected a positive count" in out.stderr
+
+
+def test_split_cpu_leaves_a_started_jax_alone():
+    # this process computed already (conftest set two devices before jtraj's import)
+    assert len(jax.devices("cpu")) == 2
+    assert config.split_cpu(3) is None
+    assert len(jax.devices("cpu")) == 2
