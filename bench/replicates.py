@@ -11,8 +11,9 @@ Compilation is excluded from every time: the programs are compiled ahead of time
 time is printed on its own line), and Ipopt's NLP functions are compiled by ``prepare``.
 
 - ``--strategies``: `solve_batch`'s ways to solve the batch, each timed: ``vmap`` (one vmapped
-  program: on an accelerator the members step together, on a CPU it runs them one after
-  another, `IpmOptions.cpu_batch`), ``threads`` (the one-problem program, one member per CPU
+  program: on an accelerator the members step together, on a CPU it splits them over the CPU
+  devices, one per core, each running its share one member after another,
+  `IpmOptions.cpu_batch`), ``threads`` (the one-problem program, one member per CPU
   core at a time; what `solve_batch` does on a CPU) and ``vectorized`` (``vmap`` with
   ``cpu_batch="vectorized"``: the members in lockstep on a CPU too, as before 2026-11-28). The
   last line is the first strategy's; with several, one line per strategy, the first's last.
@@ -77,7 +78,7 @@ def main() -> None:
         args.jtraj_sequential = True  # something to compare with
 
     device = jax.devices()[0]
-    print(f"JAX {jax.__version__} on {device.platform} ({device.device_kind}); {platform.node()}", flush=True)
+    print(f"JAX {jax.__version__} on {device.platform} ({device.device_kind}, {jax.local_device_count(device.platform)} devices); {platform.node()}", flush=True)
     prep = prepare(args.task, args.param)
     tr, nlp = prep.transcription, prep.nlp
     theta = tr.resolve_theta(None)
@@ -87,7 +88,7 @@ def main() -> None:
     starts = noisy_warm_starts(tr.warm_start(), [args.sigma], largest, args.seed)[0]
     report: dict = {
         "task": args.task, "parameterization": args.param, "sigma": args.sigma, "replicates": args.replicates,
-        "jax": jax.__version__, "device": f"{device.platform} {device.device_kind}", "cpus": os.cpu_count(), "batches": [],
+        "jax": jax.__version__, "device": f"{device.platform} {device.device_kind}", "devices": jax.local_device_count(device.platform), "cpus": os.cpu_count(), "batches": [],
     }
 
     label = {"vmap": "vmapped", "threads": f"threads ({min(args.replicates, os.cpu_count() or 1)} at a time)", "vectorized": "vmapped (vectorized)"}
