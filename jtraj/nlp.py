@@ -341,6 +341,10 @@ class KnotNLP:
         self.groups = list(constraints)
         self.theta = theta
         self.structure = structure
+        #: what solvers compile for this NLP (`jtraj.solvers.ipm.IPM`'s programs), kept on the
+        #: NLP so that it goes with it: a registry keyed by the NLP whose entries refer back to
+        #: it would keep every NLP and its compiled programs alive
+        self.solver_programs: dict[Any, Any] = {}
         self._lower, self._upper = lower, upper
         for g in self.groups:
             for d in g.deps:

@@ -71,7 +71,7 @@ def __getattr__(name: str) -> Any:
     raise AttributeError(f"module 'jtraj.solver' has no attribute {name!r}")
 
 
-__all__ = ["solve", "prepare", "Prepared", "VARIABLES", "transcription_options", "variables_label", "with_changes", "solver_options", "evaluate"]
+__all__ = ["solve", "prepare", "Prepared", "release_compiled", "release_compiled_if_crowded", "VARIABLES", "transcription_options", "variables_label", "with_changes", "solver_options", "evaluate"]
 
 
 class Prepared:
@@ -84,6 +84,45 @@ class Prepared:
 
 
 _CACHE: dict[tuple, Prepared] = {}
+
+
+def release_compiled() -> None:
+    """Forget every NLP that `prepare` keeps (with each, the solver programs compiled for it) and
+    JAX's in-memory caches of compiled functions, so that their memory is freed; the next solve
+    compiles again (from the persistent compilation cache where it holds the programs)."""
+    import gc
+
+    import jax
+
+    _CACHE.clear()
+    jax.clear_caches()
+    gc.collect()
+
+
+def memory_maps() -> tuple[int, int] | None:
+    """(memory maps this process holds, the kernel's limit ``vm.max_map_count``), or None where
+    the system does not tell (not Linux)."""
+    try:
+        with open("/proc/self/maps", "rb") as f:
+            held = sum(1 for _ in f)
+        with open("/proc/sys/vm/max_map_count") as f:
+            return held, int(f.read())
+    except (OSError, ValueError):
+        return None
+
+
+def release_compiled_if_crowded(share: float = 0.5) -> bool:
+    """`release_compiled` when this process holds more than ``share`` of the kernel's limit of
+    memory maps; returns whether it did. Each compiled XLA executable holds memory maps (measured
+    on big_jump: about 3,300 for its NLP's functions, 6,300 with jtraj's solver program), and a
+    process past the limit (65,530 by default on Linux) fails in LLVM ("Cannot allocate memory")
+    and crashes: a sweep kept in one process met it at its 12th group. The sweeps
+    (`jtraj.experiments`) call this after each group."""
+    maps = memory_maps()
+    if maps is None or maps[0] <= share * maps[1]:
+        return False
+    release_compiled()
+    return True
 
 
 def prepare(

@@ -254,3 +254,45 @@ def test_rows_without_a_solver_are_ipopt_runs(tmp_path):
     runs = read_runs(tmp_path / RUNS_FILE)
     assert len(runs) == 2  # the two solvers' runs do not collide
     assert run_key(runs[0]) == run_key(old | {"solver": "ipopt"}) != run_key(runs[1])
+
+
+def test_sweeps_release_compiled_programs_near_the_memory_map_limit(tmp_path, monkeypatch):
+    """A sweep in one process frees its finished groups' compiled programs once the process
+    holds more than half of the kernel's memory-map limit (a robustness study met the limit at
+    its 12th group and crashed in LLVM), and keeps them below that."""
+    from jtraj import solver
+
+    released = []
+    monkeypatch.setattr(solver, "release_compiled", lambda: released.append(True))
+    kw = dict(sigmas=[1e-3], replicates=1, seed=3, progress=None)
+    monkeypatch.setattr(solver, "memory_maps", lambda: (1000, 65530))
+    robustness([HOP], ["se3"], out=tmp_path / "roomy", **kw)
+    compare([HOP], ["se3"], out=tmp_path / "roomy_iv", save_trajectories=False, progress=None)
+    assert released == []
+    monkeypatch.setattr(solver, "memory_maps", lambda: (40000, 65530))
+    robustness([HOP], ["se3"], out=tmp_path / "crowded", **kw)
+    assert released == [True]
+    compare([HOP], ["se3"], out=tmp_path / "crowded_iv", save_trajectories=False, progress=None)
+    assert released == [True, True]
+    monkeypatch.setattr(solver, "memory_maps", lambda: None)  # a system that does not tell
+    assert solver.release_compiled_if_crowded() is False and released == [True, True]
+
+
+def test_release_compiled_forgets_prepared_nlps_and_jax_caches():
+    import jax
+    import jax.numpy as jnp
+
+    from jtraj import solver
+
+    held = solver.memory_maps()
+    assert held is None or 0 < held[0] < held[1]
+    f = jax.jit(lambda x: jnp.sin(x) + 1.0)
+    f(jnp.ones(3))
+    assert f._cache_size() == 1
+    saved = dict(solver._CACHE)
+    try:
+        solver._CACHE[("a key",)] = object()
+        solver.release_compiled()
+        assert solver._CACHE == {} and f._cache_size() == 0
+    finally:
+        solver._CACHE.update(saved)  # the other tests' prepared NLPs (their programs compile again)

@@ -72,7 +72,6 @@ import dataclasses
 import enum
 import os
 import time
-import weakref
 from typing import Any, ClassVar, NamedTuple
 
 import jax
@@ -508,14 +507,15 @@ class IPM:
     only in `IpmOptions.RUNTIME_FIELDS` share one program (and its compilations).
     """
 
-    #: nlp -> {options' compiled part: the IPM that traces the program}
-    _SHARED: ClassVar[weakref.WeakKeyDictionary] = weakref.WeakKeyDictionary()
-
     def __init__(self, nlp, options: IpmOptions | None = None):
         self.options = options or IpmOptions()
         self.tolerances = self.options.runtime_part()
-        key = self.options.compiled_part()
-        shared = IPM._SHARED.setdefault(nlp, {})
+        # {options' compiled part: the IPM that traces the program}, kept on the NLP, so that
+        # the programs go with it (measured: a registry keyed weakly by the NLP, whose IPMs
+        # refer back to it, kept every sweep group's NLP and programs, ~3000 memory maps each,
+        # until a process met Linux's default limit of 65530 and crashed in LLVM)
+        key = ("ipm", self.options.compiled_part())
+        shared = nlp.solver_programs
         owner = shared.get(key)
         if owner is None:
             # this IPM traces the program; its options' run-time fields are never read there
