@@ -190,12 +190,12 @@ class IpmOptions(AbstractOptions):
         feasibility_polish_tol, feasibility_polish_iter: once an iterate passes the
             convergence test with a constraint violation above ``feasibility_polish_tol``
             (default 1e-6; None: off), up to ``feasibility_polish_iter`` more iterations are
-            taken while the violation stays above it; the solve returns the first of those
-            that gets below it, else whichever converged iterate has the lower violation
-            (always a converged one: a polishing iteration that fails the convergence test,
-            fails its line search or reaches ``max_iter`` hands back the first converged
-            iterate). Ipopt has no such step; the convergence test itself is Ipopt's. Measured
-            on the G1 side-flip: 1.2e-6 at convergence, 5.8e-11 one iteration later.
+            taken, whether or not each passes the convergence test; the solve returns the
+            first converged one whose violation is within the tolerance, else the converged
+            iterate of least violation seen (always a converged one: a polishing iteration
+            that fails its line search or reaches ``max_iter`` ends the polish with it).
+            Ipopt has no such step; the convergence test itself is Ipopt's. Measured on the Go2
+            side-flip: 1.2e-6 at convergence, 5.8e-11 one iteration later.
         cpu_batch: how ``jax.vmap`` of the solve runs on a CPU: ``"sequential"`` (default:
             the batch split in contiguous shares over JAX's CPU devices, one per core, each
             share ``lax.map`` of the one-problem solve, each member to its own last iteration,
@@ -722,26 +722,31 @@ class IPM:
             st, passes = lax.while_loop(cond, body, (st, jnp.zeros((), jnp.int32)))
             return self._finish(p, st, passes)
 
-        # feasibility polish (IpmOptions.feasibility_polish_tol): the first converged iterate
-        # above the tolerance is kept aside while up to feasibility_polish_iter more are taken
-        converged = int(IpmStatus.CONVERGED)
+        # feasibility polish (IpmOptions.feasibility_polish_tol): from the first converged
+        # iterate above the tolerance, up to feasibility_polish_iter more iterations are taken,
+        # whether or not each passes the convergence test, and the converged iterate of least
+        # violation seen is kept aside
+        converged, running = int(IpmStatus.CONVERGED), int(IpmStatus.RUNNING)
         pick = lambda flag, a, b: jax.tree.map(lambda u, v: jnp.where(flag, u, v), a, b)  # noqa: E731
 
         def polish_body(carry):
-            st, passes, saved, polishing = carry
+            st, passes, saved, polishing, start = carry
             new, passes = self._iteration(p, st, passes, theta)
-            loose = (new.status == converged) & (self._constr_viol(p, new.c) > p.tols.feasibility_polish_tol)
-            keep = loose & ~polishing
-            saved = pick(keep, new, saved)
-            # a polishing iteration that fails the convergence test (or its line search, or
-            # reaches max_iter) hands back the converged iterate kept aside, which ends the loop
-            back = polishing & (new.status != converged)
-            more = loose & (new.it - saved.it < p.tols.feasibility_polish_iter) & (new.it < o.max_iter)
-            new = pick(back, saved, new)
-            return new._replace(status=jnp.where(more, int(IpmStatus.RUNNING), new.status).astype(jnp.int32)), passes, saved, polishing | keep
+            ok = new.status == converged
+            viol = self._constr_viol(p, new.c)
+            loose = ok & (viol > p.tols.feasibility_polish_tol)
+            start = jnp.where(loose & ~polishing, new.it, start)
+            saved = pick(ok & (~polishing | (viol < self._constr_viol(p, saved.c))), new, saved)
+            polishing = polishing | loose
+            # go on from a loose converged iterate or one that fails the test; a failure (line
+            # search, max_iter) or the polish's last iteration hands back the iterate kept aside,
+            # and a converged iterate within the tolerance ends it
+            more = polishing & (loose | (new.status == running)) & (new.it - start < p.tols.feasibility_polish_iter) & (new.it < o.max_iter)
+            new = pick(polishing & ~more & ~(ok & ~loose), saved, new)
+            return new._replace(status=jnp.where(more, running, new.status).astype(jnp.int32)), passes, saved, polishing, start
 
-        st, passes, saved, polishing = lax.while_loop(
-            lambda carry: cond(carry[:2]), polish_body, (st, jnp.zeros((), jnp.int32), st, jnp.asarray(False))
+        st, passes, saved, polishing, _ = lax.while_loop(
+            lambda carry: cond(carry[:2]), polish_body, (st, jnp.zeros((), jnp.int32), st, jnp.asarray(False), jnp.zeros((), jnp.int32))
         )
         # polished to the limit without reaching the tolerance: the converged iterate of lower
         # violation (the loop also ends, RUNNING, when the evaluation bound is reached)
