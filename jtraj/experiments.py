@@ -28,7 +28,7 @@ from jtraj import solvers
 from jtraj.deprecation import renamed_argument
 from jtraj.executors import executor_for
 from jtraj.parameterization import PARAMETERIZATIONS
-from jtraj.solver import evaluate, prepare, release_compiled_if_crowded, solve, solver_options, variables_label
+from jtraj.solver import evaluate, prepare, solve, solver_options, variables_label
 from jtraj.success import FEASIBILITY_TOL
 from jtraj.tables import markdown_table
 from jtraj.task import Task
@@ -102,9 +102,7 @@ def compare(
 
 def _compare_one(task, p, variables, exact_hessian, solver, out, progress=None) -> dict:
     """One cell of Table IV (a module-level function: executors ship it to other processes)."""
-    row = _row(solve(task, p, variables=variables, solver=solver, exact_hessian=exact_hessian, progress=progress, progress_every=10, out=out))
-    release_compiled_if_crowded()  # the cell's compiled programs, if the process holds too many maps
-    return row
+    return _row(solve(task, p, variables=variables, solver=solver, exact_hessian=exact_hessian, progress=progress, progress_every=10, out=out))
 
 
 def _write_table_iv(rows: list[dict], out: Path) -> None:
@@ -228,8 +226,6 @@ def _robustness_group(task, p, sigmas, replicates, seed, variables, exact_hessia
             jio.append_jsonl(runs_path, row)
             if progress is not None:
                 print(f"{task.name:10s} {p:6s} sigma={sigma:<7g} #{r}: {res.status.value:26s} {res.iterations:4d} it  {res.time_s:6.1f} s", file=progress, flush=True)
-    del prep
-    release_compiled_if_crowded()  # the group's compiled programs, if the process holds too many maps
     return len(todo)
 
 

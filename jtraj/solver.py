@@ -116,8 +116,8 @@ def release_compiled_if_crowded(share: float = 0.5) -> bool:
     memory maps; returns whether it did. Each compiled XLA executable holds memory maps (measured
     on big_jump: about 3,300 for its NLP's functions, 6,300 with jtraj's solver program), and a
     process past the limit (65,530 by default on Linux) fails in LLVM ("Cannot allocate memory")
-    and crashes: a sweep kept in one process met it at its 12th group. The sweeps
-    (`jtraj.experiments`) call this after each group."""
+    and crashes: a sweep kept in one process met it at its 12th group, a benchmark of 18
+    programs at its 9th. `prepare` calls this before it builds a new NLP."""
     maps = memory_maps()
     if maps is None or maps[0] <= share * maps[1]:
         return False
@@ -141,6 +141,9 @@ def prepare(
     key = (task, param, options)
     if key in _CACHE:
         return _CACHE[key]
+    # about to compile a new NLP (and, for jtraj's solver, its program): a process that went
+    # through many of them (a sweep, a benchmark, a notebook) frees the earlier ones first
+    release_compiled_if_crowded()
     config.enable_compilation_cache()
     t0 = time.perf_counter()
     robot = robots.load(task.robot)

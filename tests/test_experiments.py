@@ -256,26 +256,31 @@ def test_rows_without_a_solver_are_ipopt_runs(tmp_path):
     assert run_key(runs[0]) == run_key(old | {"solver": "ipopt"}) != run_key(runs[1])
 
 
-def test_sweeps_release_compiled_programs_near_the_memory_map_limit(tmp_path, monkeypatch):
-    """A sweep in one process frees its finished groups' compiled programs once the process
-    holds more than half of the kernel's memory-map limit (a robustness study met the limit at
-    its 12th group and crashed in LLVM), and keeps them below that."""
+def test_prepare_releases_compiled_programs_near_the_memory_map_limit(monkeypatch):
+    """Before it builds a new NLP, `prepare` frees what earlier ones compiled once the process
+    holds more than half of the kernel's memory-map limit (a robustness study in one process
+    met the limit at its 12th group and crashed in LLVM), and keeps them below that; a cached
+    NLP needs nothing new."""
     from jtraj import solver
 
-    released = []
-    monkeypatch.setattr(solver, "release_compiled", lambda: released.append(True))
-    kw = dict(sigmas=[1e-3], replicates=1, seed=3, progress=None)
-    monkeypatch.setattr(solver, "memory_maps", lambda: (1000, 65530))
-    robustness([HOP], ["se3"], out=tmp_path / "roomy", **kw)
-    compare([HOP], ["se3"], out=tmp_path / "roomy_iv", save_trajectories=False, progress=None)
-    assert released == []
+    class Released(Exception):
+        pass
+
+    def release():
+        raise Released  # stops prepare before it builds anything
+
+    solver.prepare(HOP, "se3", "paper")  # in the cache from here on
+    monkeypatch.setattr(solver, "release_compiled", release)
     monkeypatch.setattr(solver, "memory_maps", lambda: (40000, 65530))
-    robustness([HOP], ["se3"], out=tmp_path / "crowded", **kw)
-    assert released == [True]
-    compare([HOP], ["se3"], out=tmp_path / "crowded_iv", save_trajectories=False, progress=None)
-    assert released == [True, True]
+    assert solver.prepare(HOP, "se3", "paper") is solver.prepare(HOP, "se3", "paper")  # cached: no release
+    with pytest.raises(Released):
+        solver.prepare(HOP, "quat2", "paper")  # a new NLP, in a crowded process
+    with pytest.raises(Released):
+        solver.release_compiled_if_crowded()
+    monkeypatch.setattr(solver, "memory_maps", lambda: (1000, 65530))
+    assert solver.release_compiled_if_crowded() is False
     monkeypatch.setattr(solver, "memory_maps", lambda: None)  # a system that does not tell
-    assert solver.release_compiled_if_crowded() is False and released == [True, True]
+    assert solver.release_compiled_if_crowded() is False
 
 
 def test_release_compiled_forgets_prepared_nlps_and_jax_caches():
