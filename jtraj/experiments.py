@@ -218,14 +218,14 @@ def _robustness_group(task, p, sigmas, replicates, seed, variables, exact_hessia
     if hasattr(solvers.get(solver), "solve_batch"):
         for sigma in dict.fromkeys(s for s, _ in todo):
             _robustness_batch(prep, sigma, [r for s, r in todo if s == sigma], replicates, seed, exact_hessian, options, solver, base, runs_path, progress)
-    else:
-        for sigma, r in todo:
-            start = noisy_warm_starts(x0, [sigma], [r], seed)[0, 0]
-            res = solve(task, p, variables=variables, solver=solver, warm_start=start, exact_hessian=exact_hessian, ipopt_options=dict(options or {}), progress=None, keep_trajectory=False)
-            row = base | {"sigma": float(sigma), "replicate": r} | _row(res) | {"batch": 1}
-            jio.append_jsonl(runs_path, row)
-            if progress is not None:
-                print(f"{task.name:10s} {p:6s} sigma={sigma:<7g} #{r}: {res.status.value:26s} {res.iterations:4d} it  {res.time_s:6.1f} s", file=progress, flush=True)
+        return len(todo)
+    for sigma, r in todo:
+        start = noisy_warm_starts(x0, [sigma], [r], seed)[0, 0]
+        res = solve(task, p, variables=variables, solver=solver, warm_start=start, exact_hessian=exact_hessian, ipopt_options=dict(options or {}), progress=None, keep_trajectory=False)
+        row = base | {"sigma": float(sigma), "replicate": r} | _row(res) | {"batch": 1}
+        jio.append_jsonl(runs_path, row)
+        if progress is not None:
+            print(f"{task.name:10s} {p:6s} sigma={sigma:<7g} #{r}: {res.status.value:26s} {res.iterations:4d} it  {res.time_s:6.1f} s", file=progress, flush=True)
     return len(todo)
 
 

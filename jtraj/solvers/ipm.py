@@ -512,8 +512,9 @@ class IPM:
         self.tolerances = self.options.runtime_part()
         # {options' compiled part: the IPM that traces the program}, kept on the NLP, so that
         # the programs go with it (measured: a registry keyed weakly by the NLP, whose IPMs
-        # refer back to it, kept every sweep group's NLP and programs, ~3000 memory maps each,
-        # until a process met Linux's default limit of 65530 and crashed in LLVM)
+        # refer back to it, kept every sweep group's NLP and programs, about 6,300 memory maps
+        # per big_jump group, until a process met Linux's default limit of 65,530 and crashed
+        # in LLVM)
         key = ("ipm", self.options.compiled_part())
         shared = nlp.solver_programs
         owner = shared.get(key)
@@ -1298,10 +1299,10 @@ class JtrajSolver(AbstractSolver):
         - ``"vmap"``: one call of the vmapped `IPM` program. On an accelerator its members
           step together, and the batch runs until its slowest member is done (the others'
           updates are masked); on a CPU the program splits them over the CPU devices (one per
-          core), each running its share one member after another (`IpmOptions.cpu_batch`). ``batch_size`` (>= B; default B): the batch the program
-          is compiled for; a shorter batch is padded with copies of its first guess, so that
-          batches of different lengths (a resumed study's missing replicates) reuse one
-          program.
+          core), each running its share one member after another (`IpmOptions.cpu_batch`).
+          ``batch_size`` (>= B; default B): the batch the program is compiled for; a shorter
+          batch is padded with copies of its first guess, so that batches of different
+          lengths (a resumed study's missing replicates) reuse one program.
         - ``"threads"``: the one-problem program of `solve`, each member on its own, ``threads``
           at a time (default: the CPU count; JAX releases the GIL while a program runs). On a
           CPU this balances uneven members better: each core takes the next member when it
