@@ -1,6 +1,7 @@
 """bench/fatrop.py: the stage form of a small Go2 hop is the same problem, and FATROP solves it.
 
-Skipped without casadi (the ``bench`` extra; CI does not install it)."""
+casadi comes with the ``bench`` extra, which the ``test`` extra includes, so CI runs these;
+an environment without it skips them."""
 
 import jax
 import jax.numpy as jnp

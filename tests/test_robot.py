@@ -138,6 +138,9 @@ def test_go2_effort_limits():
 
 
 def test_standing_pose_values():
+    # the legs' angles and base heights are the study's public code's standing poses (its
+    # Talos, G1 and Go2 wrappers set q[2] = 1.0274, 0.6756 and 0.31131): the robots' files must
+    # keep them, since the warm starts and Table IV's tasks start from these poses
     talos = robot_lib.load("talos")
     q = dict(zip(talos.joint_names, talos.q_joints_standing))
     for side in ("left", "right"):

@@ -213,11 +213,12 @@ def test_small_task_solves_for_every_parameterization(param, variables, tmp_path
     assert "inf_pr" in log.getvalue()
     check = success.evaluate(result.trajectory.base_xyz_wxyz, HOP.flip_axis, HOP.flip_turns)
     if param == "quat3":
-        # Quaternion #3 leaves the quaternion's norm free (6 difference rows for 7 coordinates);
-        # converged or not, its report must agree with what the trajectory shows
-        feasible = result.converged and result.constraint_violation < success.FEASIBILITY_TOL
-        assert result.success == (feasible and check.ok)
-        assert result.status is Outcome.of(feasible, check.ok)
+        # Quaternion #3 leaves the quaternion's norm free (6 difference rows for 7 coordinates):
+        # on this hop it converges, less tightly than the others (2026-12-02: 25 iterations,
+        # violation 9.6e-5), to a hop
+        assert result.converged, result.status_msg
+        assert result.constraint_violation <= success.FEASIBILITY_TOL
+        assert result.status is Outcome.SOLVED and result.success and check.ok, check.reason
     else:
         assert result.converged, result.status_msg
         assert result.constraint_violation < 1e-4
