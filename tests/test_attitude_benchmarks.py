@@ -14,12 +14,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jtraj import quaternion as Q
 import jtraj.attitude as B
+from jtraj import quaternion as Q
+from jtraj.attitude import models as M
 from jtraj.attitude.cli import main_attitude
 from jtraj.lie import accumulated_rotation
 from jtraj.result import Result
-from jtraj.attitude import models as M
 
 SHORT = {"quadflip": {}, "barrelroll": {}, "satellite": {"tf": 25.0}}  # tf: 1.25 s steps keep RK4 stable
 N_SHORT = 21
@@ -131,9 +131,9 @@ def test_satellite_definition_and_keep_out_geometry():
 
 
 def test_bad_requests_are_reported():
-    with pytest.raises(ValueError, match="unknown benchmark 'loop'.*barrelroll"):
+    with pytest.raises(ValueError, match=r"unknown benchmark 'loop'.*barrelroll"):
         B.solve_benchmark("loop", "attitude")
-    with pytest.raises(ValueError, match="unknown variant 'euler'.*attitude"):
+    with pytest.raises(ValueError, match=r"unknown variant 'euler'.*attitude"):
         B.solve_benchmark("quadflip", "euler")
     with pytest.raises(ValueError, match="n_knots"):
         B.quadrotor_flip(n_knots=3)

@@ -110,7 +110,7 @@ def _rotation(qpos):
 
 
 def test_matches_mujoco_c(robot, evaluated):
-    (Q, V, A, F), out = evaluated
+    (_, _, _, F), out = evaluated
     m = robot.mj_model
     d = mujoco.MjData(m)
     for k in range(NSTATES):

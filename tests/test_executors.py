@@ -84,8 +84,9 @@ def test_executor_for_names():
 
 
 def test_robustness_table_with_ray_executor_equals_local(tmp_path, monkeypatch):
-    from jtraj.experiments import robustness
     from test_transcription import HOP
+
+    from jtraj.experiments import robustness
 
     calls = {}
     monkeypatch.setitem(sys.modules, "ray", _fake_ray(calls))
@@ -101,8 +102,9 @@ def test_robustness_table_with_ray_executor_equals_local(tmp_path, monkeypatch):
 def test_robustness_table_on_a_local_ray_instance_equals_local(tmp_path):
     """The same tiny sweep on a real local Ray instance (one worker process, started here)."""
     ray = pytest.importorskip("ray")
-    from jtraj.experiments import robustness
     from test_transcription import HOP
+
+    from jtraj.experiments import robustness
 
     kw = dict(sigmas=[1e-2], replicates=2, seed=2, progress=None, resume=False)
     local = robustness([HOP], ["se3"], out=tmp_path / "local", **kw)

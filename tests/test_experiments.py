@@ -11,12 +11,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_transcription import HOP
 
 from jtraj.experiments import RUNS_FILE, compare, noisy_warm_starts, read_runs, robustness, run_key
 from jtraj.plots import plot_convergence, plot_result
 from jtraj.result import Result
 from jtraj.success import FEASIBILITY_TOL
-from test_transcription import HOP
 
 
 def test_noisy_warm_starts_are_vmapped_draws():
@@ -165,8 +165,9 @@ def test_compare_writes_table_iv_and_plots(tmp_path, capsys):
 
 
 def test_vmapped_draw_uses_the_key_of_each_run():
-    from jtraj.experiments import noise_key
     import jax
+
+    from jtraj.experiments import noise_key
 
     x0 = np.ones(4)
     draw = noisy_warm_starts(x0, [0.25], replicates=[3], seed=9)[0, 0]

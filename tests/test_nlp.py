@@ -10,8 +10,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jtraj.solvers import InvalidOptionError, IpoptOptions, IpoptSolver, PrintProgress, Status
 from jtraj.nlp import ConstraintGroup, CostGroup, Dep, KnotNLP, Layout
+from jtraj.solvers import InvalidOptionError, IpoptOptions, IpoptSolver, PrintProgress, Status
 
 H = 0.1
 N = 21  # knots
@@ -79,7 +79,7 @@ def test_dropped_rows_and_bounds(nlp):
     assert summary["band"] == N + len(range(0, N, 3))
     assert nlp.g_lower.shape == nlp.g_upper.shape == (nlp.m,)
     # the band's upper bound is a function of theta; inactive rows are dropped at any theta
-    x_lower, x_upper, g_lower, g_upper = nlp.bounds({**THETA, "band": THETA["band"] * 0 + 7.0})
+    x_lower, _, _, g_upper = nlp.bounds({**THETA, "band": THETA["band"] * 0 + 7.0})
     band = nlp.row_group == "band"
     np.testing.assert_array_equal(np.asarray(g_upper)[band], 7.0)
     np.testing.assert_array_equal(np.asarray(g_upper)[~band], 0.0)

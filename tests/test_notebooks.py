@@ -1,6 +1,5 @@
 """The notebooks run top to bottom in their small mode (JTRAJ_SMALL=1)."""
 
-import os
 from pathlib import Path
 
 import nbformat

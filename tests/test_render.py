@@ -148,7 +148,7 @@ def test_video_files(frames, tmp_path):
     gif = Image.open(write_video(frames, tmp_path / "m.gif", fps=12))
     assert gif.size == (W, H) and gif.n_frames == len(frames)
     assert Image.open(write_image(frames[0], tmp_path / "f.png")).size == (W, H)
-    with pytest.raises(ValueError, match="mp4 or .gif"):
+    with pytest.raises(ValueError, match=r"mp4 or \.gif"):
         write_video(frames, tmp_path / "m.avi")
     # written beside the target and renamed into place: no partial file is left behind
     assert sorted(p.name for p in tmp_path.iterdir()) == ["f.png", "m.gif", "m.mp4"]
@@ -190,7 +190,7 @@ def test_plots_are_written(result, tmp_path):
     assert fig.axes[0].get_title().startswith("made_up_flip [se3]: solved")
     assert "no trajectory" in fig.axes[2].get_title()
     assert [p.name for p in plot_directory(compare)] == ["comparison.png"]
-    with pytest.raises(FileNotFoundError, match="table_iv.json"):
+    with pytest.raises(FileNotFoundError, match=r"table_iv\.json"):
         plot_directory(tmp_path / "nothing")
 
 

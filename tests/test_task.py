@@ -226,7 +226,7 @@ def test_task_files(tmp_path):
     assert t.n_knots == 5 and t.phases[0].contacts == FEET
     with pytest.raises(TaskError, match="does not exist"):
         tasks.load(str(tmp_path / "missing.toml"))
-    with pytest.raises(TaskError, match="^task: 'moonwalk': unknown task"):
+    with pytest.raises(TaskError, match=r"^task: 'moonwalk': unknown task"):
         tasks.load("moonwalk")
 
 
