@@ -133,6 +133,16 @@ class TranscriptionOptions:
             Quaternion #1 and #2 to the plain jump the paper reports. `PAPER_VARIABLES` uses
             ``"matrix"``; a warm start that turns less than half a turn gets the same quaternions
             either way, to rounding (bitwise on the walk, hopscotch and big_jump).
+        warm_start_euler: how the warm start writes the Euler-angle parameterization's angles
+            (the others ignore it). ``"matrix"``: each knot's roll, pitch and yaw extracted
+            from its rotation matrix, the pitch kept `jtraj.euler.GIMBAL_MARGIN` away from
+            +-pi/2 (a flip's warm start then jumps by 2 pi or pi in the middle of the
+            flight, and passes no gimbal lock). ``"angles"``: the task's warm-start angle
+            added to the roll, pitch or yaw of its axis (a principal axis), as the study's
+            ``rpy2rep(q, [roll, pitch, yaw])`` would write an Euler chart's coordinates if it
+            took them as they are: a back-flip's pitch then ramps through -pi/2 and -3 pi/2,
+            where the rate matrix W is singular, and a flip's warm start ends at -2 pi where
+            the last knot is held at 0 (docs/reproduction.md, section 6).
     Both substitutions eliminate equality constraints exactly: the feasible trajectories are
     the same, the NLP is smaller.
     """
@@ -144,8 +154,11 @@ class TranscriptionOptions:
     force_limits: str = "bounds"
     contact_height: str = "bound"
     warm_start_quaternions: str = "continuous"
+    warm_start_euler: str = "matrix"
 
     def __post_init__(self):
+        if self.warm_start_euler not in ("matrix", "angles"):
+            raise ValueError(f"warm_start_euler={self.warm_start_euler!r}: expected 'matrix' or 'angles'")
         if self.warm_start_quaternions not in ("continuous", "matrix"):
             raise ValueError(f"warm_start_quaternions={self.warm_start_quaternions!r}: expected 'continuous' or 'matrix'")
         if self.position_step not in ("next", "stepped"):
@@ -522,7 +535,11 @@ class Transcription:
         initial = self.initial_xyz_wxyz if theta is None else np.asarray(host["initial"](resolved))
         theta = resolved
         poses = np.tile(initial, (n_knots, 1))
-        for axis, angles in self.task.warm_start_angles():
+        # Euler angles written as they are (`TranscriptionOptions.warm_start_euler`): added to
+        # the coordinates below instead of rotating the poses
+        euler_angles = self.param.name == "euler" and self.options.warm_start_euler == "angles"
+        rules = self.task.warm_start_angles()
+        for axis, angles in [] if euler_angles else rules:
             poses[:, 3:] = np.asarray(host["rotate"](axis[None] * angles[:, None], poses[:, 3:]))
         if self.options.warm_start_quaternions == "matrix" and self.param.name.startswith("quat"):
             poses[:, 3:] = np.asarray(host["from_matrix"](poses[:, 3:]))
@@ -534,13 +551,13 @@ class Transcription:
                 qj[knots, robot.joint_names.index(joint)] = value
             placed |= knots & rule.place_on_terrain
         contact = self.schedule.in_contact
-        q = np.asarray(host["coords"](poses, qj))
+        q = self._warm_start_coords(poses, qj, rules if euler_angles else [])
         if placed.any():
             # rest the touching points of the placed knots on the terrain (vertical shift)
             fk = np.asarray(host["fk"](q))
             for k in np.flatnonzero(placed & contact.any(axis=1)):
                 poses[k, 2] -= float(np.mean(fk[k, contact[k], 2])) - self.task.terrain_height
-            q = np.asarray(host["coords"](poses, qj))
+            q = self._warm_start_coords(poses, qj, rules if euler_angles else [])
         Z = np.zeros((n_knots, L.nz))
         Z[:, L.slice("q")] = q
         n_touch = contact.sum(axis=1)
@@ -553,6 +570,18 @@ class Transcription:
             c[:, :, 2] = self.task.terrain_height
             Z[:, L.slice("c")] = np.where(contact[:, :, None], c, 0.0).reshape(n_knots, -1)
         return Z
+
+    def _warm_start_coords(self, poses: np.ndarray, qj: np.ndarray, euler_rules: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+        """The coordinates q (n_knots, nq) of base poses (xyz_wxyz) and joint angles, with the
+        Euler-angle rules' angles added to the roll, pitch or yaw of their axis."""
+        q = np.array(self._host["coords"](poses, qj))
+        for axis, angles in euler_rules:
+            principal = np.flatnonzero(np.abs(axis) > 1e-12)
+            if principal.size != 1:
+                raise ValueError(f"warm_start_euler='angles' needs a warm-start rule about a principal axis (x, y or z), not {axis.tolist()}")
+            i = int(principal[0])
+            q[:, 3 + i] += np.sign(axis[i]) * angles  # (x, y, z, roll, pitch, yaw)
+        return q
 
     # -------------------------------------------------------------------- decoding
     @cached_property
