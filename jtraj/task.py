@@ -160,7 +160,8 @@ class Task:
 
     # -------------------------------------------------------------- knots and contacts
     def phase_knot_counts(self) -> tuple[int, ...]:
-        """Knots per phase, ``round(duration / h)`` (the paper's code truncates; see REFERENCE.md)."""
+        """Knots per phase, ``round(duration / h)`` (the study's public code truncates,
+        ``int(duration / h)``: 0.3 / 0.05 gives 5)."""
         return tuple(int(round(p.duration / self.timestep)) for p in self.phases)
 
     @property
@@ -188,8 +189,14 @@ class Task:
             in_contact[k] = [p in touching for p in points]
         return Schedule(phase_of_knot.size, phase_of_knot, tuple(points), in_contact, counts)
 
-    def warm_start_angles(self) -> list[tuple[np.ndarray, np.ndarray]]:
-        """Per rule: (axis, angle at every knot) of the base rotation of the warm start."""
+    def warm_start_angles(self, after_ramp: str = "hold") -> list[tuple[np.ndarray, np.ndarray]]:
+        """Per rule: (axis, angle at every knot) of the base rotation of the warm start.
+
+        ``after_ramp``: the knots after a ramp's last knot keep its final angle (``"hold"``,
+        the default: for a full turn, the same rotation as the start) or go back to 0
+        (``"standing"``), as the study's flip scripts leave the nodes after the ramp."""
+        if after_ramp not in ("hold", "standing"):
+            raise ValueError(f"after_ramp={after_ramp!r}: expected 'hold' or 'standing'")
         counts = self.phase_knot_counts()
         starts = np.concatenate([[0], np.cumsum(counts)])
         out = []
@@ -200,6 +207,8 @@ class Task:
             if rule.profile is Profile.RAMP:
                 k = np.arange(self.n_knots)
                 angles = rule.angle * np.clip((k - first) / max(last - first, 1), 0.0, 1.0)
+                if after_ramp == "standing":
+                    angles[k > last] = 0.0
             else:
                 for p in rule.phases:
                     angles[starts[p] : starts[p + 1]] = rule.angle

@@ -138,11 +138,15 @@ class TranscriptionOptions:
             from its rotation matrix, the pitch kept `jtraj.euler.GIMBAL_MARGIN` away from
             +-pi/2 (a flip's warm start then jumps by 2 pi or pi in the middle of the
             flight, and passes no gimbal lock). ``"angles"``: the task's warm-start angle
-            added to the roll, pitch or yaw of its axis (a principal axis), as the study's
-            ``rpy2rep(q, [roll, pitch, yaw])`` would write an Euler chart's coordinates if it
-            took them as they are: a back-flip's pitch then ramps through -pi/2 and -3 pi/2,
-            where the rate matrix W is singular, and a flip's warm start ends at -2 pi where
-            the last knot is held at 0 (docs/reproduction.md, section 6).
+            added to the roll, pitch or yaw of its axis (a principal axis) over the rule's
+            knots, the knots after a ramp left at the standing orientation: what the study's
+            flip scripts (``rpy2rep(q, [0, theta, 0])`` on the ramp's nodes, the others
+            untouched) write for a chart whose coordinates are roll, pitch and yaw. A flip's
+            warm start then ramps to -2 pi and jumps back to 0 at landing, and a back-flip's
+            pitch passes -pi/2 and -3 pi/2, where the rate matrix W is singular. Measured
+            (docs/reproduction.md, section 6): with it Euler fails on both flips, as in the
+            paper; from ``"matrix"`` it converges to plain jumps. `PAPER_VARIABLES` uses
+            ``"angles"``; warm starts without rotation rules are the same either way.
     Both substitutions eliminate equality constraints exactly: the feasible trajectories are
     the same, the NLP is smaller.
     """
@@ -174,9 +178,10 @@ class TranscriptionOptions:
 
 
 #: The study's public code: its variables per knot (q, v, a, f, c), its position row, its
-#: force-change bound at lift-off and its warm start's quaternions written from rotation
-#: matrices (docs/reproduction.md lists what else differs and why).
-PAPER_VARIABLES = TranscriptionOptions(position_step="stepped", liftoff_force_rate=True, warm_start_quaternions="matrix")
+#: force-change bound at lift-off, its warm start's quaternions written from rotation
+#: matrices and its Euler angles as they are (docs/reproduction.md lists what else differs
+#: and why).
+PAPER_VARIABLES = TranscriptionOptions(position_step="stepped", liftoff_force_rate=True, warm_start_quaternions="matrix", warm_start_euler="angles")
 #: Contact positions substituted by forward kinematics: (q, v, a, f) at every knot.
 COMPACT_VARIABLES = TranscriptionOptions(contact_variables=False, acceleration_variables=True)
 #: Contact positions and accelerations substituted: (q, v, f) at every knot.
@@ -538,7 +543,7 @@ class Transcription:
         # Euler angles written as they are (`TranscriptionOptions.warm_start_euler`): added to
         # the coordinates below instead of rotating the poses
         euler_angles = self.param.name == "euler" and self.options.warm_start_euler == "angles"
-        rules = self.task.warm_start_angles()
+        rules = self.task.warm_start_angles(after_ramp="standing" if euler_angles else "hold")
         for axis, angles in [] if euler_angles else rules:
             poses[:, 3:] = np.asarray(host["rotate"](axis[None] * angles[:, None], poses[:, 3:]))
         if self.options.warm_start_quaternions == "matrix" and self.param.name.startswith("quat"):

@@ -62,6 +62,11 @@ def test_warm_start_ramp_reaches_full_turn_over_flight():
     np.testing.assert_allclose(axis, [0, 1, 0])
     assert angles[20] == 0.0 and abs(angles[28] + 2 * np.pi) < 1e-12 and abs(angles[-1] + 2 * np.pi) < 1e-12
     assert np.all(np.diff(angles) <= 1e-15)
+    (_, standing), = t.warm_start_angles(after_ramp="standing")  # the study's scripts: later nodes untouched
+    np.testing.assert_array_equal(standing[:29], angles[:29])
+    assert np.all(standing[29:] == 0.0)
+    with pytest.raises(ValueError, match="after_ramp='back'"):
+        t.warm_start_angles(after_ramp="back")
 
 
 @pytest.mark.parametrize(
