@@ -1058,7 +1058,8 @@ class IPM:
         centering = jax.tree.map(lambda a, b: a - b, full_step(avg, dxs[1], dys[1]), affine)  # per unit sigma
         mu = st.mu
         if o.mu_strategy == "adaptive" and o.mu_oracle == "quality-function":
-            mu = jnp.where(st.free_mode, self._quality_function_mu(p, st, affine, centering, avg), mu)
+            with jax.named_scope("ipm_mu_oracle"):
+                mu = jnp.where(st.free_mode, self._quality_function_mu(p, st, affine, centering, avg), mu)
         step = jax.tree.map(lambda a, c: a + (mu / avg) * c, affine, centering)
         dx, ds, dy, dzl, dzu, dvl, dvu = step
         a_max, a_dual = self._step_bounds(p, st, step, st.tau)

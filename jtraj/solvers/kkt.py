@@ -37,6 +37,7 @@ nonzero columns of the off-diagonal blocks, and so the only nonzero rows of the 
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from typing import NamedTuple
 
@@ -45,6 +46,22 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 from jax.scipy.linalg import solve_triangular
+
+
+def _scoped(name: str) -> Callable[[Callable], Callable]:
+    """Trace the function under ``jax.named_scope(name)``: profiles (bench/profile_solve.py) tell
+    the phases of a Newton step by these names; the compiled code is the same."""
+
+    def wrap(fn: Callable) -> Callable:
+        @functools.wraps(fn)
+        def scoped(*args, **kwargs):
+            with jax.named_scope(name):
+                return fn(*args, **kwargs)
+
+        return scoped
+
+    return wrap
+
 
 __all__ = [
     "KKTSystem",
@@ -308,6 +325,7 @@ def condensed_blocks(system: KKTSystem, d: jax.Array, delta_w: jax.Array) -> tup
     return blocks
 
 
+@_scoped("kkt_condensed")
 def _product_blocks(system: KKTSystem, d: jax.Array) -> tuple[jax.Array, jax.Array]:
     """The blocks of ``H + J^T diag(1/d) J`` (no diagonal terms, no mask), shaped as
     `condensed_blocks`'."""
@@ -366,6 +384,7 @@ def _places(n: int, cols: np.ndarray) -> np.ndarray:
     return place
 
 
+@_scoped("kkt_factor")
 def factor(
     diag: jax.Array, upper: jax.Array, coupled: np.ndarray | None = None, shift: jax.Array | None = None, keep: jax.Array | None = None
 ) -> tuple[BlockFactor, jax.Array]:
@@ -429,6 +448,7 @@ def factor(
     return BlockFactor(Lt, sub), ok
 
 
+@_scoped("kkt_sweeps")
 def solve_factored(fac: BlockFactor, b: jax.Array, coupled: np.ndarray | None = None) -> jax.Array:
     """``M^-1 b`` for b of shape (K, n), by a forward and a backward block sweep; ``coupled``
     as given to `factor`."""
@@ -627,6 +647,7 @@ def solve(
     def norm(rx, rc):
         return jnp.maximum(jnp.max(jnp.abs(rx)), jnp.max(jnp.abs(rc)))
 
+    @_scoped("kkt_refine")
     def refined(r_x, r_c, dx0):
         dx, dy = dual(dx0, r_c)
         rx, rc = residual(r_x, r_c, dx, dy)

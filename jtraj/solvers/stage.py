@@ -110,19 +110,21 @@ class StageView:
 
     def values(self, Z: jax.Array, theta: Any = None) -> tuple[jax.Array, jax.Array]:
         """Objective (scalar) and constraints C (K, m) at Z (K, n)."""
-        x = Z.reshape(-1)
-        f = self._call(self.nlp.objective, x, theta=theta)
-        c = self._call(self.nlp.constraints, x, theta=theta)
-        return f, self.to_stage_rows(c)
+        with jax.named_scope("nlp_values"):  # the scopes name the phases in profiles (bench/profile_solve.py)
+            x = Z.reshape(-1)
+            f = self._call(self.nlp.objective, x, theta=theta)
+            c = self._call(self.nlp.constraints, x, theta=theta)
+            return f, self.to_stage_rows(c)
 
     def derivatives(self, Z: jax.Array, theta: Any = None) -> tuple[jax.Array, jax.Array]:
         """Objective gradient (K, n) and the Jacobian's nonzeros (pattern.nnz,) at Z."""
-        x = Z.reshape(-1)
-        grad = self._call(self.nlp.gradient, x, theta=theta).reshape(self.K, self.n)
-        vals = self._call(self.nlp.jacobian, x, theta=theta)
-        if self._jac_gather is not None:
-            return grad, vals[self._jac_gather]
-        return grad, jnp.zeros(self.pattern.nnz, vals.dtype).at[self._jac_pos].add(vals)
+        with jax.named_scope("nlp_derivatives"):
+            x = Z.reshape(-1)
+            grad = self._call(self.nlp.gradient, x, theta=theta).reshape(self.K, self.n)
+            vals = self._call(self.nlp.jacobian, x, theta=theta)
+            if self._jac_gather is not None:
+                return grad, vals[self._jac_gather]
+            return grad, jnp.zeros(self.pattern.nnz, vals.dtype).at[self._jac_pos].add(vals)
 
     def prepare_hessian(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Build the NLP's Hessian structure (host work: call before tracing) and the scatter
@@ -142,8 +144,9 @@ class StageView:
         """Element Hessians (K, 2n, 2n) of ``obj_factor f + Y . C`` (exact, from the NLP's
         Hessian; expensive on big robots)."""
         kc, i, j = self.prepare_hessian()
-        vals = self._call(self.nlp.hessian, Z.reshape(-1), self.from_stage_rows(Y), obj_factor, theta=theta)
-        H = jnp.zeros((self.K, 2 * self.n, 2 * self.n), vals.dtype)
-        H = H.at[kc, i, j].add(vals)
-        off = jnp.where(i != j, vals, 0.0)
-        return H.at[kc, j, i].add(off)
+        with jax.named_scope("nlp_hessian"):
+            vals = self._call(self.nlp.hessian, Z.reshape(-1), self.from_stage_rows(Y), obj_factor, theta=theta)
+            H = jnp.zeros((self.K, 2 * self.n, 2 * self.n), vals.dtype)
+            H = H.at[kc, i, j].add(vals)
+            off = jnp.where(i != j, vals, 0.0)
+            return H.at[kc, j, i].add(off)
