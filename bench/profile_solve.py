@@ -20,7 +20,9 @@ metadata, and summed by phase:
 - ``mu oracle``: the quality function's golden section;
 - ``other``: the rest (the state's vector algebra, the filter, L-BFGS updates, the loop).
 
-Times are thread time, which on this 2-core machine exceeds the wall time where XLA runs two
+The program is compiled afresh (``JTRAJ_NO_CACHE=1``, set here): JAX's persistent cache keys a
+program without its metadata, so a program cached before a scope moved would be attributed by
+the old names. Times are thread time, which on this 2-core machine exceeds the wall time where XLA runs two
 operations at once, and the profiler adds some; the shares are what to read. ``--out DIR``
 writes ``DIR/profile_solve.json``, ``DIR/profile_solve.md`` and ``DIR/provenance.json``.
 """
@@ -30,9 +32,12 @@ from __future__ import annotations
 import argparse
 import collections
 import glob
+import os
 import re
 import tempfile
 import time
+
+os.environ["JTRAJ_NO_CACHE"] = "1"  # before jtraj is imported (see the docstring)
 
 PHASES = ("factor", "block solves", "refinement", "condensed blocks", "derivatives", "values", "mu oracle", "other")
 # (scope in the op's name stack, phase), first match wins: refinement holds sweeps of its own
@@ -109,6 +114,8 @@ def profile(task: str, param: str, variables: str) -> dict:
         elif name != "ThunkExecutor::Execute":
             by_phase["other"] += ns
     total = sum(by_phase.values())
+    if by_phase["other"] == total:
+        raise RuntimeError(f"{task}: no profiled operation carries a phase's scope; was the program compiled from this tree?")
     iterations = int(r.iterations)
     return dict(
         task=task, parameterization=param, variables=variables, iterations=iterations, wall_s=round(wall, 3),
