@@ -28,14 +28,14 @@ from jtraj import solvers
 from jtraj.deprecation import renamed_argument
 from jtraj.executors import executor_for
 from jtraj.parameterization import PARAMETERIZATIONS
-from jtraj.solver import evaluate, prepare, solve, solver_options, variables_label
+from jtraj.solver import evaluate, prepare, solve, solver_options, transcription_options, variables_label
 from jtraj.success import FEASIBILITY_TOL
 from jtraj.tables import markdown_table
 from jtraj.task import Task
 from jtraj.task import load as load_task
 from jtraj.transcription import TranscriptionOptions
 
-__all__ = ["compare", "robustness", "noisy_warm_starts", "noise_key", "run_key", "read_runs", "summarize_robustness", "TABLE_IV_PAPER_SE3"]
+__all__ = ["compare", "robustness", "noisy_warm_starts", "noise_key", "run_key", "variables_hash", "read_runs", "summarize_robustness", "TABLE_IV_PAPER_SE3"]
 
 #: Iterations of the SE(3) tangent parameterization in the paper's Table IV.
 TABLE_IV_PAPER_SE3 = {"walk": 14, "hopscotch": 10, "big_jump": 11, "handstand": 88, "backflip": 28, "sideflip": 29}
@@ -160,12 +160,21 @@ def noisy_warm_starts(x0: np.ndarray, sigmas: Sequence[float], replicates: int |
 
 
 #: the fields of a run's key, beside its task's name (kept for the tables); "layout" holds the
-#: ``variables`` name under its former key, so that earlier runs.jsonl files still resume
-RUN_KEY = ("task_hash", "parameterization", "layout", "hessian", "options_hash", "seed", "sigma", "replicate", "solver")
+#: ``variables`` name under its former key, and "variables_hash" the content of the options
+#: that name stood for when the run was solved (a name such as "paper" can change meaning
+#: between versions: its Euler warm start did)
+RUN_KEY = ("task_hash", "parameterization", "layout", "variables_hash", "hessian", "options_hash", "seed", "sigma", "replicate", "solver")
 RUNS_FILE = "runs.jsonl"
-#: key fields that rows of earlier runs.jsonl files lack, and their value there (before the
-#: solver was recorded every run was an Ipopt solve)
-_KEY_DEFAULTS = {"solver": "ipopt"}
+#: key fields that rows of earlier runs.jsonl files lack, and their value there: before the
+#: solver was recorded every run was an Ipopt solve; before the variables' content was, it is
+#: unknown (None), so such rows are kept in the file but never taken for a run of this version
+_KEY_DEFAULTS: dict[str, str | None] = {"solver": "ipopt", "variables_hash": None}
+
+
+def variables_hash(variables: str | TranscriptionOptions) -> str:
+    """A short hash of the `TranscriptionOptions` that ``variables`` stands for, field by field."""
+    text = json.dumps(dataclasses.asdict(transcription_options(variables)), sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
 def _options_hash(options: dict | None) -> str:
@@ -209,7 +218,7 @@ def _robustness_group(task, p, sigmas, replicates, seed, variables, exact_hessia
     vmapped program on an accelerator, the one-problem program on every core of a CPU), with
     one compile per group; Ipopt solves them one by one. Returns the number solved."""
     task = load_task(task)
-    base = dict(task_hash=task.content_hash(), parameterization=p, layout=variables_label(variables), hessian="exact" if exact_hessian else "limited-memory", options_hash=_options_hash(options), seed=seed, solver=solver)
+    base = dict(task_hash=task.content_hash(), parameterization=p, layout=variables_label(variables), variables_hash=variables_hash(variables), hessian="exact" if exact_hessian else "limited-memory", options_hash=_options_hash(options), seed=seed, solver=solver)
     todo = [(s, r) for s in sigmas for r in range(replicates) if run_key(base | {"sigma": float(s), "replicate": r}) not in done]
     if not todo:
         return 0
@@ -297,8 +306,8 @@ def robustness(
     """Table III and Fig. 2: converged and task-success rates and iterations under warm-start noise.
 
     Every finished solve is appended at once to ``out/runs.jsonl``, one JSON line keyed by
-    `run_key` (task content, parameterization, variables per knot, Hessian mode, solver
-    options, seed, sigma, replicate, solver). With ``resume`` (default) runs already there are not solved again, so a study
+    `run_key` (task content, parameterization, variables per knot by name and by content
+    (`variables_hash`), Hessian mode, solver options, seed, sigma, replicate, solver). With ``resume`` (default) runs already there are not solved again, so a study
     stopped or killed at any point goes on where it ended; runs of other settings in the file
     are kept and left out of this call's tables. Without ``resume`` this call's runs are solved
     again and appended (the first of each key is the one read). The noise of replicate r at
@@ -332,8 +341,11 @@ def robustness(
     if not resume and runs_path.exists():
         os.replace(runs_path, runs_path.with_name(runs_path.name + ".previous"))
     done = {run_key(r) for r in before}
-    if progress is not None and done:
-        print(f"resuming: {len(done)} runs already in {runs_path}", file=progress, flush=True)
+    unknown = sum(1 for r in before if "variables_hash" not in r)
+    if progress is not None and unknown:
+        print(f"note: {unknown} runs in {runs_path} were written without the content of their variables (before jtraj recorded it) and are not resumed", file=progress, flush=True)
+    if progress is not None and len(before) > unknown:
+        print(f"resuming: {len(before) - unknown} runs already in {runs_path}", file=progress, flush=True)
     args = [(t, p, tuple(sigmas), replicates, seed, variables, exact_hessian, ipopt_options, solver, done, runs_path) for t in tasks for p in params]
     if executor == "local" and workers <= 1:
         for a in args:
@@ -354,7 +366,7 @@ def robustness(
 def _select(runs: list[dict], task: Task, p: str, sigmas, replicates: int, seed: int, variables: str | TranscriptionOptions, exact_hessian: bool, options, solver: str) -> list[dict]:
     """The runs of one group of this call's settings, in (sigma, replicate) order."""
     keys = {
-        (task.content_hash(), p, variables_label(variables), "exact" if exact_hessian else "limited-memory", _options_hash(options), seed, float(s), r, solver): (i, r)
+        (task.content_hash(), p, variables_label(variables), variables_hash(variables), "exact" if exact_hessian else "limited-memory", _options_hash(options), seed, float(s), r, solver): (i, r)
         for i, s in enumerate(sigmas)
         for r in range(replicates)
     }

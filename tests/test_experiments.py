@@ -62,6 +62,36 @@ def test_robustness_resumes_a_stopped_study(tmp_path):
     assert {r["seed"] for r in read_runs(tmp_path / RUNS_FILE)} == {5, 6}
 
 
+def test_robustness_does_not_resume_runs_whose_variables_changed_content(tmp_path, monkeypatch, capsys):
+    """A run is keyed by what its variables were, not only their name: when "paper" comes to
+    mean other options (as its Euler warm start once did), or a row does not say (a file
+    written before jtraj recorded it), the run is solved again rather than taken as done."""
+    import dataclasses
+
+    from jtraj import solver as jsolver
+    from jtraj.experiments import variables_hash
+
+    kw = dict(sigmas=[1e-3], replicates=1, seed=11, out=tmp_path)
+    first = robustness([HOP], ["se3"], progress=None, **kw)
+    assert first[0]["variables_hash"] == variables_hash("paper") == variables_hash(jsolver.PAPER_VARIABLES)
+    assert robustness([HOP], ["se3"], progress=None, **kw) == first  # resumed as it was
+    # the same name with other content: another run
+    changed = dataclasses.replace(jsolver.VARIABLES["paper"], warm_start_euler="matrix")
+    assert variables_hash(changed) != variables_hash("paper")
+    monkeypatch.setitem(jsolver.VARIABLES, "paper", changed)
+    again = robustness([HOP], ["se3"], progress=None, **kw)
+    assert again[0]["layout"] == "paper" and again[0]["variables_hash"] == variables_hash(changed)
+    assert again[0]["time_s"] != first[0]["time_s"] and len(read_runs(tmp_path / RUNS_FILE)) == 2
+    monkeypatch.undo()
+    # a row without the content (an earlier version's) is kept in the file but not resumed
+    old = {k: v for k, v in first[0].items() if k != "variables_hash"}
+    (tmp_path / RUNS_FILE).write_text(json.dumps(old) + "\n")
+    capsys.readouterr()
+    redone = robustness([HOP], ["se3"], progress=sys.stdout, **kw)
+    assert "1 runs in" in capsys.readouterr().out and redone[0]["variables_hash"] == variables_hash("paper")
+    assert redone[0]["time_s"] != first[0]["time_s"] and len(read_runs(tmp_path / RUNS_FILE)) == 2
+
+
 def test_robustness_keys_changed_variables_by_their_label(tmp_path):
     """A study with a TranscriptionOptions records it as its nearest named variables plus the
     changed fields, and those runs are not the named variables' runs."""
