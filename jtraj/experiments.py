@@ -171,15 +171,22 @@ RUNS_FILE = "runs.jsonl"
 _KEY_DEFAULTS: dict[str, str | None] = {"solver": "ipopt", "variables_hash": None}
 
 
-def variables_hash(variables: str | TranscriptionOptions) -> str:
-    """A short hash of the `TranscriptionOptions` that ``variables`` stands for, field by field."""
-    text = json.dumps(dataclasses.asdict(transcription_options(variables)), sort_keys=True, default=str)
-    return hashlib.sha256(text.encode()).hexdigest()[:16]
-
-
 def _options_hash(options: dict | None) -> str:
     text = json.dumps(jio.to_jsonable(options or {}), sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def variables_hash(variables: str | TranscriptionOptions) -> str:
+    """A short hash of the `TranscriptionOptions` that ``variables`` stands for, field by field."""
+    return _options_hash(dataclasses.asdict(transcription_options(variables)))
+
+
+def _group_key(task: Task, p: str, variables: str | TranscriptionOptions, exact_hessian: bool, options, seed: int, solver: str) -> dict:
+    """The `RUN_KEY` fields that every run of one (task, parameterization) group shares."""
+    return dict(
+        task_hash=task.content_hash(), parameterization=p, layout=variables_label(variables), variables_hash=variables_hash(variables),
+        hessian="exact" if exact_hessian else "limited-memory", options_hash=_options_hash(options), seed=seed, solver=solver,
+    )
 
 
 def run_key(row: dict) -> tuple:
@@ -218,7 +225,7 @@ def _robustness_group(task, p, sigmas, replicates, seed, variables, exact_hessia
     vmapped program on an accelerator, the one-problem program on every core of a CPU), with
     one compile per group; Ipopt solves them one by one. Returns the number solved."""
     task = load_task(task)
-    base = dict(task_hash=task.content_hash(), parameterization=p, layout=variables_label(variables), variables_hash=variables_hash(variables), hessian="exact" if exact_hessian else "limited-memory", options_hash=_options_hash(options), seed=seed, solver=solver)
+    base = _group_key(task, p, variables, exact_hessian, options, seed, solver)
     todo = [(s, r) for s in sigmas for r in range(replicates) if run_key(base | {"sigma": float(s), "replicate": r}) not in done]
     if not todo:
         return 0
@@ -365,11 +372,8 @@ def robustness(
 
 def _select(runs: list[dict], task: Task, p: str, sigmas, replicates: int, seed: int, variables: str | TranscriptionOptions, exact_hessian: bool, options, solver: str) -> list[dict]:
     """The runs of one group of this call's settings, in (sigma, replicate) order."""
-    keys = {
-        (task.content_hash(), p, variables_label(variables), variables_hash(variables), "exact" if exact_hessian else "limited-memory", _options_hash(options), seed, float(s), r, solver): (i, r)
-        for i, s in enumerate(sigmas)
-        for r in range(replicates)
-    }
+    base = _group_key(task, p, variables, exact_hessian, options, seed, solver)
+    keys = {run_key(base | {"sigma": float(s), "replicate": r}): (i, r) for i, s in enumerate(sigmas) for r in range(replicates)}
     sel = [(keys[run_key(r)], r) for r in runs if run_key(r) in keys]
     return [r for _, r in sorted(sel, key=lambda x: x[0])]
 
