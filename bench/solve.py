@@ -164,7 +164,7 @@ def markdown(records: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("tasks", nargs="*")
     ap.add_argument("--param", default="se3")
@@ -175,7 +175,7 @@ def main() -> None:
     ap.add_argument("--no-peer", action="store_true", help="do not run the public code")
     ap.add_argument("--out", help="write DIR/speed.json and DIR/speed.md")
     ap.add_argument("--table-only", action="store_true", help="rewrite OUT/speed.md from OUT/speed.json, solve nothing")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     if args.table_only:
         if not args.out:
             ap.error("--table-only needs --out DIR")
@@ -193,6 +193,8 @@ def main() -> None:
     except ValueError as err:  # InputError, or Ipopt's catalog's IpoptOptionError
         ap.error(str(err))
     peer = None if args.no_peer else args.peer
+    if peer is None and not args.no_peer:
+        print(f"bench/solve.py: no peer: the paper's public code is not at {DEFAULT_PEER}; the table has jtraj's rows only (pass --peer PATH to compare, --no-peer to silence this)", file=sys.stderr, flush=True)
     records = []
     for task in args.tasks:
         rec = dict(task=task, param=args.param, machine=dict(cpus=os.cpu_count(), load_1min=os.getloadavg()[0], platform=platform.platform()), peer=None, variants=[])
