@@ -5,7 +5,8 @@ time and iterations measured in the same run (never remembered figures: machines
 day to day).
 
     python bench/solve.py big_jump [sideflip ...] [--param se3] [--variants paper,compact,lean]
-        [--ipopt NAME=VALUE ...] [--jtraj NAME=VALUE ...] [--peer PATH | --no-peer] [--out DIR]
+        [--ipopt NAME=VALUE ...] [--jtraj NAME=VALUE ...] [--peer PATH | --no-peer] [--repeat N]
+        [--out DIR]
 
 Variants (Ipopt with the study's settings: L-BFGS Hessian, tol 1e-3, MUMPS; or jtraj's solver):
     paper    the study's variables per knot (q, v, a, f, c)
@@ -24,7 +25,13 @@ at least ``iterations`` and ``time_s`` (its wall time around Ipopt's solve, mode
 excluded); the default is ``../shared/peers/run-se3-trajopt`` beside the repository when it
 exists. It runs before jtraj's variants, one after the other (never concurrently), and the
 ratio column is its time over each variant's time to solution (compile excluded). Without a
-peer the table has no ratio column. ``--out DIR`` writes ``DIR/speed.json`` (every raw record)
+peer the table has no ratio column.
+
+``--repeat N`` measures each side N times, alternating (the public code, then jtraj's variants,
+N rounds), and reports the median of each with its range: on a shared virtual machine one run
+of either can be off by a third (big_jump's jtraj solve took 1.22 to 2.02 s in runs minutes
+apart), and the ratio of two single runs inherits both errors. The iterations of every repeat
+must agree (they are deterministic); the script stops if they do not. ``--out DIR`` writes ``DIR/speed.json`` (every raw record)
 and ``DIR/speed.md`` (the table) and ``DIR/provenance.json`` (command, date, machine, versions).
 """
 
@@ -123,6 +130,22 @@ def run_jtraj(task: str, param: str, variant: str, v: dict, options: dict) -> di
     return _record(variant, r, None) | {"options": dict(options)}
 
 
+def _median_of(runs: list[dict], what: str) -> dict:
+    """The run of median ``time_s`` (the lower middle one for an even count) with every run's
+    time in ``times_s``; the runs' iterations must agree (``what`` names them in the error)."""
+    its = {r["iterations"] for r in runs}
+    if len(its) > 1:
+        raise SystemExit(f"bench/solve.py: {what}: the repeats took different iterations {sorted(its)}; their times are not comparable")
+    order = sorted(runs, key=lambda r: r["time_s"])
+    return dict(order[(len(order) - 1) // 2], times_s=[r["time_s"] for r in runs])
+
+
+def _time_cell(rec: dict) -> str:
+    """A time, with the range of its repeats when there were several."""
+    times = rec.get("times_s") or [rec["time_s"]]
+    return f"{rec['time_s']:.2f}" + (f" ({min(times):.2f}-{max(times):.2f})" if len(times) > 1 else "")
+
+
 def _label(v: dict) -> str:
     """A row's variant cell: its name, and the solver options given on the command line."""
     opts = v.get("options") or {}
@@ -139,7 +162,7 @@ def markdown(records: list[dict]) -> str:
         for v in rec["variants"]:
             row = (
                 f"| {rec['task']} | {_label(v)} | {v['status']} | {v['iterations']} | {v['cost']:.4g} | {v['constraint_violation']:.1e} "
-                f"| {v['time_s']:.2f} | {v['time_s'] / max(v['iterations'], 1):.3f} "
+                f"| {_time_cell(v)} | {v['time_s'] / max(v['iterations'], 1):.3f} "
                 f"| {v['time_derivatives']:.2f} | {v['time_ipopt']:.2f} |"
             )
             if with_peer and peer:
@@ -150,7 +173,7 @@ def markdown(records: list[dict]) -> str:
                 note = "" if done else f" (stopped, Ipopt status {peer.get('status')})"
                 cost = f"{peer['obj']:.4g}" if peer.get("obj") is not None else ""
                 viol = f"{peer['cons']:.1e}" if peer.get("cons") is not None else ""
-                row += f" {peer['iterations']}{note} | {cost} | {viol} | {bound}{peer['time_s']:.2f} | {bound}{peer['time_s'] / v['time_s']:.1f}x |"
+                row += f" {peer['iterations']}{note} | {cost} | {viol} | {bound}{_time_cell(peer)} | {bound}{peer['time_s'] / v['time_s']:.1f}x |"
             elif with_peer:
                 row += " | | | | |"
             lines.append(row)
@@ -159,6 +182,10 @@ def markdown(records: list[dict]) -> str:
         cpus = records[0].get("machine", {}).get("cpus")
         order = " (the public code and jtraj ran one after the other)" if with_peer else ""
         lines.append(f"\nMachine: {cpus} CPUs, 1-minute load average {min(loads):.1f} to {max(loads):.1f} during these runs{order}.")
+    repeats = max((len(x.get("times_s") or [0]) for r in records for x in [*r["variants"], r.get("peer") or {}]), default=1)
+    if repeats > 1:
+        alternating = ", alternating the public code and jtraj" if with_peer else ""
+        lines.append(f"\nTimes: the median of {repeats} runs{alternating}, their range in brackets; the ratio is of the medians.")
     if with_peer:
         lines.append("\nCost and violation: jtraj's objective and largest violation of a constraint or bound (unscaled); the peer's are the final objective and constraint violation in its Ipopt log (Ipopt's scaled values).")
     return "\n".join(lines) + "\n"
@@ -173,6 +200,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--jtraj", action="append", default=[], metavar="NAME=VALUE", help="option of jtraj's solver for the jtraj variant (e.g. constr_viol_tol=1e-6)")
     ap.add_argument("--peer", default=str(DEFAULT_PEER) if DEFAULT_PEER.exists() else None, help=f"command running the public code (default {DEFAULT_PEER} when it exists)")
     ap.add_argument("--no-peer", action="store_true", help="do not run the public code")
+    ap.add_argument("--repeat", type=int, default=1, metavar="N", help="measure each side N times, alternating, and report medians (default 1)")
     ap.add_argument("--out", help="write DIR/speed.json and DIR/speed.md")
     ap.add_argument("--table-only", action="store_true", help="rewrite OUT/speed.md from OUT/speed.json, solve nothing")
     args = ap.parse_args(argv)
@@ -183,6 +211,8 @@ def main(argv: list[str] | None = None) -> None:
         return
     if not args.tasks:
         ap.error("give at least one task")
+    if args.repeat < 1:
+        ap.error("--repeat: expected at least 1")
     variants = [v for v in args.variants.split(",") if v]
     for v in variants:
         if v not in VARIANTS:
@@ -198,20 +228,29 @@ def main(argv: list[str] | None = None) -> None:
     records = []
     for task in args.tasks:
         rec = dict(task=task, param=args.param, machine=dict(cpus=os.cpu_count(), load_1min=os.getloadavg()[0], platform=platform.platform()), peer=None, variants=[])
-        if peer:
-            rec["peer"] = run_peer(peer, task)
-            print(f"{task}: public code: {rec['peer']['iterations']} iterations, {rec['peer']['time_s']:.2f} s", flush=True)
-        t0 = time.perf_counter()
-        prep = prepare(task, args.param)
-        rec["compile_s"] = time.perf_counter() - t0
-        print(f"{task} [{args.param}]: {prep.nlp.n} variables, {prep.nlp.m} constraints; compile {rec['compile_s']:.1f} s", flush=True)
-        for name in variants:
-            rec["variants"].append(run_variant(task, args.param, name, extra, extra_jtraj))
+        peer_runs: list[dict] = []
+        runs: dict[str, list[dict]] = {name: [] for name in variants}
+        for i in range(args.repeat):
+            if peer:
+                peer_runs.append(run_peer(peer, task))
+                print(f"{task}: public code: {peer_runs[-1]['iterations']} iterations, {peer_runs[-1]['time_s']:.2f} s", flush=True)
+            if i == 0:
+                t0 = time.perf_counter()
+                prep = prepare(task, args.param)
+                rec["compile_s"] = time.perf_counter() - t0
+                print(f"{task} [{args.param}]: {prep.nlp.n} variables, {prep.nlp.m} constraints; compile {rec['compile_s']:.1f} s", flush=True)
+            for name in variants:
+                runs[name].append(run_variant(task, args.param, name, extra, extra_jtraj))
+                if args.repeat > 1:
+                    print(f"{task} [{name}]: run {i + 1} of {args.repeat}: {runs[name][-1]['iterations']} iterations, {runs[name][-1]['time_s']:.2f} s", flush=True)
+        if peer_runs:
+            rec["peer"] = _median_of(peer_runs, f"{task}: the public code")
+        rec["variants"] = [_median_of(runs[name], f"{task} [{name}]") for name in variants]
         rec["load_1min_after"] = os.getloadavg()[0]
         records.append(rec)
         print(markdown([rec]), flush=True)
         if args.out:
-            write_results(args.out, "speed", records, markdown(records), "bench/solve.py")
+            write_results(args.out, "speed", records, markdown(records), "bench/solve.py", argv)
 
 
 if __name__ == "__main__":
