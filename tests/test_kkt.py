@@ -57,8 +57,17 @@ def dense_kkt(system, delta_w):
     return M, keep
 
 
+@pytest.fixture(params=["lapack", "halves"])
+def split(request, monkeypatch):
+    """The factor's blocks by one LAPACK call each, or in halves (`kkt.SPLIT_ABOVE` lowered
+    so that these small blocks take the path of the whole-body tasks' 156-wide ones)."""
+    if request.param == "halves":
+        monkeypatch.setattr(kkt, "SPLIT_ABOVE", 2)
+    return request.param
+
+
 @pytest.mark.parametrize("indefinite", [False, True])
-def test_kkt_solve_equals_dense_solve(rng, indefinite):
+def test_kkt_solve_equals_dense_solve(rng, indefinite, split):
     system = random_system(rng, indefinite=indefinite)
     K, n = system.sigma.shape
     m = system.A.shape[1]
@@ -81,7 +90,7 @@ def test_kkt_solve_equals_dense_solve(rng, indefinite):
     assert np.all(np.asarray(dx).reshape(-1)[~keep] == 0.0)
 
 
-def test_wrong_inertia_is_detected(rng):
+def test_wrong_inertia_is_detected(rng, split):
     """With delta_w = 0 an indefinite Hessian (on the null space of J) fails to factor."""
     system = random_system(rng, indefinite=True)
     d = system.d0 + 1e-9
@@ -92,7 +101,7 @@ def test_wrong_inertia_is_detected(rng):
     assert wrong and not bool(ok)
 
 
-def test_block_factor_equals_dense_cholesky(rng):
+def test_block_factor_equals_dense_cholesky(rng, split):
     K, n = 4, 3
     X = rng.normal(size=(K * n, K * n))
     band = np.zeros_like(X)
@@ -356,3 +365,22 @@ def test_factor_finishes_the_blocks_as_condensed_blocks_does(rng, with_cols):
     # the blocks differ from the unfinished ones (the check can fail)
     raw, _ = kkt.factor(raw_diag + jax.vmap(jnp.diag)(system.sigma + dw), raw_upper, coupled)
     assert not np.allclose(raw.diag, ref.diag)
+
+
+@pytest.mark.parametrize("n", [7, 11])
+def test_cholesky_in_halves_equals_lapack(rng, monkeypatch, n):
+    """`kkt._cholesky` and `kkt._solve_lower_t` in halves (two and three levels here) equal the
+    one-call results, zeros above the diagonal included, and a matrix that is not positive
+    definite, in its leading half or only after it, gives NaN pivots as LAPACK's does."""
+    monkeypatch.setattr(kkt, "SPLIT_ABOVE", 3)
+    X = rng.normal(size=(n, n))
+    A = X @ X.T + n * np.eye(n)
+    L = np.asarray(kkt._cholesky(jnp.asarray(A)))
+    np.testing.assert_allclose(L, np.linalg.cholesky(A), rtol=1e-12, atol=1e-12)
+    B = rng.normal(size=(5, n))
+    np.testing.assert_allclose(np.asarray(kkt._solve_lower_t(jnp.asarray(L), jnp.asarray(B))) @ L.T, B, atol=1e-10)
+    for bad in (0, n - 1):  # the leading half fails, or only the trailing one
+        C = A.copy()
+        C[bad, bad] = -1.0
+        pivots = np.diagonal(np.asarray(kkt._cholesky(jnp.asarray(C))))
+        assert not np.all(np.isfinite(pivots) & (pivots > 0.0))

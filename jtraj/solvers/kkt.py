@@ -384,6 +384,45 @@ def _places(n: int, cols: np.ndarray) -> np.ndarray:
     return place
 
 
+#: blocks larger than this are factored by `_cholesky` and `_solve_lower_t` in two halves
+#: (recursively), smaller ones by one LAPACK call each. OpenBLAS's Cholesky (``dpotrf``) ran
+#: at 3 to 5 GFLOP/s on 78 to 156 square blocks on this project's 2-core machines, where a
+#: matrix product of that size runs at about 30: the halves move a quarter of the Cholesky's
+#: flops and half of the triangular solve's into matrix products. The factor of random blocks
+#: of big_jump's shapes (K = 47, n = 156, c = 96) took 1.14 to 1.19 times less median time
+#: (`bench/factor_split.py`, `results/factor_split/`); on the side-flip's n = 78 halves of 40
+#: were slower in a scratch run, hence the threshold.
+SPLIT_ABOVE = 96
+
+
+def _cholesky(A: jax.Array) -> jax.Array:
+    """Lower Cholesky factor of the symmetric ``A`` (its lower triangle is read), NaN where
+    ``A`` is not numerically positive definite, as ``lax.linalg.cholesky``'s: in two halves
+    above `SPLIT_ABOVE` rows, ``L11 = chol(A11)``, ``L21 = A21 L11^-T``, ``L22 = chol(A22 -
+    L21 L21^T)`` (a failed half makes its rows NaN, and L11's NaN reach L21 and L22)."""
+    n = A.shape[-1]
+    if n <= SPLIT_ABOVE:
+        return lax.linalg.cholesky(A, symmetrize_input=False)
+    h = (n + 1) // 2
+    L11 = _cholesky(A[:h, :h])
+    L21 = _solve_lower_t(L11, A[h:, :h])
+    L22 = _cholesky(A[h:, h:] - L21 @ L21.T)
+    top = jnp.concatenate([L11, jnp.zeros((h, n - h), A.dtype)], axis=1)
+    return jnp.concatenate([top, jnp.concatenate([L21, L22], axis=1)], axis=0)
+
+
+def _solve_lower_t(L: jax.Array, B: jax.Array) -> jax.Array:
+    """X with ``X L^T = B`` for the lower triangular L (n x n) and B (r x n), in two halves of
+    L's columns above `SPLIT_ABOVE`: ``X1 = B1 L11^-T``, ``X2 = (B2 - X1 L21^T) L22^-T``."""
+    n = L.shape[-1]
+    if n <= SPLIT_ABOVE:
+        return lax.linalg.triangular_solve(L, B, left_side=False, lower=True, transpose_a=True)
+    h = (n + 1) // 2
+    X1 = _solve_lower_t(L[:h, :h], B[:, :h])
+    X2 = _solve_lower_t(L[h:, h:], B[:, h:] - X1 @ L[h:, :h].T)
+    return jnp.concatenate([X1, X2], axis=1)
+
+
 @_scoped("kkt_factor")
 def factor(
     diag: jax.Array, upper: jax.Array, coupled: np.ndarray | None = None, shift: jax.Array | None = None, keep: jax.Array | None = None
@@ -434,9 +473,9 @@ def factor(
 
     def step(sub_k, blocks):
         D_k, U_k = finish(*blocks)
-        L_k = lax.linalg.cholesky(schur(D_k, sub_k), symmetrize_input=False)
+        L_k = _cholesky(schur(D_k, sub_k))
         # L[k+1, k] = U_k^T L_k^-T, i.e. X L_k^T = U_k^T: (n, n), or (c, n) for its rows `cols`
-        sub_next = lax.linalg.triangular_solve(L_k, U_k.T, left_side=False, lower=True, transpose_a=True)
+        sub_next = _solve_lower_t(L_k, U_k.T)
         return sub_next, (L_k.T, sub_k)
 
     sub0 = jnp.zeros((n if cols is None else cols.size, n), diag.dtype)

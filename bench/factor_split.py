@@ -1,0 +1,115 @@
+"""The block-tridiagonal factor (`jtraj.solvers.kkt.factor`) with its diagonal blocks factored
+by one LAPACK call each against in halves (`kkt.SPLIT_ABOVE`), on random blocks of the tasks'
+shapes, in one process, the two programs taking turns.
+
+    python bench/factor_split.py [--shapes 47x156x96,121x78x48] [--rounds 15] [--out DIR]
+
+A shape is ``KxNxC``: K knots of n x n blocks whose off-diagonal blocks have C coupled columns
+(big_jump's compact variables: 47 x 156 with 96 coupled; the side-flip's: 121 x 78). Each round
+times each program five times, the order alternating; the table gives the fastest, the first quartile and the median
+of all its timings, and the largest difference between the two factors (relative to the
+largest entry). ``--out DIR`` writes ``DIR/factor_split.json``, ``factor_split.md`` and
+``provenance.json``.
+
+Why: OpenBLAS's Cholesky (``dpotrf``) of these small blocks ran at 3 to 5 GFLOP/s on this
+project's 2-core machines, a matrix product of the same size at about 30 (measured in scratch
+runs; see docs/measurements.md). The halves move part of the work into matrix products.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jtraj.provenance import write_results
+from jtraj.solvers import kkt
+
+jax.config.update("jax_enable_x64", True)
+
+NO_SPLIT = 10**9
+
+
+def blocks(K: int, n: int, c: int, seed: int = 0) -> tuple[jax.Array, jax.Array, np.ndarray]:
+    """A random positive definite block-tridiagonal matrix's (diag, upper on ``c`` columns)."""
+    rng = np.random.default_rng(seed)
+    G = rng.standard_normal((K, n, n)) / np.sqrt(n)
+    diag = G @ np.swapaxes(G, 1, 2) + 4.0 * np.eye(n)
+    cols = np.sort(rng.choice(n, c, replace=False)).astype(np.int32)
+    upper = 0.1 * rng.standard_normal((K, n, c))
+    return jnp.asarray(diag), jnp.asarray(upper), cols
+
+
+def program(split_above: int, cols: np.ndarray):
+    """The jitted factor, traced with ``kkt.SPLIT_ABOVE = split_above``."""
+    saved = kkt.SPLIT_ABOVE
+    kkt.SPLIT_ABOVE = split_above
+    try:
+        fn = jax.jit(lambda d, u: kkt.factor(d, u, cols)).lower(*_SPEC).compile()
+    finally:
+        kkt.SPLIT_ABOVE = saved
+    return fn
+
+
+_SPEC: tuple = ()
+
+
+def measure(K: int, n: int, c: int, rounds: int) -> dict:
+    global _SPEC
+    diag, upper, cols = blocks(K, n, c)
+    _SPEC = (diag, upper)
+    progs = {"one call": program(NO_SPLIT, cols), "halves": program(kkt.SPLIT_ABOVE, cols)}
+    outs = {k: jax.block_until_ready(p(diag, upper)) for k, p in progs.items()}
+    assert all(bool(o[1]) for o in outs.values()), "the random matrix should factor"
+    ref = np.asarray(outs["one call"][0].diag)
+    diff = float(np.max(np.abs(np.asarray(outs["halves"][0].diag) - ref)) / np.max(np.abs(ref)))
+    times: dict[str, list[float]] = {k: [] for k in progs}
+    for i in range(rounds):
+        # the order alternates (ABBA...): the second program of a round ran faster than the
+        # first in a trial with two identical programs
+        for k, p in list(progs.items())[:: 1 if i % 2 == 0 else -1]:
+            for _ in range(5):
+                t = time.perf_counter()
+                jax.block_until_ready(p(diag, upper))
+                times[k].append(time.perf_counter() - t)
+    stats = {k: dict(min_ms=1e3 * min(v), p25_ms=1e3 * float(np.percentile(v, 25)), median_ms=1e3 * float(np.median(v))) for k, v in times.items()}
+    return dict(K=K, n=n, c=c, split_above=kkt.SPLIT_ABOVE, rounds=rounds, max_rel_diff=diff, stats=stats)
+
+
+def table(records: list[dict]) -> str:
+    lines = [
+        "| knots x n (coupled) | split | one call: fastest / p25 / median (ms) | halves: fastest / p25 / median (ms) | one call / halves (median) | largest difference |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in records:
+        a, b = r["stats"]["one call"], r["stats"]["halves"]
+        split = "yes" if r["n"] > r["split_above"] else f"no (n <= {r['split_above']})"
+        lines.append(
+            f"| {r['K']} x {r['n']} ({r['c']}) | {split} | {a['min_ms']:.1f} / {a['p25_ms']:.1f} / {a['median_ms']:.1f} "
+            f"| {b['min_ms']:.1f} / {b['p25_ms']:.1f} / {b['median_ms']:.1f} | {a['median_ms'] / b['median_ms']:.2f}x | {r['max_rel_diff']:.1e} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--shapes", default="47x156x96,121x78x48", help="KxNxC,... (knots, block size, coupled columns)")
+    ap.add_argument("--rounds", type=int, default=15)
+    ap.add_argument("--out")
+    args = ap.parse_args(argv)
+    records = []
+    for shape in args.shapes.split(","):
+        K, n, c = (int(x) for x in shape.split("x"))
+        records.append(measure(K, n, c, args.rounds))
+        print(table(records[-1:]).splitlines()[-1], flush=True)
+    md = table(records)
+    print(md)
+    if args.out:
+        write_results(args.out, "factor_split", records, md, "bench/factor_split.py", argv)
+
+
+if __name__ == "__main__":
+    main()

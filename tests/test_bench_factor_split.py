@@ -1,0 +1,19 @@
+"""bench/factor_split.py on tiny blocks: both programs factor the same matrix, and the table
+says which shapes were split."""
+
+from conftest import bench_module
+
+from jtraj.solvers import kkt
+
+
+def test_factor_split_bench_compares_the_two_factors(monkeypatch):
+    bench = bench_module("factor_split")
+    monkeypatch.setattr(kkt, "SPLIT_ABOVE", 4)
+    small, split = bench.measure(3, 4, 2, rounds=1), bench.measure(3, 9, 5, rounds=2)
+    for rec in (small, split):
+        assert rec["max_rel_diff"] < 1e-12
+        assert set(rec["stats"]) == {"one call", "halves"}
+        assert all(s["min_ms"] <= s["p25_ms"] <= s["median_ms"] for s in rec["stats"].values())
+    lines = bench.table([small, split]).splitlines()
+    assert lines[2].startswith("| 3 x 4 (2) | no (n <= 4) |")
+    assert lines[3].startswith("| 3 x 9 (5) | yes |")
