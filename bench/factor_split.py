@@ -76,7 +76,7 @@ def measure(K: int, n: int, c: int, rounds: int) -> dict:
                 jax.block_until_ready(p(diag, upper))
                 times[k].append(time.perf_counter() - t)
     stats = {k: dict(min_ms=1e3 * min(v), p25_ms=1e3 * float(np.percentile(v, 25)), median_ms=1e3 * float(np.median(v))) for k, v in times.items()}
-    return dict(K=K, n=n, c=c, split_above=kkt.SPLIT_ABOVE, rounds=rounds, max_rel_diff=diff, stats=stats)
+    return dict(K=K, n=n, c=c, split_above=kkt.SPLIT_ABOVE, backend=jax.default_backend(), rounds=rounds, max_rel_diff=diff, stats=stats)
 
 
 def table(records: list[dict]) -> str:
@@ -87,6 +87,8 @@ def table(records: list[dict]) -> str:
     for r in records:
         a, b = r["stats"]["one call"], r["stats"]["halves"]
         split = "yes" if r["n"] > r["split_above"] else f"no (n <= {r['split_above']})"
+        if r.get("backend", "cpu") != "cpu":
+            split = f"no ({r['backend']})"
         lines.append(
             f"| {r['K']} x {r['n']} ({r['c']}) | {split} | {a['min_ms']:.1f} / {a['p25_ms']:.1f} / {a['median_ms']:.1f} "
             f"| {b['min_ms']:.1f} / {b['p25_ms']:.1f} / {b['median_ms']:.1f} | {a['median_ms'] / b['median_ms']:.2f}x | {r['max_rel_diff']:.1e} |"

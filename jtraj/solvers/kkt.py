@@ -391,17 +391,24 @@ def _places(n: int, cols: np.ndarray) -> np.ndarray:
 #: flops and half of the triangular solve's into matrix products. The factor of random blocks
 #: of big_jump's shapes (K = 47, n = 156, c = 96) took 1.14 to 1.19 times less median time
 #: (`bench/factor_split.py`, `results/factor_split/`); on the side-flip's n = 78 halves of 40
-#: were slower in a scratch run, hence the threshold.
+#: were slower in a scratch run, hence the threshold. Only where JAX's default backend is the
+#: CPU: on a GPU, cuSOLVER's kernels are another matter, not measured with the halves.
 SPLIT_ABOVE = 96
+
+
+def _split(n: int) -> bool:
+    """Whether an n x n block is factored in halves (`SPLIT_ABOVE`), decided when tracing."""
+    return n > SPLIT_ABOVE and jax.default_backend() == "cpu"
 
 
 def _cholesky(A: jax.Array) -> jax.Array:
     """Lower Cholesky factor of the symmetric ``A`` (its lower triangle is read), NaN where
     ``A`` is not numerically positive definite, as ``lax.linalg.cholesky``'s: in two halves
-    above `SPLIT_ABOVE` rows, ``L11 = chol(A11)``, ``L21 = A21 L11^-T``, ``L22 = chol(A22 -
-    L21 L21^T)`` (a failed half makes its rows NaN, and L11's NaN reach L21 and L22)."""
+    above `SPLIT_ABOVE` rows on the CPU (`_split`): ``L11 = chol(A11)``, ``L21 = A21 L11^-T``,
+    ``L22 = chol(A22 - L21 L21^T)`` (a failed half makes its rows NaN, and L11's NaN reach L21
+    and L22)."""
     n = A.shape[-1]
-    if n <= SPLIT_ABOVE:
+    if not _split(n):
         return lax.linalg.cholesky(A, symmetrize_input=False)
     h = (n + 1) // 2
     L11 = _cholesky(A[:h, :h])
@@ -415,7 +422,7 @@ def _solve_lower_t(L: jax.Array, B: jax.Array) -> jax.Array:
     """X with ``X L^T = B`` for the lower triangular L (n x n) and B (r x n), in two halves of
     L's columns above `SPLIT_ABOVE`: ``X1 = B1 L11^-T``, ``X2 = (B2 - X1 L21^T) L22^-T``."""
     n = L.shape[-1]
-    if n <= SPLIT_ABOVE:
+    if not _split(n):
         return lax.linalg.triangular_solve(L, B, left_side=False, lower=True, transpose_a=True)
     h = (n + 1) // 2
     X1 = _solve_lower_t(L[:h, :h], B[:, :h])
