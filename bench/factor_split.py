@@ -43,25 +43,19 @@ def blocks(K: int, n: int, c: int, seed: int = 0) -> tuple[jax.Array, jax.Array,
     return jnp.asarray(diag), jnp.asarray(upper), cols
 
 
-def program(split_above: int, cols: np.ndarray):
-    """The jitted factor, traced with ``kkt.SPLIT_ABOVE = split_above``."""
+def program(split_above: int, cols: np.ndarray, diag: jax.Array, upper: jax.Array):
+    """The factor compiled for ``diag``, ``upper``, traced with ``kkt.SPLIT_ABOVE = split_above``."""
     saved = kkt.SPLIT_ABOVE
     kkt.SPLIT_ABOVE = split_above
     try:
-        fn = jax.jit(lambda d, u: kkt.factor(d, u, cols)).lower(*_SPEC).compile()
+        return jax.jit(lambda d, u: kkt.factor(d, u, cols)).lower(diag, upper).compile()
     finally:
         kkt.SPLIT_ABOVE = saved
-    return fn
-
-
-_SPEC: tuple = ()
 
 
 def measure(K: int, n: int, c: int, rounds: int) -> dict:
-    global _SPEC
     diag, upper, cols = blocks(K, n, c)
-    _SPEC = (diag, upper)
-    progs = {"one call": program(NO_SPLIT, cols), "halves": program(kkt.SPLIT_ABOVE, cols)}
+    progs = {"one call": program(NO_SPLIT, cols, diag, upper), "halves": program(kkt.SPLIT_ABOVE, cols, diag, upper)}
     outs = {k: jax.block_until_ready(p(diag, upper)) for k, p in progs.items()}
     assert all(bool(o[1]) for o in outs.values()), "the random matrix should factor"
     ref = np.asarray(outs["one call"][0].diag)
