@@ -69,7 +69,7 @@ def test_results_folder_has_provenance(folder):
 
 
 #: (file stem in a results folder, bench script, its function that renders the Markdown)
-RENDERED = [("side_by_side", "side_by_side", "render"), ("speed", "solve", "markdown"), ("quaternion_noise", "quaternion_noise", "table"), ("compile", "compile", "table"), ("unit_norm", "unit_norm", "table"), ("quat3_norms", "quat3_norms", "table"), ("hessians", "hessians", "table"), ("factor_split", "factor_split", "table")]
+RENDERED = [("side_by_side", "side_by_side", "render"), ("speed", "solve", "markdown"), ("quaternion_noise", "quaternion_noise", "table"), ("compile", "compile", "table"), ("unit_norm", "unit_norm", "table"), ("quat3_norms", "quat3_norms", "table"), ("hessians", "hessians", "table"), ("factor_split", "factor_split", "table"), ("options", "options", "table")]
 
 
 @pytest.mark.parametrize(("stem", "script", "function"), RENDERED, ids=[r[0] for r in RENDERED])

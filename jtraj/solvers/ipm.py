@@ -171,9 +171,9 @@ class IpmOptions(AbstractOptions):
             ``refine_steps`` steps; ``residual_ratio_max=0`` takes ``refine_steps`` every time.
             The default 1e-6 is looser than Ipopt's 1e-10 and a decade below its
             ``residual_ratio_singular`` (1e-5, the ratio at which Ipopt deems a solve wrong):
-            measured on the six tasks (docs/measurements.md), 1e-10 refined about twice per
-            Newton system for the same iterations (the handstand took one fewer), and cost
-            about a fifth of the solve's time.
+            measured on the six tasks (``bench/options.py``, docs/measurements.md), 1e-10 took
+            the same iterations (the handstand one fewer) and made the solves 1.04x to 1.22x as
+            long.
         max_line_search: backtracking steps per iteration.
         max_soc, kappa_soc: Ipopt's second-order corrections: when the first trial point of an
             iteration is rejected and raised the constraint violation, up to ``max_soc``
