@@ -418,9 +418,11 @@ def _check_ipopt(items: list[str] | None, solver: str = "ipopt", field: str = "-
     elif options:
         from jtraj import solvers
 
-        # jtraj's options take None where a feature can be off (e.g. feasibility_polish_tol=none);
-        # Ipopt's string options take "none" as a value of their own, so only here
-        options = {k: None if isinstance(v, str) and v.lower() == "none" else v for k, v in options.items()}
+        # jtraj's options take None where a feature can be off (e.g. feasibility_polish_tol=none)
+        # and booleans (delta_c_mu_scaled=false); Ipopt's string options take "none", "yes" and
+        # "no" as values of their own, so only here
+        words = {"none": None, "true": True, "false": False}
+        options = {k: words[v.lower()] if isinstance(v, str) and v.lower() in words else v for k, v in options.items()}
         try:
             solvers.get(solver).options(options)
         except (TypeError, ValueError) as err:

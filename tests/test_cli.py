@@ -95,6 +95,8 @@ def test_real_options_accept_integers():
 
 def test_none_turns_off_a_jtraj_option_and_stays_a_word_for_ipopt():
     assert cli._check_ipopt(["feasibility_polish_tol=none", "feasibility_polish_iter=3"], solver="jtraj") == {"feasibility_polish_tol": None, "feasibility_polish_iter": 3}
+    # a boolean option reads "false" as False (the string "false" would be truthy)
+    assert cli._check_ipopt(["delta_c_mu_scaled=false", "bfgs_scaling=True"], solver="jtraj") == {"delta_c_mu_scaled": False, "bfgs_scaling": True}
     assert cli._check_ipopt(["nlp_scaling_method=none"]) == {"nlp_scaling_method": "none"}
     with pytest.raises(cli.InputError, match="feasibility_polish_tol=0: expected a positive number"):
         cli._check_ipopt(["feasibility_polish_tol=0"], solver="jtraj")
