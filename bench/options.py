@@ -12,7 +12,8 @@ when given first). The first variant is the baseline of the ratio column. Per ta
 variant is first solved once to compile its program (kept as ``time_compile_s``), then each is
 timed ``--rounds`` times in ABBA order (a round's order reversed every other round, so neither
 side always runs first). Each solve starts from the task's warm start, so a variant's repeats
-take the same iterations; a record keeps each repeat's iterations all the same.
+take the same iterations; a record keeps each repeat's iterations, and the table shows them
+all where they differ.
 
 The table gives each variant's status, iterations, cost and largest violation (of its last
 repeat), the median time with its range, and the baseline's median over the variant's.
@@ -28,44 +29,30 @@ from collections.abc import Callable
 from typing import Any
 
 import jtraj
+from jtraj.cli import InputError, _check_ipopt  # the command line's NAME=VALUE parsing and checks
 from jtraj.experiments import ALL_TASKS
 from jtraj.provenance import write_results
-from jtraj.solvers.ipm import IpmOptions
 from jtraj.tables import markdown_table
 
 
-def _value(text: str) -> Any:
-    """An option's value from the command line: int, float, bool, None or the string."""
-    lowered = text.lower()
-    if lowered in ("true", "false"):
-        return lowered == "true"
-    if lowered == "none":
-        return None
-    for kind in (int, float):
-        try:
-            return kind(text)
-        except ValueError:
-            pass
-    return text
-
-
 def parse_variant(text: str) -> tuple[str, dict[str, Any]]:
-    """``NAME=OPTION:VALUE,...`` (or a bare ``NAME``) -> (name, options), checked by IpmOptions."""
+    """``NAME=OPTION:VALUE,...`` (or a bare ``NAME``) -> (name, options), parsed and checked as
+    the command line's ``--ipopt OPTION=VALUE`` items of ``--solver jtraj`` are."""
     name, _, spec = text.partition("=")
+    items = [item for item in spec.split(",") if item]
     if not name:
-        raise ValueError(f"--variant {text!r}: expected NAME=OPTION:VALUE[,OPTION:VALUE...]")
-    options: dict[str, Any] = {}
-    for item in filter(None, spec.split(",")):
-        key, sep, value = item.partition(":")
-        if not sep or not key:
-            raise ValueError(f"--variant {text!r}: {item!r} is not OPTION:VALUE")
-        options[key] = _value(value)
-    IpmOptions(**options)  # an unknown option or a bad value fails here, with its own message
-    return name, options
+        raise InputError("--variant", text, "expected NAME=OPTION:VALUE[,OPTION:VALUE...]")
+    for item in items:
+        if ":" not in item:
+            raise InputError("--variant", text, f"{item!r} is not OPTION:VALUE")
+    return name, _check_ipopt([item.replace(":", "=", 1) for item in items], "jtraj", field="--variant")
 
 
 def measure(task: str, variants: list[tuple[str, dict[str, Any]]], rounds: int, param: str = "se3", variables: str = "compact", solve: Callable[..., Any] | None = None) -> list[dict]:
-    """One record per variant: the compile solve, then ``rounds`` timed solves in ABBA order."""
+    """One record per variant: the compile solve, then ``rounds`` (at least 1) timed solves in
+    ABBA order."""
+    if rounds < 1:
+        raise ValueError(f"rounds={rounds}: expected at least 1")
     solve = solve or jtraj.solve
 
     def once(options: dict[str, Any]) -> Any:
@@ -81,13 +68,11 @@ def measure(task: str, variants: list[tuple[str, dict[str, Any]]], rounds: int, 
             rec["iterations"].append(res.iterations)
             rec.update(status=res.status.value, cost=res.cost, constraint_violation=res.constraint_violation)
     out = [records[name] for name, _ in variants]
-    base = statistics.median(out[0]["times_s"]) if rounds else None
     for rec in out:
-        rec["median_s"] = statistics.median(rec["times_s"]) if rounds else None
-        rec["speedup"] = base / rec["median_s"] if rounds and rec["median_s"] else None
-        print(f"{task:10s} {rec['variant']:12s} {rec.get('status', '-'):26s} it {'/'.join(map(str, sorted(set(rec['iterations']))))}  "
-              f"cost {rec.get('cost', float('nan')):.6g}  viol {rec.get('constraint_violation', float('nan')):.1e}  "
-              f"median {rec['median_s'] or float('nan'):.3f} s  {rec['times_s']}", flush=True)
+        rec["median_s"] = statistics.median(rec["times_s"])
+        rec["speedup"] = statistics.median(out[0]["times_s"]) / rec["median_s"]
+        print(f"{task:10s} {rec['variant']:12s} {rec['status']:26s} it {'/'.join(map(str, sorted(set(rec['iterations']))))}  "
+              f"cost {rec['cost']:.6g}  viol {rec['constraint_violation']:.1e}  median {rec['median_s']:.3f} s  {rec['times_s']}", flush=True)
     return out
 
 
@@ -119,7 +104,7 @@ def main(argv: list[str] | None = None) -> None:
         ap.error("--rounds must be at least 1")
     try:
         variants = [parse_variant(v) for v in args.variant]
-    except (ValueError, TypeError) as exc:  # InvalidOptionError is a ValueError
+    except InputError as exc:
         ap.error(str(exc))
     if len({name for name, _ in variants}) != len(variants):
         ap.error("--variant names must differ")

@@ -6,6 +6,7 @@ from types import SimpleNamespace
 import pytest
 from conftest import bench_module
 
+from jtraj.cli import InputError
 from jtraj.result import Outcome
 
 
@@ -42,7 +43,7 @@ def test_parse_variant_values_and_errors():
     bench = bench_module("options")
     assert bench.parse_variant("a=refine_steps:0,feasibility_polish_tol:none,delta_c_mu_scaled:false") == (
         "a", {"refine_steps": 0, "feasibility_polish_tol": None, "delta_c_mu_scaled": False})
-    with pytest.raises(TypeError, match="no_such_option"):
+    with pytest.raises(InputError, match="no_such_option"):
         bench.parse_variant("a=no_such_option:1")
     with pytest.raises(ValueError, match="residual_ratio_max"):
         bench.parse_variant("a=residual_ratio_max:-1")
