@@ -100,6 +100,11 @@ def test_none_turns_off_a_jtraj_option_and_stays_a_word_for_ipopt():
     assert cli._check_ipopt(["nlp_scaling_method=none"]) == {"nlp_scaling_method": "none"}
     with pytest.raises(cli.InputError, match="feasibility_polish_tol=0: expected a positive number"):
         cli._check_ipopt(["feasibility_polish_tol=0"], solver="jtraj")
+    # any other word for a boolean, or a word for a number, is refused, not run as truthy
+    with pytest.raises(cli.InputError, match="delta_c_mu_scaled='maybe': expected true or false"):
+        cli._check_ipopt(["delta_c_mu_scaled=maybe"], solver="jtraj")
+    with pytest.raises(cli.InputError, match="armijo='small': expected a finite number"):
+        cli._check_ipopt(["armijo=small"], solver="jtraj")
 
 
 @pytest.mark.parametrize("converged, success, code", [(True, True, 0), (True, False, cli.EXIT_TASK_FAILED), (False, False, cli.EXIT_NOT_CONVERGED)])

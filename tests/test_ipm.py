@@ -429,3 +429,10 @@ def test_feasibility_polish_after_a_loose_convergence_test():
         np.testing.assert_allclose(np.asarray(batched.x[i]), np.asarray(one.x), atol=1e-8)
     with pytest.raises(solvers.InvalidOptionError, match="feasibility_polish_tol"):
         IpmOptions(feasibility_polish_tol=0.0)
+    # fields are checked by the type of their default: booleans, finite numbers
+    with pytest.raises(solvers.InvalidOptionError, match="bfgs_scaling=1: expected true or false"):
+        IpmOptions(bfgs_scaling=1)
+    with pytest.raises(solvers.InvalidOptionError, match="kappa_soc=nan: expected a finite number"):
+        IpmOptions(kappa_soc=float("nan"))
+    with pytest.raises(solvers.InvalidOptionError, match="armijo=True: expected a finite number"):
+        IpmOptions(armijo=True)

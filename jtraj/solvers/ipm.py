@@ -282,6 +282,16 @@ class IpmOptions(AbstractOptions):
             raise InvalidOptionError(f"jtraj option cpu_batch={self.cpu_batch!r}: expected 'sequential' or 'vectorized'")
         if self.adaptive_mu_globalization not in ("obj-constr-filter", "kkt-error"):
             raise InvalidOptionError(f"jtraj option adaptive_mu_globalization={self.adaptive_mu_globalization!r}: expected 'obj-constr-filter' or 'kkt-error'")
+        # every field by the type of its default: a string from the command line ("false",
+        # "1e-3" unparsed) must not reach the solver as a truthy or untraceable value
+        for field in dataclasses.fields(self):
+            value, default = getattr(self, field.name), field.default
+            if isinstance(default, bool) and not isinstance(value, (bool, np.bool_)):
+                raise InvalidOptionError(f"jtraj option {field.name}={value!r}: expected true or false")
+            if value is None and "None" in str(field.type):
+                continue
+            if isinstance(default, float) and (isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)) or not np.isfinite(value)):
+                raise InvalidOptionError(f"jtraj option {field.name}={value!r}: expected a finite number")
         _positive(self, "tol", "constr_viol_tol", "dual_inf_tol", "compl_inf_tol", "mu_init", "delta_c")
         if isinstance(self.residual_ratio_max, bool) or not isinstance(self.residual_ratio_max, (int, float)) or not self.residual_ratio_max >= 0:
             raise InvalidOptionError(f"jtraj option residual_ratio_max={self.residual_ratio_max!r}: expected a number >= 0")
