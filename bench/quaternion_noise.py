@@ -1,4 +1,4 @@
-"""Does renormalizing the noisy quaternions of a warm start change the study's quaternion cells?
+"""Do the study's quaternion cells fail for the chart, or for the size of the noise on the pose?
 
 The comparative study's footnote 2 says its quaternion implementation "always normalize[s] the
 quaternions". jtraj normalizes rho wherever the NLP uses it, and its noise study adds
@@ -6,10 +6,17 @@ quaternions". jtraj normalizes rho wherever the NLP uses it, and its noise study
 has a norm of about 1.4 at sigma 0.5. This benchmark solves the same draws twice with jtraj's
 solver, as the study draws them (`jtraj.experiments.noisy_warm_starts`, seed 0): ``raw`` (the
 study's warm starts) and ``unit`` (each knot's rho divided by its norm after the noise), and
-prints and writes how many converge and do the task::
+prints and writes how many converge and do the task. A third mode, ``se3``, gives the
+quaternion chart the SE(3) tangent cell's own draws (the same seed, noise on ``xi`` in place of
+``(p, rho)``): each knot's noisy pose ``Exp(xi)`` written as ``(p, rho)``, every other variable
+as the SE(3) draw has it. The two charts then start from the same poses, and only the chart
+differs. Noise of sigma on rho's four entries turns a pose much further than noise of sigma on
+xi's three rotation entries; each mode's row gives the mean angle between the noisy and the
+noise-free base orientation over the interior knots::
 
     python bench/quaternion_noise.py [--task walk] [--params quat1,quat2] [--sigma 0.5]
-        [--draws 20] [--max-iter 200] [--variables paper] [--out DIR]
+        [--draws 20] [--first 0] [--modes raw,unit,se3] [--max-iter 200] [--variables paper]
+        [--out DIR]
 
 ``--out DIR`` writes ``DIR/quaternion_noise.json`` (one record per solve), ``DIR/quaternion_noise.md`` and
 ``DIR/provenance.json``. A walk with a quaternion at sigma 0.5 takes 10 to 60 s per draw on
@@ -23,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-MODES = ("raw", "unit")
+MODES = ("raw", "unit", "se3")
 
 
 def unit_quaternions(starts: np.ndarray, q: slice) -> np.ndarray:
@@ -35,8 +42,44 @@ def unit_quaternions(starts: np.ndarray, q: slice) -> np.ndarray:
     return out
 
 
-def run(task: str, param: str, sigma: float, draws: int, max_iter: int, variables: str) -> list[dict]:
-    """Both modes' solves of ``draws`` draws; one record per solve."""
+def se3_poses_as_quaternions(starts_se3: np.ndarray, se3_tr, quat_tr) -> np.ndarray:
+    """SE(3) tangent warm starts (..., n_knots, nz_se3) written in the quaternion chart of
+    ``quat_tr``: each knot's base ``Exp(xi)`` as ``(p, rho)`` (`from_pose`), every other variable
+    (joint angles, velocities, accelerations, forces, contact points) copied slot by slot."""
+    import jax
+
+    x = np.asarray(starts_se3, float)
+    out = np.zeros(x.shape[:-1] + (quat_tr.layout.nz,))
+    to_quat = jax.jit(jax.vmap(lambda xi: quat_tr.param.from_pose(se3_tr.param.to_pose(xi))))
+    for name, _ in quat_tr.layout.slots:
+        a, b = se3_tr.layout.slice(name), quat_tr.layout.slice(name)
+        if name != "q":
+            out[..., b] = x[..., a]
+            continue
+        xi = x[..., a.start : a.start + 6]
+        out[..., b.start : b.start + 7] = np.asarray(to_quat(xi.reshape(-1, 6))).reshape(xi.shape[:-1] + (7,))
+        out[..., b.start + 7 : b.stop] = x[..., a.start + 6 : a.stop]
+    return out
+
+
+def rotation_noise(tr, starts: np.ndarray, clean: np.ndarray) -> np.ndarray:
+    """Angle (rad) between each start's and the noise-free warm start's base orientation, at
+    the interior knots: (n_starts, n_knots - 2)."""
+    import jax
+
+    q = tr.layout.slice("q")
+    nb = tr.param.nq
+
+    def angle(qn, qc):
+        Rn, Rc = tr.param.to_pose(qn).rotation(), tr.param.to_pose(qc).rotation()
+        return jax.numpy.linalg.norm((Rc.inverse() @ Rn).log())
+
+    fn = jax.jit(jax.vmap(jax.vmap(angle), in_axes=(0, None)))
+    return np.asarray(fn(starts[:, 1:-1, q.start : q.start + nb], clean[1:-1, q.start : q.start + nb]))
+
+
+def run(task: str, param: str, sigma: float, draws: int, max_iter: int, variables: str, modes: tuple[str, ...] = MODES, first: int = 0) -> list[dict]:
+    """Each mode's solves of draws ``first .. first + draws - 1``; one record per solve."""
     from jtraj import solvers
     from jtraj.experiments import noisy_warm_starts
     from jtraj.solver import evaluate, prepare
@@ -49,32 +92,51 @@ def run(task: str, param: str, sigma: float, draws: int, max_iter: int, variable
     q = tr.layout.slice("q")
     if not np.allclose(np.linalg.norm(x0[:, q][:, 3:7], axis=1), 1.0):
         raise SystemExit(f"{param}: the warm start's q[3:7] is not a unit quaternion")
-    noisy = np.asarray(noisy_warm_starts(x0, [sigma], draws, 0)[0])
+    reps = range(first, first + draws)
+    noisy = np.asarray(noisy_warm_starts(x0, [sigma], reps, 0)[0])
     backend = solvers.get("jtraj")
     theta = tr.resolve_theta(None)
     opts = backend.options({"max_iter": max_iter})
     records = []
-    for mode in MODES:
-        starts = noisy if mode == "raw" else unit_quaternions(noisy, q)
+    for mode in modes:
+        if mode == "raw":
+            starts = noisy
+        elif mode == "unit":
+            starts = unit_quaternions(noisy, q)
+        else:
+            se3_tr = prepare(task, "se3", variables).transcription
+            x0_se3 = se3_tr.warm_start()
+            # the noise-free warm starts are one trajectory in both charts
+            np.testing.assert_allclose(se3_poses_as_quaternions(x0_se3[None], se3_tr, tr)[0], x0, atol=1e-9)
+            starts = se3_poses_as_quaternions(np.asarray(noisy_warm_starts(x0_se3, [sigma], reps, 0)[0]), se3_tr, tr)
+        angles = rotation_noise(tr, starts, x0)
         solutions, total, compile_time = backend.solve_batch(nlp, starts, theta, opts)
-        for r, sol in enumerate(solutions):
+        for r, sol in zip(reps, solutions):
             res = evaluate(tr, sol, tr.decode(sol.x, theta), 0.0, {}, nlp.nnz_jac, None, theta, backend.name)
-            records.append(dict(task=task, parameterization=param, mode=mode, sigma=sigma, replicate=r, status=res.status.value, converged=res.converged, success=res.success, iterations=res.iterations, constraint_violation=res.constraint_violation))
+            i = r - first
+            records.append(dict(task=task, parameterization=param, mode=mode, sigma=sigma, replicate=r, status=res.status.value, converged=res.converged, success=res.success, iterations=res.iterations, constraint_violation=res.constraint_violation, rotation_noise_mean=float(angles[i].mean()), rotation_noise_over_half_pi=float((angles[i] > np.pi / 2).mean())))
         done = [x for x in records if x["mode"] == mode]
-        print(f"{task} {param} {mode}: {sum(x['converged'] for x in done)}/{draws} converged, {sum(x['success'] for x in done)} did the task ({total:.0f} s, compile {compile_time:.0f} s)", flush=True)
+        print(f"{task} {param} {mode}: {sum(x['converged'] for x in done)}/{draws} converged, {sum(x['success'] for x in done)} did the task, base rotated {angles.mean():.2f} rad on average by the noise ({total:.0f} s, compile {compile_time:.0f} s)", flush=True)
     return records
 
 
 def table(records: list[dict]) -> str:
     """Markdown: per (parameterization, mode), converged and task-done counts, and the draws on
     which the two modes end differently."""
-    lines = ["| parameterization | warm start's rho | converged | did the task | iterations of the converged (median) |", "|---|---|---|---|---|"]
+    angles = all("rotation_noise_mean" in r for r in records)
+    head = "| parameterization | warm start's rho | converged | did the task | iterations of the converged (median) |"
+    lines = [head + (" base rotated by the noise (rad, mean) | knots turned > 90 deg |" if angles else ""), "|---|---|---|---|---|" + ("---|---|" if angles else "")]
     for param in dict.fromkeys(r["parameterization"] for r in records):
-        for mode in MODES:
+        for mode in dict.fromkeys(r["mode"] for r in records):
             rows = [r for r in records if r["parameterization"] == param and r["mode"] == mode]
+            if not rows:
+                continue
             its = [r["iterations"] for r in rows if r["converged"]]
             median = f"{np.median(its):.0f}" if its else "-"
-            lines.append(f"| {param} | {mode} | {sum(r['converged'] for r in rows)} / {len(rows)} | {sum(r['success'] for r in rows)} / {len(rows)} | {median} |")
+            line = f"| {param} | {mode} | {sum(r['converged'] for r in rows)} / {len(rows)} | {sum(r['success'] for r in rows)} / {len(rows)} | {median} |"
+            if angles:
+                line += f" {np.mean([r['rotation_noise_mean'] for r in rows]):.2f} | {100 * np.mean([r['rotation_noise_over_half_pi'] for r in rows]):.1f} % |"
+            lines.append(line)
     return "\n".join(lines) + "\n"
 
 
@@ -84,13 +146,18 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--params", default="quat1,quat2")
     ap.add_argument("--sigma", type=float, default=0.5)
     ap.add_argument("--draws", type=int, default=20)
+    ap.add_argument("--first", type=int, default=0, help="first draw (replicate number)")
+    ap.add_argument("--modes", default=",".join(MODES), help=f"warm starts to solve, of {','.join(MODES)}")
     ap.add_argument("--max-iter", type=int, default=200)
     ap.add_argument("--variables", default="paper")
     ap.add_argument("--out", type=Path)
     a = ap.parse_args(argv)
+    modes = tuple(a.modes.split(","))
+    if not modes or set(modes) - set(MODES):
+        ap.error(f"--modes {a.modes}: expected modes of {','.join(MODES)}")
     records = []
     for param in a.params.split(","):
-        records += run(a.task, param, a.sigma, a.draws, a.max_iter, a.variables)
+        records += run(a.task, param, a.sigma, a.draws, a.max_iter, a.variables, modes, a.first)
     text = table(records)
     print(text, end="")
     if a.out is not None:

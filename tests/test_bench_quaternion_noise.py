@@ -1,5 +1,6 @@
 """bench/quaternion_noise.py: its renormalization of the warm start's quaternions, and its table."""
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from conftest import bench_module
@@ -27,3 +28,42 @@ def test_table_counts_each_mode(qn):
     lines = qn.table(records).splitlines()
     assert lines[2] == "| quat1 | raw | 2 / 3 | 1 / 3 | 80 |"
     assert lines[3] == "| quat1 | unit | 1 / 3 | 0 / 3 | 70 |"
+
+
+def _charts():
+    import types
+
+    from jtraj import parameterization
+    from jtraj.nlp import Layout
+
+    se3 = types.SimpleNamespace(param=parameterization.get("se3"), layout=Layout(slots=(("q", 8), ("v", 8), ("f", 3))))
+    quat = types.SimpleNamespace(param=parameterization.get("quat1"), layout=Layout(slots=(("q", 9), ("v", 8), ("f", 3))))
+    return se3, quat
+
+
+def test_se3_draws_become_the_same_poses_in_the_quaternion_chart(qn):
+    se3, quat = _charts()
+    rng = np.random.default_rng(1)
+    starts = rng.normal(size=(3, 4, se3.layout.nz))  # draws, knots, nz: base xi (6) + 2 joints
+    out = qn.se3_poses_as_quaternions(starts, se3, quat)
+    assert out.shape == (3, 4, quat.layout.nz)
+    for xi, q in zip(starts.reshape(-1, se3.layout.nz), out.reshape(-1, quat.layout.nz)):
+        a, b = se3.param.to_pose(jnp.asarray(xi[:6])), quat.param.to_pose(jnp.asarray(q[:7]))
+        np.testing.assert_allclose(np.asarray(b.translation()), np.asarray(a.translation()), atol=1e-12)
+        np.testing.assert_allclose(np.asarray(b.rotation().as_matrix()), np.asarray(a.rotation().as_matrix()), atol=1e-12)
+        np.testing.assert_allclose(np.linalg.norm(q[3:7]), 1.0)
+    np.testing.assert_array_equal(out[..., 7:9], starts[..., 6:8])  # joint angles
+    np.testing.assert_array_equal(out[..., 9:], starts[..., 8:])  # the other slots
+
+
+def test_rotation_noise_is_the_angle_to_the_clean_orientation_at_interior_knots(qn):
+    _, quat = _charts()
+    clean = np.zeros((5, quat.layout.nz))
+    clean[:, 3] = 1.0  # identity quaternions
+    turned = np.repeat(clean[None], 2, axis=0)
+    angles = np.array([[0.3, 1.0, 2.5], [0.0, 0.1, 3.0]])
+    # rho of a turn by a about z, scaled: the chart normalizes rho, so its norm changes nothing
+    turned[:, 1:-1, 3] = 2 * np.cos(angles / 2)
+    turned[:, 1:-1, 6] = 2 * np.sin(angles / 2)
+    turned[:, [0, -1], 6] = 1.0  # the end knots are not counted
+    np.testing.assert_allclose(qn.rotation_noise(quat, turned, clean), angles, atol=1e-9)
