@@ -6,13 +6,14 @@ quaternions". jtraj normalizes rho wherever the NLP uses it, and its noise study
 has a norm of about 1.4 at sigma 0.5. This benchmark solves the same draws twice with jtraj's
 solver, as the study draws them (`jtraj.experiments.noisy_warm_starts`, seed 0): ``raw`` (the
 study's warm starts) and ``unit`` (each knot's rho divided by its norm after the noise), and
-prints and writes how many converge and do the task. A third mode, ``se3``, gives the
-quaternion chart the SE(3) tangent cell's own draws (the same seed, noise on ``xi`` in place of
-``(p, rho)``): each knot's noisy pose ``Exp(xi)`` written as ``(p, rho)``, every other variable
-as the SE(3) draw has it. The two charts then start from the same poses, and only the chart
-differs. Noise of sigma on rho's four entries turns a pose much further than noise of sigma on
-xi's three rotation entries; each mode's row gives the mean angle between the noisy and the
-noise-free base orientation over the interior knots::
+prints and writes how many converge and do the task. A mode named after another chart gives
+this chart that chart's own draws (the same seed): ``se3`` puts the noise on ``xi`` in place
+of ``(p, rho)`` and writes each knot's noisy pose ``Exp(xi)`` as ``(p, rho)``, every other
+variable as the SE(3) draw has it. The two charts then start from the same poses, and only the
+chart differs (``--params se3 --modes raw,quat1`` is the converse). Noise of sigma on rho's
+four entries turns a pose much further than noise of sigma on xi's three rotation entries;
+each mode's row gives the mean angle between the noisy and the noise-free base orientation
+over the interior knots::
 
     python bench/quaternion_noise.py [--task walk] [--params quat1,quat2] [--sigma 0.5]
         [--draws 20] [--first 0] [--modes raw,unit,se3] [--max-iter 200] [--variables paper]
@@ -30,7 +31,10 @@ from pathlib import Path
 
 import numpy as np
 
-MODES = ("raw", "unit", "se3")
+#: raw: the chart's own draws; unit: a quaternion chart's draws with each rho normalized; any
+#: other parameterization's name: that chart's draws (same seed), its noisy poses written in
+#: this chart
+MODES = ("raw", "unit", "se3", "quat1", "quat2", "euler")
 
 
 def unit_quaternions(starts: np.ndarray, q: slice) -> np.ndarray:
@@ -42,23 +46,25 @@ def unit_quaternions(starts: np.ndarray, q: slice) -> np.ndarray:
     return out
 
 
-def se3_poses_as_quaternions(starts_se3: np.ndarray, se3_tr, quat_tr) -> np.ndarray:
-    """SE(3) tangent warm starts (..., n_knots, nz_se3) written in the quaternion chart of
-    ``quat_tr``: each knot's base ``Exp(xi)`` as ``(p, rho)`` (`from_pose`), every other variable
-    (joint angles, velocities, accelerations, forces, contact points) copied slot by slot."""
+def poses_in_chart(starts: np.ndarray, src_tr, dst_tr) -> np.ndarray:
+    """Warm starts (..., n_knots, nz) of the transcription ``src_tr`` written in the chart of
+    ``dst_tr``: each knot's base pose (``src_tr.param.to_pose``) as ``dst_tr.param.from_pose``
+    gives it, every other variable (joint angles, velocities, accelerations, forces, contact
+    points) copied slot by slot."""
     import jax
 
-    x = np.asarray(starts_se3, float)
-    out = np.zeros(x.shape[:-1] + (quat_tr.layout.nz,))
-    to_quat = jax.jit(jax.vmap(lambda xi: quat_tr.param.from_pose(se3_tr.param.to_pose(xi))))
-    for name, _ in quat_tr.layout.slots:
-        a, b = se3_tr.layout.slice(name), quat_tr.layout.slice(name)
+    x = np.asarray(starts, float)
+    out = np.zeros(x.shape[:-1] + (dst_tr.layout.nz,))
+    na, nb = src_tr.param.nq, dst_tr.param.nq
+    convert = jax.jit(jax.vmap(lambda q: dst_tr.param.from_pose(src_tr.param.to_pose(q))))
+    for name, _ in dst_tr.layout.slots:
+        a, b = src_tr.layout.slice(name), dst_tr.layout.slice(name)
         if name != "q":
             out[..., b] = x[..., a]
             continue
-        xi = x[..., a.start : a.start + 6]
-        out[..., b.start : b.start + 7] = np.asarray(to_quat(xi.reshape(-1, 6))).reshape(xi.shape[:-1] + (7,))
-        out[..., b.start + 7 : b.stop] = x[..., a.start + 6 : a.stop]
+        base = x[..., a.start : a.start + na]
+        out[..., b.start : b.start + nb] = np.asarray(convert(base.reshape(-1, na))).reshape(base.shape[:-1] + (nb,))
+        out[..., b.start + nb : b.stop] = x[..., a.start + na : a.stop]
     return out
 
 
@@ -86,12 +92,12 @@ def run(task: str, param: str, sigma: float, draws: int, max_iter: int, variable
 
     prep = prepare(task, param, variables)
     tr, nlp = prep.transcription, prep.nlp
-    if not tr.param.name.startswith("quat"):
-        raise SystemExit(f"{param}: not a quaternion parameterization")
     x0 = tr.warm_start()
     q = tr.layout.slice("q")
-    if not np.allclose(np.linalg.norm(x0[:, q][:, 3:7], axis=1), 1.0):
-        raise SystemExit(f"{param}: the warm start's q[3:7] is not a unit quaternion")
+    if "unit" in modes and not (tr.param.name.startswith("quat") and np.allclose(np.linalg.norm(x0[:, q][:, 3:7], axis=1), 1.0)):
+        raise SystemExit(f"{param}: mode unit needs a quaternion chart whose warm start's q[3:7] are unit quaternions")
+    if param in modes:
+        raise SystemExit(f"{param}: mode {param} is mode raw")
     reps = range(first, first + draws)
     noisy = np.asarray(noisy_warm_starts(x0, [sigma], reps, 0)[0])
     backend = solvers.get("jtraj")
@@ -104,11 +110,11 @@ def run(task: str, param: str, sigma: float, draws: int, max_iter: int, variable
         elif mode == "unit":
             starts = unit_quaternions(noisy, q)
         else:
-            se3_tr = prepare(task, "se3", variables).transcription
-            x0_se3 = se3_tr.warm_start()
+            src_tr = prepare(task, mode, variables).transcription
+            x0_src = src_tr.warm_start()
             # the noise-free warm starts are one trajectory in both charts
-            np.testing.assert_allclose(se3_poses_as_quaternions(x0_se3[None], se3_tr, tr)[0], x0, atol=1e-9)
-            starts = se3_poses_as_quaternions(np.asarray(noisy_warm_starts(x0_se3, [sigma], reps, 0)[0]), se3_tr, tr)
+            np.testing.assert_allclose(poses_in_chart(x0_src[None], src_tr, tr)[0], x0, atol=1e-9)
+            starts = poses_in_chart(np.asarray(noisy_warm_starts(x0_src, [sigma], reps, 0)[0]), src_tr, tr)
         angles = rotation_noise(tr, starts, x0)
         solutions, total, compile_time = backend.solve_batch(nlp, starts, theta, opts)
         for r, sol in zip(reps, solutions):
@@ -147,7 +153,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--sigma", type=float, default=0.5)
     ap.add_argument("--draws", type=int, default=20)
     ap.add_argument("--first", type=int, default=0, help="first draw (replicate number)")
-    ap.add_argument("--modes", default=",".join(MODES), help=f"warm starts to solve, of {','.join(MODES)}")
+    ap.add_argument("--modes", default="raw,unit,se3", help=f"warm starts to solve, of {','.join(MODES)}")
     ap.add_argument("--max-iter", type=int, default=200)
     ap.add_argument("--variables", default="paper")
     ap.add_argument("--out", type=Path)

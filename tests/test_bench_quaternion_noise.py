@@ -45,7 +45,7 @@ def test_se3_draws_become_the_same_poses_in_the_quaternion_chart(qn):
     se3, quat = _charts()
     rng = np.random.default_rng(1)
     starts = rng.normal(size=(3, 4, se3.layout.nz))  # draws, knots, nz: base xi (6) + 2 joints
-    out = qn.se3_poses_as_quaternions(starts, se3, quat)
+    out = qn.poses_in_chart(starts, se3, quat)
     assert out.shape == (3, 4, quat.layout.nz)
     for xi, q in zip(starts.reshape(-1, se3.layout.nz), out.reshape(-1, quat.layout.nz)):
         a, b = se3.param.to_pose(jnp.asarray(xi[:6])), quat.param.to_pose(jnp.asarray(q[:7]))
@@ -67,3 +67,18 @@ def test_rotation_noise_is_the_angle_to_the_clean_orientation_at_interior_knots(
     turned[:, 1:-1, 6] = 2 * np.sin(angles / 2)
     turned[:, [0, -1], 6] = 1.0  # the end knots are not counted
     np.testing.assert_allclose(qn.rotation_noise(quat, turned, clean), angles, atol=1e-9)
+
+
+def test_poses_in_chart_round_trip(qn):
+    """The quaternion chart's poses written as SE(3) coordinates and back are the same poses."""
+    se3, quat = _charts()
+    rng = np.random.default_rng(2)
+    starts = rng.normal(size=(2, 3, quat.layout.nz))
+    xi = qn.poses_in_chart(starts, quat, se3)
+    back = qn.poses_in_chart(xi, se3, quat)
+    rho, rho_back = starts[..., 3:7], back[..., 3:7]
+    # the same rotation: rho / |rho| equal up to sign
+    dots = np.abs(np.sum(rho * rho_back, axis=-1)) / np.linalg.norm(rho, axis=-1)
+    np.testing.assert_allclose(dots, 1.0, atol=1e-9)
+    np.testing.assert_allclose(back[..., :3], starts[..., :3], atol=1e-9)
+    np.testing.assert_array_equal(back[..., 7:], starts[..., 7:])
