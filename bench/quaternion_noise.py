@@ -3,8 +3,8 @@
 The comparative study's footnote 2 says its quaternion implementation "always normalize[s] the
 quaternions". jtraj normalizes rho wherever the NLP uses it, and its noise study adds
 ``sigma * N(0, 1)`` to every entry of the warm start, rho's four included, so a noisy knot's rho
-has a norm of about 1.4 at sigma 0.5. This benchmark solves the same draws twice with jtraj's
-solver, as the study draws them (`jtraj.experiments.noisy_warm_starts`, seed 0): ``raw`` (the
+has a norm of about 1.4 at sigma 0.5. This benchmark solves the same draws with jtraj's
+solver (``--solver ipopt``: Ipopt, one by one, as Table III), as the study draws them (`jtraj.experiments.noisy_warm_starts`, seed 0): ``raw`` (the
 study's warm starts) and ``unit`` (each knot's rho divided by its norm after the noise), and
 prints and writes how many converge and do the task. A mode named after another chart gives
 this chart that chart's own draws (the same seed): ``se3`` puts the noise on ``xi`` in place
@@ -17,7 +17,7 @@ over the interior knots::
 
     python bench/quaternion_noise.py [--task walk] [--params quat1,quat2] [--sigma 0.5]
         [--draws 20] [--first 0] [--modes raw,unit,se3] [--max-iter 200] [--variables paper]
-        [--out DIR]
+        [--solver jtraj|ipopt] [--out DIR]
 
 ``--out DIR`` writes ``DIR/quaternion_noise.json`` (one record per solve), ``DIR/quaternion_noise.md`` and
 ``DIR/provenance.json``. A walk with a quaternion at sigma 0.5 takes 10 to 60 s per draw on
@@ -84,11 +84,14 @@ def rotation_noise(tr, starts: np.ndarray, clean: np.ndarray) -> np.ndarray:
     return np.asarray(fn(starts[:, 1:-1, q.start : q.start + nb], clean[1:-1, q.start : q.start + nb]))
 
 
-def run(task: str, param: str, sigma: float, draws: int, max_iter: int, variables: str, modes: tuple[str, ...] = MODES, first: int = 0) -> list[dict]:
-    """Each mode's solves of draws ``first .. first + draws - 1``; one record per solve."""
+def run(task: str, param: str, sigma: float, draws: int, max_iter: int, variables: str, modes: tuple[str, ...] = MODES, first: int = 0, solver: str = "jtraj") -> list[dict]:
+    """Each mode's solves of draws ``first .. first + draws - 1`` with ``solver`` (jtraj's: one
+    batched call per mode; Ipopt: one by one, as the study); one record per solve."""
+    import time
+
     from jtraj import solvers
     from jtraj.experiments import noisy_warm_starts
-    from jtraj.solver import evaluate, prepare
+    from jtraj.solver import evaluate, prepare, solve
 
     prep = prepare(task, param, variables)
     tr, nlp = prep.transcription, prep.nlp
@@ -116,11 +119,16 @@ def run(task: str, param: str, sigma: float, draws: int, max_iter: int, variable
             np.testing.assert_allclose(poses_in_chart(x0_src[None], src_tr, tr)[0], x0, atol=1e-9)
             starts = poses_in_chart(np.asarray(noisy_warm_starts(x0_src, [sigma], reps, 0)[0]), src_tr, tr)
         angles = rotation_noise(tr, starts, x0)
-        solutions, total, compile_time = backend.solve_batch(nlp, starts, theta, opts)
-        for r, sol in zip(reps, solutions):
-            res = evaluate(tr, sol, tr.decode(sol.x, theta), 0.0, {}, nlp.nnz_jac, None, theta, backend.name)
+        if solver == "jtraj":
+            solutions, total, compile_time = backend.solve_batch(nlp, starts, theta, opts)
+            results = [evaluate(tr, sol, tr.decode(sol.x, theta), 0.0, {}, nlp.nnz_jac, None, theta, backend.name) for sol in solutions]
+        else:
+            t0, compile_time = time.perf_counter(), 0.0
+            results = [solve(task, param, variables=variables, solver=solver, warm_start=start, ipopt_options={"max_iter": max_iter}, progress=None, keep_trajectory=False) for start in starts]
+            total = time.perf_counter() - t0
+        for r, res in zip(reps, results):
             i = r - first
-            records.append(dict(task=task, parameterization=param, mode=mode, sigma=sigma, replicate=r, status=res.status.value, converged=res.converged, success=res.success, iterations=res.iterations, constraint_violation=res.constraint_violation, rotation_noise_mean=float(angles[i].mean()), rotation_noise_over_half_pi=float((angles[i] > np.pi / 2).mean())))
+            records.append(dict(task=task, parameterization=param, mode=mode, sigma=sigma, replicate=r, solver=solver, status=res.status.value, converged=res.converged, success=res.success, iterations=res.iterations, constraint_violation=res.constraint_violation, rotation_noise_mean=float(angles[i].mean()), rotation_noise_over_half_pi=float((angles[i] > np.pi / 2).mean())))
         done = [x for x in records if x["mode"] == mode]
         print(f"{task} {param} {mode}: {sum(x['converged'] for x in done)}/{draws} converged, {sum(x['success'] for x in done)} did the task, base rotated {angles.mean():.2f} rad on average by the noise ({total:.0f} s, compile {compile_time:.0f} s)", flush=True)
     return records
@@ -156,6 +164,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--modes", default="raw,unit,se3", help=f"warm starts to solve, of {','.join(MODES)}")
     ap.add_argument("--max-iter", type=int, default=200)
     ap.add_argument("--variables", default="paper")
+    ap.add_argument("--solver", default="jtraj", choices=("jtraj", "ipopt"), help="jtraj's (batched) or Ipopt (one by one, as Table III)")
     ap.add_argument("--out", type=Path)
     a = ap.parse_args(argv)
     modes = tuple(a.modes.split(","))
@@ -163,7 +172,7 @@ def main(argv: list[str] | None = None) -> None:
         ap.error(f"--modes {a.modes}: expected modes of {','.join(MODES)}")
     records = []
     for param in a.params.split(","):
-        records += run(a.task, param, a.sigma, a.draws, a.max_iter, a.variables, modes, a.first)
+        records += run(a.task, param, a.sigma, a.draws, a.max_iter, a.variables, modes, a.first, a.solver)
     text = table(records)
     print(text, end="")
     if a.out is not None:
