@@ -138,7 +138,9 @@ def table(records: list[dict]) -> str:
     """Markdown: per (parameterization, mode), converged and task-done counts, and the draws on
     which the two modes end differently."""
     angles = all("rotation_noise_mean" in r for r in records)
-    head = "| parameterization | warm start's rho | converged | did the task | iterations of the converged (median) |"
+    # tables of the first run (modes raw and unit, no angles recorded) keep their header
+    head = "| parameterization | warm start (mode) |" if angles else "| parameterization | warm start's rho |"
+    head += " converged | did the task | iterations of the converged (median) |"
     lines = [head + (" base rotated by the noise (rad, mean) | knots turned > 90 deg |" if angles else ""), "|---|---|---|---|---|" + ("---|---|" if angles else "")]
     for param in dict.fromkeys(r["parameterization"] for r in records):
         for mode in dict.fromkeys(r["mode"] for r in records):
