@@ -46,11 +46,14 @@ def unit_quaternions(starts: np.ndarray, q: slice) -> np.ndarray:
     return out
 
 
-def poses_in_chart(starts: np.ndarray, src_tr, dst_tr) -> np.ndarray:
+def poses_in_chart(starts: np.ndarray, src_tr, dst_tr, reference: np.ndarray | None = None) -> np.ndarray:
     """Warm starts (..., n_knots, nz) of the transcription ``src_tr`` written in the chart of
     ``dst_tr``: each knot's base pose (``src_tr.param.to_pose``) as ``dst_tr.param.from_pose``
     gives it, every other variable (joint angles, velocities, accelerations, forces, contact
-    points) copied slot by slot."""
+    points) copied slot by slot. In a quaternion chart, ``reference`` (n_knots, nz), the
+    chart's noise-free warm start, picks each knot's sign of rho: the one nearer the
+    reference's (a flip's warm start turns rho into -rho along the way, where `from_pose`
+    gives one representative)."""
     import jax
 
     x = np.asarray(starts, float)
@@ -64,6 +67,10 @@ def poses_in_chart(starts: np.ndarray, src_tr, dst_tr) -> np.ndarray:
             continue
         base = x[..., a.start : a.start + na]
         out[..., b.start : b.start + nb] = np.asarray(convert(base.reshape(-1, na))).reshape(base.shape[:-1] + (nb,))
+        if reference is not None and dst_tr.param.name.startswith("quat"):
+            rho = out[..., b.start + 3 : b.start + 7]
+            ref = np.asarray(reference)[..., b.start + 3 : b.start + 7]
+            rho *= np.where(np.sum(rho * ref, axis=-1, keepdims=True) < 0, -1.0, 1.0)
         out[..., b.start + nb : b.stop] = x[..., a.start + na : a.stop]
     return out
 
@@ -116,8 +123,8 @@ def run(task: str, param: str, sigma: float, draws: int, max_iter: int, variable
             src_tr = prepare(task, mode, variables).transcription
             x0_src = src_tr.warm_start()
             # the noise-free warm starts are one trajectory in both charts
-            np.testing.assert_allclose(poses_in_chart(x0_src[None], src_tr, tr)[0], x0, atol=1e-9)
-            starts = poses_in_chart(np.asarray(noisy_warm_starts(x0_src, [sigma], reps, 0)[0]), src_tr, tr)
+            np.testing.assert_allclose(poses_in_chart(x0_src[None], src_tr, tr, x0)[0], x0, atol=1e-9)
+            starts = poses_in_chart(np.asarray(noisy_warm_starts(x0_src, [sigma], reps, 0)[0]), src_tr, tr, x0)
         angles = rotation_noise(tr, starts, x0)
         if solver == "jtraj":
             solutions, total, compile_time = backend.solve_batch(nlp, starts, theta, opts)

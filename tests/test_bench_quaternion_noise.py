@@ -82,3 +82,18 @@ def test_poses_in_chart_round_trip(qn):
     np.testing.assert_allclose(dots, 1.0, atol=1e-9)
     np.testing.assert_allclose(back[..., :3], starts[..., :3], atol=1e-9)
     np.testing.assert_array_equal(back[..., 7:], starts[..., 7:])
+
+
+def test_poses_in_chart_keeps_the_references_sign_of_rho(qn):
+    """A flip's quaternion warm start passes from rho to -rho; written from SE(3) poses, each
+    knot keeps the sign nearer the reference's, not `from_pose`'s representative."""
+    se3, quat = _charts()
+    angles = np.linspace(0.0, 2 * np.pi, 5)  # a full turn about y
+    xi = np.zeros((5, se3.layout.nz))
+    reference = np.zeros((5, quat.layout.nz))
+    reference[:, 3], reference[:, 5] = np.cos(angles / 2), np.sin(angles / 2)  # continuous: ends at -1
+    xi[:, 4] = np.arctan2(np.sin(angles), np.cos(angles))  # the same rotations, principal angles
+    out = qn.poses_in_chart(xi[None], se3, quat, reference)[0]
+    np.testing.assert_allclose(out[:, 3:7], reference[:, 3:7], atol=1e-9)
+    unaligned = qn.poses_in_chart(xi[None], se3, quat)[0]
+    assert np.abs(unaligned[:, 3:7] - reference[:, 3:7]).max() > 1.0  # from_pose alone picks other signs
