@@ -286,20 +286,20 @@ class IpmOptions(AbstractOptions):
         # "1e-3" unparsed) must not reach the solver as a truthy or untraceable value
         for field in dataclasses.fields(self):
             value, default = getattr(self, field.name), field.default
-            if isinstance(default, bool) and not isinstance(value, (bool, np.bool_)):
-                raise InvalidOptionError(f"jtraj option {field.name}={value!r}: expected true or false")
-            if value is None and "None" in str(field.type):
+            if isinstance(default, bool):
+                if not isinstance(value, (bool, np.bool_)):
+                    raise InvalidOptionError(f"jtraj option {field.name}={value!r}: expected true or false")
+            elif isinstance(default, int):
+                if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < 0:
+                    raise InvalidOptionError(f"jtraj option {field.name}={value!r}: expected an integer >= 0")
+            elif value is None and "None" in str(field.type):
                 continue
-            if isinstance(default, float) and (isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)) or not np.isfinite(value)):
+            elif isinstance(default, float) and (isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)) or not np.isfinite(value)):
                 raise InvalidOptionError(f"jtraj option {field.name}={value!r}: expected a finite number")
         _positive(self, "tol", "constr_viol_tol", "dual_inf_tol", "compl_inf_tol", "mu_init", "delta_c")
-        if isinstance(self.residual_ratio_max, bool) or not isinstance(self.residual_ratio_max, (int, float)) or not self.residual_ratio_max >= 0:
+        if not self.residual_ratio_max >= 0:
             raise InvalidOptionError(f"jtraj option residual_ratio_max={self.residual_ratio_max!r}: expected a number >= 0")
         _positive(self, "mu_max", "feasibility_polish_tol", allow_none=True)
-        for name in ("feasibility_polish_iter", "max_iter", "refine_steps", "min_refine_steps", "max_line_search", "max_line_search_failures", "lbfgs_memory", "lbfgs_max_skipping", "max_soc", "quality_function_max_section_steps"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
-                raise InvalidOptionError(f"jtraj option {name}={value!r}: expected an integer >= 0")
 
     def compiled_part(self) -> "IpmOptions":
         """These options with the `RUNTIME_FIELDS` at fixed values (the polish kept on or off):
