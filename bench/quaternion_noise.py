@@ -7,7 +7,8 @@ has a norm of about 1.4 at sigma 0.5. This benchmark solves the same draws with 
 solver (``--solver ipopt``: Ipopt, one by one, as Table III), as the study draws them (`jtraj.experiments.noisy_warm_starts`, seed 0): ``raw`` (the
 study's warm starts) and ``unit`` (each knot's rho divided by its norm after the noise), and
 prints and writes how many converge and do the task. A mode named after another chart gives
-this chart that chart's own draws (the same seed): ``se3`` puts the noise on ``xi`` in place
+this chart that chart's own draws (the same seed; `jtraj.experiments.chart_noisy_warm_starts`,
+which `jtraj robustness --noise-chart` uses too): ``se3`` puts the noise on ``xi`` in place
 of ``(p, rho)`` and writes each knot's noisy pose ``Exp(xi)`` as ``(p, rho)``, every other
 variable as the SE(3) draw has it. The two charts then start from the same poses, and only the
 chart differs (``--params se3 --modes raw,quat1`` is the converse). Noise of sigma on rho's
@@ -46,35 +47,6 @@ def unit_quaternions(starts: np.ndarray, q: slice) -> np.ndarray:
     return out
 
 
-def poses_in_chart(starts: np.ndarray, src_tr, dst_tr, reference: np.ndarray | None = None) -> np.ndarray:
-    """Warm starts (..., n_knots, nz) of the transcription ``src_tr`` written in the chart of
-    ``dst_tr``: each knot's base pose (``src_tr.param.to_pose``) as ``dst_tr.param.from_pose``
-    gives it, every other variable (joint angles, velocities, accelerations, forces, contact
-    points) copied slot by slot. In a quaternion chart, ``reference`` (n_knots, nz), the
-    chart's noise-free warm start, picks each knot's sign of rho: the one nearer the
-    reference's (a flip's warm start turns rho into -rho along the way, where `from_pose`
-    gives one representative)."""
-    import jax
-
-    x = np.asarray(starts, float)
-    out = np.zeros(x.shape[:-1] + (dst_tr.layout.nz,))
-    na, nb = src_tr.param.nq, dst_tr.param.nq
-    convert = jax.jit(jax.vmap(lambda q: dst_tr.param.from_pose(src_tr.param.to_pose(q))))
-    for name, _ in dst_tr.layout.slots:
-        a, b = src_tr.layout.slice(name), dst_tr.layout.slice(name)
-        if name != "q":
-            out[..., b] = x[..., a]
-            continue
-        base = x[..., a.start : a.start + na]
-        out[..., b.start : b.start + nb] = np.asarray(convert(base.reshape(-1, na))).reshape(base.shape[:-1] + (nb,))
-        if reference is not None and dst_tr.param.name.startswith("quat"):
-            rho = out[..., b.start + 3 : b.start + 7]
-            ref = np.asarray(reference)[..., b.start + 3 : b.start + 7]
-            rho *= np.where(np.sum(rho * ref, axis=-1, keepdims=True) < 0, -1.0, 1.0)
-        out[..., b.start + nb : b.stop] = x[..., a.start + na : a.stop]
-    return out
-
-
 def rotation_noise(tr, starts: np.ndarray, clean: np.ndarray) -> np.ndarray:
     """Angle (rad) between each start's and the noise-free warm start's base orientation, at
     the interior knots: (n_starts, n_knots - 2)."""
@@ -97,7 +69,7 @@ def run(task: str, param: str, sigma: float, draws: int, max_iter: int, variable
     import time
 
     from jtraj import solvers
-    from jtraj.experiments import noisy_warm_starts
+    from jtraj.experiments import chart_noisy_warm_starts, noisy_warm_starts
     from jtraj.solver import evaluate, prepare, solve
 
     prep = prepare(task, param, variables)
@@ -120,12 +92,10 @@ def run(task: str, param: str, sigma: float, draws: int, max_iter: int, variable
         elif mode == "unit":
             starts = unit_quaternions(noisy, q)
         else:
-            src_tr = prepare(task, mode, variables).transcription
-            x0_src = src_tr.warm_start()
-            # the noise-free warm starts must be one trajectory in both charts
-            if not np.allclose(poses_in_chart(x0_src[None], src_tr, tr, x0)[0], x0, rtol=0, atol=1e-9):
-                raise SystemExit(f"{task}: {mode}'s warm start written in the {param} chart is not {param}'s warm start (e.g. a flip's full turn, which Log writes as its principal angle); mode {mode} cannot be used here")
-            starts = poses_in_chart(np.asarray(noisy_warm_starts(x0_src, [sigma], reps, 0)[0]), src_tr, tr, x0)
+            try:
+                starts = chart_noisy_warm_starts(tr, mode, [sigma], reps, 0)[0]
+            except ValueError as e:
+                raise SystemExit(f"mode {mode}: {e}") from None
         angles = rotation_noise(tr, starts, x0)
         if solver == "jtraj":
             solutions, total, compile_time = backend.solve_batch(nlp, starts, theta, opts)

@@ -119,7 +119,7 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
     from jtraj.provenance import write_provenance
 
     sigmas = args.sigmas_checked
-    robustness(args.tasks_checked, _split(args.params), sigmas, replicates=args.replicates, seed=args.seed, out=args.out, variables=args.variables, workers=args.workers, resume=not args.no_resume, ipopt_options=args.ipopt_checked or None, executor=args.executor, ray_address=args.ray_address, solver=args.solver)
+    robustness(args.tasks_checked, _split(args.params), sigmas, replicates=args.replicates, seed=args.seed, out=args.out, variables=args.variables, workers=args.workers, resume=not args.no_resume, ipopt_options=args.ipopt_checked or None, executor=args.executor, ray_address=args.ray_address, solver=args.solver, noise_chart=args.noise_chart)
     write_provenance(args.out)
     print((__import__("pathlib").Path(args.out) / "table_iii.md").read_text())
     return 0
@@ -290,6 +290,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, default=1, help="solve (task, parameterization) groups in this many processes")
     p.add_argument("--no-resume", action="store_true", help="solve again the runs already in OUT/runs.jsonl (the old file is kept as runs.jsonl.previous)")
     p.add_argument("--solver", default="ipopt", choices=_solver_names(), help="NLP solver backend (default ipopt); jtraj solves each (task, parameterization, sigma) group's replicates in one batched call (vmapped on a GPU, one per core on a CPU)")
+    p.add_argument(
+        "--noise-chart", default=None, choices=["se3", "quat1", "quat2", "quat3", "euler"],
+        help="draw the noise in this parameterization's coordinates and give every parameterization those noisy poses (default: each its own; sigma on a quaternion's four entries turns the base further than on SE(3)'s three)",
+    )
     p.add_argument("--ipopt", action="append", metavar="NAME=VALUE", help="any solver option (Ipopt's names for ipopt), repeatable, over the study's settings (e.g. --solver jtraj --ipopt constr_viol_tol=1e-6); runs keep their options, so a resumed study solves only the runs of these options")
     _robot_argument(p)
     _executor_arguments(p, workers=False)
@@ -467,6 +471,7 @@ def _check_inputs(args: argparse.Namespace) -> None:
         args.sigmas_checked = sigmas
         _check_positive_int("--replicates", args.replicates)
         args.ipopt_checked = _check_ipopt(args.ipopt, args.solver)
+
     elif cmd == "wahba":
         _check_positive_int("--trials", args.trials)
         _check_positive_int("--iterations", args.iterations)
@@ -497,11 +502,12 @@ def _check_variable_changes(variables: str, items: list[str] | None):
 
 
 def _input_errors() -> tuple[type[BaseException], ...]:
+    from jtraj.experiments import NoiseChartError
     from jtraj.io import FileFormatError
     from jtraj.solvers.ipopt_catalog import IpoptOptionError
     from jtraj.task import TaskError
 
-    return (InputError, TaskError, IpoptOptionError, FileFormatError)
+    return (InputError, TaskError, IpoptOptionError, FileFormatError, NoiseChartError)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -35,7 +35,7 @@ from jtraj.task import Task
 from jtraj.task import load as load_task
 from jtraj.transcription import TranscriptionOptions
 
-__all__ = ["compare", "robustness", "noisy_warm_starts", "noise_key", "run_key", "variables_hash", "read_runs", "summarize_robustness", "TABLE_IV_PAPER_SE3"]
+__all__ = ["compare", "robustness", "noisy_warm_starts", "chart_noisy_warm_starts", "check_noise_chart", "poses_in_chart", "NoiseChartError", "noise_key", "run_key", "variables_hash", "read_runs", "summarize_robustness", "TABLE_IV_PAPER_SE3"]
 
 #: Iterations of the SE(3) tangent parameterization in the paper's Table IV.
 TABLE_IV_PAPER_SE3 = {"walk": 14, "hopscotch": 10, "big_jump": 11, "handstand": 88, "backflip": 28, "sideflip": 29}
@@ -159,16 +159,97 @@ def noisy_warm_starts(x0: np.ndarray, sigmas: Sequence[float], replicates: int |
     return np.asarray(draw(bits, jnp.asarray(sigmas, base.dtype), jnp.asarray(reps, jnp.uint32)))
 
 
+class NoiseChartError(ValueError):
+    """Noise drawn in one chart cannot be given to another (`chart_noisy_warm_starts`)."""
+
+
+def poses_in_chart(starts: np.ndarray, src, dst, reference: np.ndarray | None = None) -> np.ndarray:
+    """Warm starts (..., n_knots, nz) of the transcription ``src`` written in the chart of the
+    transcription ``dst`` (same task, robot and variables per knot): each knot's base pose
+    (``src.param.to_pose``) as ``dst.param.from_pose`` gives it, every other variable (joint
+    angles, velocities, accelerations, forces, contact points) copied slot by slot. In a
+    quaternion chart, ``reference`` (n_knots, nz), the chart's noise-free warm start, picks
+    each knot's sign of rho: the one nearer the reference's (a flip's warm start turns rho into
+    -rho along the way, where `from_pose` gives one representative)."""
+    if [n for n, _ in src.layout.slots] != [n for n, _ in dst.layout.slots]:
+        raise ValueError(f"poses_in_chart: the two transcriptions have different variables per knot ({src.layout.slots} and {dst.layout.slots})")
+    x = np.asarray(starts, float)
+    out = np.zeros(x.shape[:-1] + (dst.layout.nz,))
+    na, nb = src.param.nq, dst.param.nq
+    convert = jax.jit(jax.vmap(lambda q: dst.param.from_pose(src.param.to_pose(q))))
+    for name, _ in dst.layout.slots:
+        a, b = src.layout.slice(name), dst.layout.slice(name)
+        if name != "q":
+            out[..., b] = x[..., a]
+            continue
+        base = x[..., a.start : a.start + na]
+        out[..., b.start : b.start + nb] = np.asarray(convert(base.reshape(-1, na))).reshape(base.shape[:-1] + (nb,))
+        if reference is not None and dst.param.name.startswith("quat"):
+            rho = out[..., b.start + 3 : b.start + 7]
+            ref = np.asarray(reference)[..., b.start + 3 : b.start + 7]
+            rho *= np.where(np.sum(rho * ref, axis=-1, keepdims=True) < 0, -1.0, 1.0)
+        out[..., b.start + nb : b.stop] = x[..., a.start + na : a.stop]
+    return out
+
+
+def chart_noisy_warm_starts(tr, noise_chart: str | None, sigmas: Sequence[float], replicates: int | Sequence[int], seed: int = 0) -> np.ndarray:
+    """`noisy_warm_starts` of the transcription ``tr`` with the noise drawn in another chart's
+    coordinates: the draws (same keys) of ``noise_chart``'s warm start, each knot's noisy base
+    pose written in ``tr``'s chart (`poses_in_chart`). The two charts then start from the same
+    poses, and only the chart differs. Noise of sigma on a quaternion's four entries turns the
+    base further than noise of sigma on three rotation coordinates (on the study's walk at sigma
+    0.5, 1.41 rad against 0.80 on average), so this is how the charts are compared at equal
+    noise on the pose. ``noise_chart`` None or ``tr``'s own chart: its own draws. Raises
+    ValueError where the noise-free warm starts are not one trajectory in both charts (a flip's
+    full turn, which an SE(3) Log writes as its principal angle)."""
+    if noise_chart is None or noise_chart == tr.param.name:
+        return noisy_warm_starts(tr.warm_start(), sigmas, replicates, seed)
+    from jtraj.transcription import Transcription
+
+    if noise_chart not in PARAMETERIZATIONS:
+        raise NoiseChartError(f"noise_chart={noise_chart!r}: expected one of {', '.join(PARAMETERIZATIONS)}")
+    src = Transcription(tr.robot, tr.task, PARAMETERIZATIONS[noise_chart], tr.options)
+    x0, x0_src = tr.warm_start(), src.warm_start()
+    if not np.allclose(poses_in_chart(x0_src[None], src, tr, x0)[0], x0, rtol=0, atol=1e-9):
+        raise NoiseChartError(
+            f"{tr.task.name}: the {noise_chart} warm start written in the {tr.param.name} chart is not the {tr.param.name} warm start "
+            f"(e.g. a flip's full turn, which Log writes as its principal angle), so noise drawn in the {noise_chart} chart cannot be given to it"
+        )
+    noisy = noisy_warm_starts(x0_src, sigmas, replicates, seed)
+    return poses_in_chart(noisy, src, tr, x0)
+
+
+def check_noise_chart(tasks: Sequence[str | Task], params: Sequence[str], variables: str | TranscriptionOptions, noise_chart: str | None) -> None:
+    """Raise `NoiseChartError` before any NLP compiles where ``noise_chart``'s noisy poses cannot
+    be given to one of ``params`` on one of ``tasks`` (`chart_noisy_warm_starts`; it builds
+    each pair's warm starts, about 10 s for a task on two cores)."""
+    if noise_chart is None:
+        return
+    if noise_chart not in PARAMETERIZATIONS:
+        raise NoiseChartError(f"noise_chart={noise_chart!r}: expected one of {', '.join(PARAMETERIZATIONS)} or None")
+    from jtraj.robot import load as load_robot
+    from jtraj.transcription import Transcription
+
+    options = transcription_options(variables)
+    for task in tasks:
+        task = load_task(task)
+        robot = load_robot(task.robot)
+        for p in params:
+            if p != noise_chart:
+                chart_noisy_warm_starts(Transcription(robot, task, PARAMETERIZATIONS[p], options), noise_chart, [0.0], [0])
+
+
 #: the fields of a run's key, beside its task's name (kept for the tables); "layout" holds the
 #: ``variables`` name under its former key, and "variables_hash" the content of the options
 #: that name stood for when the run was solved (a name such as "paper" can change meaning
 #: between versions: its Euler warm start did)
-RUN_KEY = ("task_hash", "parameterization", "layout", "variables_hash", "hessian", "options_hash", "seed", "sigma", "replicate", "solver")
+RUN_KEY = ("task_hash", "parameterization", "layout", "variables_hash", "hessian", "options_hash", "seed", "sigma", "replicate", "solver", "noise_chart")
 RUNS_FILE = "runs.jsonl"
 #: key fields that rows of earlier runs.jsonl files lack, and their value there: before the
-#: solver was recorded every run was an Ipopt solve; before the variables' content was, it is
+#: solver was recorded every run was an Ipopt solve; before the noise's chart was, every run's
+#: noise was drawn in its own chart (None); before the variables' content was, it is
 #: unknown (None), so such rows are kept in the file but never taken for a run of this version
-_KEY_DEFAULTS: dict[str, str | None] = {"solver": "ipopt", "variables_hash": None}
+_KEY_DEFAULTS: dict[str, str | None] = {"solver": "ipopt", "variables_hash": None, "noise_chart": None}
 
 
 def _options_hash(options: dict | None) -> str:
@@ -181,11 +262,13 @@ def variables_hash(variables: str | TranscriptionOptions) -> str:
     return _options_hash(dataclasses.asdict(transcription_options(variables)))
 
 
-def _group_key(task: Task, p: str, variables: str | TranscriptionOptions, exact_hessian: bool, options, seed: int, solver: str) -> dict:
-    """The `RUN_KEY` fields that every run of one (task, parameterization) group shares."""
+def _group_key(task: Task, p: str, variables: str | TranscriptionOptions, exact_hessian: bool, options, seed: int, solver: str, noise_chart: str | None = None) -> dict:
+    """The `RUN_KEY` fields that every run of one (task, parameterization) group shares; a
+    group's noise drawn in its own chart has ``noise_chart`` None, as before it was recorded."""
     return dict(
         task_hash=task.content_hash(), parameterization=p, layout=variables_label(variables), variables_hash=variables_hash(variables),
         hessian="exact" if exact_hessian else "limited-memory", options_hash=_options_hash(options), seed=seed, solver=solver,
+        noise_chart=None if noise_chart == p else noise_chart,
     )
 
 
@@ -217,26 +300,32 @@ def read_runs(path: str | Path, progress: TextIO | None = None) -> list[dict]:
     return list(seen.values())
 
 
-def _robustness_group(task, p, sigmas, replicates, seed, variables, exact_hessian, options, solver, done, runs_path, progress=None) -> int:
+def _robustness_group(task, p, sigmas, replicates, seed, variables, exact_hessian, options, solver, noise_chart, done, runs_path, progress=None) -> int:
     """One (task, parameterization) of the study: one compile, then every noisy replicate whose
     key is not in ``done``, appended to ``runs_path`` as soon as it is solved (also from a
     worker process: a kill loses only the solves in flight). A backend with ``solve_batch``
     (jtraj's interior point) solves each sigma's missing replicates in one batched call (one
     vmapped program on an accelerator, the one-problem program on every core of a CPU), with
-    one compile per group; Ipopt solves them one by one. Returns the number solved."""
+    one compile per group; Ipopt solves them one by one. ``noise_chart`` as in `robustness`.
+    Returns the number solved."""
     task = load_task(task)
-    base = _group_key(task, p, variables, exact_hessian, options, seed, solver)
+    base = _group_key(task, p, variables, exact_hessian, options, seed, solver, noise_chart)
     todo = [(s, r) for s in sigmas for r in range(replicates) if run_key(base | {"sigma": float(s), "replicate": r}) not in done]
     if not todo:
         return 0
     prep = prepare(task, p, variables)
-    x0 = prep.transcription.warm_start()
+    # each sigma's missing replicates, drawn at once (a replicate's draw does not depend on
+    # which others are drawn with it: `noise_key`)
+    starts = {}
+    for sigma in dict.fromkeys(s for s, _ in todo):
+        reps = [r for s, r in todo if s == sigma]
+        starts[sigma] = dict(zip(reps, chart_noisy_warm_starts(prep.transcription, base["noise_chart"], [sigma], reps, seed)[0]))
     if hasattr(solvers.get(solver), "solve_batch"):
-        for sigma in dict.fromkeys(s for s, _ in todo):
-            _robustness_batch(prep, sigma, [r for s, r in todo if s == sigma], replicates, seed, exact_hessian, options, solver, base, runs_path, progress)
+        for sigma, draws in starts.items():
+            _robustness_batch(prep, sigma, list(draws), np.stack(list(draws.values())), replicates, exact_hessian, options, solver, base, runs_path, progress)
         return len(todo)
     for sigma, r in todo:
-        start = noisy_warm_starts(x0, [sigma], [r], seed)[0, 0]
+        start = starts[sigma][r]
         res = solve(task, p, variables=variables, solver=solver, warm_start=start, exact_hessian=exact_hessian, ipopt_options=dict(options or {}), progress=None, keep_trajectory=False)
         row = base | {"sigma": float(sigma), "replicate": r} | _row(res) | {"batch": 1}
         jio.append_jsonl(runs_path, row)
@@ -245,8 +334,8 @@ def _robustness_group(task, p, sigmas, replicates, seed, variables, exact_hessia
     return len(todo)
 
 
-def _robustness_batch(prep, sigma: float, reps: list[int], replicates: int, seed: int, exact_hessian: bool, options, solver: str, base: dict, runs_path: Path, progress) -> None:
-    """Replicates ``reps`` of one sigma in one call of ``solver``'s ``solve_batch``, compiled
+def _robustness_batch(prep, sigma: float, reps: list[int], starts: np.ndarray, replicates: int, exact_hessian: bool, options, solver: str, base: dict, runs_path: Path, progress) -> None:
+    """Replicates ``reps`` of one sigma, from the warm starts ``starts``, in one call of ``solver``'s ``solve_batch``, compiled
     for ``replicates`` members (a resumed group's shorter batch is padded, so every sigma and
     every resume reuses one program). Each replicate's row has the fields of a one-by-one
     solve's (through `jtraj.solver.evaluate`, as `solve` makes them); its ``time_s`` is the
@@ -255,7 +344,6 @@ def _robustness_batch(prep, sigma: float, reps: list[int], replicates: int, seed
     backend = solvers.get(solver)
     theta = tr.resolve_theta(None)
     opts = solver_options(backend, None, options, exact_hessian, tr.task.max_iter)
-    starts = noisy_warm_starts(tr.warm_start(), [sigma], reps, seed)[0]  # the Ipopt path's draws
     solutions, total, compile_time = backend.solve_batch(nlp, starts, theta, opts, batch_size=replicates)  # type: ignore[attr-defined]
     compile_time += prep.time_compile
     prep.time_compile = 0.0  # counted once per process, as `solve` does
@@ -309,6 +397,7 @@ def robustness(
     ray_address: str | None = None,
     layout: str | None = None,
     solver: str = "ipopt",
+    noise_chart: str | None = None,
 ) -> list[dict]:
     """Table III and Fig. 2: converged and task-success rates and iterations under warm-start noise.
 
@@ -333,6 +422,11 @@ def robustness(
     before the clock starts; a row's ``time_s`` is the call's time over its replicates, and
     ``batch`` says how many it solved). ``ipopt_options`` are the solver's options (Ipopt's
     names for Ipopt, `jtraj.solvers.IpmOptions` fields for jtraj).
+
+    ``noise_chart`` (a parameterization's name; default None: each chart's own) draws the noise
+    in that chart's coordinates and gives every parameterization the same noisy poses
+    (`chart_noisy_warm_starts`): the study adds sigma to each chart's own coordinates, which
+    turns a quaternion's base further than SE(3)'s or Euler's. Runs record it in their key.
     """
     variables = renamed_argument(variables, layout, "variables", "layout", "paper")
     progress = _progress_stream(progress)
@@ -344,6 +438,9 @@ def robustness(
     sigmas = [float(s) for s in sigmas]
     if not tasks or not params or not sigmas or replicates < 1:
         raise ValueError("robustness: no runs (empty tasks, parameterizations or sigmas, or replicates < 1)")
+    if noise_chart is not None and progress is not None:
+        print(f"checking that the {noise_chart} chart's noisy poses can be written in the other charts", file=progress, flush=True)
+    check_noise_chart(tasks, params, variables, noise_chart)
     before = read_runs(runs_path, progress) if resume else []
     if not resume and runs_path.exists():
         os.replace(runs_path, runs_path.with_name(runs_path.name + ".previous"))
@@ -353,11 +450,11 @@ def robustness(
         print(f"note: {unknown} runs in {runs_path} were written without the content of their variables (before jtraj recorded it) and are not resumed", file=progress, flush=True)
     if progress is not None and len(before) > unknown:
         print(f"resuming: {len(before) - unknown} runs already in {runs_path}", file=progress, flush=True)
-    args = [(t, p, tuple(sigmas), replicates, seed, variables, exact_hessian, ipopt_options, solver, done, runs_path) for t in tasks for p in params]
+    args = [(t, p, tuple(sigmas), replicates, seed, variables, exact_hessian, ipopt_options, solver, noise_chart, done, runs_path) for t in tasks for p in params]
     if executor == "local" and workers <= 1:
         for a in args:
             _robustness_group(*a, progress=progress)
-            _write_robustness_outputs(_select(read_runs(runs_path, progress), *a[:9]), sigmas, out, figure=False)
+            _write_robustness_outputs(_select(read_runs(runs_path, progress), *a[:10]), sigmas, out, figure=False)
     elif executor == "local":
         for _ in executor_for("local", workers).map(_robustness_group_in_worker, [(*a, progress is not None) for a in args]):
             pass
@@ -365,14 +462,14 @@ def robustness(
         for _, rows in executor_for(executor, workers, ray_address).map(_robustness_group_rows, [a[:-1] for a in args]):
             for row in rows:
                 jio.append_jsonl(runs_path, row)
-    runs = [r for a in args for r in _select(read_runs(runs_path, progress), *a[:9])]
+    runs = [r for a in args for r in _select(read_runs(runs_path, progress), *a[:10])]
     _write_robustness_outputs(runs, sigmas, out)
     return runs
 
 
-def _select(runs: list[dict], task: Task, p: str, sigmas, replicates: int, seed: int, variables: str | TranscriptionOptions, exact_hessian: bool, options, solver: str) -> list[dict]:
+def _select(runs: list[dict], task: Task, p: str, sigmas, replicates: int, seed: int, variables: str | TranscriptionOptions, exact_hessian: bool, options, solver: str, noise_chart: str | None = None) -> list[dict]:
     """The runs of one group of this call's settings, in (sigma, replicate) order."""
-    base = _group_key(task, p, variables, exact_hessian, options, seed, solver)
+    base = _group_key(task, p, variables, exact_hessian, options, seed, solver, noise_chart)
     keys = {run_key(base | {"sigma": float(s), "replicate": r}): (i, r) for i, s in enumerate(sigmas) for r in range(replicates)}
     sel = [(keys[run_key(r)], r) for r in runs if run_key(r) in keys]
     return [r for _, r in sorted(sel, key=lambda x: x[0])]
@@ -381,7 +478,8 @@ def _select(runs: list[dict], task: Task, p: str, sigmas, replicates: int, seed:
 def _write_robustness_outputs(runs: list[dict], sigmas: Sequence[float], out: Path, figure: bool = True) -> None:
     summary = summarize_robustness(runs)
     jio.write_json(out / "table_iii.json", summary)
-    jio.write_text(out / "table_iii.md", _table_iii_markdown(summary, sigmas, sorted({r.get("solver", "ipopt") for r in runs})))
+    charts = sorted({r["noise_chart"] for r in runs if r.get("noise_chart")})
+    jio.write_text(out / "table_iii.md", _table_iii_markdown(summary, sigmas, sorted({r.get("solver", "ipopt") for r in runs}), charts))
     if figure and runs:
         plot_iterations(runs, out / "fig2.png")
 
@@ -426,12 +524,16 @@ def summarize_robustness(runs: list[dict]) -> list[dict]:
     return rows
 
 
-def _table_iii_markdown(summary: list[dict], sigmas: Sequence[float], solver_names: Sequence[str] = ("ipopt",)) -> str:
+def _table_iii_markdown(summary: list[dict], sigmas: Sequence[float], solver_names: Sequence[str] = ("ipopt",), noise_charts: Sequence[str] = ()) -> str:
+    noise = ""
+    if noise_charts:
+        labels = " and ".join(PARAMETERIZATIONS[c].label for c in noise_charts)
+        noise = f" The noise was drawn in the coordinates of {labels} and each run started from those noisy poses written in its own chart."
     lines = [
         f"Each cell: converged / task done, in % of the runs (converged: success of the solver ({', '.join(solver_names)}) with the largest "
         f"constraint violation below {FEASIBILITY_TOL:g}, the paper's success; task done: converged and "
         "the motion does the task, e.g. a flip with the expected sign, count and axis; where the two "
-        "differ the paper marks the cell with *).",
+        "differ the paper marks the cell with *)." + noise,
     ]
     rows = []
     for task in dict.fromkeys(r["task"] for r in summary):

@@ -1,9 +1,13 @@
-"""bench/quaternion_noise.py: its renormalization of the warm start's quaternions, and its table."""
+"""bench/quaternion_noise.py: its renormalization of the warm start's quaternions, its angles
+and its table; and `jtraj.experiments.poses_in_chart`, with which it gives one chart another's
+noisy poses."""
 
 import jax.numpy as jnp
 import numpy as np
 import pytest
 from conftest import bench_module
+
+from jtraj.experiments import poses_in_chart
 
 
 @pytest.fixture(scope="module")
@@ -45,7 +49,7 @@ def test_se3_draws_become_the_same_poses_in_the_quaternion_chart(qn):
     se3, quat = _charts()
     rng = np.random.default_rng(1)
     starts = rng.normal(size=(3, 4, se3.layout.nz))  # draws, knots, nz: base xi (6) + 2 joints
-    out = qn.poses_in_chart(starts, se3, quat)
+    out = poses_in_chart(starts, se3, quat)
     assert out.shape == (3, 4, quat.layout.nz)
     for xi, q in zip(starts.reshape(-1, se3.layout.nz), out.reshape(-1, quat.layout.nz)):
         a, b = se3.param.to_pose(jnp.asarray(xi[:6])), quat.param.to_pose(jnp.asarray(q[:7]))
@@ -74,8 +78,8 @@ def test_poses_in_chart_round_trip(qn):
     se3, quat = _charts()
     rng = np.random.default_rng(2)
     starts = rng.normal(size=(2, 3, quat.layout.nz))
-    xi = qn.poses_in_chart(starts, quat, se3)
-    back = qn.poses_in_chart(xi, se3, quat)
+    xi = poses_in_chart(starts, quat, se3)
+    back = poses_in_chart(xi, se3, quat)
     rho, rho_back = starts[..., 3:7], back[..., 3:7]
     # the same rotation: rho / |rho| equal up to sign
     dots = np.abs(np.sum(rho * rho_back, axis=-1)) / np.linalg.norm(rho, axis=-1)
@@ -93,7 +97,7 @@ def test_poses_in_chart_keeps_the_references_sign_of_rho(qn):
     reference = np.zeros((5, quat.layout.nz))
     reference[:, 3], reference[:, 5] = np.cos(angles / 2), np.sin(angles / 2)  # continuous: ends at -1
     xi[:, 4] = np.arctan2(np.sin(angles), np.cos(angles))  # the same rotations, principal angles
-    out = qn.poses_in_chart(xi[None], se3, quat, reference)[0]
+    out = poses_in_chart(xi[None], se3, quat, reference)[0]
     np.testing.assert_allclose(out[:, 3:7], reference[:, 3:7], atol=1e-9)
-    unaligned = qn.poses_in_chart(xi[None], se3, quat)[0]
+    unaligned = poses_in_chart(xi[None], se3, quat)[0]
     assert np.abs(unaligned[:, 3:7] - reference[:, 3:7]).max() > 1.0  # from_pose alone picks other signs

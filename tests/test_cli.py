@@ -192,6 +192,9 @@ def test_robustness_passes_the_solver(monkeypatch, tmp_path):
     assert seen["ipopt_options"] is None  # the study's settings
     assert cli.main(["robustness", "--tasks", "big_jump", "--solver", "jtraj", "--ipopt", "constr_viol_tol=1e-6", "--out", str(tmp_path)]) == 0
     assert seen["ipopt_options"] == {"constr_viol_tol": 1e-6}
+    assert seen["noise_chart"] is None  # each chart's own noise
+    assert cli.main(["robustness", "--tasks", "big_jump", "--noise-chart", "se3", "--out", str(tmp_path)]) == 0
+    assert seen["noise_chart"] == "se3"
 
 
 def test_set_changes_the_variables_options(monkeypatch, tmp_path, capsys):

@@ -9,11 +9,12 @@ import sys
 import time
 from pathlib import Path
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from test_transcription import HOP
 
-from jtraj.experiments import RUNS_FILE, compare, noisy_warm_starts, read_runs, robustness, run_key
+from jtraj.experiments import RUN_KEY, RUNS_FILE, chart_noisy_warm_starts, compare, noisy_warm_starts, read_runs, robustness, run_key
 from jtraj.plots import plot_convergence, plot_result
 from jtraj.result import Result
 from jtraj.success import FEASIBILITY_TOL
@@ -116,6 +117,82 @@ def test_noise_of_a_run_does_not_depend_on_the_other_runs():
     np.testing.assert_array_equal(a[0], b[2, :2])
     np.testing.assert_array_equal(b[1, 2], noisy_warm_starts(x0, [0.1], replicates=[2], seed=4)[0, 0])
     assert not np.allclose(a[1, 0] / 0.1, a[0, 0] / 1e-3)  # levels are not one draw rescaled
+
+
+def test_noise_drawn_in_another_chart_gives_the_same_noisy_poses():
+    """``noise_chart``: a quaternion chart given SE(3)'s draws starts from SE(3)'s noisy poses
+    (same base poses knot by knot, every other variable the same numbers), its own chart's
+    name is its own draws, and a name that is not a chart is refused."""
+    from jtraj import robot as robots
+    from jtraj.parameterization import get
+    from jtraj.transcription import PAPER_VARIABLES, Transcription
+
+    go2 = robots.load("go2")
+    se3, quat = (Transcription(go2, HOP, get(p), PAPER_VARIABLES) for p in ("se3", "quat1"))
+    src = noisy_warm_starts(se3.warm_start(), [0.3], [0, 4], seed=2)[0]
+    got = chart_noisy_warm_starts(quat, "se3", [0.3], [0, 4], seed=2)[0]
+    assert got.shape == (2, *quat.warm_start().shape)
+    qa, qb = se3.layout.slice("q"), quat.layout.slice("q")
+    pose = lambda tr, x: np.stack([tr.param.to_pose(jnp.asarray(k[: tr.param.nq])).as_matrix() for k in x[:, tr.layout.slice("q")]])
+    for a, b in zip(src, got):
+        np.testing.assert_allclose(pose(quat, b), pose(se3, a), atol=1e-12)
+        np.testing.assert_array_equal(b[:, qb][:, quat.param.nq :], a[:, qa][:, se3.param.nq :])  # joint angles
+        for name, _ in quat.layout.slots:
+            if name != "q":
+                np.testing.assert_array_equal(b[:, quat.layout.slice(name)], a[:, se3.layout.slice(name)])
+    # the noise turned the poses: the quaternion chart's own draws are other poses
+    own = chart_noisy_warm_starts(quat, None, [0.3], [0, 4], seed=2)[0]
+    np.testing.assert_array_equal(own, chart_noisy_warm_starts(quat, "quat1", [0.3], [0, 4], seed=2)[0])
+    np.testing.assert_array_equal(own, noisy_warm_starts(quat.warm_start(), [0.3], [0, 4], seed=2)[0])
+    assert not np.allclose(pose(quat, own[0]), pose(se3, src[0]), atol=1e-3)
+    with pytest.raises(ValueError, match="noise_chart='quat4'"):
+        chart_noisy_warm_starts(quat, "quat4", [0.3], 1)
+
+
+def test_noise_of_a_turning_warm_start_in_another_chart():
+    """A warm start that turns the base once: written from SE(3)'s poses, a quaternion chart's
+    keeps each knot's sign of rho along the turn (noise-free, its own warm start); the Euler
+    chart's, whose angles wind through the turn as the study's scripts write them, cannot be
+    written from poses, and is refused (`check_noise_chart` too, before anything compiles)."""
+    import dataclasses
+
+    from jtraj import robot as robots
+    from jtraj.experiments import NoiseChartError, check_noise_chart
+    from jtraj.parameterization import get
+    from jtraj.task import Phase, Profile, RotationRule
+    from jtraj.transcription import PAPER_VARIABLES, Transcription
+
+    turn = dataclasses.replace(
+        HOP, phases=(HOP.phases[0], Phase((), 0.4), HOP.phases[2]), warm_start_rules=(RotationRule(Profile.RAMP, (0.0, 1.0, 0.0), -2 * np.pi, (1,)),)
+    )
+    go2 = robots.load("go2")
+    quat = Transcription(go2, turn, get("quat1"), PAPER_VARIABLES)
+    clean = chart_noisy_warm_starts(quat, "se3", [0.0], 1)[0, 0]
+    np.testing.assert_allclose(clean, quat.warm_start(), atol=1e-9)
+    rho = clean[:, quat.layout.slice("q")][:, 3:7]
+    assert (rho[:, 0] < 0).any()  # the turn passes rho through -rho's half
+    with pytest.raises(NoiseChartError, match="not the euler warm start"):
+        chart_noisy_warm_starts(Transcription(go2, turn, get("euler"), PAPER_VARIABLES), "se3", [0.1], 1)
+    with pytest.raises(NoiseChartError, match="not the euler warm start"):
+        check_noise_chart([turn], ["quat1", "euler"], "paper", "se3")
+    check_noise_chart([turn], ["quat1", "se3"], "paper", "se3")  # the chart itself is not checked
+
+
+def test_robustness_keys_runs_by_the_chart_of_their_noise(tmp_path):
+    """Euler runs with SE(3)'s noise are other runs than with Euler's own (their rows say so and
+    the table names the chart); the chart's own name is its own noise, resumed as such."""
+    kw = dict(sigmas=[1e-3], replicates=1, seed=3, out=tmp_path, progress=None)
+    [own] = robustness([HOP], ["euler"], **kw)
+    [other] = robustness([HOP], ["euler"], noise_chart="se3", **kw)
+    assert own["noise_chart"] is None and other["noise_chart"] == "se3" and other["time_s"] != own["time_s"]
+    assert other["converged"] and other["constraint_violation"] < FEASIBILITY_TOL
+    assert "coordinates of SE(3)" in (tmp_path / "table_iii.md").read_text()
+    assert len(read_runs(tmp_path / RUNS_FILE)) == 2
+    assert robustness([HOP], ["euler"], noise_chart="euler", **kw) == [own]  # resumed, not solved
+    assert "coordinates of" not in (tmp_path / "table_iii.md").read_text()
+    assert robustness([HOP], ["euler"], noise_chart="se3", **kw) == [other]
+    with pytest.raises(ValueError, match="noise_chart='xyz'"):
+        robustness([HOP], ["euler"], noise_chart="xyz", **kw)
 
 
 def test_corrupt_runs_file_is_moved_aside(tmp_path, capsys):
@@ -231,7 +308,9 @@ def test_ipopt_and_jtraj_runs_share_a_file_without_colliding(jtraj_study, tmp_pa
     ipopt = robustness([HOP], ["se3"], out=tmp_path, **(JTRAJ_STUDY | {"solver": "ipopt", "replicates": 1}))
     assert len(ipopt) == 1 and ipopt[0]["solver"] == "ipopt" and ipopt[0]["batch"] == 1
     assert set(ipopt[0]) == set(runs[0])  # the same fields
-    assert run_key(ipopt[0])[:-1] == run_key(runs[0])[:-1] and run_key(ipopt[0]) != run_key(runs[0])
+    i = RUN_KEY.index("solver")
+    a, b = run_key(ipopt[0]), run_key(runs[0])
+    assert a[:i] + a[i + 1 :] == b[:i] + b[i + 1 :] and a[i] != b[i]  # only the solver differs
     assert len(read_runs(tmp_path / RUNS_FILE)) == 4
 
 
