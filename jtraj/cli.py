@@ -65,6 +65,8 @@ def _cmd_solve(args: argparse.Namespace) -> int:
         ipopt_options=options,
         noise=args.noise,
         seed=args.seed,
+        replicate=args.replicate,
+        noise_chart=args.noise_chart,
         out=out,
         progress_every=args.every,
     )
@@ -262,6 +264,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ipopt", action="append", metavar="NAME=VALUE", help="any solver option (Ipopt's names for ipopt), repeatable (e.g. --ipopt max_iter=50)")
     p.add_argument("--noise", type=float, default=0.0, help="std of Gaussian noise added to the warm start")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--replicate", type=int, default=None, metavar="R", help="draw the noise as `jtraj robustness` draws replicate R (same --seed and sigma --noise), to solve one run of a study again with its trajectory")
+    p.add_argument("--noise-chart", default=None, choices=["se3", "quat1", "quat2", "quat3", "euler"], help="with --replicate: that run of `jtraj robustness --noise-chart`")
     p.add_argument("--every", type=int, default=1, help="print the solver's progress every N iterations")
     p.add_argument("--render", action="store_true", help="also write DIR/motion.mp4 and DIR/keyframes.png")
     _robot_argument(p)
@@ -451,6 +455,16 @@ def _check_inputs(args: argparse.Namespace) -> None:
         if not (math.isfinite(args.noise) and args.noise >= 0):
             raise InputError("--noise", args.noise, "expected a standard deviation >= 0")
         _check_positive_int("--every", args.every)
+        if args.replicate is not None:
+            _check_positive_int("--replicate", args.replicate, 0)
+            if not args.noise:
+                raise InputError("--replicate", args.replicate, "needs the noise level --noise SIGMA > 0 (the study's sigma)")
+        elif args.noise_chart is not None:
+            raise InputError("--noise-chart", args.noise_chart, "needs --noise SIGMA --replicate R (a run of `jtraj robustness --noise-chart`)")
+        if args.noise_chart is not None:
+            from jtraj.experiments import check_noise_chart
+
+            check_noise_chart([args.task_checked], [args.param], args.variables, args.noise_chart)
         args.ipopt_checked = _check_ipopt(args.ipopt, getattr(args, "solver", "ipopt"))
     elif cmd in ("compare", "robustness"):
         # sweeps: every name is checked before the first solve

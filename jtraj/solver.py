@@ -175,6 +175,8 @@ def solve(
     warm_start: np.ndarray | None = None,
     noise: float = 0.0,
     seed: int = 0,
+    replicate: int | None = None,
+    noise_chart: str | None = None,
     progress: solvers.Progress = True,
     progress_every: int = 1,
     out: str | None = None,
@@ -202,7 +204,14 @@ def solve(
         warm_start: (n_knots, nz) initial guess; default the task's warm start
             (`Transcription.warm_start` at ``theta``: its standing pose and masses).
         noise: standard deviation of zero-mean Gaussian noise added to the warm start.
-        seed: seed of that noise.
+        seed: seed of that noise (numpy's ``default_rng(seed)``, as the study's public code
+            draws it, unless ``replicate`` is given).
+        replicate: draw the noise as `jtraj.experiments.robustness` draws replicate
+            ``replicate`` of ``seed`` at sigma ``noise``, so that one run of a noise study can
+            be solved again alone, with its trajectory (`jtraj.experiments.noise_key`).
+        noise_chart: with ``replicate``, draw that noise in this parameterization's
+            coordinates and start from its noisy poses (`jtraj.experiments.chart_noisy_warm_starts`,
+            the study's ``noise_chart``); None: the solved chart's own.
         progress: True (default) prints a line per ``progress_every`` iterations to the
             ``sys.stdout`` of the moment; a text stream prints there; False or None is quiet;
             a `jtraj.solvers.AbstractCallback` receives the iterations instead.
@@ -215,11 +224,20 @@ def solve(
     variables = renamed_argument(variables, layout, "variables", "layout", "compact")
     prep = prepare(task, parameterization, variables)
     tr, nlp = prep.transcription, prep.nlp
+    theta_given = theta is not None
     theta = tr.resolve_theta(theta)
     compile_time = prep.time_compile
     prep.time_compile = 0.0  # counted once per process
     x0 = tr.warm_start(theta) if warm_start is None else np.asarray(warm_start, float)
-    if noise:
+    if replicate is not None:
+        from jtraj.experiments import chart_noisy_warm_starts
+
+        if warm_start is not None or theta_given:
+            raise ValueError("solve: replicate= solves a run of the noise study, from the task's own warm start at its own theta; give it without warm_start= and theta=")
+        x0 = chart_noisy_warm_starts(tr, noise_chart, [noise], [replicate], seed)[0, 0]
+    elif noise_chart is not None:
+        raise ValueError("solve: noise_chart= needs replicate= (the study's draws)")
+    elif noise:
         x0 = x0 + noise * np.random.default_rng(seed).standard_normal(x0.shape)
     backend = solvers.get(solver)
     opts = solver_options(backend, options, ipopt_options, exact_hessian, tr.task.max_iter)

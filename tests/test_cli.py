@@ -42,6 +42,9 @@ def _run(argv, capsys):
         (["robustness", "--tasks", "big_jump", "--replicates", "0"], "jtraj robustness: --replicates: 0: expected an integer >= 1"),
         (["robustness", "--tasks", "big_jump", "--replicates", "two"], "jtraj robustness: argument --replicates: invalid int value: 'two'"),
         (["solve", "big_jump", "--noise", "-1"], "jtraj solve: --noise: -1.0: expected a standard deviation >= 0"),
+        (["solve", "big_jump", "--replicate", "2"], "jtraj solve: --replicate: 2: needs the noise level --noise SIGMA > 0"),
+        (["solve", "big_jump", "--noise", "0.1", "--replicate", "-1"], "jtraj solve: --replicate: -1: expected an integer >= 0"),
+        (["solve", "big_jump", "--noise", "0.1", "--noise-chart", "se3"], "jtraj solve: --noise-chart: 'se3': needs --noise SIGMA --replicate R"),
         (["solve", "walk", "--robot", "talos"], "jtraj solve: --robot: 'talos': expected ROBOT=OTHER"),
         (["compare", "--tasks", "walk", "--robot", "talos=atlas"], "jtraj compare: --robot: 'talos=atlas': unknown robot 'atlas'; expected one of g1, go2, talos, talos_full"),
         (["robustness", "--tasks", "walk", "--robot", "talos=go2"], "jtraj robustness: tasks/walk.toml: phases[0].contacts: 'left_foot': expected a contact of robot 'go2'"),
@@ -146,6 +149,10 @@ def test_solve_passes_variables_to_the_solver(monkeypatch, tmp_path):
     monkeypatch.setattr(jtraj.plots, "plot_convergence", lambda *a, **k: None)
     assert cli.main(["solve", "big_jump", "--layout", "lean", "--out", str(tmp_path / "r")]) == 0
     assert seen["variables"] == "lean" and "layout" not in seen
+    assert seen["replicate"] is None and seen["noise_chart"] is None
+    argv = ["solve", "big_jump", "--noise", "0.5", "--seed", "4", "--replicate", "7", "--out", str(tmp_path / "r")]
+    assert cli.main(argv) == 0
+    assert (seen["noise"], seen["seed"], seen["replicate"]) == (0.5, 4, 7)  # the study's draw 7
 
 
 @pytest.mark.parametrize("solver", ["ipopt", "jtraj"])

@@ -193,6 +193,16 @@ def test_robustness_keys_runs_by_the_chart_of_their_noise(tmp_path):
     assert robustness([HOP], ["euler"], noise_chart="se3", **kw) == [other]
     with pytest.raises(ValueError, match="noise_chart='xyz'"):
         robustness([HOP], ["euler"], noise_chart="xyz", **kw)
+    # one run of the study solved again alone, with its trajectory
+    from jtraj import solve
+
+    again = solve(HOP, "euler", variables="paper", noise=1e-3, seed=3, replicate=0, noise_chart="se3", progress=None)
+    assert again.iterations == other["iterations"] and again.trajectory is not None
+    np.testing.assert_allclose(again.cost, other["cost"], rtol=1e-9, atol=1e-12)
+    with pytest.raises(ValueError, match="without warm_start= and theta="):
+        solve(HOP, "euler", variables="paper", noise=1e-3, replicate=0, theta={"friction": 0.5}, progress=None)
+    with pytest.raises(ValueError, match="needs replicate="):
+        solve(HOP, "euler", variables="paper", noise=1e-3, noise_chart="se3", progress=None)
 
 
 def test_corrupt_runs_file_is_moved_aside(tmp_path, capsys):
