@@ -316,10 +316,11 @@ def _robustness_group(task, p, sigmas, replicates, seed, variables, exact_hessia
     prep = prepare(task, p, variables)
     # each sigma's missing replicates, drawn at once (a replicate's draw does not depend on
     # which others are drawn with it: `noise_key`)
-    starts = {}
-    for sigma in dict.fromkeys(s for s, _ in todo):
-        reps = [r for s, r in todo if s == sigma]
-        starts[sigma] = dict(zip(reps, chart_noisy_warm_starts(prep.transcription, base["noise_chart"], [sigma], reps, seed)[0]))
+    levels, numbers = list(dict.fromkeys(s for s, _ in todo)), sorted({r for _, r in todo})
+    draws = chart_noisy_warm_starts(prep.transcription, base["noise_chart"], levels, numbers, seed)  # one other-chart transcription per group
+    starts: dict[float, dict[int, np.ndarray]] = {s: {} for s in levels}
+    for sigma, r in todo:
+        starts[sigma][r] = draws[levels.index(sigma), numbers.index(r)]
     if hasattr(solvers.get(solver), "solve_batch"):
         for sigma, draws in starts.items():
             _robustness_batch(prep, sigma, list(draws), np.stack(list(draws.values())), replicates, exact_hessian, options, solver, base, runs_path, progress)
