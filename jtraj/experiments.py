@@ -322,8 +322,8 @@ def _robustness_group(task, p, sigmas, replicates, seed, variables, exact_hessia
     for sigma, r in todo:
         starts[sigma][r] = draws[levels.index(sigma), numbers.index(r)]
     if hasattr(solvers.get(solver), "solve_batch"):
-        for sigma, draws in starts.items():
-            _robustness_batch(prep, sigma, list(draws), np.stack(list(draws.values())), replicates, exact_hessian, options, solver, base, runs_path, progress)
+        for sigma, members in starts.items():
+            _robustness_batch(prep, sigma, list(members), np.stack(list(members.values())), replicates, exact_hessian, options, solver, base, runs_path, progress)
         return len(todo)
     for sigma, r in todo:
         start = starts[sigma][r]
