@@ -35,7 +35,7 @@ from jtraj.task import Task
 from jtraj.task import load as load_task
 from jtraj.transcription import TranscriptionOptions
 
-__all__ = ["compare", "robustness", "noisy_warm_starts", "chart_noisy_warm_starts", "check_noise_chart", "poses_in_chart", "NoiseChartError", "noise_key", "run_key", "variables_hash", "read_runs", "summarize_robustness", "TABLE_IV_PAPER_SE3"]
+__all__ = ["compare", "robustness", "noisy_warm_starts", "chart_noisy_warm_starts", "check_noise_chart", "poses_in_chart", "NoiseChartError", "noise_key", "run_key", "variables_hash", "read_runs", "summarize_robustness", "setting_label", "TABLE_IV_PAPER_SE3"]
 
 #: Iterations of the SE(3) tangent parameterization in the paper's Table IV.
 TABLE_IV_PAPER_SE3 = {"walk": 14, "hopscotch": 10, "big_jump": 11, "handstand": 88, "backflip": 28, "sideflip": 29}
@@ -491,21 +491,40 @@ def _converged(run: dict) -> bool:
     return bool(run["converged"]) and violation is not None and violation < FEASIBILITY_TOL
 
 
+def _setting(run: dict) -> tuple[str, str | None]:
+    """The settings that runs of one cell can share a runs.jsonl with: (solver, noise chart)."""
+    return run.get("solver", "ipopt"), run.get("noise_chart")
+
+
+def setting_label(row: dict, rows: Sequence[dict] = ()) -> str:
+    """A row's parameterization, followed by its solver and noise chart where ``rows`` hold
+    more than one of them (``quat1 (jtraj, noise in se3)``)."""
+    settings = {_setting(r) for r in rows}
+    if len(settings) <= 1:
+        return row["parameterization"]
+    solver, chart = _setting(row)
+    parts = [solver] if len({s for s, _ in settings}) > 1 else []
+    if len({c for _, c in settings}) > 1:
+        parts.append(f"noise in {chart or 'own chart'}")
+    return f"{row['parameterization']} ({', '.join(parts)})"
+
+
 def summarize_robustness(runs: list[dict]) -> list[dict]:
-    """Per (task, parameterization, sigma): the rate of runs that converged to a feasible point
-    (the solver's success and largest constraint violation below `jtraj.success.FEASIBILITY_TOL`, the
-    paper's Table III success), the rate that moreover did the task (`jtraj.success`: e.g. a
-    flip with the right sign, count and axis), and iterations of the converged runs."""
+    """Per (task, parameterization, sigma), and solver and noise chart where a runs file holds
+    several: the rate of runs that converged to a feasible point (the solver's success and
+    largest constraint violation below `jtraj.success.FEASIBILITY_TOL`, the paper's Table III
+    success), the rate that moreover did the task (`jtraj.success`: e.g. a flip with the right
+    sign, count and axis), and iterations of the converged runs."""
     # the paper's order: tasks as in Table III, parameterizations as in Table I, then others
     task_rank = {t: i for i, t in enumerate(("walk", "big_jump", "backflip", "sideflip", "hopscotch", "handstand"))}
     param_rank = {p: i for i, p in enumerate(PARAMETERIZATIONS)}
     keys = sorted(
-        {(r["task"], r["parameterization"], r["sigma"]) for r in runs},
-        key=lambda k: (task_rank.get(k[0], len(task_rank)), k[0], param_rank.get(k[1], len(param_rank)), k[1], k[2]),
+        {(r["task"], r["parameterization"], *_setting(r), r["sigma"]) for r in runs},
+        key=lambda k: (task_rank.get(k[0], len(task_rank)), k[0], param_rank.get(k[1], len(param_rank)), k[1], k[2], k[3] or "", k[4]),
     )
     rows = []
-    for task, p, sigma in keys:
-        sel = [r for r in runs if (r["task"], r["parameterization"], r["sigma"]) == (task, p, sigma)]
+    for task, p, solver, chart, sigma in keys:
+        sel = [r for r in runs if (r["task"], r["parameterization"], *_setting(r), r["sigma"]) == (task, p, solver, chart, sigma)]
         conv = [r for r in sel if _converged(r)]
         its = np.array([r["iterations"] for r in conv]) if conv else np.array([])
         rows.append(
@@ -513,6 +532,8 @@ def summarize_robustness(runs: list[dict]) -> list[dict]:
                 task=task,
                 parameterization=p,
                 sigma=sigma,
+                solver=solver,
+                noise_chart=chart,
                 runs=len(sel),
                 converged_rate=len(conv) / len(sel),
                 task_success_rate=sum(1 for r in conv if r["success"]) / len(sel),
@@ -537,13 +558,13 @@ def _table_iii_markdown(summary: list[dict], sigmas: Sequence[float], solver_nam
         "differ the paper marks the cell with *)." + noise,
     ]
     rows = []
-    for task in dict.fromkeys(r["task"] for r in summary):
-        for p in dict.fromkeys(r["parameterization"] for r in summary if r["task"] == task):
-            cells = []
-            for s in sigmas:
-                match = [r for r in summary if r["task"] == task and r["parameterization"] == p and r["sigma"] == s]
-                cells.append(f"{100 * match[0]['converged_rate']:.0f}% / {100 * match[0]['task_success_rate']:.0f}%" if match else "")
-            rows.append((task, p, *cells))
+    for task, p, setting in dict.fromkeys((r["task"], r["parameterization"], _setting(r)) for r in summary):
+        cells = []
+        for s in sigmas:
+            match = [r for r in summary if (r["task"], r["parameterization"], _setting(r), r["sigma"]) == (task, p, setting, s)]
+            cells.append(f"{100 * match[0]['converged_rate']:.0f}% / {100 * match[0]['task_success_rate']:.0f}%" if match else "")
+        label = setting_label(next(r for r in summary if (r["task"], r["parameterization"], _setting(r)) == (task, p, setting)), summary)
+        rows.append((task, label, *cells))
     return "\n".join(lines) + "\n\n" + markdown_table(("task", "parameterization", *(f"sigma={s:g}" for s in sigmas)), rows)
 
 
@@ -558,13 +579,14 @@ def plot_iterations(runs: list[dict], path: str | Path) -> None:
     tasks = list(dict.fromkeys(r["task"] for r in summary))
     fig, axes = plt.subplots(1, len(tasks), figsize=(4 * len(tasks), 3.4), squeeze=False)
     for ax, task in zip(axes[0], tasks):
-        for p in dict.fromkeys(r["parameterization"] for r in summary if r["task"] == task):
-            rows = [r for r in summary if r["task"] == task and r["parameterization"] == p and r["iterations_median"] is not None]
+        for p, setting in dict.fromkeys((r["parameterization"], _setting(r)) for r in summary if r["task"] == task):
+            rows = [r for r in summary if r["task"] == task and (r["parameterization"], _setting(r)) == (p, setting) and r["iterations_median"] is not None]
             if not rows:
                 continue
             s = np.array([r["sigma"] for r in rows])
             med = np.array([r["iterations_median"] for r in rows])
-            ax.plot(s, med, marker="o", label=PARAMETERIZATIONS[p].label)
+            label = PARAMETERIZATIONS[p].label if p in PARAMETERIZATIONS else p
+            ax.plot(s, med, marker="o", label=label + setting_label(rows[0], summary)[len(p) :])
             ax.fill_between(s, [r["iterations_p25"] for r in rows], [r["iterations_p75"] for r in rows], alpha=0.2)
         ax.set_xscale("log")
         ax.set_title(task)

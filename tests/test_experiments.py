@@ -205,6 +205,29 @@ def test_robustness_keys_runs_by_the_chart_of_their_noise(tmp_path):
         solve(HOP, "euler", variables="paper", noise=1e-3, noise_chart="se3", progress=None)
 
 
+def test_summary_keeps_solvers_and_noise_charts_apart(tmp_path):
+    """One runs file can hold a cell's runs with two solvers and two noise charts (their keys
+    differ): the summary, the table and the figure keep them apart and say which is which;
+    a file of one setting keeps the plain parameterization."""
+    from jtraj.experiments import _table_iii_markdown, plot_iterations, setting_label, summarize_robustness
+
+    def run(solver, chart, converged, iterations):
+        return dict(task="walk", parameterization="quat1", sigma=0.5, solver=solver, noise_chart=chart, converged=converged, constraint_violation=1e-9, success=converged, iterations=iterations)
+
+    runs = [run("ipopt", None, True, 30), run("ipopt", None, False, 50), run("ipopt", "se3", True, 20), run("ipopt", "se3", True, 24), run("jtraj", "se3", False, 50)]
+    summary = summarize_robustness(runs)
+    got = {(r["solver"], r["noise_chart"]): (r["runs"], r["converged_rate"], r["iterations_median"]) for r in summary}
+    assert got == {("ipopt", None): (2, 0.5, 30.0), ("ipopt", "se3"): (2, 1.0, 22.0), ("jtraj", "se3"): (1, 0.0, None)}
+    assert [setting_label(r, summary) for r in summary] == ["quat1 (ipopt, noise in own chart)", "quat1 (ipopt, noise in se3)", "quat1 (jtraj, noise in se3)"]
+    table = _table_iii_markdown(summary, [0.5])
+    assert "| walk | quat1 (ipopt, noise in own chart) | 50% / 50% |" in table and "| walk | quat1 (ipopt, noise in se3) | 100% / 100% |" in table
+    plot_iterations(runs, tmp_path / "fig2.png")
+    one = summarize_robustness(runs[:2])
+    assert len(one) == 1 and setting_label(one[0], one) == "quat1" and "| walk | quat1 | 50% / 50% |" in _table_iii_markdown(one, [0.5])
+    old = [{k: v for k, v in r.items() if k not in ("solver", "noise_chart")} for r in runs[:2]]  # rows of earlier files
+    assert [(r["solver"], r["noise_chart"]) for r in summarize_robustness(old)] == [("ipopt", None)]
+
+
 def test_corrupt_runs_file_is_moved_aside(tmp_path, capsys):
     path = tmp_path / RUNS_FILE
     good = {"task_hash": "h", "parameterization": "se3", "layout": "paper", "hessian": "limited-memory", "options_hash": "o", "seed": 0, "sigma": 0.1, "replicate": 0, "task": "t"}
