@@ -181,7 +181,7 @@ def test_compare_rejects_an_unknown_solver(no_solve, capsys):
     assert "--solver: invalid choice: 'fatrop'" in capsys.readouterr().err
 
 
-def test_robustness_passes_the_solver(monkeypatch, tmp_path):
+def test_robustness_passes_the_solver_and_noise_chart(monkeypatch, tmp_path, capsys):
     import jtraj.experiments
     import jtraj.provenance
 
@@ -202,6 +202,14 @@ def test_robustness_passes_the_solver(monkeypatch, tmp_path):
     assert seen["noise_chart"] is None  # each chart's own noise
     assert cli.main(["robustness", "--tasks", "big_jump", "--noise-chart", "se3", "--out", str(tmp_path)]) == 0
     assert seen["noise_chart"] == "se3"
+
+    def refused(tasks, params, sigmas, **kwargs):  # as robustness() refuses a winding chart, before compiling
+        raise jtraj.experiments.NoiseChartError("backflip: the se3 warm start written in the euler chart is not the euler warm start")
+
+    monkeypatch.setattr(jtraj.experiments, "robustness", refused)
+    assert cli.main(["robustness", "--tasks", "backflip", "--params", "euler", "--noise-chart", "se3", "--out", str(tmp_path)]) == cli.EXIT_BAD_INPUT
+    err = capsys.readouterr().err
+    assert err == "jtraj robustness: backflip: the se3 warm start written in the euler chart is not the euler warm start\n"
 
 
 def test_set_changes_the_variables_options(monkeypatch, tmp_path, capsys):
