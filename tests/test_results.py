@@ -158,3 +158,24 @@ def test_trace_rows_check_each_iterate_as_the_task_check():
     assert [r["iter"] for r in rows] == [0, 1] and rows[0]["inf_pr"] == 3e2 and rows[1]["objective"] == 0.6
     assert abs(rows[0]["total_turns"]) < 1e-12
     assert abs(rows[1]["turns"] + 1.0) < 1e-9 and rows[1]["off_axis_share"] < 1e-9
+
+
+def _table_iii_folders() -> list[Path]:
+    return [p for p in _results_dirs() if (p / "table_iii.md").exists()]
+
+
+@pytest.mark.parametrize("folder", _table_iii_folders(), ids=lambda p: p.name)
+def test_table_iii_is_rendered_from_its_runs(folder):
+    """Every Table III in results/ is what `jtraj.experiments` makes of the runs.jsonl beside it
+    (row for row, at the table's own noise levels)."""
+    import io
+
+    from jtraj.experiments import _table_iii_markdown, read_runs, summarize_robustness
+
+    runs = read_runs(folder / "runs.jsonl", io.StringIO())
+    assert runs, f"{folder}: no runs beside table_iii.md"
+    lines = [line for line in (folder / "table_iii.md").read_text().splitlines() if line.startswith("|")]
+    sigmas = [float(s) for s in re.findall(r"sigma=([0-9.e+-]+)", lines[0])]
+    assert sigmas, f"{folder}/table_iii.md: no sigma columns"
+    rendered = [line for line in _table_iii_markdown(summarize_robustness(runs), sigmas).splitlines() if line.startswith("|")]
+    assert lines == rendered, f"{folder}/table_iii.md is not the table of its runs.jsonl"
