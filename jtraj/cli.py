@@ -485,7 +485,6 @@ def _check_inputs(args: argparse.Namespace) -> None:
         args.sigmas_checked = sigmas
         _check_positive_int("--replicates", args.replicates)
         args.ipopt_checked = _check_ipopt(args.ipopt, args.solver)
-
     elif cmd == "wahba":
         _check_positive_int("--trials", args.trials)
         _check_positive_int("--iterations", args.iterations)

@@ -496,17 +496,18 @@ def _setting(run: dict) -> tuple[str, str | None]:
     return run.get("solver", "ipopt"), run.get("noise_chart")
 
 
-def setting_label(row: dict, rows: Sequence[dict] = ()) -> str:
-    """A row's parameterization, followed by its solver and noise chart where ``rows`` hold
-    more than one of them (``quat1 (jtraj, noise in se3)``)."""
+def setting_label(row: dict, rows: Sequence[dict] = (), name: str | None = None) -> str:
+    """A row's parameterization (or ``name``), followed by its solver and noise chart where
+    ``rows`` hold more than one of them (``quat1 (jtraj, noise in se3)``)."""
+    name = row["parameterization"] if name is None else name
     settings = {_setting(r) for r in rows}
     if len(settings) <= 1:
-        return row["parameterization"]
+        return name
     solver, chart = _setting(row)
     parts = [solver] if len({s for s, _ in settings}) > 1 else []
     if len({c for _, c in settings}) > 1:
         parts.append(f"noise in {chart or 'own chart'}")
-    return f"{row['parameterization']} ({', '.join(parts)})"
+    return f"{name} ({', '.join(parts)})"
 
 
 def summarize_robustness(runs: list[dict]) -> list[dict]:
@@ -558,13 +559,10 @@ def _table_iii_markdown(summary: list[dict], sigmas: Sequence[float], solver_nam
         "differ the paper marks the cell with *)." + noise,
     ]
     rows = []
-    for task, p, setting in dict.fromkeys((r["task"], r["parameterization"], _setting(r)) for r in summary):
-        cells = []
-        for s in sigmas:
-            match = [r for r in summary if (r["task"], r["parameterization"], _setting(r), r["sigma"]) == (task, p, setting, s)]
-            cells.append(f"{100 * match[0]['converged_rate']:.0f}% / {100 * match[0]['task_success_rate']:.0f}%" if match else "")
-        label = setting_label(next(r for r in summary if (r["task"], r["parameterization"], _setting(r)) == (task, p, setting)), summary)
-        rows.append((task, label, *cells))
+    for group in dict.fromkeys((r["task"], r["parameterization"], _setting(r)) for r in summary):
+        by_sigma = {r["sigma"]: r for r in summary if (r["task"], r["parameterization"], _setting(r)) == group}
+        cells = [f"{100 * r['converged_rate']:.0f}% / {100 * r['task_success_rate']:.0f}%" if (r := by_sigma.get(s)) else "" for s in sigmas]
+        rows.append((group[0], setting_label(next(iter(by_sigma.values())), summary), *cells))
     return "\n".join(lines) + "\n\n" + markdown_table(("task", "parameterization", *(f"sigma={s:g}" for s in sigmas)), rows)
 
 
@@ -585,8 +583,8 @@ def plot_iterations(runs: list[dict], path: str | Path) -> None:
                 continue
             s = np.array([r["sigma"] for r in rows])
             med = np.array([r["iterations_median"] for r in rows])
-            label = PARAMETERIZATIONS[p].label if p in PARAMETERIZATIONS else p
-            ax.plot(s, med, marker="o", label=label + setting_label(rows[0], summary)[len(p) :])
+            label = setting_label(rows[0], summary, PARAMETERIZATIONS[p].label if p in PARAMETERIZATIONS else p)
+            ax.plot(s, med, marker="o", label=label)
             ax.fill_between(s, [r["iterations_p25"] for r in rows], [r["iterations_p75"] for r in rows], alpha=0.2)
         ax.set_xscale("log")
         ax.set_title(task)

@@ -45,7 +45,7 @@ def _charts():
     return se3, quat
 
 
-def test_se3_draws_become_the_same_poses_in_the_quaternion_chart(qn):
+def test_se3_draws_become_the_same_poses_in_the_quaternion_chart():
     se3, quat = _charts()
     rng = np.random.default_rng(1)
     starts = rng.normal(size=(3, 4, se3.layout.nz))  # draws, knots, nz: base xi (6) + 2 joints
@@ -73,7 +73,7 @@ def test_rotation_noise_is_the_angle_to_the_clean_orientation_at_interior_knots(
     np.testing.assert_allclose(qn.rotation_noise(quat, turned, clean), angles, atol=1e-9)
 
 
-def test_poses_in_chart_round_trip(qn):
+def test_poses_in_chart_round_trip():
     """The quaternion chart's poses written as SE(3) coordinates and back are the same poses."""
     se3, quat = _charts()
     rng = np.random.default_rng(2)
@@ -88,7 +88,7 @@ def test_poses_in_chart_round_trip(qn):
     np.testing.assert_array_equal(back[..., 7:], starts[..., 7:])
 
 
-def test_poses_in_chart_keeps_the_references_sign_of_rho(qn):
+def test_poses_in_chart_keeps_the_references_sign_of_rho():
     """A flip's quaternion warm start passes from rho to -rho; written from SE(3) poses, each
     knot keeps the sign nearer the reference's, not `from_pose`'s representative."""
     se3, quat = _charts()
