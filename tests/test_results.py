@@ -42,7 +42,23 @@ def _quoted_tables(page: str = "README.md") -> list[tuple[str, list[str]]]:
 
 
 def _results_dirs() -> list[Path]:
-    return sorted(p.parent for p in (ROOT / "results").glob("*/provenance.json"))
+    """Every folder below results/, at any depth, that has its own provenance.json."""
+    return sorted(p.parent for p in (ROOT / "results").rglob("provenance.json"))
+
+
+def _folder_id(folder: Path) -> str:
+    return str(folder.relative_to(ROOT / "results"))
+
+
+def test_every_results_file_has_provenance():
+    """A file in results/ is covered by the provenance.json of its folder or of a folder above it
+    (below results/): no result without its command, date and machine."""
+    base = ROOT / "results"
+    files = [f for f in base.rglob("*") if f.is_file()]
+    assert files
+    for f in files:
+        owners = [d for d in f.parents if d != base and base in d.parents and (d / "provenance.json").is_file()]
+        assert owners, f"{f.relative_to(ROOT)} has no provenance.json in its folder or a folder above it"
 
 
 def test_readme_quotes_results_files():
@@ -57,7 +73,7 @@ def test_readme_quotes_results_files():
             assert table == file_table, f"{page}'s table for {rel} differs from the file:\n{page}:\n" + "\n".join(table) + "\nfile:\n" + "\n".join(file_table)
 
 
-@pytest.mark.parametrize("folder", _results_dirs(), ids=lambda p: p.name)
+@pytest.mark.parametrize("folder", _results_dirs(), ids=_folder_id)
 def test_results_folder_has_provenance(folder):
     prov = json.loads((folder / "provenance.json").read_text())
     assert prov["command"].strip()
@@ -161,10 +177,10 @@ def test_trace_rows_check_each_iterate_as_the_task_check():
 
 
 def _table_iii_folders() -> list[Path]:
-    return [p for p in _results_dirs() if (p / "table_iii.md").exists()]
+    return sorted(p.parent for p in (ROOT / "results").rglob("table_iii.md"))
 
 
-@pytest.mark.parametrize("folder", _table_iii_folders(), ids=lambda p: p.name)
+@pytest.mark.parametrize("folder", _table_iii_folders(), ids=_folder_id)
 def test_table_iii_is_rendered_from_its_runs(folder):
     """Every Table III in results/ is what `jtraj.experiments` makes of the runs.jsonl beside it
     (row for row, at the table's own noise levels)."""
