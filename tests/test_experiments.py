@@ -205,7 +205,7 @@ def test_robustness_keys_runs_by_the_chart_of_their_noise(tmp_path):
         solve(HOP, "euler", variables="paper", noise=1e-3, noise_chart="se3", progress=None)
 
 
-def test_summary_keeps_solvers_and_noise_charts_apart(tmp_path):
+def test_summary_keeps_solvers_and_noise_charts_apart(tmp_path, monkeypatch):
     """One runs file can hold a cell's runs with two solvers and two noise charts (their keys
     differ): the summary, the table and the figure keep them apart and say which is which;
     a file of one setting keeps the plain parameterization."""
@@ -221,7 +221,19 @@ def test_summary_keeps_solvers_and_noise_charts_apart(tmp_path):
     assert [setting_label(r, summary) for r in summary] == ["quat1 (ipopt, noise in own chart)", "quat1 (ipopt, noise in se3)", "quat1 (jtraj, noise in se3)"]
     table = _table_iii_markdown(summary, [0.5])
     assert "| walk | quat1 (ipopt, noise in own chart) | 50% / 50% |" in table and "| walk | quat1 (ipopt, noise in se3) | 100% / 100% |" in table
+    import jtraj.experiments as experiments
+    from jtraj.parameterization import PARAMETERIZATIONS
+
+    figures = []
+    save = experiments.jio.save_figure
+    monkeypatch.setattr(experiments.jio, "save_figure", lambda fig, path, **kw: (figures.append(fig), save(fig, path, **kw))[1])
     plot_iterations(runs, tmp_path / "fig2.png")
+    assert (tmp_path / "fig2.png").stat().st_size > 0 and len(figures) == 1
+    (ax,) = figures[0].axes
+    name = PARAMETERIZATIONS["quat1"].label
+    # one line per setting with a converged run (jtraj's has none); medians 30 and 22 at sigma 0.5
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == [f"{name} (ipopt, noise in own chart)", f"{name} (ipopt, noise in se3)"]
+    assert [tuple(line.get_ydata()) for line in ax.get_lines()] == [(30.0,), (22.0,)]
     one = summarize_robustness(runs[:2])
     assert len(one) == 1 and setting_label(one[0], one) == "quat1" and "| walk | quat1 | 50% / 50% |" in _table_iii_markdown(one, [0.5])
     old = [{k: v for k, v in r.items() if k not in ("solver", "noise_chart")} for r in runs[:2]]  # rows of earlier files
