@@ -206,8 +206,8 @@ def test_vmap_keeps_members_line_searches_apart():
 
 
 def test_negative_curvature_goes_through_inertia_correction():
-    """max |z|^2 in a box: the exact Hessian is -I, so the first Newton matrix has the wrong
-    inertia; uncorrected, Newton would jump to the stationary point z = 0 (a maximum of the
+    """max |z|^2 in a box: the exact Hessian is -I, so the Newton matrix has the wrong inertia
+    where the barrier's curvature is smaller than 1; uncorrected, Newton would jump to the stationary point z = 0 (a maximum of the
     cost). With delta_w the method walks out to a vertex (an asymmetric start, so that it does
     not stop at the saddle (0.75, 0.75) either)."""
     layout = Layout((("z", 2),))
@@ -217,7 +217,19 @@ def test_negative_curvature_goes_through_inertia_correction():
                               np.full((nk, 1), -1.5), np.full((nk, 1), 1.5), np.ones((nk, 1), bool))]
     nlp = KnotNLP(layout, nk, costs, groups, -np.ones((nk, 2)), np.ones((nk, 2)))
     ipm = IPM(nlp, IpmOptions(hessian="exact", tol=1e-6, max_iter=100))
-    r = ipm.solve(jnp.tile(jnp.array([0.05, 0.02]), (nk, 1)), None)
+    z0 = jnp.tile(jnp.array([0.05, 0.02]), (nk, 1))
+    # iteration by iteration: once the barrier's curvature no longer outweighs -I, the Newton
+    # matrices need delta_w > 0 (measured 2026-12-04: from the second iteration to the eleventh)
+    p, st = ipm._start(z0, None)
+    step = jax.jit(lambda st, n: ipm._iteration(p, st, n, None)[0])
+    delta_w = []
+    for n in range(100):
+        st = step(st, jnp.asarray(n, jnp.int32))
+        delta_w.append(float(st.delta_w))
+        if int(st.status) != IpmStatus.RUNNING:
+            break
+    assert int(st.status) == IpmStatus.CONVERGED and max(delta_w) > 0.0, delta_w
+    r = ipm.solve(z0, None)
     assert int(r.status) == IpmStatus.CONVERGED
     x = np.asarray(r.x)
     # local minimizers are vertices of {|z_i| <= 1, |z_1 + z_2| <= 1.5}: (1, -1)-like with cost
