@@ -69,12 +69,18 @@ def test_svd_solution_is_a_minimizer(problems, rng):
 
 
 def test_angle_error_resolves_tiny_angles():
+    # references whose product with dq is exact in floating point: the error is the function's
+    # own, and relative (an acos of the scalar part would give 0 below about 1e-8)
+    for q in (jnp.array([1.0, 0.0, 0.0, 0.0]), jnp.array([0.0, 1.0, 0.0, 0.0]), jnp.array([0.0, 0.0, 0.0, -1.0])):
+        for angle in (1e-15, 1e-12, 1e-6, 0.5, 3.0):
+            dq = jnp.array([math.cos(angle / 2), math.sin(angle / 2), 0.0, 0.0])
+            assert abs(float(W.angle_error(Q.multiply(q, dq), q)) - angle) <= 1e-15 * angle
+    # a generic reference: rounding the product to O(1) numbers costs ~1e-16 absolute
     q = jnp.array([0.3, -0.5, 0.1, 0.8])
     q = q / jnp.linalg.norm(q)
-    for angle in (1e-15, 1e-12, 1e-6, 0.5, 3.0):
+    for angle in (1e-6, 0.5, 3.0):
         dq = jnp.array([math.cos(angle / 2), math.sin(angle / 2), 0.0, 0.0])
-        e = W.angle_error(Q.multiply(q, dq), q)
-        assert abs(e - angle) <= 1e-15 + 1e-13 * angle
+        assert abs(float(W.angle_error(Q.multiply(q, dq), q)) - angle) <= 1e-15 + 1e-13 * angle
     assert W.angle_error(-q, q) == 0.0  # double cover
 
 
