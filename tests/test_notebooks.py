@@ -1,5 +1,8 @@
-"""The notebooks run top to bottom in their small mode (JTRAJ_SMALL=1)."""
+"""The notebooks run top to bottom in their small mode (JTRAJ_SMALL=1) and produce what they show:
+every code cell ran, the files each one writes are there, and its figures and key lines are in
+the outputs."""
 
+import json
 from pathlib import Path
 
 import nbformat
@@ -8,12 +11,50 @@ from nbclient import NotebookClient
 
 NOTEBOOKS = sorted((Path(__file__).parent.parent / "notebooks").glob("*.ipynb"))
 
+#: Per notebook: files it writes (relative to its working folder), the least number of images it
+#: displays, and text its outputs must contain.
+PRODUCES = {
+    "attitude": dict(files=(), images=2, text=("small mode", "final median error", "satellite: minimum camera-sun angle", "quadrotor:")),
+    "comparison": dict(files=("compare_small/table_iv.json", "compare_small/table_iv.md", "comparison.png"), images=1, text=("hop",)),
+    "design": dict(files=(), images=2, text=("degenerate:",)),
+    "quickstart": dict(files=("trajectory.png",), images=1, text=("se3", "euler")),
+    "robustness": dict(files=("robustness_small/runs.jsonl", "fig2.png"), images=1, text=("runs", "sigma=0.001", "sigma=0.1")),
+}
+
+
+def _outputs(nb) -> list[dict]:
+    return [o for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", [])]
+
+
+def _text(output: dict) -> str:
+    if output.get("output_type") == "stream":
+        return output.get("text", "")
+    return output.get("data", {}).get("text/plain", "") + output.get("data", {}).get("text/markdown", "")
+
+
+def test_every_notebook_has_expectations():
+    assert {p.stem for p in NOTEBOOKS} == set(PRODUCES)
+
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
 def test_notebook_runs(path, tmp_path, monkeypatch):
     monkeypatch.setenv("JTRAJ_SMALL", "1")
     monkeypatch.chdir(tmp_path)
     nb = nbformat.read(path, as_version=4)
+    # a failing cell raises CellExecutionError here
     NotebookClient(nb, timeout=900, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}).execute()
-    errors = [o for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", []) if o.get("output_type") == "error"]
-    assert not errors
+    want = PRODUCES[path.stem]
+    code = [c for c in nb.cells if c.cell_type == "code"]
+    assert code and all(c.get("execution_count") for c in code), "a code cell did not run"
+    for name in want["files"]:
+        f = tmp_path / name
+        assert f.is_file() and f.stat().st_size > 0, f"{path.name} did not write {name}"
+    images = [o for o in _outputs(nb) if "image/png" in o.get("data", {})]
+    assert len(images) >= want["images"], f"{path.name} displayed {len(images)} images, expected at least {want['images']}"
+    text = "".join(_text(o) for o in _outputs(nb))
+    for line in want["text"]:
+        assert line in text, f"{path.name}'s outputs lack {line!r}"
+    if path.stem == "robustness":
+        runs = [json.loads(line) for line in (tmp_path / "robustness_small/runs.jsonl").read_text().splitlines() if line.strip()]
+        assert len(runs) == 2 * 2 * 2  # two parameterizations, two sigmas, two replicates
+        assert {(r["parameterization"], r["sigma"]) for r in runs} == {(p, s) for p in ("se3", "euler") for s in (1e-3, 0.1)}
