@@ -52,8 +52,15 @@ def test_attitude_defect_ignores_sign_and_scale_of_the_quaternion(rng):
     x = jnp.asarray(M.rigid_state(r=(0.1, 0.2, 1.0), q=random_quaternion(rng), v=(1.0, 0.0, 0.5), omega=(3.0, -1.0, 2.0)))
     x_pred = M.rk4(model.dynamics, x, jnp.asarray(model.hover_control()) + 0.3, 0.05)
     # RK4 leaves |q| slightly off 1; the error-state defect only sees the rotation
-    for x_next in (x_pred, x_pred.at[3:7].multiply(-1.0), x_pred.at[3:7].multiply(1.0 / jnp.linalg.norm(x_pred[3:7]))):
+    scales = (-1.0, 2.5, -0.4, 1.0 / float(jnp.linalg.norm(x_pred[3:7])))
+    for x_next in (x_pred.at[3:7].multiply(c) for c in scales):
         np.testing.assert_allclose(att.defect(x_next, x_pred), 0.0, atol=1e-15)
+    # and sees a rotation, whatever the sign and scale of the quaternion that carries it
+    phi = jnp.array([0.02, -0.01, 0.03])
+    turned = x_pred.at[3:7].set(Q.multiplicative_update(x_pred[3:7] / jnp.linalg.norm(x_pred[3:7]), phi))
+    for c in scales[:3]:
+        d = np.asarray(att.defect(turned.at[3:7].multiply(c), x_pred))
+        np.testing.assert_allclose(np.linalg.norm(d), np.linalg.norm(phi), rtol=0.05)
     # while the naive defect sees the sign flip as a distance of 2
     naive = B.FORMULATIONS["naive"]
     assert float(jnp.linalg.norm(naive.defect(x_pred.at[3:7].multiply(-1.0), x_pred))) > 1.9
