@@ -156,22 +156,30 @@ def test_solve_passes_variables_to_the_solver(monkeypatch, tmp_path):
 
 
 @pytest.mark.parametrize("solver", ["ipopt", "jtraj"])
-def test_compare_passes_the_solver_to_every_cell(solver, monkeypatch, tmp_path):
+def test_compare_passes_the_solver_to_every_cell(solver, monkeypatch, tmp_path, capsys):
+    """`jtraj compare --solver S` runs the real `experiments.compare`; each of its cells' solves
+    (faked here) gets S, and the table it prints names S in every row."""
     import jtraj.experiments
     import jtraj.provenance
 
-    seen = {}
+    cells = []
 
-    def fake_compare(tasks, params, **kwargs):
-        seen.update(kwargs, tasks=tasks)
-        (tmp_path / "table_iv.md").write_text("table\n")
-        return [{}]
+    def fake_solve(task, p, **kwargs):
+        cells.append((task, p, kwargs["solver"]))
+        return task, p, kwargs["solver"]
 
-    monkeypatch.setattr(jtraj.experiments, "compare", fake_compare)
+    def fake_row(result):
+        task, p, used = result
+        return dict(task=task, parameterization=p, status="solved", iterations=3, obj_evals=4, jac_evals=4, cost=0.0, constraint_violation=0.0, turns=None, time_s=0.1, solver=used)
+
+    monkeypatch.setattr(jtraj.experiments, "solve", fake_solve)
+    monkeypatch.setattr(jtraj.experiments, "_row", fake_row)
     monkeypatch.setattr(jtraj.provenance, "write_provenance", lambda out: None)
-    argv = ["compare", "--tasks", "big_jump", "--params", "se3", "--out", str(tmp_path)]
+    argv = ["compare", "--tasks", "big_jump,walk", "--params", "se3,euler", "--out", str(tmp_path)]
     assert cli.main(argv + (["--solver", solver] if solver != "ipopt" else [])) == 0
-    assert seen["solver"] == solver and seen["tasks"] == ["big_jump"]
+    assert cells == [(t, p, solver) for t in ("big_jump", "walk") for p in ("se3", "euler")]
+    rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| big_jump") or line.startswith("| walk")]
+    assert len(rows) == 4 and all(line.rstrip(" |").endswith(solver) for line in rows)
 
 
 def test_compare_rejects_an_unknown_solver(no_solve, capsys):
