@@ -367,6 +367,7 @@ def test_jtraj_batched_rows_equal_one_by_one_solves(jtraj_study):
     _, runs = jtraj_study
     x0 = prepare(HOP, "se3", "paper").transcription.warm_start()
     starts = noisy_warm_starts(x0, JTRAJ_STUDY["sigmas"], JTRAJ_STUDY["replicates"], JTRAJ_STUDY["seed"])[0]
+    assert len(runs) == len(starts) > 0  # zip below must not compare nothing
     for row, start in zip(runs, starts):
         one = solve(HOP, "se3", variables="paper", solver="jtraj", warm_start=start, progress=None, keep_trajectory=False)
         assert (one.solver_status.value, one.status.value, one.success) == (row["solver_status"], row["status"], row["success"])
