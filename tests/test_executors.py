@@ -99,6 +99,7 @@ def test_robustness_table_with_ray_executor_equals_local(tmp_path, monkeypatch):
 
 
 @pytest.mark.slow
+@pytest.mark.filterwarnings("ignore:os.fork:RuntimeWarning")  # ray.init starts its processes by fork and exec
 def test_robustness_table_on_a_local_ray_instance_equals_local(tmp_path):
     """The same tiny sweep on a real local Ray instance (one worker process, started here)."""
     ray = pytest.importorskip("ray")
