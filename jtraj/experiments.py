@@ -192,7 +192,7 @@ def poses_in_chart(starts: np.ndarray, src, dst, reference: np.ndarray | None = 
     return out
 
 
-def chart_noisy_warm_starts(tr, noise_chart: str | None, sigmas: Sequence[float], replicates: int | Sequence[int], seed: int = 0) -> np.ndarray:
+def chart_noisy_warm_starts(tr, noise_chart: str | None, sigmas: Sequence[float], replicates: int | Sequence[int], seed: int = 0, source=None) -> np.ndarray:
     """`noisy_warm_starts` of the transcription ``tr`` with the noise drawn in another chart's
     coordinates: the draws (same keys) of ``noise_chart``'s warm start, each knot's noisy base
     pose written in ``tr``'s chart (`poses_in_chart`). The two charts then start from the same
@@ -201,14 +201,18 @@ def chart_noisy_warm_starts(tr, noise_chart: str | None, sigmas: Sequence[float]
     0.5, 1.41 rad against 0.80 on average), so this is how the charts are compared at equal
     noise on the pose. ``noise_chart`` None or ``tr``'s own chart: its own draws. Raises
     ValueError where the noise-free warm starts are not one trajectory in both charts (a flip's
-    full turn, which an SE(3) Log writes as its principal angle)."""
+    full turn, which an SE(3) Log writes as its principal angle). ``source``: a transcription of
+    the same task in ``noise_chart`` to reuse (its warm start's compiled helpers, about 3 s a
+    transcription); None builds one."""
     if noise_chart is None or noise_chart == tr.param.name:
         return noisy_warm_starts(tr.warm_start(), sigmas, replicates, seed)
     from jtraj.transcription import Transcription
 
     if noise_chart not in PARAMETERIZATIONS:
         raise NoiseChartError(f"noise_chart={noise_chart!r}: expected one of {', '.join(PARAMETERIZATIONS)}")
-    src = Transcription(tr.robot, tr.task, PARAMETERIZATIONS[noise_chart], tr.options)
+    if source is not None and (source.param.name, source.task, source.options, source.robot.name) != (noise_chart, tr.task, tr.options, tr.robot.name):
+        raise ValueError(f"chart_noisy_warm_starts: source is a {source.param.name} transcription of {source.task.name!r}, not the {noise_chart} one of {tr.task.name!r} with the same options")
+    src = Transcription(tr.robot, tr.task, PARAMETERIZATIONS[noise_chart], tr.options) if source is None else source
     x0, x0_src = tr.warm_start(), src.warm_start()
     if not np.allclose(poses_in_chart(x0_src[None], src, tr, x0)[0], x0, rtol=0, atol=1e-9):
         raise NoiseChartError(
@@ -222,7 +226,8 @@ def chart_noisy_warm_starts(tr, noise_chart: str | None, sigmas: Sequence[float]
 def check_noise_chart(tasks: Sequence[str | Task], params: Sequence[str], variables: str | TranscriptionOptions, noise_chart: str | None) -> None:
     """Raise `NoiseChartError` before any NLP compiles where ``noise_chart``'s noisy poses cannot
     be given to one of ``params`` on one of ``tasks`` (`chart_noisy_warm_starts`; it builds
-    each pair's warm starts, about 10 s for a task on two cores)."""
+    each parameterization's warm start and the noise chart's once per task, about 3 s each on
+    two cores)."""
     if noise_chart is None:
         return
     if noise_chart not in PARAMETERIZATIONS:
@@ -234,9 +239,10 @@ def check_noise_chart(tasks: Sequence[str | Task], params: Sequence[str], variab
     for task in tasks:
         task = load_task(task)
         robot = load_robot(task.robot)
+        source = Transcription(robot, task, PARAMETERIZATIONS[noise_chart], options)
         for p in params:
             if p != noise_chart:
-                chart_noisy_warm_starts(Transcription(robot, task, PARAMETERIZATIONS[p], options), noise_chart, [0.0], [0])
+                chart_noisy_warm_starts(Transcription(robot, task, PARAMETERIZATIONS[p], options), noise_chart, [0.0], [0], source=source)
 
 
 #: the fields of a run's key, beside its task's name (kept for the tables); "layout" holds the

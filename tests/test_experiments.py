@@ -132,6 +132,10 @@ def test_noise_drawn_in_another_chart_gives_the_same_noisy_poses():
     src = noisy_warm_starts(se3.warm_start(), [0.3], [0, 4], seed=2)[0]
     got = chart_noisy_warm_starts(quat, "se3", [0.3], [0, 4], seed=2)[0]
     assert got.shape == (2, *quat.warm_start().shape)
+    # a given source transcription (reused across charts by the study's check) draws the same
+    np.testing.assert_array_equal(chart_noisy_warm_starts(quat, "se3", [0.3], [0, 4], seed=2, source=se3)[0], got)
+    with pytest.raises(ValueError, match="source is a quat1 transcription"):
+        chart_noisy_warm_starts(se3, "euler", [0.3], 1, source=quat)
     qa, qb = se3.layout.slice("q"), quat.layout.slice("q")
     pose = lambda tr, x: np.stack([tr.param.to_pose(jnp.asarray(k[: tr.param.nq])).as_matrix() for k in x[:, tr.layout.slice("q")]])
     for a, b in zip(src, got):
