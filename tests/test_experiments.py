@@ -230,7 +230,12 @@ def test_summary_keeps_solvers_and_noise_charts_apart(tmp_path, monkeypatch):
 
     figures = []
     save = experiments.jio.save_figure
-    monkeypatch.setattr(experiments.jio, "save_figure", lambda fig, path, **kw: (figures.append(fig), save(fig, path, **kw))[1])
+
+    def keep_and_save(fig, path, **kwargs):
+        figures.append(fig)
+        return save(fig, path, **kwargs)
+
+    monkeypatch.setattr(experiments.jio, "save_figure", keep_and_save)
     plot_iterations(runs, tmp_path / "fig2.png")
     assert (tmp_path / "fig2.png").stat().st_size > 0 and len(figures) == 1
     (ax,) = figures[0].axes

@@ -207,9 +207,9 @@ def test_vmap_keeps_members_line_searches_apart():
 
 def test_negative_curvature_goes_through_inertia_correction():
     """max |z|^2 in a box: the exact Hessian is -I, so the Newton matrix has the wrong inertia
-    where the barrier's curvature is smaller than 1; uncorrected, Newton would jump to the stationary point z = 0 (a maximum of the
-    cost). With delta_w the method walks out to a vertex (an asymmetric start, so that it does
-    not stop at the saddle (0.75, 0.75) either)."""
+    where the barrier's curvature is smaller than 1; uncorrected, Newton would jump to the
+    stationary point z = 0 (a maximum of the cost). With delta_w the method walks out to a
+    vertex (an asymmetric start, so that it does not stop at the saddle (0.75, 0.75) either)."""
     layout = Layout((("z", 2),))
     nk = 3
     costs = [CostGroup("concave", (Dep("z"),), lambda theta, data, z: -0.5 * jnp.sum(z**2), np.arange(nk))]

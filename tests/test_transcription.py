@@ -285,8 +285,13 @@ def test_theta_changes_values_without_recompiling_and_vmaps():
     assert not np.allclose(g0[rows == "friction"], g1[rows == "friction"])  # mu changed
     assert float(values[1][0]) > float(values[0][0])  # the weights grew
     # bounds: force limit doubles with the mass; the target moves; the force rate tightens
-    x_lo0, x_hi0, _, g_hi0 = (np.asarray(b).reshape(tr.N + 1, -1) if i < 2 else np.asarray(b) for i, b in enumerate(values[0][3]))
-    x_lo1, x_hi1, _, g_hi1 = (np.asarray(b).reshape(tr.N + 1, -1) if i < 2 else np.asarray(b) for i, b in enumerate(values[1][3]))
+    def knot_bounds(bounds):
+        """(x_lower, x_upper) per knot and g_upper of one theta's `nlp.bounds`."""
+        x_lo, x_hi, _, g_hi = (np.asarray(b) for b in bounds)
+        return x_lo.reshape(tr.N + 1, -1), x_hi.reshape(tr.N + 1, -1), g_hi
+
+    x_lo0, x_hi0, g_hi0 = knot_bounds(values[0][3])
+    x_lo1, x_hi1, g_hi1 = knot_bounds(values[1][3])
     np.testing.assert_array_equal(x_lo0.reshape(-1), nlp.x_lower)  # the NLP's stored bounds are the task's theta's
     sf, sq = tr.layout.slice("f"), tr.layout.slice("q")
     assert np.isfinite(x_hi0[:, sf]).all() and x_hi0[:, sf].max() > 0.0
