@@ -31,6 +31,7 @@ import dataclasses
 import functools
 import json
 import os
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -241,7 +242,7 @@ def _cell(rows: list[dict]) -> str:
         # jtraj's own check: converged, but no flip (or no landing at the target)
         return f"{r['iterations']}, task failed" if r.get("status") == "converged_but_task_failed" else f"{r['iterations']}"
     conv = sorted(r["iterations"] for r in rows if r["converged"])
-    med = f", median {conv[len(conv) // 2]}" if conv else ""
+    med = f", median {statistics.median(conv):g}" if conv else ""
     # rows with the task check of their last iterate (the flips' draws): how many converged and did the task
     done = ""
     if all("task_ok" in r for r in rows):

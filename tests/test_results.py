@@ -121,6 +121,9 @@ def test_side_by_side_render_cells():
         dict(code="paper", task="backflip", sigma=0.1, seed=3, converged=True, iterations=50, task_ok=False, turns=-0.5),  # half a turn
     ]
     assert render(flips).splitlines()[2] == "| backflip | 0.1 |  | 3/4 conv., 1 task done (2 turned), median 40 |"
+    # an even count of converged draws: the median is the mean of the middle two
+    even = [dict(code="paper", task="big_jump", sigma=0.5, seed=s, converged=True, iterations=i) for s, i in enumerate([41, 55, 44, 47])]
+    assert render(even).splitlines()[2] == "| big_jump | 0.5 |  | 4/4 conv., median 45.5 |"
 
 
 def test_side_by_side_jtraj_task_follows_robot_and_code_costs():
