@@ -515,12 +515,13 @@ def _check_variable_changes(variables: str, items: list[str] | None):
 
 
 def _input_errors() -> tuple[type[BaseException], ...]:
+    from jtraj.executors import ExecutorUnavailableError
     from jtraj.experiments import NoiseChartError
     from jtraj.io import FileFormatError
     from jtraj.solvers.ipopt_catalog import IpoptOptionError
     from jtraj.task import TaskError
 
-    return (InputError, TaskError, IpoptOptionError, FileFormatError, NoiseChartError)
+    return (InputError, TaskError, IpoptOptionError, FileFormatError, NoiseChartError, ExecutorUnavailableError)
 
 
 def main(argv: list[str] | None = None) -> int:

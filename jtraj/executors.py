@@ -25,10 +25,15 @@ import dataclasses
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
-__all__ = ["AbstractExecutor", "LocalExecutor", "RayExecutor", "EXECUTORS", "executor_for"]
+__all__ = ["AbstractExecutor", "LocalExecutor", "RayExecutor", "EXECUTORS", "ExecutorUnavailableError", "executor_for"]
 
 #: Names accepted by `executor_for` and the command line's ``--executor``.
 EXECUTORS = ("local", "ray")
+
+
+class ExecutorUnavailableError(RuntimeError):
+    """The executor cannot start here: Ray is not installed, or ``ray.init`` cannot reach the
+    cluster at the given address (the message says which, and what to do)."""
 
 
 class AbstractExecutor(abc.ABC):
@@ -87,7 +92,13 @@ class RayExecutor(AbstractExecutor):
                 # a tiny sweep's compile took 152 s in a worker beside two busy processes on 2
                 # cores, 11 s in the calling process)
                 kwargs["_system_config"] = {"worker_niceness": 0}
-            ray.init(address=self.address, **kwargs)
+            try:
+                ray.init(address=self.address, **kwargs)
+            except (ConnectionError, ValueError) as e:  # no cluster there, or a malformed address
+                raise ExecutorUnavailableError(
+                    f"Ray could not connect to a cluster at {self.address!r}: {e} (give the address of a running cluster, "
+                    "e.g. --ray-address auto on one of its nodes or ray://HOST:10001, or leave it out to start a local instance)"
+                ) from None
         remote = ray.remote(num_cpus=self.num_cpus, max_retries=0)(fn)
         pending = {remote.remote(*args): i for i, args in enumerate(arg_list)}
         while pending:
@@ -100,7 +111,7 @@ def _import_ray():
     try:
         import ray
     except ImportError:
-        raise ImportError('the Ray executor needs Ray: pip install "jtraj[ray]" (or pip install ray), or use --executor local') from None
+        raise ExecutorUnavailableError('the Ray executor needs Ray: pip install "jtraj[ray]" (or pip install ray), or use --executor local') from None
     return ray
 
 

@@ -13,7 +13,7 @@ import types
 
 import pytest
 
-from jtraj.executors import EXECUTORS, LocalExecutor, RayExecutor, executor_for
+from jtraj.executors import EXECUTORS, ExecutorUnavailableError, LocalExecutor, RayExecutor, executor_for
 
 
 def test_local_in_process_keeps_order():
@@ -70,8 +70,43 @@ def test_ray_executor_submits_one_task_per_group(monkeypatch):
 
 def test_ray_missing_says_how_to_install(monkeypatch):
     monkeypatch.setitem(sys.modules, "ray", None)  # import ray -> ImportError
-    with pytest.raises(ImportError, match=r"jtraj\[ray\]"):
+    with pytest.raises(ExecutorUnavailableError, match=r"jtraj\[ray\]"):
         list(RayExecutor().map(operator.add, [(1, 2)]))
+
+
+@pytest.mark.parametrize("error", [ConnectionError("Failed to connect to Ray cluster at head:1"), ValueError("Invalid address format: head")])
+def test_ray_unreachable_cluster_is_one_clear_error(monkeypatch, error):
+    """No cluster at the address, or a malformed one: `ExecutorUnavailableError` naming the
+    address and Ray's reason, before any group is submitted."""
+    calls: dict = {}
+    ray = _fake_ray(calls)
+
+    def refuse(address=None, **kwargs):
+        raise error
+
+    ray.init = refuse
+    monkeypatch.setitem(sys.modules, "ray", ray)
+    with pytest.raises(ExecutorUnavailableError, match=r"Ray could not connect to a cluster at 'head:1'") as info:
+        list(RayExecutor(address="head:1").map(operator.add, [(1, 2)]))
+    assert str(error) in str(info.value)
+    assert "options" not in calls  # nothing was submitted
+
+
+def test_cli_unreachable_ray_cluster_exits_2_with_one_line(monkeypatch, tmp_path, capsys):
+    from jtraj import cli
+
+    ray = _fake_ray({})
+
+    def refuse(address=None, **kwargs):
+        raise ConnectionError(f"Failed to connect to Ray cluster at {address}")
+
+    ray.init = refuse
+    monkeypatch.setitem(sys.modules, "ray", ray)
+    monkeypatch.setattr("jtraj.experiments._compare_one", lambda *args, **kwargs: pytest.fail("a solve started"))
+    rc = cli.main(["compare", "--tasks", "big_jump", "--params", "se3", "--executor", "ray", "--ray-address", "head:1", "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert rc == cli.EXIT_BAD_INPUT
+    assert err.count("\n") == 1 and err.startswith("jtraj compare: Ray could not connect to a cluster at 'head:1'"), err
 
 
 def test_executor_for_names():
