@@ -5,7 +5,9 @@ shapes, in one process, the two programs taking turns.
     python bench/factor_split.py [--shapes 47x156x96,121x78x48] [--rounds 15] [--out DIR]
 
 A shape is ``KxNxC``: K knots of n x n blocks whose off-diagonal blocks have C coupled columns
-(big_jump's compact variables: 47 x 156 with 96 coupled; the side-flip's: 121 x 78). Each round
+(the defaults: big_jump's block size with the study's variables, 47 x 156, with the 96 coupled
+columns of its compact variables; the side-flip's shape with the study's variables, 121 x 78;
+`results/factor_split_tasks/` has each task's own shapes). Each round
 times each program five times, the order alternating; the table gives the fastest, the first quartile and the median
 of all its timings, and the largest difference between the two factors (relative to the
 largest entry). ``--out DIR`` writes ``DIR/factor_split.json``, ``factor_split.md`` and

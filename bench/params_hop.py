@@ -3,11 +3,12 @@ parameterizations, in one run.
 
     python bench/params_hop.py [--params se3,quat1,quat2,quat3,euler] [--out DIR]
 
-The hop is the one of ``tests/test_ipm.py`` (Go2, 0.05 s knots, stance 0.15 s, flight 0.1 s,
-stance 0.15 s, 0.1 m forward), solved from the task's warm start with the compact variables by
-``jtraj.solve(..., solver="jtraj")`` and by Ipopt with the study's settings. CI solves the SE(3)
-tangent case with jtraj's solver (``test_converges_on_small_go2_hop``); each further
-parameterization is a compile of its own, so the others are measured here. Prints one row per
+The hop (Go2, 0.05 s knots, stance 0.15 s, flight 0.1 s, stance 0.15 s, 0.1 m forward) is
+the one ``tests/test_ipm.py`` solved before 1ca32f0, solved from the task's warm start with the
+compact variables by ``jtraj.solve(..., solver="jtraj")`` and by Ipopt with the study's
+settings. CI now solves a smaller hop (``tests/test_transcription.py``'s ``HOP``, the study's
+variables) with every parameterization in ``test_converges_on_small_go2_hop``; this benchmark's
+rows are measured only here. Prints one row per
 (parameterization, solver): status, iterations, cost, largest constraint violation, solve time
 (compile excluded); ``--out`` writes ``DIR/params_hop.json``, ``DIR/params_hop.md`` and
 ``DIR/provenance.json``.

@@ -29,8 +29,8 @@ peer the table has no ratio column.
 
 ``--repeat N`` measures each side N times, alternating (the public code, then jtraj's variants,
 N rounds), and reports the median of each with its range: on a shared virtual machine one run
-of either can be off by a third (big_jump's jtraj solve took 1.22 to 2.02 s in runs minutes
-apart), and the ratio of two single runs inherits both errors. The iterations of every repeat
+of either can be off by a third (big_jump's jtraj solve took 2.02 s and then 1.52 s in runs
+minutes apart, and 1.22 s in the session before), and the ratio of two single runs inherits both errors. The iterations of every repeat
 should agree (both sides are deterministic on one machine); where they do not, the table
 shows each repeat's, and stderr says so. ``--out DIR`` writes ``DIR/speed.json`` (every raw record)
 and ``DIR/speed.md`` (the table) and ``DIR/provenance.json`` (command, date, machine, versions).

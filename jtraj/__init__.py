@@ -21,7 +21,8 @@ _jax.config.update("jax_enable_x64", True)
 
 # One JAX CPU device per core (before JAX starts its backends): a vmapped jtraj solve on the
 # CPU splits its batch over them in one program. Measured on 2 cores, big_jump's 10 noisy
-# replicates vmapped: 12.4 s on two devices, 19.2 s on one (docs/measurements.md).
+# replicates vmapped: 11.4 to 13.1 s on two devices, 17.8 s on one (docs/measurements.md,
+# `results/replicates_cpu_split/`).
 from jtraj import config as _config  # noqa: E402
 
 _config.split_cpu()

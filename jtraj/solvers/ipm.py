@@ -40,8 +40,10 @@ Differences from Ipopt, and why:
   As Ipopt's, the adaptive strategy's first factorization is at mu = 1 (not ``mu_init``),
   ``mu_max`` is ``mu_max_fact`` times the initial average complementarity, and the
   limited-memory BFGS forgets its memory after ``lbfgs_max_skipping`` skipped pairs in a row:
-  with these three, the iterates on a noisy Talos walk agree with Ipopt's to the printed digits
-  for 23 iterations (without them they parted at the first; README).
+  with the first two, the iterates on a noisy Talos walk agreed with Ipopt's to the printed
+  digits up to iteration 12, where Ipopt reset its L-BFGS (without them they parted at the
+  first), and with the reset three noisy walks took Ipopt's iteration counts, 31, 23 and 50
+  (docs/measurements.md).
 - Globalization: Ipopt's filter line search with its second-order corrections (``max_soc``;
   the factorization of the direction is kept in the loop state, so a correction costs one KKT
   solve; it runs in a loop that a vmapped batch enters only when one of its members corrects),
@@ -147,8 +149,9 @@ class IpmOptions(AbstractOptions):
             mode lasts while each iterate improves the objective or the constraint violation
             on every earlier free-mode iterate, by a margin) or ``"kkt-error"`` (while the KKT
             error falls). Measured on the G1 back-flip from the compact warm start with the
-            quality-function oracle: obj-constr-filter converges in 23 iterations to a flip of
-            cost 0.48 (Ipopt: 0.64 in 19), kkt-error stops at 200 iterations.
+            quality-function oracle: obj-constr-filter converges in 19 iterations to a flip of
+            cost 0.640, as Ipopt does (0.640 in 19; `results/hessians/`), kkt-error stops at
+            200 iterations.
         mu_min, mu_max, mu_max_fact, adaptive_mu_kkterror_red_fact,
             adaptive_mu_monotone_init_factor, filter_margin_fact, filter_max_margin: Ipopt's
             constants of the adaptive strategy. ``mu_max=None`` (default) is, as in Ipopt when

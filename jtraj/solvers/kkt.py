@@ -28,7 +28,7 @@ rules). The ``delta_c`` error is removed by iterative refinement against the sys
 Cost: O(K (n^3 + m n^2)); the factorization and the two triangular sweeps are ``lax.scan``s.
 With a `JacobianPattern` (the Jacobian's static sparsity, which `jtraj.solvers.stage.StageView`
 knows), the products with J and the condensed blocks ``J^T D^-1 J`` touch only the nonzeros:
-on the whole-body tasks about a tenth of the dense blocks' entries, and the dense products were
+on big_jump about a sixteenth of the dense blocks' entries (135,236 of 2.33 million), and the dense products were
 most of a Newton step's time (they are memory-bound on a CPU). The pattern also knows which
 columns of a knot the rows of the knot before read (`JacobianPattern.coupled`): the only
 nonzero columns of the off-diagonal blocks, and so the only nonzero rows of the factor's
@@ -389,8 +389,10 @@ def _places(n: int, cols: np.ndarray) -> np.ndarray:
 #: at 3 to 5 GFLOP/s on 78 to 156 square blocks on this project's 2-core machines, where a
 #: matrix product of that size runs at about 30: the halves move a quarter of the Cholesky's
 #: flops and half of the triangular solve's into matrix products. The factor of random blocks
-#: of big_jump's shapes (K = 47, n = 156, c = 96) took 1.14 to 1.19 times less median time
-#: (`bench/factor_split.py`, `results/factor_split/`); on the side-flip's n = 78 halves of 40
+#: with K = 47, n = 156, c = 96 (big_jump's block size with the study's variables, with fewer
+#: coupled columns than its 112) took 1.14 to 1.19 times less median time
+#: (`bench/factor_split.py`, `results/factor_split/`; each task's own shapes 1.02 to 1.10 in
+#: `results/factor_split_tasks/`); on the side-flip's n = 78 halves of 40
 #: were slower in a scratch run, hence the threshold. Only where JAX's default backend is the
 #: CPU: on a GPU, cuSOLVER's kernels are another matter, not measured with the halves.
 SPLIT_ABOVE = 96
