@@ -7,8 +7,9 @@ The hop (Go2, 0.05 s knots, stance 0.15 s, flight 0.1 s, stance 0.15 s, 0.1 m fo
 the one ``tests/test_ipm.py`` solved before 1ca32f0, solved from the task's warm start with the
 compact variables by ``jtraj.solve(..., solver="jtraj")`` and by Ipopt with the study's
 settings. CI now solves a smaller hop (``tests/test_transcription.py``'s ``HOP``, the study's
-variables) with every parameterization in ``test_converges_on_small_go2_hop``; this benchmark's
-rows are measured only here. Prints one row per
+variables) with all five parameterizations (``test_converges_on_small_go2_hop`` and
+``test_converges_on_small_go2_hop_with_the_other_parameterizations``); this benchmark's rows
+are measured only here. Prints one row per
 (parameterization, solver): status, iterations, cost, largest constraint violation, solve time
 (compile excluded); ``--out`` writes ``DIR/params_hop.json``, ``DIR/params_hop.md`` and
 ``DIR/provenance.json``.
