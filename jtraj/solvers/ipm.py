@@ -171,7 +171,9 @@ class IpmOptions(AbstractOptions):
             ``mu_min`` the scaled value is 5.6e-11, the condensed matrix weighs the equality rows
             by its inverse, and its Cholesky needs ``delta_w`` about every other iteration
             (measured on the tests' Go2 hop at tol 1e-8: 83 to 122 iterations against Ipopt's
-            20 to 38; with ``delta_c_min=1e-9`` 20 to 28, docs/measurements.md).
+            20 to 38; with ``delta_c_min=1e-9`` 20 to 28, docs/measurements.md). Not the
+            default: at the study's tol 1e-3 the floor takes the back-flip from 29 iterations
+            to 102 (`results/delta_c_variants/`).
         refine_steps, min_refine_steps, residual_ratio_max: iterative refinement of each KKT
             solve (Ipopt's ``max_refinement_steps``, ``min_refinement_steps`` and
             ``residual_ratio_max``): it stops once the residual ratio is at most
