@@ -308,10 +308,9 @@ class IpmOptions(AbstractOptions):
             elif isinstance(default, float) and (isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)) or not np.isfinite(value)):
                 raise InvalidOptionError(f"jtraj option {field.name}={value!r}: expected a finite number")
         _positive(self, "tol", "constr_viol_tol", "dual_inf_tol", "compl_inf_tol", "mu_init", "delta_c")
-        if not self.delta_c_min >= 0:
-            raise InvalidOptionError(f"jtraj option delta_c_min={self.delta_c_min!r}: expected a number >= 0")
-        if not self.residual_ratio_max >= 0:
-            raise InvalidOptionError(f"jtraj option residual_ratio_max={self.residual_ratio_max!r}: expected a number >= 0")
+        for name in ("delta_c_min", "residual_ratio_max"):
+            if not getattr(self, name) >= 0:
+                raise InvalidOptionError(f"jtraj option {name}={getattr(self, name)!r}: expected a number >= 0")
         _positive(self, "mu_max", "feasibility_polish_tol", allow_none=True)
 
     def compiled_part(self) -> "IpmOptions":
