@@ -74,18 +74,23 @@ def test_ray_missing_says_how_to_install(monkeypatch):
         list(RayExecutor().map(operator.add, [(1, 2)]))
 
 
-@pytest.mark.parametrize("error", [ConnectionError("Failed to connect to Ray cluster at head:1"), ValueError("Invalid address format: head")])
-def test_ray_unreachable_cluster_is_one_clear_error(monkeypatch, error):
-    """No cluster at the address, or a malformed one: `ExecutorUnavailableError` naming the
-    address and Ray's reason, before any group is submitted."""
-    calls: dict = {}
+def _refusing_ray(calls: dict, error: Exception) -> types.ModuleType:
+    """`_fake_ray` whose ``init`` raises ``error``, as Ray's does without a cluster there."""
     ray = _fake_ray(calls)
 
     def refuse(address=None, **kwargs):
         raise error
 
     ray.init = refuse
-    monkeypatch.setitem(sys.modules, "ray", ray)
+    return ray
+
+
+@pytest.mark.parametrize("error", [ConnectionError("Failed to connect to Ray cluster at head:1"), ValueError("Invalid address format: head")])
+def test_ray_unreachable_cluster_is_one_clear_error(monkeypatch, error):
+    """No cluster at the address, or a malformed one: `ExecutorUnavailableError` naming the
+    address and Ray's reason, before any group is submitted."""
+    calls: dict = {}
+    monkeypatch.setitem(sys.modules, "ray", _refusing_ray(calls, error))
     with pytest.raises(ExecutorUnavailableError, match=r"Ray could not connect to a cluster at 'head:1'") as info:
         list(RayExecutor(address="head:1").map(operator.add, [(1, 2)]))
     assert str(error) in str(info.value)
@@ -95,13 +100,7 @@ def test_ray_unreachable_cluster_is_one_clear_error(monkeypatch, error):
 def test_cli_unreachable_ray_cluster_exits_2_with_one_line(monkeypatch, tmp_path, capsys):
     from jtraj import cli
 
-    ray = _fake_ray({})
-
-    def refuse(address=None, **kwargs):
-        raise ConnectionError(f"Failed to connect to Ray cluster at {address}")
-
-    ray.init = refuse
-    monkeypatch.setitem(sys.modules, "ray", ray)
+    monkeypatch.setitem(sys.modules, "ray", _refusing_ray({}, ConnectionError("Failed to connect to Ray cluster at head:1")))
     monkeypatch.setattr("jtraj.experiments._compare_one", lambda *args, **kwargs: pytest.fail("a solve started"))
     rc = cli.main(["compare", "--tasks", "big_jump", "--params", "se3", "--executor", "ray", "--ray-address", "head:1", "--out", str(tmp_path / "out")])
     err = capsys.readouterr().err
