@@ -284,6 +284,8 @@ def main(argv: list[str] | None = None) -> None:
     )
     ap.add_argument("--out", default="results/side_by_side")
     args = ap.parse_args(argv)
+    if args.peer and not Path(args.peer).exists():  # before anything is solved
+        ap.error(f"the paper code's runner {args.peer} does not exist: pass --peer PATH, or --peer '' to skip it")
     robots = dict(item.split("=", 1) for item in args.robot)
     changes = parse_changes(ap, args.set, args.variables.split(",")[0] or "paper")
     out = Path(args.out)
