@@ -60,10 +60,31 @@ def dense_kkt(system, delta_w):
 @pytest.fixture(params=["lapack", "halves"])
 def split(request, monkeypatch):
     """The factor's blocks by one LAPACK call each, or in halves (`kkt.SPLIT_ABOVE` lowered
-    so that these small blocks take the path of the whole-body tasks' 156-wide ones)."""
+    so that these small blocks take the path of the whole-body tasks' 156-wide ones).
+
+    Yields the mode and the list of `kkt._split`'s decisions made while the test traced, for
+    `_took`: `_split` is read when tracing, so a function JAX has traced before with the same
+    shapes would run its old program (the tests jit fresh wrappers, never the module's
+    functions themselves)."""
     if request.param == "halves":
         monkeypatch.setattr(kkt, "SPLIT_ABOVE", 2)
-    return request.param
+    decisions: list[bool] = []
+    real = kkt._split
+
+    def spy(n):
+        decisions.append(real(n))
+        return decisions[-1]
+
+    monkeypatch.setattr(kkt, "_split", spy)
+    return request.param, decisions
+
+
+def _took(split):
+    """The programs of the test took the path its mode names (some block was halved iff
+    "halves")."""
+    mode, decisions = split
+    assert decisions, "nothing was traced: an old program ran"
+    assert any(decisions) == (mode == "halves")
 
 
 @pytest.mark.parametrize("indefinite", [False, True])
@@ -73,7 +94,9 @@ def test_kkt_solve_equals_dense_solve(rng, indefinite, split):
     m = system.A.shape[1]
     r_x = rng.normal(size=(K, n))
     r_c = rng.normal(size=(K, m))
-    fac, delta_w, ok = jax.jit(kkt.factor_with_correction)(system, jnp.asarray(1e-9), jnp.asarray(0.0))
+    # fresh wrappers: jax.jit(kkt.factor_with_correction) would reuse the program the other
+    # mode traced with these shapes (see `split`)
+    fac, delta_w, ok = jax.jit(lambda *a: kkt.factor_with_correction(*a))(system, jnp.asarray(1e-9), jnp.asarray(0.0))
     assert bool(ok)
     if indefinite:
         # the correction was needed, and the corrected KKT matrix has the right inertia
@@ -83,7 +106,8 @@ def test_kkt_solve_equals_dense_solve(rng, indefinite, split):
     M, keep = dense_kkt(system, float(delta_w))
     eig = np.linalg.eigvalsh(M)
     assert np.sum(eig > 0) == keep.sum() and np.sum(eig < 0) == K * m
-    dx, dy = jax.jit(kkt.solve)(system, fac, delta_w, jnp.asarray(1e-9), jnp.asarray(r_x), jnp.asarray(r_c))
+    dx, dy = jax.jit(lambda *a: kkt.solve(*a))(system, fac, delta_w, jnp.asarray(1e-9), jnp.asarray(r_x), jnp.asarray(r_c))
+    _took(split)
     ref = np.linalg.solve(M, np.concatenate([r_x.reshape(-1)[keep], r_c.reshape(-1)]))
     np.testing.assert_allclose(np.asarray(dx).reshape(-1)[keep], ref[: keep.sum()], rtol=1e-8, atol=1e-8)
     np.testing.assert_allclose(np.asarray(dy).reshape(-1), ref[keep.sum() :], rtol=1e-8, atol=1e-8)
@@ -99,6 +123,7 @@ def test_wrong_inertia_is_detected(rng, split):
     eig = np.linalg.eigvalsh(M)
     wrong = np.sum(eig > 0) != keep.sum()
     assert wrong and not bool(ok)
+    _took(split)
 
 
 def test_block_factor_equals_dense_cholesky(rng, split):
@@ -121,6 +146,7 @@ def test_block_factor_equals_dense_cholesky(rng, split):
         np.testing.assert_allclose(fac.sub[k], L[k * n : (k + 1) * n, (k - 1) * n : k * n] if k else 0.0, atol=1e-10)
     b = rng.normal(size=(K, n))
     np.testing.assert_allclose(np.asarray(kkt.solve_factored(fac, jnp.asarray(b))).reshape(-1), np.linalg.solve(M, b.reshape(-1)), atol=1e-10)
+    _took(split)
 
 
 def test_low_rank_hessian_term_equals_dense_solve(rng):
