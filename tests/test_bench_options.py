@@ -39,7 +39,7 @@ def test_variants_alternate_and_ratio_is_of_medians():
     assert lines[3] == "| big_jump | loose | residual_ratio_max=1e-06 | solved | 11 | 0.5 | 1.0e-09 | 1.000 | 0.500-4.000 | 2.00x |"
 
 
-def test_parse_variant_values_and_errors():
+def test_parse_variant_values_and_errors(capsys):
     bench = bench_module("options")
     assert bench.parse_variant("a=refine_steps:0,feasibility_polish_tol:none,delta_c_mu_scaled:false") == (
         "a", {"refine_steps": 0, "feasibility_polish_tol": None, "delta_c_mu_scaled": False})
@@ -49,5 +49,7 @@ def test_parse_variant_values_and_errors():
         bench.parse_variant("a=residual_ratio_max:-1")
     with pytest.raises(ValueError, match="OPTION:VALUE"):
         bench.parse_variant("a=refine_steps")
+    capsys.readouterr()
     with pytest.raises(SystemExit):
         bench.main(["big_jump", "--variant", "a", "--variant", "a"])
+    assert "--variant names must differ" in capsys.readouterr().err
