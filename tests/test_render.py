@@ -3,7 +3,9 @@ half a back-flip at a constant body twist while the feet push off, then flies.""
 
 import dataclasses
 import json
+import xml.etree.ElementTree as ET
 
+import mujoco
 import numpy as np
 import pytest
 from jaxlie import SE3
@@ -158,9 +160,21 @@ def test_collada_visuals_are_converted_for_every_go2_body():
     go2 = robots.load("go2")
     model = robots.load_render_model(go2)
     visual_bodies = set(model.geom_bodyid[model.geom_group == 1])
-    # every body with a mesh in the URDF (all but the world) gets its Collada visual
-    assert visual_bodies == set(range(1, model.nbody)) - {b for b in range(1, model.nbody) if model.body_geomnum[b] == 0}
-    assert len(visual_bodies) >= 13  # base, 4 x (hip, thigh, calf)
+    # every link with a mesh visual in the URDF gets it, on its body or, for a link MuJoCo fused
+    # into its parent through a fixed joint (the feet), on the parent's
+    urdf = ET.parse(go2.urdf_path).getroot()
+    parent = {j.find("child").get("link"): (j.find("parent").get("link"), j.get("type")) for j in urdf.findall("joint")}
+    want = set()
+    for link in urdf.findall("link"):
+        if link.find("visual/geometry/mesh") is None:
+            continue
+        name = link.get("name")
+        while (body := mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name)) < 0:
+            name, kind = parent[name]
+            assert kind == "fixed", f"{link.get('name')} has no body"
+        want.add(body)
+    assert visual_bodies == want
+    assert len(visual_bodies) == 13  # base, 4 x (hip, thigh, calf with its foot)
     # the converted parts keep their colors: the base has more than one
     base_colors = {tuple(c) for c in model.geom_rgba[(model.geom_bodyid == 1) & (model.geom_group == 1)].round(2)}
     assert len(base_colors) > 1
