@@ -1,9 +1,9 @@
 """Command line: ``jtraj <command>``; ``jtraj --help`` lists the commands.
 
 Exit status: 0 success; 2 a bad input (one line on stderr, ``jtraj CMD: FIELD: VALUE:
-EXPECTED``, before anything compiles or solves); ``jtraj solve`` also exits 3 when the solver
-converged but the motion does not do the task (e.g. a jump instead of a flip) and 4 when it did
-not converge.
+EXPECTED``, before anything compiles or solves); ``jtraj solve`` and ``jtraj attitude`` also
+exit 3 when the solver converged but the motion does not do the task (e.g. a jump instead of a
+flip) and 4 when it did not converge.
 """
 
 from __future__ import annotations
@@ -18,9 +18,9 @@ from typing import Any
 
 #: exit status of a bad input (as argparse's own usage errors)
 EXIT_BAD_INPUT = 2
-#: exit status of `jtraj solve` when the solver converged but the task failed
+#: exit status of `jtraj solve` (and `jtraj attitude`) when the solver converged but the task failed
 EXIT_TASK_FAILED = 3
-#: exit status of `jtraj solve` when the solver did not converge
+#: exit status of `jtraj solve` (and `jtraj attitude`) when the solver did not converge
 EXIT_NOT_CONVERGED = 4
 
 
@@ -55,7 +55,7 @@ def _cmd_solve(args: argparse.Namespace) -> int:
 
     # loaded, retargeted and checked by _check_inputs
     options, task = args.ipopt_checked, args.task_checked
-    out = args.out or f"runs/{task.name}_{args.param}"
+    out = _solve_out(args)
     result = solve(
         task,
         args.param,
@@ -80,6 +80,11 @@ def _cmd_solve(args: argparse.Namespace) -> int:
     if result.success:
         return 0
     return EXIT_TASK_FAILED if result.converged else EXIT_NOT_CONVERGED
+
+
+def _solve_out(args: argparse.Namespace) -> str:
+    """``jtraj solve``'s output folder: ``--out``, else ``runs/TASK_PARAM``."""
+    return args.out or f"runs/{args.task_checked.name}_{args.param}"
 
 
 def _executor_arguments(p: argparse.ArgumentParser, workers: bool = True) -> None:
@@ -166,7 +171,7 @@ def _render_after_solve(out: str) -> None:
 def _check_render_args(args: argparse.Namespace) -> None:
     """``jtraj render``'s values, checked before anything is drawn."""
     if args.out is None and args.strip is None:
-        raise InputError("--out", None, "give --out FILE.mp4|FILE.gif and/or --strip FILE.png")
+        raise InputError("--out, --strip", "neither given", "expected --out FILE.mp4|FILE.gif and/or --strip FILE.png", shown=True)
     if not (Path(args.dir) / "trajectory.npz").is_file():
         raise InputError("DIR", args.dir, "expected a folder written by `jtraj solve` (with trajectory.npz)")
     if args.out is not None and Path(args.out).suffix.lower() not in (".mp4", ".gif"):
@@ -180,6 +185,10 @@ def _check_render_args(args: argparse.Namespace) -> None:
         if value < 16:
             raise InputError(field, value, "expected at least 16 pixels")
     _check_positive_int("--keyframes", args.keyframes, 2)
+    # the files' folders, before minutes of drawing
+    for field, value in (("--out", args.out), ("--strip", args.strip)):
+        if value is not None:
+            _check_out(str(Path(value).parent), field, shown=value)
 
 
 def _cmd_render(args: argparse.Namespace) -> int:
@@ -199,10 +208,10 @@ def _cmd_plot(args: argparse.Namespace) -> int:
     from jtraj.plots import plot_directory
 
     folder = Path(args.dir)
-    if not ((folder / "trajectory.npz").is_file() or (folder / "table_iv.json").is_file()):
-        raise InputError("DIR", args.dir, "expected a folder written by `jtraj solve` (trajectory.npz) or `jtraj compare` (table_iv.json)")
-    if args.out is not None:
-        _check_out(args.out)
+    solved = all((folder / name).is_file() for name in ("result.json", "trajectory.npz"))
+    if not (solved or (folder / "table_iv.json").is_file()):
+        raise InputError("DIR", args.dir, "expected a folder written by `jtraj solve` (result.json and trajectory.npz) or `jtraj compare` (table_iv.json)")
+    _check_out(args.out or args.dir)
     for path in plot_directory(folder, args.out):
         print(f"wrote {path}")
     return 0
@@ -325,30 +334,34 @@ def build_parser() -> argparse.ArgumentParser:
 class InputError(ValueError):
     """A command-line value that cannot work: ``str(error)`` is ``"FIELD: VALUE: EXPECTED"``."""
 
-    def __init__(self, field: str, value: Any, expected: str):
+    def __init__(self, field: str, value: Any, expected: str, shown: bool = False):
         self.field, self.value, self.expected = field, value, expected
-        super().__init__(f"{field}: {value!r}: {expected}")
+        # shown: the value is already words of the message (e.g. "neither given"), not a value
+        super().__init__(f"{field}: {value if shown else repr(value)}: {expected}")
 
 
-def _check_out(path: str | None, field: str = "--out") -> None:
-    """An output folder must be a folder (or not exist yet) that this user can write in."""
+def _check_out(path: str | None, field: str = "--out", shown: str | None = None) -> None:
+    """An output folder must be a folder (or not exist yet) that this user can write in.
+    ``shown``: the value the user gave, where ``path`` is derived from it (a file's folder)."""
     if path is None:
         return
+    value = path if shown is None else shown
     p = Path(path)
     if p.exists() and not p.is_dir():
-        raise InputError(field, path, "is a file; expected a folder (existing or to be created)")
+        raise InputError(field, value, "is a file; expected a folder (existing or to be created)")
     existing = p
     while not existing.exists():
         existing = existing.parent
     if not existing.is_dir():
-        raise InputError(field, path, f"{existing} is a file; expected a folder")
+        raise InputError(field, value, f"{existing} is a file; expected a folder")
     # a real probe: permission bits do not tell (root, read-only mounts, /proc)
     try:
         fd, probe = tempfile.mkstemp(prefix=".jtraj-write-test.", dir=existing)
         os.close(fd)
         os.unlink(probe)
     except OSError as e:
-        raise InputError(field, path, f"cannot write in {existing} ({e.strerror}); expected a folder you can write in") from None
+        # the system's reason as it gives it (/proc answers "No such file or directory")
+        raise InputError(field, value, f"cannot create a file in {os.path.abspath(existing)} (the system says: {e.strerror}); expected a folder you can write in") from None
 
 
 def _check_names(field: str, text: str, known: list[str], what: str, allow_files: bool = False) -> list[str]:
@@ -431,9 +444,15 @@ def _check_ipopt(items: list[str] | None, solver: str = "ipopt", field: str = "-
         # "no" as values of their own, so only here
         words = {"none": None, "true": True, "false": False}
         options = {k: words[v.lower()] if isinstance(v, str) and v.lower() in words else v for k, v in options.items()}
+        backend = solvers.get(solver)
+        for key, value in options.items():  # one at a time, so that the error names the bad one
+            try:
+                backend.options({key: value})
+            except (TypeError, ValueError) as err:
+                raise InputError(field, f"{key}={value}", str(err)) from None
         try:
-            solvers.get(solver).options(options)
-        except (TypeError, ValueError) as err:
+            backend.options(options)
+        except (TypeError, ValueError) as err:  # values that only clash together
             raise InputError(field, " ".join(items or []), str(err)) from None
     return options
 
@@ -451,7 +470,7 @@ def _check_inputs(args: argparse.Namespace) -> None:
         args.variables = _check_variable_changes(args.variables, args.variable_changes)
     if cmd == "solve":
         args.task_checked = _load_valid_task(args.task, args.robots_checked)
-        _check_out(args.out)
+        _check_out(_solve_out(args))
         if not (math.isfinite(args.noise) and args.noise >= 0):
             raise InputError("--noise", args.noise, "expected a standard deviation >= 0")
         _check_positive_int("--every", args.every)
@@ -490,6 +509,8 @@ def _check_inputs(args: argparse.Namespace) -> None:
         _check_positive_int("--iterations", args.iterations)
         _check_out(args.out)
     elif cmd == "attitude":
+        if args.render and args.bench == "all":
+            raise InputError("--render", "all", "draws one benchmark; give its name (quadflip, barrelroll or satellite)", shown=True)
         if args.knots is not None:
             _check_positive_int("--knots", args.knots, 3)
         _check_out(args.out)

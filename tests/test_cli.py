@@ -56,6 +56,9 @@ def _run(argv, capsys):
         (["solve", "big_jump", "--ipopt", "linear_solver=ma27"], "jtraj solve: --ipopt linear_solver: 'ma27': not available in this Ipopt build"),
         (["solve", "big_jump", "--solver", "jtraj", "--ipopt", "constr_viol_tol=-1"], "jtraj solve: --ipopt: 'constr_viol_tol=-1': jtraj option constr_viol_tol=-1: expected a positive number"),
         (["robustness", "--tasks", "big_jump", "--solver", "jtraj", "--ipopt", "foo=1"], "jtraj robustness: --ipopt: 'foo=1': unknown jtraj option(s) ['foo']"),
+        # several items: the error names the bad one alone
+        (["solve", "big_jump", "--solver", "jtraj", "--ipopt", "tol=1e-6", "--ipopt", "constr_viol_tol=-1"], "jtraj solve: --ipopt: 'constr_viol_tol=-1': jtraj option constr_viol_tol=-1"),
+        (["attitude", "all", "--render"], "jtraj attitude: --render: all: draws one benchmark; give its name"),
         (["robustness", "--tasks", "big_jump", "--ipopt", "max_itr=3"], "jtraj robustness: --ipopt max_itr: 3: unknown Ipopt option; did you mean max_iter"),
     ],
 )
@@ -77,7 +80,52 @@ def test_out_must_be_a_writable_folder(tmp_path, capsys, no_solve):
     code, err = _run(["compare", "--tasks", "big_jump", "--out", str(afile / "sub")], capsys)
     assert code == 2 and "is a file; expected a folder" in err
     code, err = _run(["compare", "--tasks", "big_jump", "--out", "/proc/jtraj-out"], capsys)
-    assert code == 2 and err.startswith("jtraj compare: --out: '/proc/jtraj-out': cannot write in /proc")
+    assert code == 2 and err.startswith("jtraj compare: --out: '/proc/jtraj-out': cannot create a file in /proc (the system says: ")
+
+
+def test_solve_checks_its_default_out_folder(monkeypatch, capsys, no_solve):
+    """Without --out, `jtraj solve` writes runs/TASK_PARAM: that folder is checked too."""
+    monkeypatch.chdir("/proc")
+    code, err = _run(["solve", "big_jump"], capsys)
+    assert code == 2 and err.startswith("jtraj solve: --out: 'runs/big_jump_se3': cannot create a file in /proc (the system says: ")
+
+
+def test_plot_and_render_check_their_folders_before_drawing(tmp_path, monkeypatch, capsys):
+    import jtraj.plots
+    import jtraj.render
+
+    def boom(*args, **kwargs):
+        raise AssertionError("drawing started despite a bad input")
+
+    monkeypatch.setattr(jtraj.render, "render_directory", boom)
+    monkeypatch.setattr(jtraj.plots, "plot_directory", boom)
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "trajectory.npz").write_bytes(b"x")  # no result.json
+    code, err = _run(["plot", str(run)], capsys)
+    assert code == 2 and err == f"jtraj plot: DIR: {str(run)!r}: expected a folder written by `jtraj solve` (result.json and trajectory.npz) or `jtraj compare` (table_iv.json)\n"
+    code, err = _run(["render", str(run)], capsys)
+    assert code == 2 and err == "jtraj render: --out, --strip: neither given: expected --out FILE.mp4|FILE.gif and/or --strip FILE.png\n"
+    for flag, name in (("--out", "v.mp4"), ("--strip", "s.png")):
+        code, err = _run(["render", str(run), flag, f"/proc/jtraj-x/{name}"], capsys)
+        assert code == 2 and err.startswith(f"jtraj render: {flag}: '/proc/jtraj-x/{name}': cannot create a file in /proc"), err
+
+
+@pytest.mark.parametrize(
+    "statuses, code",
+    [(["solved", "solved"], 0), (["solved", "converged_but_task_failed"], cli.EXIT_TASK_FAILED), (["converged_but_task_failed", "not_converged"], cli.EXIT_NOT_CONVERGED)],
+)
+def test_attitude_exit_status_says_what_happened(statuses, code, monkeypatch, tmp_path):
+    """`jtraj attitude`'s statuses are `jtraj solve`'s: 2 stays a bad input's."""
+    import jtraj.attitude.cli as attitude_cli
+    from jtraj.result import Outcome
+
+    monkeypatch.setattr(attitude_cli, "compare_benchmarks", lambda *a, **k: [{"status": s} for s in statuses])
+    fake = types.SimpleNamespace(status=Outcome(statuses[-1]))
+    monkeypatch.setattr(attitude_cli, "main_attitude", lambda *a, **k: fake)
+    assert cli.main(["attitude", "all", "--out", str(tmp_path)]) == code
+    alone = 0 if statuses[-1] == "solved" else cli.EXIT_TASK_FAILED if statuses[-1] == "converged_but_task_failed" else cli.EXIT_NOT_CONVERGED
+    assert cli.main(["attitude", "quadflip", "--out", str(tmp_path)]) == alone
 
 
 def test_bad_task_file_is_one_line(tmp_path, capsys, no_solve):

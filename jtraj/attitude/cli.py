@@ -7,7 +7,7 @@ from pathlib import Path
 
 from jtraj.attitude.benchmarks import PAPER_ITERATIONS
 from jtraj.attitude.solve import compare_benchmarks, result_directory, solve_benchmark
-from jtraj.result import Result
+from jtraj.result import Outcome, Result
 
 __all__ = ["main_attitude", "main"]
 
@@ -34,16 +34,23 @@ def main_attitude(bench: str, variant: str = "attitude", out_dir: str | Path | N
 
 
 def main(bench: str, variant: str, out_dir: str | Path, n_knots: int | None = None, solver: str = "ipopt", render: bool = False) -> int:
-    """Exit status of ``jtraj attitude``: 0 when every solve did the task, 2 otherwise. With
-    ``render``, one benchmark's motion is also drawn (`jtraj.render.render_benchmark`, which
-    needs MuJoCo) into its folder."""
+    """Exit status of ``jtraj attitude``, as ``jtraj solve``'s: 0 when every solve did the task,
+    3 when every solve converged but one does not do it, 4 when one did not converge (2 stays a
+    bad input's). With ``render``, one benchmark's motion is also drawn
+    (`jtraj.render.render_benchmark`, which needs MuJoCo) into its folder."""
+    from jtraj.cli import EXIT_NOT_CONVERGED, EXIT_TASK_FAILED
+
     if bench == "all":
         rows = compare_benchmarks(out_dir, n_knots=n_knots, solver=solver)
-        return 0 if all(r["status"] == "solved" for r in rows) else 2
-    result = main_attitude(bench, variant, out_dir, n_knots=n_knots, solver=solver)
-    if render:
-        from jtraj.render import render_benchmark
+        statuses = {r["status"] for r in rows}
+    else:
+        result = main_attitude(bench, variant, out_dir, n_knots=n_knots, solver=solver)
+        if render:
+            from jtraj.render import render_benchmark
 
-        for path in render_benchmark(result, result_directory(out_dir, result)):
-            print(f"wrote {path}")
-    return 0 if result.success else 2
+            for path in render_benchmark(result, result_directory(out_dir, result)):
+                print(f"wrote {path}")
+        statuses = {result.status.value}
+    if statuses <= {Outcome.SOLVED.value}:
+        return 0
+    return EXIT_NOT_CONVERGED if Outcome.NOT_CONVERGED.value in statuses else EXIT_TASK_FAILED
