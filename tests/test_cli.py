@@ -359,3 +359,12 @@ def test_each_task_is_loaded_once(monkeypatch, tmp_path):
     loads.clear()
     assert cli.main(["compare", "--tasks", "walk,sideflip", "--params", "se3", "--out", str(tmp_path), "--robot", "talos=talos_full"]) == 0
     assert loads == ["walk", "sideflip"] and [t.robot for t in seen["tasks"]] == ["talos_full", "go2"]
+
+
+def test_every_option_says_what_it_does():
+    """`jtraj CMD --help` describes every argument (the README's summary points there)."""
+    import argparse
+
+    sub = next(a for a in cli.build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    silent = [(name, b.dest) for name, parser in sub.choices.items() for b in parser._actions if not b.help]
+    assert len(sub.choices) == 8 and silent == []
