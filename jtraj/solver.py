@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from typing import Any
 
@@ -222,6 +223,11 @@ def solve(
         layout: the former name of ``variables`` (deprecated: warns).
     """
     variables = renamed_argument(variables, layout, "variables", "layout", "compact")
+    # the arguments that need no model, checked before anything compiles
+    if not (math.isfinite(noise) and noise >= 0):
+        raise ValueError(f"solve: noise={noise!r}: expected a standard deviation >= 0")
+    backend = solvers.get(solver)
+    solver_options(backend, options, ipopt_options, exact_hessian, 0)  # the task's limit comes below
     prep = prepare(task, parameterization, variables)
     tr, nlp = prep.transcription, prep.nlp
     theta_given = theta is not None
@@ -239,7 +245,6 @@ def solve(
         raise ValueError("solve: noise_chart= needs replicate= (the study's draws)")
     elif noise:
         x0 = x0 + noise * np.random.default_rng(seed).standard_normal(x0.shape)
-    backend = solvers.get(solver)
     opts = solver_options(backend, options, ipopt_options, exact_hessian, tr.task.max_iter)
     callback = solvers.resolve_progress(progress, progress_every)
     say = callback.write if isinstance(callback, solvers.PrintProgress) else None

@@ -246,6 +246,31 @@ class TaskParams:
             values[name] = new
         return dataclasses.replace(self, **values)
 
+    def check(self) -> "TaskParams":
+        """Raise ValueError for values no task can have (the task file's rules: a positive
+        timestep, friction, force factor and force-rate bound, weights >= 0, masses >= 0, all
+        finite but an absent force-rate bound, inf). Values being traced (under ``jit``,
+        ``grad`` or ``vmap``) are not looked at. Returns self."""
+        rules = {
+            "timestep": ("a positive number of seconds", lambda v: np.isfinite(v) & (v > 0)),
+            "friction": ("a positive friction coefficient", lambda v: np.isfinite(v) & (v > 0)),
+            "force_limit_factor": ("a positive factor of m g", lambda v: np.isfinite(v) & (v > 0)),
+            "max_delta_force": ("a positive force (N), or inf for none", lambda v: v > 0),
+            "configuration_weight": ("a weight >= 0", lambda v: np.isfinite(v) & (v >= 0)),
+            "acceleration_weight": ("a weight >= 0", lambda v: np.isfinite(v) & (v >= 0)),
+            "body_masses": ("masses >= 0 (kg)", lambda v: np.isfinite(v) & (v >= 0)),
+        }
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, jax.core.Tracer):
+                continue
+            v = np.asarray(value)
+            expected, ok = rules.get(f.name, ("finite values", np.isfinite))
+            if not np.all(ok(v)):
+                shown = v.item() if v.ndim == 0 else v.tolist()
+                raise ValueError(f"theta.{f.name}={shown!r}: expected {expected}")
+        return self
+
 
 jax.tree_util.register_dataclass(TaskParams, data_fields=[f.name for f in dataclasses.fields(TaskParams)], meta_fields=[])
 
@@ -322,11 +347,11 @@ class Transcription:
         if theta is None:
             return default
         if isinstance(theta, TaskParams):
-            return default.replace(**{f.name: getattr(theta, f.name) for f in dataclasses.fields(theta)})
+            return default.replace(**{f.name: getattr(theta, f.name) for f in dataclasses.fields(theta)}).check()
         if isinstance(theta, Mapping):
             if "max_delta_force" in theta and self.task.max_delta_force is None:
                 raise ValueError(f"task {self.task.name!r} sets no max_delta_force, so it has no force-rate rows to bound; set it in the task")
-            return default.replace(**theta)
+            return default.replace(**theta).check()
         raise TypeError(f"theta must be None, a mapping of parameter overrides or a TaskParams, got {type(theta).__name__}")
 
     # -------------------------------------------------------------------- host-side helpers

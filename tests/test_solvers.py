@@ -64,6 +64,9 @@ def test_ipopt_return_codes_map_to_the_enumeration():
         ({"hessian": "bfgs"}, r"hessian='bfgs': expected one of \['exact', 'lbfgs'\]"),
         ({"linear_solver": "umfpack"}, "linear_solver='umfpack'"),
         ({"extra": {"tol": 1e-3}}, r"use IpoptOptions\(tol=...\)"),
+        # other Ipopt options against the bundled Ipopt's list, here and not when a solve starts
+        ({"extra": {"max_itr": 3}}, "max_itr=3: unknown Ipopt option; did you mean max_iter"),
+        ({"extra": {"mu_strategy": "fast"}}, r"mu_strategy='fast': expected one of \['monotone', 'adaptive'\]"),
     ],
 )
 def test_bad_options_fail_at_construction(kwargs, match):
@@ -80,6 +83,24 @@ def test_options_from_ipopt_names():
     assert (merged.max_iter, merged.hessian, merged.tol, merged.extra["mu_strategy"]) == (7, "lbfgs", 1.0, "adaptive")
     with pytest.raises(TypeError):
         IpoptOptions(1e-3)  # keyword-only
+
+
+def test_solve_refuses_bad_arguments_before_building_anything(monkeypatch):
+    import jtraj.solver
+
+    def boom(*args, **kwargs):
+        raise AssertionError("the NLP was built despite a bad argument")
+
+    monkeypatch.setattr(jtraj.solver, "prepare", boom)
+    for kwargs, match in (
+        ({"noise": -1.0}, "noise=-1.0: expected a standard deviation >= 0"),
+        ({"noise": float("nan")}, "noise=nan"),
+        ({"ipopt_options": {"max_itr": 3}}, "did you mean max_iter"),
+        ({"options": {"tol": -1.0}}, "tol=-1.0: expected a positive number"),
+        ({"solver": "snopt"}, "unknown solver 'snopt'"),
+    ):
+        with pytest.raises(ValueError, match=match):
+            jtraj.solver.solve("big_jump", **kwargs)
 
 
 def test_registry_names_the_choices():

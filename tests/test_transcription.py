@@ -251,6 +251,26 @@ def test_second_solve_does_not_recompile():
     assert nlp._all_blocks._cache_size() == blocks
 
 
+def test_theta_values_no_task_can_have_are_refused():
+    """A user's theta (a mapping or a TaskParams) is checked by the task file's rules; traced
+    values (jit, grad, vmap) are not looked at."""
+    tr = prepare(HOP, "se3", "compact").transcription
+    for bad, message in (
+        ({"friction": -0.5}, "theta.friction=-0.5: expected a positive friction coefficient"),
+        ({"timestep": 0.0}, "theta.timestep=0.0: expected a positive number of seconds"),
+        ({"acceleration_weight": float("nan")}, "theta.acceleration_weight=nan: expected a weight >= 0"),
+        ({"target_translation": [0.0, 0.0, float("inf")]}, "theta.target_translation=.*: expected finite values"),
+    ):
+        with pytest.raises(ValueError, match=message):
+            tr.resolve_theta(bad)
+        with pytest.raises(ValueError, match=message):
+            tr.resolve_theta(tr.default_theta().replace(**bad))
+    theta = tr.resolve_theta({"friction": 0.5, "max_delta_force": float("inf")})
+    assert float(theta.friction) == 0.5
+    # under jit the values are tracers: the check lets them through, and the program runs
+    assert float(jax.jit(lambda t: tr.resolve_theta(t).friction)(theta)) == 0.5
+
+
 def test_theta_changes_values_without_recompiling_and_vmaps():
     """New parameter values reuse the compiled NLP; vmap over theta equals a loop; the
     masses reach the dynamics rows (tau is linear in the masses when no force acts)."""

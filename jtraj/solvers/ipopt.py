@@ -115,6 +115,18 @@ class IpoptOptions(AbstractOptions):
                 raise InvalidOptionError(f"Ipopt option {key!r}={value!r}: expected a string, integer, float or boolean value")
             if key in _FIELDS or key == "hessian_approximation":
                 raise InvalidOptionError(f"Ipopt option {key!r} has its own field: use IpoptOptions({_field_for(key)}=...)")
+        if self.extra:
+            # against the bundled Ipopt's option list, here rather than when a solve starts (after
+            # the compile), with Ipopt's value types (an integer for a real option becomes a float)
+            from jtraj.solvers import ipopt_catalog
+
+            checked = {}
+            for key, value in self.extra.items():
+                try:
+                    checked[key] = ipopt_catalog.check(key, value)
+                except ipopt_catalog.IpoptOptionError as e:
+                    raise InvalidOptionError(f"Ipopt option {key}={value!r}: {e.expected}") from None
+            object.__setattr__(self, "extra", checked)
 
     @classmethod
     def from_dict(cls, values: dict[str, Any] | None) -> IpoptOptions:
