@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import math
 import os
 import sys
 import zlib
@@ -436,13 +437,16 @@ def robustness(
     turns a quaternion's base further than SE(3)'s or Euler's. Runs record it in their key.
     """
     variables = renamed_argument(variables, layout, "variables", "layout", "paper")
+    sigmas = [float(s) for s in sigmas]
+    for s in sigmas:
+        if not (math.isfinite(s) and s >= 0):
+            raise ValueError(f"robustness: sigma={s!r}: expected noise levels (standard deviations) >= 0")
     progress = _progress_stream(progress)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     runs_path = out / RUNS_FILE
     solvers.get(solver)  # an unknown name fails here, before the first solve
     tasks = [load_task(t) for t in tasks]
-    sigmas = [float(s) for s in sigmas]
     if not tasks or not params or not sigmas or replicates < 1:
         raise ValueError("robustness: no runs (empty tasks, parameterizations or sigmas, or replicates < 1)")
     if noise_chart is not None and progress is not None:

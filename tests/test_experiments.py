@@ -109,6 +109,13 @@ def test_robustness_keys_changed_variables_by_their_label(tmp_path):
     assert paper[0]["layout"] == "paper" and len(read_runs(tmp_path / RUNS_FILE)) == 2
 
 
+@pytest.mark.parametrize("sigma", [-0.1, float("nan"), float("inf")])
+def test_robustness_refuses_a_noise_level_that_is_no_standard_deviation(sigma, tmp_path):
+    with pytest.raises(ValueError, match=r"robustness: sigma=.*: expected noise levels \(standard deviations\) >= 0"):
+        robustness([HOP], ["se3"], sigmas=[0.1, sigma], replicates=1, out=tmp_path / "study", progress=False)
+    assert not (tmp_path / "study").exists()  # refused before anything is written or solved
+
+
 def test_noise_of_a_run_does_not_depend_on_the_other_runs():
     x0 = np.zeros(5)
     a = noisy_warm_starts(x0, [1e-3, 0.1], replicates=2, seed=4)
