@@ -79,8 +79,10 @@ def table(records: list[dict]) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
+    from jtraj.task import task_argument  # jtraj after the module's own settings
+
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("tasks", nargs="*", default=["backflip", "sideflip"])
+    ap.add_argument("tasks", nargs="*", type=task_argument, default=["backflip", "sideflip"])
     ap.add_argument("--variants", default=",".join(VARIANTS), help=f"comma-separated, of: {', '.join(VARIANTS)}")
     ap.add_argument("--out")
     a = ap.parse_args(argv)

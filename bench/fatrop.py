@@ -89,6 +89,7 @@ import numpy as np
 from jtraj.nlp import ConstraintGroup, Dep, KnotNLP, Layout
 from jtraj.provenance import write_results
 from jtraj.solver import prepare, solve
+from jtraj.task import task_argument
 
 #: The NLP's group whose rows encode ``x_{k+1} = step(x_k, u_k)`` (jtraj.transcription).
 DYNAMICS = "integration"
@@ -589,7 +590,7 @@ def markdown(records: list[dict]) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("tasks", nargs="*", default=["big_jump"])
+    ap.add_argument("tasks", nargs="*", type=task_argument, default=["big_jump"])
     ap.add_argument("--param", default="se3")
     ap.add_argument("--jtraj", action="store_true", help="also solve with jtraj's own interior point")
     ap.add_argument("--no-ipopt", action="store_true", help="skip the Ipopt solve")

@@ -23,6 +23,7 @@ from jtraj.experiments import ALL_TASKS
 from jtraj.provenance import write_results
 from jtraj.solvers.ipm import IpmOptions
 from jtraj.tables import markdown_table
+from jtraj.task import task_argument
 
 HESSIANS = ("lbfgs", "bfgs", "exact")
 
@@ -53,7 +54,7 @@ def table(rows: list[dict]) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("tasks", nargs="*", default=list(ALL_TASKS))
+    ap.add_argument("tasks", nargs="*", type=task_argument, default=list(ALL_TASKS))
     ap.add_argument("--param", default="se3")
     ap.add_argument("--hessians", default=",".join(HESSIANS))
     ap.add_argument("--variables", default="compact")

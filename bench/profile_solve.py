@@ -135,8 +135,10 @@ def table(records: list[dict]) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
+    from jtraj.task import task_argument  # jtraj after the module's own settings
+
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("tasks", nargs="*", default=["walk", "big_jump", "backflip", "sideflip"])
+    ap.add_argument("tasks", nargs="*", type=task_argument, default=["walk", "big_jump", "backflip", "sideflip"])
     ap.add_argument("--param", default="se3")
     ap.add_argument("--variables", default="paper", help="the variables per knot (default: the study's, as the robustness study solves)")
     ap.add_argument("--out")

@@ -54,6 +54,7 @@ from jtraj import io as jio
 from jtraj.cli import _check_ipopt  # the command line's NAME=VALUE parsing and checks
 from jtraj.provenance import write_results
 from jtraj.solver import prepare, solve
+from jtraj.task import task_argument
 
 VARIANTS = {
     "paper": dict(variables="paper", exact_hessian=False),
@@ -201,7 +202,7 @@ def markdown(records: list[dict]) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("tasks", nargs="*")
+    ap.add_argument("tasks", nargs="*", type=task_argument)
     ap.add_argument("--param", default="se3")
     ap.add_argument("--variants", default="paper,compact,lean")
     ap.add_argument("--ipopt", action="append", default=[], metavar="NAME=VALUE", help="extra Ipopt option for every Ipopt variant")

@@ -27,6 +27,7 @@ import argparse
 import dataclasses
 
 from jtraj.experiments import ALL_TASKS
+from jtraj.task import task_argument
 
 
 def run(task: str, param: str, unit_norm: bool, solver: str) -> dict:
@@ -56,7 +57,7 @@ def table(records: list[dict]) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("tasks", nargs="*", default=list(ALL_TASKS))
+    ap.add_argument("tasks", nargs="*", type=task_argument, default=list(ALL_TASKS))
     ap.add_argument("--params", default="quat3", help="comma-separated quaternion charts (quat1, quat2, quat3)")
     ap.add_argument("--solver", default="ipopt", choices=("ipopt", "jtraj"))
     ap.add_argument("--out")

@@ -56,7 +56,7 @@ import numpy as np
 
 from jtraj.deprecation import warn_renamed
 
-__all__ = ["TaskError", "Phase", "Profile", "RotationRule", "JointRule", "Task", "Schedule", "load", "from_file", "from_dict", "available", "retarget"]
+__all__ = ["TaskError", "Phase", "Profile", "RotationRule", "JointRule", "Task", "Schedule", "load", "from_file", "from_dict", "available", "retarget", "task_argument"]
 
 
 class TaskError(ValueError):
@@ -569,6 +569,19 @@ def available() -> list[str]:
     """Names of the built-in tasks (``tasks/*.toml``)."""
     root = importlib.resources.files("jtraj.tasks")
     return sorted(p.name[:-5] for p in root.iterdir() if p.name.endswith(".toml"))
+
+
+def task_argument(name: str) -> str:
+    """argparse ``type=`` for a task on a command line (the benchmarks'): ``name`` itself when it
+    loads (a built-in task or a task file), else argparse's one-line usage error, before
+    anything compiles or solves."""
+    import argparse
+
+    try:
+        load(name)
+    except TaskError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+    return name
 
 
 def load(name: str | Path | Task) -> Task:

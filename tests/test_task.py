@@ -244,3 +244,16 @@ def test_retarget_changes_the_robot_and_nothing_else():
     assert tasks.retarget(walk, {"go2": "talos"}) is walk
     with pytest.raises(tasks.TaskError, match="expected a contact of robot 'go2'"):
         tasks.retarget(walk, {"talos": "go2"}).validate()
+
+
+@pytest.mark.parametrize("bench", ["solve", "hessians", "mu_oracle", "unit_norm"])
+def test_benchmarks_refuse_an_unknown_task_when_parsing(bench, capsys):
+    """The benchmarks' task arguments go through `jtraj.task.task_argument`: an unknown task is
+    argparse's one-line error (exit 2), before a peer runs or anything compiles."""
+    from conftest import bench_module
+
+    with pytest.raises(SystemExit) as exit:
+        bench_module(bench).main(["moonwalk"])
+    assert exit.value.code == 2
+    assert "argument task" in (err := capsys.readouterr().err) and "'moonwalk': unknown task; expected one of ['backflip'" in err
+    assert tasks.task_argument("big_jump") == "big_jump"
