@@ -171,7 +171,7 @@ def _render_after_solve(out: str) -> None:
 def _check_render_args(args: argparse.Namespace) -> None:
     """``jtraj render``'s values, checked before anything is drawn."""
     if args.out is None and args.strip is None:
-        raise InputError("--out, --strip", "neither given", "expected --out FILE.mp4|FILE.gif and/or --strip FILE.png", shown=True)
+        raise InputError("--out, --strip", "neither given", "expected --out FILE.mp4|FILE.gif and/or --strip FILE.png", verbatim=True)
     if not (Path(args.dir) / "trajectory.npz").is_file():
         raise InputError("DIR", args.dir, "expected a folder written by `jtraj solve` (with trajectory.npz)")
     if args.out is not None and Path(args.out).suffix.lower() not in (".mp4", ".gif"):
@@ -334,10 +334,10 @@ def build_parser() -> argparse.ArgumentParser:
 class InputError(ValueError):
     """A command-line value that cannot work: ``str(error)`` is ``"FIELD: VALUE: EXPECTED"``."""
 
-    def __init__(self, field: str, value: Any, expected: str, shown: bool = False):
+    def __init__(self, field: str, value: Any, expected: str, verbatim: bool = False):
         self.field, self.value, self.expected = field, value, expected
-        # shown: the value is already words of the message (e.g. "neither given"), not a value
-        super().__init__(f"{field}: {value if shown else repr(value)}: {expected}")
+        # verbatim: the value is already words of the message (e.g. "neither given"), not a value
+        super().__init__(f"{field}: {value if verbatim else repr(value)}: {expected}")
 
 
 def _check_out(path: str | None, field: str = "--out", shown: str | None = None) -> None:
@@ -510,7 +510,7 @@ def _check_inputs(args: argparse.Namespace) -> None:
         _check_out(args.out)
     elif cmd == "attitude":
         if args.render and args.bench == "all":
-            raise InputError("--render", "all", "draws one benchmark; give its name (quadflip, barrelroll or satellite)", shown=True)
+            raise InputError("--render", "all", "draws one benchmark; give its name (quadflip, barrelroll or satellite)", verbatim=True)
         if args.knots is not None:
             _check_positive_int("--knots", args.knots, 3)
         _check_out(args.out)

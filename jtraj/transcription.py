@@ -251,14 +251,20 @@ class TaskParams:
         timestep, friction, force factor and force-rate bound, weights >= 0, masses >= 0, all
         finite but an absent force-rate bound, inf). Values being traced (under ``jit``,
         ``grad`` or ``vmap``) are not looked at. Returns self."""
+        def positive(v):
+            return np.isfinite(v) & (v > 0)
+
+        def nonnegative(v):
+            return np.isfinite(v) & (v >= 0)
+
         rules = {
-            "timestep": ("a positive number of seconds", lambda v: np.isfinite(v) & (v > 0)),
-            "friction": ("a positive friction coefficient", lambda v: np.isfinite(v) & (v > 0)),
-            "force_limit_factor": ("a positive factor of m g", lambda v: np.isfinite(v) & (v > 0)),
+            "timestep": ("a positive number of seconds", positive),
+            "friction": ("a positive friction coefficient", positive),
+            "force_limit_factor": ("a positive factor of m g", positive),
             "max_delta_force": ("a positive force (N), or inf for none", lambda v: v > 0),
-            "configuration_weight": ("a weight >= 0", lambda v: np.isfinite(v) & (v >= 0)),
-            "acceleration_weight": ("a weight >= 0", lambda v: np.isfinite(v) & (v >= 0)),
-            "body_masses": ("masses >= 0 (kg)", lambda v: np.isfinite(v) & (v >= 0)),
+            "configuration_weight": ("a weight >= 0", nonnegative),
+            "acceleration_weight": ("a weight >= 0", nonnegative),
+            "body_masses": ("masses >= 0 (kg)", nonnegative),
         }
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
