@@ -62,7 +62,7 @@ def split(request, monkeypatch):
     """The factor's blocks by one LAPACK call each, or in halves (`kkt.SPLIT_ABOVE` lowered
     so that these small blocks take the path of the whole-body tasks' 156-wide ones).
 
-    Yields the mode and the list of `kkt._split`'s decisions made while the test traced, for
+    Returns the mode and the list of `kkt._split`'s decisions made while the test traced, for
     `_took`: `_split` is read when tracing, so a function JAX has traced before with the same
     shapes would run its old program (the tests jit fresh wrappers, never the module's
     functions themselves)."""
