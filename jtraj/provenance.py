@@ -24,25 +24,52 @@ def _version(dist: str) -> str | None:
         return None
 
 
-def _cpu_model() -> str:
+def _cpuinfo() -> str:
     try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
+        return Path("/proc/cpuinfo").read_text()
     except OSError:
-        pass
+        return ""
+
+
+def _cpu_model(cpuinfo: str) -> str:
+    for line in cpuinfo.splitlines():
+        if line.startswith("model name"):
+            return line.split(":", 1)[1].strip()
     return platform.processor() or platform.machine()
 
 
+#: x86 vector extensions, widest first. XLA emits code for the widest one the CPU has (unless
+#: ``--xla_cpu_max_isa`` caps it), and the rounding of that code can change a solve's iterations.
+VECTOR_EXTENSIONS = ("avx512f", "avx2", "avx", "sse4_2")
+
+
+def vector_extension(cpuinfo: str) -> str | None:
+    """The widest of `VECTOR_EXTENSIONS` in the first ``flags`` line of a ``/proc/cpuinfo`` text,
+    or None (no such line, or not an x86 CPU)."""
+    for line in cpuinfo.splitlines():
+        if line.startswith("flags"):
+            flags = set(line.split(":", 1)[1].split())
+            return next((ext for ext in VECTOR_EXTENSIONS if ext in flags), None)
+    return None
+
+
 def provenance(argv: list[str] | None = None) -> dict:
-    """Command line (``argv``, default this process's), UTC date, machine and versions."""
+    """Command line (``argv``, default this process's), UTC date, machine and versions.
+
+    The machine's entry names the CPU's widest vector extension (``vector_extension``) and, when
+    set, the ``XLA_FLAGS`` of the run: on these problems a solve's iteration count can follow the
+    rounding of the machine code XLA emits for them (docs/measurements.md, Table IV)."""
     import jtraj
 
     argv = sys.argv if argv is None else argv
+    cpuinfo = _cpuinfo()
+    machine = {"cores": os.cpu_count(), "cpu": _cpu_model(cpuinfo), "vector_extension": vector_extension(cpuinfo), "system": f"{platform.system()} {platform.release()}", "python": platform.python_version()}
+    if os.environ.get("XLA_FLAGS"):
+        machine["xla_flags"] = os.environ["XLA_FLAGS"]
     return {
         "command": shlex.join(["jtraj", *argv[1:]] if Path(argv[0]).name in ("jtraj", "cli.py") else argv),
         "date_utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
-        "machine": {"cores": os.cpu_count(), "cpu": _cpu_model(), "system": f"{platform.system()} {platform.release()}", "python": platform.python_version()},
+        "machine": machine,
         "versions": {"jtraj": jtraj.__version__, "jax": _version("jax"), "cyipopt": _version("cyipopt-wheels") or _version("cyipopt"), "mujoco": _version("mujoco")},
     }
 

@@ -92,3 +92,24 @@ def test_write_results_writes_records_table_and_the_command(tmp_path):
     assert io.read_json(tmp_path / "r" / "speed.json") == [{"task": "walk", "time_s": None, "iterations": 12}]
     assert (tmp_path / "r" / "speed.md").read_text() == "| task |\n|---|\n| walk |\n"
     assert io.read_json(tmp_path / "r" / "provenance.json")["command"] == "python bench/solve.py walk --out r"
+
+
+def test_vector_extension_is_the_widest_flag_of_the_first_cpu():
+    from jtraj.provenance import vector_extension
+
+    zen4 = "processor\t: 0\nflags\t\t: fpu sse4_2 avx avx2 fma avx512f avx512bw\nprocessor\t: 1\nflags\t\t: fpu sse4_2\n"
+    assert vector_extension(zen4) == "avx512f"
+    assert vector_extension("flags\t: fpu sse4_2 avx avx2 fma\n") == "avx2"
+    assert vector_extension("flags\t: fpu sse2\n") is None
+    assert vector_extension("processor\t: 0\nFeatures\t: fp asimd\n") is None  # an ARM cpuinfo
+
+
+def test_provenance_records_the_runs_xla_flags_only_when_set(monkeypatch):
+    from jtraj.provenance import provenance
+
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_max_isa=AVX2")
+    assert provenance(["jtraj", "compare"])["machine"]["xla_flags"] == "--xla_cpu_max_isa=AVX2"
+    monkeypatch.delenv("XLA_FLAGS")
+    machine = provenance(["jtraj", "compare"])["machine"]
+    assert "xla_flags" not in machine
+    assert "vector_extension" in machine
