@@ -263,6 +263,7 @@ def solve(
     if say is not None:
         say(result.summary())
         if not result.converged:
+            say(f"  {backend.name} stopped: {result.solver_status.value} ({result.solver_status.message})")
             worst = sorted(result.violation_by_group.items(), key=lambda kv: -kv[1])[:3]
             say("  largest violations: " + ", ".join(f"{k} {v:.2e}" for k, v in worst))
     if out is not None:

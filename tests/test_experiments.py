@@ -1,6 +1,7 @@
 """Experiments on a small Go2 task: vmapped noisy warm starts, the robustness study's files,
 the Table IV writer, and the plots."""
 
+import io
 import json
 import os
 import signal
@@ -17,6 +18,7 @@ from test_transcription import HOP
 from jtraj.experiments import RUN_KEY, RUNS_FILE, chart_noisy_warm_starts, compare, noisy_warm_starts, read_runs, robustness, run_key
 from jtraj.plots import plot_convergence, plot_result
 from jtraj.result import Result
+from jtraj.solvers import Status
 from jtraj.success import FEASIBILITY_TOL
 
 
@@ -210,6 +212,13 @@ def test_robustness_keys_runs_by_the_chart_of_their_noise(tmp_path):
     again = solve(HOP, "euler", variables="paper", noise=1e-3, seed=3, replicate=0, noise_chart="se3", progress=None)
     assert again.iterations == other["iterations"] and again.trajectory is not None
     np.testing.assert_allclose(again.cost, other["cost"], rtol=1e-9, atol=1e-12)
+    # a solve that stops short says why, after its summary
+    stream = io.StringIO()
+    short = solve(HOP, "euler", variables="paper", options={"max_iter": 1}, progress=stream, keep_trajectory=False)
+    assert not short.converged and short.solver_status is Status.MAX_ITER
+    summary, why = stream.getvalue().splitlines()[-3:-1]
+    assert summary == short.summary()
+    assert why == f"  ipopt stopped: max_iter ({Status.MAX_ITER.message})"
     with pytest.raises(ValueError, match="without warm_start= and theta="):
         solve(HOP, "euler", variables="paper", noise=1e-3, replicate=0, theta={"friction": 0.5}, progress=None)
     with pytest.raises(ValueError, match="needs replicate="):
