@@ -29,6 +29,7 @@ from jtraj import solvers
 from jtraj.deprecation import renamed_argument
 from jtraj.executors import executor_for
 from jtraj.parameterization import PARAMETERIZATIONS
+from jtraj.result import Outcome
 from jtraj.solver import evaluate, prepare, solve, solver_options, transcription_options, variables_label
 from jtraj.success import FEASIBILITY_TOL
 from jtraj.tables import markdown_table
@@ -52,6 +53,7 @@ def _row(result) -> dict:
     row = {k: getattr(result, k) for k in _ROW_KEYS}
     row["status"] = result.status.value
     row["solver_status"] = result.solver_status.value
+    row["task_check"] = result.metrics.get("task_check") or None  # why the task check failed
     return row
 
 
@@ -96,9 +98,18 @@ def compare(
     for i, row in executor_for(executor, workers, ray_address).map(_compare_one, jobs):
         done[i] = row
         if progress is not None:
-            print(f"{row['task']:10s} {row['parameterization']:6s}: {row['status']:26s} {row['iterations']:4d} it", file=progress, flush=True)
+            print(f"{row['task']:10s} {row['parameterization']:6s}: {row['status']:26s} {row['iterations']:4d} it{_why(row)}", file=progress, flush=True)
         _write_table_iv([done[k] for k in sorted(done)], out)
     return [done[k] for k in sorted(done)]
+
+
+def _why(row: dict) -> str:
+    """The end of a cell's progress line: why it failed, if it did."""
+    if row["status"] == Outcome.TASK_FAILED.value and row.get("task_check"):
+        return f"  (task check: {row['task_check']})"
+    if row["status"] == Outcome.NOT_CONVERGED.value:
+        return f"  ({row['solver'] or 'solver'}: {row['solver_status']})"
+    return ""
 
 
 def _compare_one(task, p, variables, exact_hessian, solver, out, progress=None) -> dict:

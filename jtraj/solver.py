@@ -17,7 +17,7 @@ from jtraj import task as tasks
 from jtraj.deprecation import renamed_argument, warn_renamed
 from jtraj.nlp import KnotNLP
 from jtraj.registry import lookup
-from jtraj.result import Result
+from jtraj.result import Outcome, Result
 from jtraj.success import FEASIBILITY_TOL
 from jtraj.success import evaluate as check_motion
 from jtraj.transcription import COMPACT_VARIABLES, LEAN_VARIABLES, PAPER_VARIABLES, TaskParams, Transcription, TranscriptionOptions
@@ -262,8 +262,13 @@ def solve(
         result.trajectory = None
     if say is not None:
         say(result.summary())
-        if not result.converged:
-            say(f"  {backend.name} stopped: {result.solver_status.value} ({result.solver_status.message})")
+        if result.status is Outcome.TASK_FAILED:
+            say(f"  task check failed: {result.metrics['task_check']}")
+        elif result.status is Outcome.NOT_CONVERGED:
+            if result.converged:
+                say(f"  {backend.name} converged, but to a violation of {result.constraint_violation:.2e}, over the task check's {FEASIBILITY_TOL:g}")
+            else:
+                say(f"  {backend.name} stopped: {result.solver_status.value} ({result.solver_status.message})")
             worst = sorted(result.violation_by_group.items(), key=lambda kv: -kv[1])[:3]
             say("  largest violations: " + ", ".join(f"{k} {v:.2e}" for k, v in worst))
     if out is not None:

@@ -191,7 +191,7 @@ def test_noise_of_a_turning_warm_start_in_another_chart():
     check_noise_chart([turn], ["quat1", "se3"], "paper", "se3")  # the chart itself is not checked
 
 
-def test_robustness_keys_runs_by_the_chart_of_their_noise(tmp_path):
+def test_robustness_keys_runs_by_the_chart_of_their_noise(tmp_path, monkeypatch):
     """Euler runs with SE(3)'s noise are other runs than with Euler's own (their rows say so and
     the table names the chart); the chart's own name is its own noise, resumed as such."""
     kw = dict(sigmas=[1e-3], replicates=1, seed=3, out=tmp_path, progress=None)
@@ -219,6 +219,16 @@ def test_robustness_keys_runs_by_the_chart_of_their_noise(tmp_path):
     summary, why = stream.getvalue().splitlines()[-3:-1]
     assert summary == short.summary()
     assert why == f"  ipopt stopped: max_iter ({Status.MAX_ITER.message})"
+    # and a converged solve whose motion fails the task check says what the check found
+    import jtraj.solver
+    from jtraj.success import TaskCheck
+
+    monkeypatch.setattr(jtraj.solver, "check_motion", lambda *a: TaskCheck(False, None, 0.9, None, "the base turns 0.90 turns in all"))
+    stream = io.StringIO()
+    failed = solve(HOP, "euler", variables="paper", progress=stream, keep_trajectory=False)
+    assert failed.converged and failed.status.value == "converged_but_task_failed"
+    assert stream.getvalue().splitlines()[-1] == "  task check failed: the base turns 0.90 turns in all"
+    monkeypatch.undo()
     with pytest.raises(ValueError, match="without warm_start= and theta="):
         solve(HOP, "euler", variables="paper", noise=1e-3, replicate=0, theta={"friction": 0.5}, progress=None)
     with pytest.raises(ValueError, match="needs replicate="):
@@ -484,3 +494,12 @@ def test_release_compiled_forgets_prepared_nlps_and_jax_caches():
         assert solver._CACHE == {} and f._cache_size() == 0
     finally:
         solver._CACHE.update(saved)  # the other tests' prepared NLPs (their programs compile again)
+
+
+def test_a_failed_cells_progress_line_says_why():
+    from jtraj.experiments import _why
+
+    row = {"status": "solved", "solver": "ipopt", "solver_status": "solved", "task_check": None}
+    assert _why(row) == ""
+    assert _why({**row, "status": "converged_but_task_failed", "task_check": "+0.00 turns about the flip axis; expected -1 +- 0.25"}) == "  (task check: +0.00 turns about the flip axis; expected -1 +- 0.25)"
+    assert _why({**row, "status": "not_converged", "solver_status": "step_computation_failed"}) == "  (ipopt: step_computation_failed)"
