@@ -33,6 +33,8 @@ task must have positive configuration and acceleration weights.
 from __future__ import annotations
 
 import dataclasses
+import math
+from collections.abc import Mapping
 from typing import Any
 
 import jax
@@ -101,6 +103,8 @@ class DifferentiableTask:
         nlp: its NLP (with the force regularization).
         theta: the task's default parameters (`TaskParams`); change fields with
             ``f.theta.replace(friction=0.5)``.
+        options: the forward solve's options (`forward_options`); a new options object
+            applies from the next call.
         last_solution: the backend's `jtraj.solvers.Solution` of the latest forward solve.
     """
 
@@ -116,7 +120,7 @@ class DifferentiableTask:
         def forward(theta):
             theta = jax.tree_util.tree_map(jnp.asarray, theta)
             x0 = tr.warm_start(theta).reshape(-1) if self._x_warm is None else self._x_warm
-            sol = backend.solve(nlp, x0, theta, options)
+            sol = backend.solve(nlp, x0, theta, self.options)
             self.last_solution = sol
             if not sol.status.converged:
                 raise SolveError(
@@ -129,11 +133,30 @@ class DifferentiableTask:
         self._solution = implicit_solution(nlp, forward, weak_tol=weak_tol)
 
     def warm_start_from(self, x: np.ndarray | None) -> None:
-        """Warm-start the next forward solve from ``x`` (None: the task's warm start)."""
-        self._x_warm = None if x is None else np.asarray(x, float)
+        """Warm-start the next forward solve from ``x`` (None: the task's warm start): the
+        NLP's variables, (n,) or (knots, variables per knot), finite."""
+        if x is None:
+            self._x_warm = None
+            return
+        x = np.asarray(x, float)
+        if x.size != self.nlp.n or x.shape not in ((self.nlp.n,), (self.transcription.N + 1, self.transcription.layout.nz)):
+            raise ValueError(f"warm start of shape {x.shape}; expected ({self.nlp.n},) or ({self.transcription.N + 1}, {self.transcription.layout.nz}), the NLP's variables")
+        if not np.all(np.isfinite(x)):
+            raise ValueError("warm start has NaN or infinite entries")
+        self._x_warm = x.reshape(-1)
 
-    def __call__(self, theta: TaskParams | None = None) -> OptimalMotion:
-        theta = self.theta if theta is None else theta
+    def __call__(self, theta: TaskParams | dict[str, Any] | None = None) -> OptimalMotion:
+        """The optimal motion at ``theta``: a `TaskParams`, a mapping of overrides of ``self.theta``'s
+        fields (``{"friction": 0.6}``) or None (``self.theta``). Values are checked as
+        `jtraj.solve` checks them (shapes always; values unless traced). Raises `SolveError`
+        when the forward solve does not converge (inside ``jax.jit`` that comes as JAX's
+        runtime error, whose message ends with the SolveError's)."""
+        if theta is None or isinstance(theta, TaskParams):
+            theta = self.transcription.resolve_theta(self.theta if theta is None else theta)
+        elif isinstance(theta, Mapping):
+            theta = self.transcription.resolve_theta(self.theta.replace(**theta))
+        else:
+            raise TypeError(f"theta must be None, a mapping of parameter overrides or a TaskParams, got {type(theta).__name__}")
         sol = self._solution(theta)
         return motion(self.transcription, self.nlp, sol.x, theta, sol.lam, sol.degenerate)
 
@@ -188,8 +211,10 @@ def differentiable(
         force_weight: weight of the force regularization ``1/2 w |f / (m g)|^2`` per knot
             and contact point (makes internal contact forces unique).
         solver: a `jtraj.solvers.SOLVERS` name or a solver object, for the forward solve.
-        options: its options (None: for Ipopt `IPOPT_OPTIONS`, tol 1e-10 and the exact
-            Hessian; the backend's defaults otherwise).
+        options: its options. For Ipopt a dict is merged over `IPOPT_OPTIONS` (tol 1e-10 and
+            the exact Hessian; None: those alone), so ``{"max_iter": 50}`` keeps the tight
+            tolerance; an options object is used as given. Other backends: their defaults
+            and the dict's changes.
         weak_tol: tolerance of the weak-activity (degeneracy) test, relative to the largest
             multiplier (see `jtraj.sensitivity.active_set`).
         layout: the former name of ``variables`` (deprecated: warns).
@@ -198,6 +223,12 @@ def differentiable(
         a `DifferentiableTask`: call it with a `TaskParams` (``f.theta`` is the task's).
     """
     variables = renamed_argument(variables, layout, "variables", "layout", COMPACT_VARIABLES)
+    if not _is_number(force_weight) or not (math.isfinite(force_weight) and force_weight > 0):
+        raise ValueError(f"force_weight must be a finite number > 0 (it makes the contact forces unique), got {force_weight!r}")
+    if not _is_number(weak_tol) or not (0 <= weak_tol < 1):
+        raise ValueError(f"weak_tol must be a number in [0, 1) (relative to the largest multiplier), got {weak_tol!r}")
+    backend = solvers.get(solver)  # unknown names and options fail here, before building anything
+    opts = forward_options(backend, options)
     config.enable_compilation_cache()
     task = tasks.load(task)
     if not (task.configuration_weight > 0 and task.acceleration_weight > 0):
@@ -205,8 +236,6 @@ def differentiable(
             f"task {task.name!r}: differentiable() needs configuration_weight > 0 and acceleration_weight > 0 for a unique optimum, "
             f"got {task.configuration_weight} and {task.acceleration_weight}; set them in the task"
         )
-    if force_weight <= 0:
-        raise ValueError(f"force_weight must be > 0 (it makes the contact forces unique), got {force_weight}")
     robot = robots.load(task.robot)
     tr = Transcription(robot, task, params.get(parameterization), transcription_options(variables))
     groups = [g for stage in CONSTRAINT_STAGES for g in stage(tr)]
@@ -218,7 +247,16 @@ def differentiable(
         theta=tr.default_theta(), structure=tr.structure,
     )
     nlp.build_hessian()
-    backend = solvers.get(solver)
-    if options is None and backend.name == "ipopt":
-        options = IPOPT_OPTIONS
-    return DifferentiableTask(tr, nlp, backend, backend.options(options), weak_tol)
+    return DifferentiableTask(tr, nlp, backend, opts, weak_tol)
+
+
+def forward_options(backend: solvers.AbstractSolver, options: solvers.AbstractOptions | dict[str, Any] | None) -> solvers.AbstractOptions:
+    """The forward solve's options: for Ipopt a dict (or None) over `IPOPT_OPTIONS`, an options
+    object as given; other backends: ``backend.options(options)``."""
+    if backend.name == "ipopt" and (options is None or isinstance(options, Mapping)):
+        options = {**IPOPT_OPTIONS, **(options or {})}
+    return backend.options(options)
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)

@@ -138,7 +138,14 @@ def implicit_solution(
     )
 
     def primal(theta) -> ImplicitSolution:
-        x, lam, deg, ab, au, ra, ru, token = jax.pure_callback(host_forward, out_shapes, theta, vmap_method="sequential")
+        if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(theta)):
+            outs = jax.pure_callback(host_forward, out_shapes, theta, vmap_method="sequential")
+        else:
+            # Called with values (eagerly, or as the primal of an eager `jax.grad`): solve here
+            # rather than through the callback, so that ``forward``'s own exception (a failed
+            # solve) reaches the caller as raised, not wrapped in a JaxRuntimeError.
+            outs = tuple(jnp.asarray(o, s.dtype) for o, s in zip(host_forward(theta), out_shapes, strict=True))
+        x, lam, deg, ab, au, ra, ru, token = outs
         return ImplicitSolution(x, lam, deg, ActiveArrays(ab, au, ra, ru), token)
 
     @_in_main_thread_device

@@ -113,3 +113,71 @@ def test_grad_composes_with_jit_and_jvp_agrees(hop):
     _, dloss = jax.jvp(loss, (theta,), (direction,))
     expected = sum(float(jnp.vdot(a, b)) for a, b in zip(jax.tree.leaves(g), jax.tree.leaves(direction)))
     np.testing.assert_allclose(float(dloss), expected, rtol=1e-6, atol=1e-9)
+
+
+def test_bad_arguments_are_refused_before_building(monkeypatch):
+    """differentiable() checks its numbers and its solver before it builds the task's NLP."""
+    import jtraj.differentiate as D
+
+    monkeypatch.setattr(D.tasks, "load", lambda task: pytest.fail("the task was loaded before the arguments were checked"))
+    for kwargs, match in [
+        ({"force_weight": float("nan")}, "force_weight must be a finite number > 0"),
+        ({"force_weight": "1e-3"}, "force_weight must be a finite number > 0"),
+        ({"force_weight": 0.0}, "force_weight must be a finite number > 0"),
+        ({"weak_tol": -1}, r"weak_tol must be a number in \[0, 1\)"),
+        ({"weak_tol": "x"}, r"weak_tol must be a number in \[0, 1\)"),
+    ]:
+        with pytest.raises(ValueError, match=match):
+            differentiable("hop", **kwargs)
+    with pytest.raises(ValueError, match="bogus"):
+        differentiable("hop", solver="bogus")
+
+
+def test_forward_options_keep_the_tight_defaults_a_dict_does_not_change():
+    from jtraj import solvers
+    from jtraj.differentiate import IPOPT_OPTIONS, forward_options
+
+    ipopt = solvers.get("ipopt")
+    merged = forward_options(ipopt, {"max_iter": 50})
+    assert merged.max_iter == 50 and merged.tol == IPOPT_OPTIONS["tol"] == 1e-10 and merged.hessian == "exact"
+    assert forward_options(ipopt, None) == ipopt.options(IPOPT_OPTIONS)
+    given = solvers.IpoptOptions(tol=1e-4)
+    assert forward_options(ipopt, given) is given or forward_options(ipopt, given) == given
+
+
+def test_call_checks_theta_and_a_failed_solve_raises_solve_error(hop):
+    import dataclasses
+
+    from jtraj.differentiate import SolveError
+
+    theta = hop.theta
+    # the mapping form jtraj.solve takes: the same solution as the TaskParams it stands for
+    hop.warm_start_from(None)
+    m_dict = hop({"friction": 0.6})
+    hop.warm_start_from(None)
+    m_params = hop(theta.replace(friction=0.6))
+    np.testing.assert_array_equal(np.asarray(m_dict.x), np.asarray(m_params.x))
+    assert float(m_dict.cost) != float(hop(theta).cost)  # the override took effect
+    # impossible values and shapes are refused before a solve
+    solves = hop.last_solution
+    with pytest.raises(ValueError, match="friction"):
+        hop(theta.replace(friction=-1.0))
+    with pytest.raises(ValueError, match="timestep"):
+        hop({"timestep": -0.05})
+    with pytest.raises(ValueError, match="shape"):
+        hop({"friction": [0.6, 0.6]})
+    with pytest.raises(TypeError, match="theta must be"):
+        hop([0.6])
+    assert hop.last_solution is solves
+    with pytest.raises(ValueError, match=r"warm start of shape \(5,\)"):
+        hop.warm_start_from(np.zeros(5))
+    # a forward solve that stops short raises SolveError itself, catchable as such
+    options = hop.options
+    hop.options = dataclasses.replace(options, max_iter=1)
+    hop.warm_start_from(None)
+    try:
+        with pytest.raises(SolveError, match="did not converge"):
+            hop(theta)
+    finally:
+        hop.options = options
+    assert not hop.last_solution.status.converged
