@@ -110,6 +110,7 @@ QUATERNION_FLOOR = 1e-6
 
 
 def _unit(rho: jax.Array) -> jax.Array:
+    rho = jnp.asarray(rho)
     sq = rho @ rho
     small = sq < QUATERNION_FLOOR**2
     # one branch only: where() would pass NaN gradients of the untaken rho / |rho| at zero

@@ -70,6 +70,17 @@ def test_pose_round_trips(param, rng):
 
 
 @pytest.mark.parametrize("param", PARAMS, ids=IDS)
+def test_numpy_coordinates_are_taken_as_jax_ones(param, rng):
+    """Every chart's methods take numpy arrays, as the SE(3) and Euler ones always did."""
+    q = np.asarray(param.from_pose(random_pose(rng)))
+    w = np.asarray(random_twist(rng))
+    assert type(q) is np.ndarray
+    np.testing.assert_array_equal(param.to_qpos(q), param.to_qpos(jnp.asarray(q)))
+    assert_same_pose(param.to_pose(q), param.to_pose(jnp.asarray(q)), atol=0)
+    np.testing.assert_array_equal(param.integrate(q, w, 0.05), param.integrate(jnp.asarray(q), jnp.asarray(w), 0.05))
+
+
+@pytest.mark.parametrize("param", PARAMS, ids=IDS)
 def test_integration_is_first_order_exact_on_the_manifold(param, rng):
     """Every row of Table I integrates the body twist: to_pose(integrate(q, V, h)) equals
     to_pose(q) Exp(V h) (Pinocchio's) up to O(h^2)."""
