@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import math
 import zipfile
 from pathlib import Path
 from typing import Any
@@ -246,13 +247,15 @@ class Result:
         """Read a result saved by `save`; `jtraj.io.FileFormatError` names the file that is
         missing, empty or corrupt."""
         d = Path(directory)
+        if d.name == RESULT_FILE and d.is_file():  # the result's own file named instead of its folder
+            d = d.parent
         path = d / RESULT_FILE
         data = io.read_json(path)
         if not isinstance(data, dict):
             raise io.FileFormatError(f"{path}: expected a JSON object, got {type(data).__name__}")
         try:
-            stats = Stats(**{f.name: data[f.name] for f in dataclasses.fields(Stats)})
-            fields = {f.name: data[f.name] for f in dataclasses.fields(cls) if f.name not in ("stats", "trajectory")}
+            stats = Stats(**{f.name: _float_or_nan(f, data[f.name]) for f in dataclasses.fields(Stats)})
+            fields = {f.name: _float_or_nan(f, data[f.name]) for f in dataclasses.fields(cls) if f.name not in ("stats", "trajectory")}
             fields["status"] = _member(Outcome, data["status"])
             fields["solver_status"] = _member(Status, data["solver_status"])
         except KeyError as e:
@@ -263,12 +266,21 @@ class Result:
         return cls(**fields, stats=stats, trajectory=trajectory)
 
 
+def _float_or_nan(field: dataclasses.Field, value: Any) -> Any:
+    """A float field's value as read back: strict JSON writes NaN and infinities as null."""
+    return math.nan if value is None and field.type in ("float", float) else value
+
+
 def _member(enum_cls: Any, value: Any) -> Any:
     """The member of ``enum_cls`` with ``value`` (ValueError naming the values otherwise)."""
     for member in enum_cls:
         if member.value == value:
             return member
     raise ValueError(f"{value!r} is not a {enum_cls.__name__}; expected one of {[m.value for m in enum_cls]}")
+
+
+#: A trajectory file's arrays with one row per knot (beside ``t``).
+_PER_KNOT = ("base_xyz_wxyz", "q_base", "q_joints", "v", "a", "tau", "forces", "contact_positions", "in_contact")
 
 
 def _trajectory_arrays(trajectory: Any) -> dict[str, np.ndarray]:
@@ -289,7 +301,23 @@ def _load_trajectory(path: Path) -> Any:
     if kind is None:
         raise io.FileFormatError(f"{path}: no {_KIND_KEY} entry; not a jtraj trajectory")
     module, _, name = str(kind).partition(":")
-    cls = getattr(importlib.import_module(module), name)
+    if module != "jtraj" and not module.startswith("jtraj."):
+        raise io.FileFormatError(f"{path}: its {_KIND_KEY} is {str(kind)!r}; expected a jtraj trajectory class (module jtraj...)")
+    try:
+        cls = getattr(importlib.import_module(module), name)
+    except (ImportError, AttributeError) as e:
+        raise io.FileFormatError(f"{path}: its trajectory class {str(kind)!r} does not exist in this jtraj ({e})") from None
+    if not (dataclasses.is_dataclass(cls) and isinstance(cls, type)):
+        raise io.FileFormatError(f"{path}: {str(kind)!r} is not a trajectory class")
+    t = arrays.get("t")
+    if t is not None:
+        if t.ndim != 1:
+            raise io.FileFormatError(f"{path}: 't' has shape {t.shape}; expected (knots,)")
+        for key in _PER_KNOT:
+            if key in arrays and (arrays[key].ndim == 0 or arrays[key].shape[0] != t.shape[0]):
+                raise io.FileFormatError(f"{path}: {key!r} has shape {arrays[key].shape}, but 't' has {t.shape[0]} knots")
+    if "base_xyz_wxyz" in arrays and not np.all(np.isfinite(arrays["base_xyz_wxyz"])):
+        raise io.FileFormatError(f"{path}: 'base_xyz_wxyz' has NaN or infinite entries")
     # string arrays (contact names) come back as tuples of str
     values = {k: tuple(str(s) for s in v) if v.dtype.kind == "U" and v.ndim == 1 else v for k, v in arrays.items()}
     try:

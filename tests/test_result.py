@@ -100,10 +100,44 @@ def test_saving_without_trajectory_removes_the_old_one(tmp_path):
 
 
 def test_non_finite_numbers_are_written_as_strict_json(tmp_path):
-    r = make_result(None, cost=float("nan"))
+    r = make_result(None, cost=float("nan"), constraint_violation=float("inf"))
     text = (r.save(tmp_path) / "result.json").read_text()
-    assert "NaN" not in text
-    assert Result.load(tmp_path).cost is None
+    assert "NaN" not in text and "Infinity" not in text
+    back = Result.load(tmp_path)
+    # strict JSON keeps no NaN or inf: a float field read back as null is NaN again
+    assert np.isnan(back.cost) and np.isnan(back.constraint_violation)
+    assert "cost nan, violation nan" in back.summary()
+
+
+def test_load_takes_the_result_file_for_its_folder(tmp_path):
+    make_result(state_trajectory()).save(tmp_path / "r")
+    assert_same(Result.load(tmp_path / "r" / "result.json"), Result.load(tmp_path / "r"))
+
+
+def _save_with_arrays(d, **arrays):
+    """A saved whole-body-like trajectory file whose arrays are replaced by ``arrays``."""
+    make_result(state_trajectory()).save(d)
+    with np.load(d / "trajectory.npz") as z:
+        data = {k: z[k] for k in z.files}
+    data.update(arrays)
+    np.savez(d / "trajectory.npz", **data)
+
+
+@pytest.mark.parametrize(
+    "arrays, match",
+    [
+        ({"__trajectory_class__": np.array("builtins:dict")}, "expected a jtraj trajectory class"),
+        ({"__trajectory_class__": np.array("jtraj.result:NoSuchTrajectory")}, "does not exist in this jtraj"),
+        ({"__trajectory_class__": np.array("jtraj.result:Result")}, "does not match Result"),
+        ({"base_xyz_wxyz": np.zeros((3, 7))}, r"'base_xyz_wxyz' has shape \(3, 7\), but 't' has 5 knots"),
+        ({"base_xyz_wxyz": np.full((5, 7), np.nan)}, "NaN or infinite"),
+        ({"t": np.zeros((5, 1))}, r"'t' has shape \(5, 1\)"),
+    ],
+)
+def test_bad_trajectory_files_are_refused_by_name(tmp_path, arrays, match):
+    _save_with_arrays(tmp_path, **arrays)
+    with pytest.raises(FileFormatError, match=match):
+        Result.load(tmp_path)
 
 
 @pytest.mark.parametrize("damage", ["missing", "empty", "corrupt", "not_a_result", "bad_npz"])
