@@ -21,13 +21,14 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 import os
 import sys
 import types
 import warnings
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -92,10 +93,26 @@ class RenderOptions:
     shadows: bool = True
 
     def __post_init__(self):
+        for name in ("width", "height"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, np.integer)) or isinstance(v, bool):
+                raise ValueError(f"{name} must be a whole number of pixels, got {v!r}")
         if self.width < 16 or self.height < 16:
             raise ValueError(f"image size must be at least 16x16 pixels, got {self.width}x{self.height}")
-        if not self.fps > 0 or not self.speed > 0:
-            raise ValueError(f"fps and speed must be positive, got fps={self.fps}, speed={self.speed}")
+        for name in ("fps", "speed", "distance", "force_length"):
+            v = getattr(self, name)
+            if v is None and name in ("distance", "force_length"):
+                continue
+            if not _is_real(v) or not (math.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
+        for name in ("azimuth", "elevation"):
+            v = getattr(self, name)
+            if not _is_real(v) or not math.isfinite(v):
+                raise ValueError(f"{name} must be a finite number of degrees, got {v!r}")
+
+
+def _is_real(v: Any) -> bool:
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
 
 
 # ----------------------------------------------------------------------------------------
@@ -384,10 +401,23 @@ def _as_result(result) -> Result:
     from jtraj.result import Result
 
     if isinstance(result, (str, Path)):
-        return Result.load(result)
+        result = Result.load(result)
+    elif not isinstance(result, Result):
+        raise TypeError(f"render takes a Result or the folder `jtraj solve` wrote, got a {type(result).__name__} (pass the Result itself, not its trajectory)")
     if result.trajectory is None:
         raise ValueError("the result has no trajectory to draw (solve with keep_trajectory=True or load a folder with trajectory.npz)")
+    if not hasattr(result.trajectory, "base_xyz_wxyz"):
+        raise ValueError(f"{result.problem!r} is not a legged robot's motion (its trajectory is a {type(result.trajectory).__name__}); draw a rigid-body benchmark with jtraj.render.render_benchmark")
     return result
+
+
+def _render_options(options: RenderOptions | Mapping[str, Any] | None, kwargs: dict[str, Any]) -> RenderOptions:
+    """``options`` (None: the defaults; a mapping: their changes) with ``kwargs`` over it."""
+    if options is None or isinstance(options, Mapping):
+        return RenderOptions(**{**(options or {}), **kwargs})
+    if not isinstance(options, RenderOptions):
+        raise TypeError(f"options must be a RenderOptions or a mapping of its fields, got {type(options).__name__}")
+    return dataclasses.replace(options, **kwargs)
 
 
 def _follow(frames: Frames, robot) -> tuple[np.ndarray, float]:
@@ -401,15 +431,15 @@ def _follow(frames: Frames, robot) -> tuple[np.ndarray, float]:
     return lookat, distance
 
 
-def render(result: Result | str | Path, options: RenderOptions | None = None, **kwargs) -> np.ndarray:
+def render(result: Result | str | Path, options: RenderOptions | Mapping[str, Any] | None = None, **kwargs) -> np.ndarray:
     """Video frames of a solved motion, shape (T, height, width, 3), uint8.
 
     ``result`` is a `jtraj.result.Result` with a trajectory or a folder written by
-    ``jtraj solve``; ``options`` a `RenderOptions` (keyword arguments override its fields, e.g.
-    ``render(r, width=320, height=240, speed=0.5)``). Frames are spaced ``speed / fps``
-    seconds of motion apart, from the first knot to the last.
+    ``jtraj solve``; ``options`` a `RenderOptions` or a mapping of its fields (keyword
+    arguments override them, e.g. ``render(r, width=320, height=240, speed=0.5)``). Frames are
+    spaced ``speed / fps`` seconds of motion apart, from the first knot to the last.
     """
-    options = dataclasses.replace(options or RenderOptions(), **kwargs)
+    options = _render_options(options, kwargs)
     result = _as_result(result)
     traj = result.trajectory
     duration = float(traj.t[-1] - traj.t[0])
@@ -468,7 +498,7 @@ def keyframe_strip(
         raise ValueError(f"layout must be 'side' or 'overlay', got {layout!r}")
     if n < 2:
         raise ValueError(f"a strip needs at least 2 keyframes, got n={n}")
-    options = dataclasses.replace(options or RenderOptions(), **kwargs)
+    options = _render_options(options, kwargs)
     result = _as_result(result)
     traj = result.trajectory
     if spacing == "motion":
@@ -567,7 +597,7 @@ def render_rigid_body(
 
     ``t`` (N,) knot times (s), ``xyz`` (N, 3) positions (m), ``wxyz`` (N, 4) attitudes.
     """
-    options = dataclasses.replace(options or RenderOptions(), **kwargs)
+    options = _render_options(options, kwargs)
     t, xyz, wxyz = (np.asarray(a, float) for a in (t, xyz, wxyz))
     extent = float(np.max(np.ptp(xyz, axis=0)))
     size = 1.0 if extent < 1e-6 else float(np.clip(0.2 * extent, 0.3, 2.0))
@@ -624,14 +654,31 @@ def render_benchmark(result, out_dir: str | Path, *, options: RenderOptions | No
 # Files
 
 
+def _pixels(array: Any, ndim: int, what: str) -> np.ndarray:
+    """``array`` as uint8 pixels of ``ndim`` dimensions, the last RGB; ValueError otherwise
+    (floats are refused rather than cast: images in [0, 1] would come out black)."""
+    a = np.asarray(array)
+    shape = "(T, H, W, 3)" if ndim == 4 else "(H, W, 3)"
+    if a.ndim != ndim or a.shape[-1] != 3 or 0 in a.shape:
+        hint = "; for one image use write_image" if ndim == 4 and a.ndim == 3 else ""
+        raise ValueError(f"{what} of shape {a.shape}; expected {shape} RGB{hint}")
+    if a.dtype != np.uint8:
+        if a.dtype.kind not in "iu" or a.min() < 0 or a.max() > 255:
+            raise ValueError(f"{what} are {a.dtype} in [{a.min()}, {a.max()}]; expected uint8 pixels 0-255 (from [0, 1] floats: (x * 255).round().astype(np.uint8))")
+        a = a.astype(np.uint8)
+    return a
+
+
 def write_video(frames: np.ndarray, path: str | Path, fps: float = 30.0) -> Path:
     """Writes frames (T, H, W, 3) uint8 as ``.mp4`` (H.264 through imageio-ffmpeg) or ``.gif``."""
     path = Path(path)
-    frames = np.asarray(frames, np.uint8)
-    path.parent.mkdir(parents=True, exist_ok=True)
     suffix = path.suffix.lower()
     if suffix not in (".gif", ".mp4"):
         raise ValueError(f"{path}: expected a .mp4 or .gif file name")
+    if not _is_real(fps) or not (math.isfinite(fps) and fps > 0):
+        raise ValueError(f"fps must be a finite number > 0, got {fps!r}")
+    frames = _pixels(frames, 4, "frames")
+    path.parent.mkdir(parents=True, exist_ok=True)
     # written beside the target and renamed into place: a killed render leaves no half video
     final, path = path, path.with_name(f".{path.stem}.{os.getpid()}.partial{suffix}")
     try:
@@ -695,10 +742,13 @@ def write_image(image: np.ndarray, path: str | Path) -> Path:
     from PIL import Image
 
     path = Path(path)
+    fmt = {".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG"}.get(path.suffix.lower())
+    if fmt is None:
+        raise ValueError(f"{path}: expected a .png, .jpg or .jpeg file name")
+    image = _pixels(image, 3, "image")
     path.parent.mkdir(parents=True, exist_ok=True)
-    fmt = {".jpg": "JPEG", ".jpeg": "JPEG"}.get(path.suffix.lower(), "PNG")
     with jio.atomic_open(path, "wb") as f:
-        Image.fromarray(np.asarray(image, np.uint8)).save(f, format=fmt, optimize=True)
+        Image.fromarray(image).save(f, format=fmt, optimize=True)
     return path
 
 

@@ -156,6 +156,56 @@ def test_video_files(frames, tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["f.png", "m.gif", "m.mp4"]
 
 
+def test_bad_frames_and_file_names_are_refused(frames, tmp_path):
+    with pytest.raises(ValueError, match=r"float64 in \[0.0, 1.0\]; expected uint8 pixels"):
+        write_video(frames / 255.0, tmp_path / "f.mp4")  # would be written black
+    with pytest.raises(ValueError, match=r"frames of shape \(120, 160, 3\); expected \(T, H, W, 3\) RGB; for one image use write_image"):
+        write_video(frames[0], tmp_path / "one.mp4")
+    for fps in (0, -10, float("nan")):
+        with pytest.raises(ValueError, match="fps must be a finite number > 0"):
+            write_video(frames, tmp_path / "f.gif", fps=fps)
+    with pytest.raises(ValueError, match=r"expected a \.png, \.jpg or \.jpeg file name"):
+        write_image(frames[0], tmp_path / "f.bmp")
+    with pytest.raises(ValueError, match=r"image of shape \(120, 160\); expected \(H, W, 3\)"):
+        write_image(frames[0, :, :, 0], tmp_path / "f.png")
+    assert not list(tmp_path.iterdir())
+    # integer pixels in 0-255 of another dtype are written as they are
+    write_image(frames[0].astype(np.int64), tmp_path / "i.png")
+    from PIL import Image
+
+    np.testing.assert_array_equal(np.asarray(Image.open(tmp_path / "i.png").convert("RGB")), frames[0])
+
+
+@pytest.mark.parametrize(
+    "change, match",
+    [
+        ({"width": 40.5}, "width must be a whole number of pixels"),
+        ({"height": True}, "height must be a whole number of pixels"),
+        ({"fps": 0}, "fps must be a finite number > 0"),
+        ({"speed": float("nan")}, "speed must be a finite number > 0"),
+        ({"distance": -1.0}, "distance must be a finite number > 0"),
+        ({"elevation": float("inf")}, "elevation must be a finite number of degrees"),
+    ],
+)
+def test_render_options_refuse_impossible_values(change, match):
+    with pytest.raises(ValueError, match=match):
+        RenderOptions(**change)
+
+
+def test_render_names_what_it_was_given_instead_of_a_result(result):
+    from jtraj.render import _render_options
+
+    with pytest.raises(TypeError, match="not its trajectory"):
+        render(result.trajectory)
+    with pytest.raises(ValueError, match="render_benchmark"):
+        render(dataclasses.replace(result, problem="quadflip", trajectory=object()))
+    # options as a mapping of RenderOptions' fields, keyword arguments over them
+    assert _render_options({"width": 32, "height": 24}, {"height": 20}) == RenderOptions(width=32, height=20)
+    assert _render_options(SMALL, {"fps": 5}) == dataclasses.replace(SMALL, fps=5)
+    with pytest.raises(TypeError, match="options must be a RenderOptions"):
+        render(result, 320)
+
+
 def test_collada_visuals_are_converted_for_every_go2_body():
     go2 = robots.load("go2")
     model = robots.load_render_model(go2)
