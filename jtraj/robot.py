@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import difflib
 import functools
 import hashlib
 import importlib.metadata
@@ -617,8 +618,37 @@ def _vector(value: Any, n: int, source: pathlib.Path, what: str) -> np.ndarray:
     return array
 
 
+#: The keys a robot file may have, at its top level and in its tables.
+_KEYS = {
+    "": ("name", "urdf", "locked_joints", "expected_joints", "standing", "contact", "groups"),
+    "standing.": ("base_xyz", "base_wxyz", "joints"),
+    "contact[].": ("name", "link", "offset"),
+}
+
+
+def _check_keys(table: Any, where: str, source: pathlib.Path) -> None:
+    allowed = _KEYS[where]
+    if not isinstance(table, Mapping):
+        raise RobotLoadError(f"{source}: {where.rstrip('.') or 'the file'} must be a table, got {table!r}")
+    for key in table:
+        if key not in allowed:
+            close = difflib.get_close_matches(key, allowed, n=1)
+            hint = f"; did you mean {close[0]!r}?" if close else ""
+            raise RobotLoadError(f"{source}: unknown key {where}{key!r}{hint} (expected {', '.join(where + k for k in allowed)})")
+
+
+def _strings(value: Any, source: pathlib.Path, what: str) -> tuple[str, ...]:
+    """A list of names (a lone string is refused: it would be read letter by letter)."""
+    if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
+        raise RobotLoadError(f"{source}: {what} must be a list of names, got {value!r}")
+    return tuple(value)
+
+
 def _build(config: Mapping, source: pathlib.Path) -> Robot:
+    _check_keys(config, "", source)
     name = config.get("name", source.stem)
+    if not isinstance(name, str) or not name:
+        raise RobotLoadError(f"{source}: 'name' must be a nonempty string, got {name!r}")
     urdf_rel = _require(config, "urdf", str, source)
     urdf_path = robots_data_dir() / urdf_rel
     if not urdf_path.is_file():
@@ -628,7 +658,7 @@ def _build(config: Mapping, source: pathlib.Path) -> Robot:
         )
     urdf = _parse_urdf(urdf_path, source)
 
-    locked = tuple(config.get("locked_joints", ()))
+    locked = _strings(config.get("locked_joints", []), source, "'locked_joints'")
     for joint in locked:
         if joint not in urdf.joints:
             raise RobotLoadError(
@@ -663,6 +693,8 @@ def _assemble(config, source, name, urdf_path, urdf, locked) -> Robot:
     joint_names = tuple(joint_names)
 
     expected_nj = config.get("expected_joints")
+    if expected_nj is not None and (not isinstance(expected_nj, int) or isinstance(expected_nj, bool) or expected_nj < 0):
+        raise RobotLoadError(f"{source}: 'expected_joints' must be a whole number, got {expected_nj!r}")
     if expected_nj is not None and expected_nj != len(joint_names):
         raise RobotLoadError(
             f"{source}: {urdf_path} with locked joints {list(locked)} has {len(joint_names)} joints, "
@@ -671,8 +703,12 @@ def _assemble(config, source, name, urdf_path, urdf, locked) -> Robot:
 
     # Contact points.
     contacts: list[ContactPoint] = []
-    for i, entry in enumerate(config.get("contact", ())):
+    entries = config.get("contact", [])
+    if not isinstance(entries, list):
+        raise RobotLoadError(f"{source}: 'contact' must be an array of tables ([[contact]]), got {entries!r}")
+    for i, entry in enumerate(entries):
         where = f"contact[{i}]."
+        _check_keys(entry, "contact[].", source)
         cname = _require(entry, "name", str, source, where)
         link = _require(entry, "link", str, source, where)
         offset = _vector(entry.get("offset", [0.0, 0.0, 0.0]), 3, source, f"{where}offset")
@@ -692,9 +728,12 @@ def _assemble(config, source, name, urdf_path, urdf, locked) -> Robot:
         )
     contact_names = [c.name for c in contacts]
     groups: dict[str, tuple[int, ...]] = {}
-    for gname, members in config.get("groups", {}).items():
+    group_table = config.get("groups", {})
+    if not isinstance(group_table, Mapping):
+        raise RobotLoadError(f"{source}: 'groups' must be a table of contact-point lists, got {group_table!r}")
+    for gname, members in group_table.items():
         indices = []
-        for member in members:
+        for member in _strings(members, source, f"group {gname!r}"):
             if member not in contact_names:
                 raise RobotLoadError(
                     f"{source}: group {gname!r} names contact point {member!r}, which is not declared; "
@@ -705,16 +744,24 @@ def _assemble(config, source, name, urdf_path, urdf, locked) -> Robot:
 
     # Standing pose.
     standing = config.get("standing", {})
+    _check_keys(standing, "standing.", source)
     base_xyz = _vector(standing.get("base_xyz", [0.0, 0.0, 0.0]), 3, source, "standing.base_xyz")
     base_wxyz = _vector(standing.get("base_wxyz", [1.0, 0.0, 0.0, 0.0]), 4, source, "standing.base_wxyz")
+    if not np.linalg.norm(base_wxyz) > 1e-6:
+        raise RobotLoadError(f"{source}: standing.base_wxyz must be a nonzero quaternion (w, x, y, z), got {list(base_wxyz)}")
     base_wxyz = base_wxyz / np.linalg.norm(base_wxyz)
     q_standing = np.zeros(len(joint_names))
-    for jname, value in standing.get("joints", {}).items():
+    joints_table = standing.get("joints", {})
+    if not isinstance(joints_table, Mapping):
+        raise RobotLoadError(f"{source}: standing.joints must be a table of joint angles, got {joints_table!r}")
+    for jname, value in joints_table.items():
         if jname not in joint_names:
             raise RobotLoadError(
                 f"{source}: standing.joints names {jname!r}, which is not an actuated joint; "
                 f"expected one of: {', '.join(joint_names)}"
             )
+        if not isinstance(value, (int, float)) or isinstance(value, bool) or not np.isfinite(value):
+            raise RobotLoadError(f"{source}: standing.joints.{jname} must be a finite number (rad), got {value!r}")
         q_standing[joint_names.index(jname)] = float(value)
 
     lower, upper, velocity, effort = _limits(urdf, joint_names)
