@@ -144,6 +144,11 @@ def test_bad_requests_are_reported():
         B.solve_benchmark("quadflip", "euler")
     with pytest.raises(ValueError, match="n_knots"):
         B.quadrotor_flip(n_knots=3)
+    for tf in (-1.0, 0.0, float("nan")):
+        with pytest.raises(ValueError, match="benchmark quadflip: tf must be a finite number > 0"):
+            B.quadrotor_flip(tf=tf)
+    with pytest.raises(ValueError, match="benchmark barrelroll: speed must be a finite number > 0"):
+        B.barrel_roll(speed=float("inf"))
     with pytest.raises(ValueError, match="too long"):
         B.satellite_slew(n_knots=21)  # 5 s steps cannot resolve the 0.3 Hz mode
 

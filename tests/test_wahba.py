@@ -207,6 +207,21 @@ def test_main_wahba_writes_the_three_files(tmp_path, capsys):
     assert "multiplicative" in capsys.readouterr().out
 
 
-def test_bad_arguments_are_rejected():
-    with pytest.raises(ValueError, match="trials"):
-        W.run_wahba(trials=0)
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"trials": 0}, "trials must be an integer >= 1, got 0"),
+        ({"iterations": 2.5}, "iterations must be an integer >= 1, got 2.5"),
+        ({"n_vectors": 1}, "n_vectors must be an integer >= 2, got 1"),
+        ({"noise_std_deg": float("nan")}, "noise_std_deg must be a finite number >= 0"),
+        ({"init_offset_deg": -10.0}, "init_offset_deg must be a finite number >= 0"),
+    ],
+)
+def test_bad_arguments_are_rejected(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        W.run_wahba(**kwargs)
+
+
+def test_one_vector_is_not_a_wahba_problem():
+    with pytest.raises(ValueError, match="n_vectors must be an integer >= 2"):
+        W.generate_problem(jax.random.PRNGKey(0), n_vectors=1)

@@ -172,9 +172,13 @@ def _bounds(N: int, n: int) -> tuple[np.ndarray, np.ndarray]:
     return np.full((N, n), -np.inf), np.full((N, n), np.inf)
 
 
-def _check_n_knots(name: str, n_knots: int, minimum: int) -> None:
-    if not isinstance(n_knots, (int, np.integer)) or n_knots < minimum:
+def _check_n_knots(name: str, n_knots: int, minimum: int, **positive: Any) -> None:
+    """``n_knots`` an integer >= ``minimum``; each of ``positive`` a finite number > 0."""
+    if not isinstance(n_knots, (int, np.integer)) or isinstance(n_knots, bool) or n_knots < minimum:
         raise ValueError(f"benchmark {name}: n_knots must be an integer >= {minimum}, got {n_knots!r}")
+    for key, value in positive.items():
+        if not isinstance(value, (int, float, np.integer, np.floating)) or isinstance(value, bool) or not (np.isfinite(value) and value > 0):
+            raise ValueError(f"benchmark {name}: {key} must be a finite number > 0, got {value!r}")
 
 
 def _slerp_path(q0: np.ndarray, axis, angle: float, n: int) -> np.ndarray:
@@ -217,7 +221,7 @@ class QuadrotorFlip(Benchmark):
         uniformly through 360 degrees about x, v = omega = 0, hover thrust.
         For ``n_knots < 101`` the waypoint knots are scaled to the same times.
         """
-        _check_n_knots("quadflip", n_knots, 11)
+        _check_n_knots("quadflip", n_knots, 11, tf=tf)
         model = M.Quadrotor()
         N, nx, nu = n_knots, model.nx, model.nu
         ex = (1.0, 0.0, 0.0)
@@ -317,7 +321,7 @@ class BarrelRoll(Benchmark):
         the Cayley-map goal error of the attitude formulation is singular (q_s = 0), so that
         start is only usable by the naive formulation.
         """
-        _check_n_knots("barrelroll", n_knots, 11)
+        _check_n_knots("barrelroll", n_knots, 11, tf=tf, speed=speed)
         model = M.Airplane()
         N, nx = n_knots, model.nx
         trim = model.trim(speed)
@@ -413,7 +417,7 @@ class SatelliteSlew(Benchmark):
 
         The RK4 step must resolve the fastest flexible mode: ``2 pi f_max h`` above 2.5 raises.
         """
-        _check_n_knots("satellite", n_knots, 11)
+        _check_n_knots("satellite", n_knots, 11, tf=tf)
         model = M.FlexibleSpacecraft()
         N, nx, nu = n_knots, model.nx, model.nu
         h = tf / (N - 1)

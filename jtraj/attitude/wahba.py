@@ -198,6 +198,8 @@ def generate_problem(
     rotation vector that perturbs each world vector. init_offset: angle (rad) between the
     initial guess and the SVD solution.
     """
+    if not isinstance(n_vectors, (int, np.integer)) or isinstance(n_vectors, bool) or n_vectors < 2:
+        raise ValueError(f"n_vectors must be an integer >= 2 (one vector leaves the attitude free about it), got {n_vectors!r}")
     k_att, k_vec, k_noise, k_axis = jax.random.split(key, 4)
     q_true = _unit(jax.random.normal(k_att, (4,)))
     q_true = jnp.where(q_true[0] < 0.0, -q_true, q_true)
@@ -361,10 +363,12 @@ def run_wahba(
     init_offset_deg: float = 10.0,
 ) -> WahbaResult:
     """Run all methods on ``trials`` problems whose keys are split from ``PRNGKey(seed)``."""
-    if trials < 1 or iterations < 1 or n_vectors < 2:
-        raise ValueError(
-            f"need trials >= 1, iterations >= 1 and n_vectors >= 2, got {trials}, {iterations}, {n_vectors}"
-        )
+    for name, value, minimum in (("trials", trials, 1), ("iterations", iterations, 1), ("n_vectors", n_vectors, 2), ("seed", seed, 0)):
+        if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < minimum:
+            raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    for name, degrees in (("noise_std_deg", noise_std_deg), ("init_offset_deg", init_offset_deg)):
+        if not isinstance(degrees, (int, float, np.integer, np.floating)) or isinstance(degrees, bool) or not (math.isfinite(degrees) and degrees >= 0):
+            raise ValueError(f"{name} must be a finite number >= 0 (degrees), got {degrees!r}")
     keys = jax.random.split(jax.random.PRNGKey(seed), trials)
     errs = solve_trials(
         keys,
