@@ -66,6 +66,18 @@ def skew(v: jax.Array) -> jax.Array:
     )
 
 
+def _tangent(group: type, tangent: ArrayLike) -> jax.Array:
+    """``tangent`` as a float array whose last axis is the group's tangent size (ValueError
+    otherwise: a wrong size would be read past its end, which JAX clamps silently)."""
+    tangent = jnp.asarray(tangent)
+    dim = getattr(group, "tangent_dim", None)
+    if dim is not None and (tangent.ndim == 0 or tangent.shape[-1] != dim):
+        raise ValueError(f"a {group.__name__} tangent has {dim} entries on its last axis, got shape {tangent.shape}")
+    if not jnp.issubdtype(tangent.dtype, jnp.floating):
+        tangent = tangent.astype(float)
+    return tangent
+
+
 def exp(group: type[Group], tangent: jax.Array) -> Group:
     """Exponential map ``Exp: R^3 -> SO(3)`` or ``R^6 -> SE(3)``.
 
@@ -74,6 +86,7 @@ def exp(group: type[Group], tangent: jax.Array) -> Group:
     below 1e-5, which is wrong to first order (translation off by ``theta x rho / 2``, and
     its derivative at the identity off by a factor 2).
     """
+    tangent = _tangent(group, tangent)
     if group is SE3:
         rho, theta = tangent[..., :3], tangent[..., 3:]
         translation = jnp.einsum("...ij,...j->...i", _so3_left_jacobian(theta), rho)
@@ -243,7 +256,7 @@ def left_jacobian(group: type[SO3] | type[SE3], tangent: jax.Array) -> jax.Array
     Shape (..., n) -> (..., n, n) with n = 3 (SO3) or 6 (SE3).
     """
     _check_group(group)
-    return _LEFT[group](tangent)
+    return _LEFT[group](_tangent(group, tangent))
 
 
 def right_jacobian(group: type[SO3] | type[SE3], tangent: jax.Array) -> jax.Array:
@@ -253,12 +266,14 @@ def right_jacobian(group: type[SO3] | type[SE3], tangent: jax.Array) -> jax.Arra
     it is Pinocchio's ``Jexp6``.
     """
     _check_group(group)
+    tangent = _tangent(group, tangent)
     return _LEFT[group](-tangent)
 
 
 def left_jacobian_inv(group: type[SO3] | type[SE3], tangent: jax.Array) -> jax.Array:
     """Inverse of the left Jacobian, finite for rotation angles below 2 pi."""
     _check_group(group)
+    tangent = _tangent(group, tangent)
     return _LEFT_INV[group](tangent)
 
 
@@ -269,6 +284,7 @@ def right_jacobian_inv(group: type[SO3] | type[SE3], tangent: jax.Array) -> jax.
     ``G.exp(xi).jlog()`` for rotation angles below pi.
     """
     _check_group(group)
+    tangent = _tangent(group, tangent)
     return _LEFT_INV[group](-tangent)
 
 

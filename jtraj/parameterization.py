@@ -19,7 +19,8 @@ from __future__ import annotations
 
 import abc
 import dataclasses
-from typing import ClassVar
+import functools
+from typing import Any, ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -60,6 +61,22 @@ class AbstractParameterization(abc.ABC):
     nq: ClassVar[int]
     ndiff: ClassVar[int]
 
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        # Every chart's methods check their coordinates (`_coordinates`) before its own code
+        # runs: a wrong size would otherwise be indexed past its end, which JAX clamps silently.
+        super().__init_subclass__(**kwargs)
+        for method, checked in _CHECKED_ARGUMENTS.items():
+            if method in cls.__dict__:
+                setattr(cls, method, _with_checked_arguments(cls.__dict__[method], checked))
+
+    def _coordinates(self, value: Any, what: str, size: int | None = None) -> jax.Array:
+        """``value`` as a float array whose last axis has ``size`` entries (default ``nq``)."""
+        size = self.nq if size is None else size
+        value = jnp.asarray(value)
+        if value.ndim == 0 or value.shape[-1] != size:
+            raise ValueError(f"{type(self).__name__}: {what} has {size} entries on its last axis ({self.label}), got shape {value.shape}")
+        return value if jnp.issubdtype(value.dtype, jnp.floating) else value.astype(float)
+
     @property
     def ncon(self) -> int:
         return 0
@@ -94,11 +111,31 @@ class AbstractParameterization(abc.ABC):
 
     def from_qpos(self, qpos: jax.Array) -> jax.Array:
         """Inverse of `to_qpos` (the quaternion is normalized first)."""
+        qpos = self._coordinates(qpos, "qpos (xyz_wxyz)", 7)
         wxyz = qpos[3:7] / jnp.linalg.norm(qpos[3:7])
         return self.from_pose(SE3.from_rotation_and_translation(SO3(wxyz), qpos[:3]))
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}()"
+
+
+#: The contract's methods whose leading arguments are checked: (name, size) per argument,
+#: size None for the chart's own ``nq``.
+_CHECKED_ARGUMENTS: dict[str, tuple[tuple[str, int | None], ...]] = {
+    "to_pose": (("q", None),),
+    "integrate": (("q", None), ("V_b (body twist)", 6)),
+    "difference": (("q1", None), ("q2", None)),
+    "constraint": (("q", None),),
+}
+
+
+def _with_checked_arguments(method: Any, checked: tuple[tuple[str, int | None], ...]) -> Any:
+    @functools.wraps(method)
+    def wrapped(self, *args, **kwargs):
+        args = tuple(self._coordinates(a, *checked[i]) if i < len(checked) else a for i, a in enumerate(args))
+        return method(self, *args, **kwargs)
+
+    return wrapped
 
 
 #: Smallest quaternion norm the charts divide by. Noise on a warm start (or a wild iterate)

@@ -275,3 +275,19 @@ def test_euler_warm_start_of_the_backflip_avoids_gimbal_lock():
     q = jax.vmap(p.from_pose)(poses)
     W = jax.vmap(euler.rate_matrix)(q[:, 3:6])
     assert np.all(np.isfinite(W)) and np.abs(W).max() < 1.01 / np.sin(euler.GIMBAL_MARGIN)
+
+
+@pytest.mark.parametrize("param", PARAMS, ids=IDS)
+def test_wrong_sizes_are_refused_by_name(param):
+    """A coordinate vector of another chart's size is refused, not read past its end (which
+    JAX would clamp silently); integer coordinates are taken as floats."""
+    with pytest.raises(ValueError, match=rf"{type(param).__name__}: q has {param.nq} entries on its last axis"):
+        param.to_qpos(jnp.zeros(3))
+    with pytest.raises(ValueError, match=r"V_b \(body twist\) has 6 entries"):
+        param.integrate(param.from_pose(SE3.identity()), jnp.zeros(3), 0.1)
+    with pytest.raises(ValueError, match="q2 has"):
+        param.difference(param.from_pose(SE3.identity()), jnp.zeros(param.nq + 1))
+    with pytest.raises(ValueError, match=r"qpos \(xyz_wxyz\) has 7 entries"):
+        param.from_qpos(jnp.zeros(6))
+    q = np.asarray(param.from_pose(SE3.identity())).round().astype(int)
+    np.testing.assert_allclose(param.to_qpos(q), [0, 0, 0, 1, 0, 0, 0], atol=1e-15)
