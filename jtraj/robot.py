@@ -260,6 +260,8 @@ def load(name: str) -> Robot:
 
     Cached: a second call returns the same object (so jitted functions do not recompile).
     """
+    if not isinstance(name, str) or name.endswith(".toml") or "/" in name:
+        raise RobotLoadError(f"unknown robot {name!r}; expected one of: {', '.join(available())} (for a robot file use jtraj.robot.load_file)")
     resource = importlib.resources.files("jtraj.robots") / f"{name}.toml"
     if not resource.is_file():
         raise RobotLoadError(f"unknown robot {name!r}; expected one of: {', '.join(available())}")

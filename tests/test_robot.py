@@ -4,6 +4,7 @@ import dataclasses
 import importlib.resources
 import tomllib
 import xml.etree.ElementTree as ET
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -287,6 +288,9 @@ def test_contact_on_missing_link_names_the_link(tmp_path):
 def test_unknown_robot_lists_choices():
     with pytest.raises(robot_lib.RobotLoadError, match="talos"):
         robot_lib.load("atlas")
+    for path in (Path("robots/go2.toml"), "robots/go2.toml", "go2.toml"):
+        with pytest.raises(robot_lib.RobotLoadError, match=r"for a robot file use jtraj\.robot\.load_file"):
+            robot_lib.load(path)
 
 
 @pytest.mark.parametrize(
