@@ -248,4 +248,7 @@ def plot_directory(directory: str | Path, out: str | Path | None = None) -> list
     result = Result.load(directory)
     if result.trajectory is None:
         raise FileNotFoundError(f"{directory}: result.json without trajectory.npz; nothing to plot against time")
-    return [plot_solution(result, out / "solution.png"), plot_convergence(result, out / "convergence.png")]
+    # Result.plot: the whole-body figure, or an attitude benchmark's own
+    solution = out / "solution.png"
+    result.plot(solution)
+    return [solution, plot_convergence(result, out / "convergence.png")]
