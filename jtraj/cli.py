@@ -2,8 +2,10 @@
 
 Exit status: 0 success; 2 a bad input (one line on stderr, ``jtraj CMD: FIELD: VALUE:
 EXPECTED``, before anything compiles or solves); ``jtraj solve`` and ``jtraj attitude`` also
-exit 3 when the solver converged but the motion does not do the task (e.g. a jump instead of a
-flip) and 4 when it did not converge.
+exit 3 when the solver converged to a feasible point but the motion does not do the task (e.g. a
+jump instead of a flip) and 4 when it did not return a feasible solution (the outcome
+``not_converged``, which includes a convergence to a point over the task check's violation
+tolerance).
 """
 
 from __future__ import annotations
@@ -18,9 +20,9 @@ from typing import Any
 
 #: exit status of a bad input (as argparse's own usage errors)
 EXIT_BAD_INPUT = 2
-#: exit status of `jtraj solve` (and `jtraj attitude`) when the solver converged but the task failed
+#: exit status of `jtraj solve` (and `jtraj attitude`) when the solver converged to a feasible point that does not do the task
 EXIT_TASK_FAILED = 3
-#: exit status of `jtraj solve` (and `jtraj attitude`) when the solver did not converge
+#: exit status of `jtraj solve` (and `jtraj attitude`) when the solver returned no feasible solution (outcome not_converged)
 EXIT_NOT_CONVERGED = 4
 
 
@@ -71,6 +73,7 @@ def _cmd_solve(args: argparse.Namespace) -> int:
         progress_every=args.every,
     )
     from jtraj.plots import plot_convergence, plot_result
+    from jtraj.result import Outcome
 
     plot_result(result, f"{out}/trajectory.png")
     plot_convergence(result, f"{out}/convergence.png")
@@ -79,7 +82,7 @@ def _cmd_solve(args: argparse.Namespace) -> int:
         _render_after_solve(out)
     if result.success:
         return 0
-    return EXIT_TASK_FAILED if result.converged else EXIT_NOT_CONVERGED
+    return EXIT_TASK_FAILED if result.status is Outcome.TASK_FAILED else EXIT_NOT_CONVERGED
 
 
 def _solve_out(args: argparse.Namespace) -> str:
@@ -192,6 +195,7 @@ def _check_render_args(args: argparse.Namespace) -> None:
 
 
 def _cmd_render(args: argparse.Namespace) -> int:
+    from jtraj.io import FileFormatError
     from jtraj.render import RenderError, render_directory
 
     _check_render_args(args)
@@ -199,12 +203,15 @@ def _cmd_render(args: argparse.Namespace) -> int:
         paths = render_directory(args.dir, args.out, args.strip, keyframes=args.keyframes, layout=args.layout, spacing=args.spacing, options=_render_options(args))
     except RenderError as e:  # no OpenGL here: the message says what to install
         raise SystemExit(f"jtraj render: {e}") from None
+    except (ValueError, FileFormatError) as e:  # a folder that is not a whole-body solution
+        raise InputError("DIR", args.dir, str(e)) from None
     for path in paths:
         print(f"wrote {path}")
     return 0
 
 
 def _cmd_plot(args: argparse.Namespace) -> int:
+    from jtraj.io import FileFormatError
     from jtraj.plots import plot_directory
 
     folder = Path(args.dir)
@@ -212,7 +219,11 @@ def _cmd_plot(args: argparse.Namespace) -> int:
     if not (solved or (folder / "table_iv.json").is_file()):
         raise InputError("DIR", args.dir, "expected a folder written by `jtraj solve` (result.json and trajectory.npz) or `jtraj compare` (table_iv.json)")
     _check_out(args.out or args.dir)
-    for path in plot_directory(folder, args.out):
+    try:
+        paths = plot_directory(folder, args.out)
+    except FileFormatError as e:
+        raise InputError("DIR", args.dir, str(e)) from None
+    for path in paths:
         print(f"wrote {path}")
     return 0
 

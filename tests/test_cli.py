@@ -111,6 +111,20 @@ def test_plot_and_render_check_their_folders_before_drawing(tmp_path, monkeypatc
         assert code == 2 and err.startswith(f"jtraj render: {flag}: '/proc/jtraj-x/{name}': cannot create a file in /proc"), err
 
 
+def test_plot_and_render_of_an_attitude_folder(tmp_path, capsys):
+    """`jtraj plot` draws a rigid-body benchmark's folder with its own figure; `jtraj render`
+    refuses it in one line, pointing to the benchmark renderer."""
+    from test_result import make_result, state_trajectory
+
+    run = tmp_path / "att"
+    make_result(state_trajectory()).save(run)
+    code, err = _run(["render", str(run), "--out", str(tmp_path / "v.gif")], capsys)
+    assert code == 2 and err.startswith(f"jtraj render: DIR: {str(run)!r}: 'quadflip' is not a legged robot's motion") and "render_benchmark" in err
+    assert err.count("\n") == 1
+    assert cli.main(["plot", str(run), "--out", str(tmp_path / "p")]) == 0
+    assert (tmp_path / "p" / "solution.png").stat().st_size > 0 and (tmp_path / "p" / "convergence.png").stat().st_size > 0
+
+
 @pytest.mark.parametrize(
     "statuses, code",
     [(["solved", "solved"], 0), (["solved", "converged_but_task_failed"], cli.EXIT_TASK_FAILED), (["converged_but_task_failed", "not_converged"], cli.EXIT_NOT_CONVERGED)],
@@ -158,12 +172,21 @@ def test_none_turns_off_a_jtraj_option_and_stays_a_word_for_ipopt():
         cli._check_ipopt(["armijo=small"], solver="jtraj")
 
 
-@pytest.mark.parametrize("converged, success, code", [(True, True, 0), (True, False, cli.EXIT_TASK_FAILED), (False, False, cli.EXIT_NOT_CONVERGED)])
-def test_solve_exit_status_says_what_happened(converged, success, code, monkeypatch, tmp_path, capsys):
+@pytest.mark.parametrize(
+    "converged, status, code",
+    [
+        (True, "solved", 0),
+        (True, "converged_but_task_failed", cli.EXIT_TASK_FAILED),
+        (False, "not_converged", cli.EXIT_NOT_CONVERGED),
+        (True, "not_converged", cli.EXIT_NOT_CONVERGED),  # converged, but over the task check's violation tolerance
+    ],
+)
+def test_solve_exit_status_says_what_happened(converged, status, code, monkeypatch, tmp_path, capsys):
     import jtraj.plots
     import jtraj.solver
+    from jtraj.result import Outcome
 
-    fake = types.SimpleNamespace(converged=converged, success=success)
+    fake = types.SimpleNamespace(converged=converged, status=Outcome(status), success=status == "solved")
     monkeypatch.setattr(jtraj.solver, "solve", lambda *a, **k: fake)
     monkeypatch.setattr(jtraj.plots, "plot_result", lambda *a, **k: None)
     monkeypatch.setattr(jtraj.plots, "plot_convergence", lambda *a, **k: None)
