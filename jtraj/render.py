@@ -408,6 +408,9 @@ def _as_result(result) -> Result:
         raise ValueError("the result has no trajectory to draw (solve with keep_trajectory=True or load a folder with trajectory.npz)")
     if not hasattr(result.trajectory, "base_xyz_wxyz"):
         raise ValueError(f"{result.problem!r} is not a legged robot's motion (its trajectory is a {type(result.trajectory).__name__}); draw a rigid-body benchmark with jtraj.render.render_benchmark")
+    bad = ~np.all(np.isfinite(np.asarray(result.trajectory.base_xyz_wxyz)), axis=-1)
+    if bad.any():
+        raise ValueError(f"the base pose is NaN or infinite at {int(bad.sum())} knot(s), the first at knot {int(np.argmax(bad))} (the solver's status: {result.solver_status.value}); nothing to draw there")
     return result
 
 

@@ -316,8 +316,6 @@ def _load_trajectory(path: Path) -> Any:
         for key in _PER_KNOT:
             if key in arrays and (arrays[key].ndim == 0 or arrays[key].shape[0] != t.shape[0]):
                 raise io.FileFormatError(f"{path}: {key!r} has shape {arrays[key].shape}, but 't' has {t.shape[0]} knots")
-    if "base_xyz_wxyz" in arrays and not np.all(np.isfinite(arrays["base_xyz_wxyz"])):
-        raise io.FileFormatError(f"{path}: 'base_xyz_wxyz' has NaN or infinite entries")
     # string arrays (contact names) come back as tuples of str
     values = {k: tuple(str(s) for s in v) if v.dtype.kind == "U" and v.ndim == 1 else v for k, v in arrays.items()}
     try:

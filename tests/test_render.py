@@ -204,6 +204,12 @@ def test_render_names_what_it_was_given_instead_of_a_result(result):
     assert _render_options(SMALL, {"fps": 5}) == dataclasses.replace(SMALL, fps=5)
     with pytest.raises(TypeError, match="options must be a RenderOptions"):
         render(result, 320)
+    # a trajectory with NaN poses (a solver stopped by a numerical error) loads but is not drawn
+    poses = np.array(result.trajectory.base_xyz_wxyz)
+    poses[7:, 3] = np.nan
+    broken = dataclasses.replace(result, trajectory=dataclasses.replace(result.trajectory, base_xyz_wxyz=poses))
+    with pytest.raises(ValueError, match=r"the base pose is NaN or infinite at 4 knot\(s\), the first at knot 7 \(the solver's status: solved\)"):
+        render(broken)
 
 
 def test_collada_visuals_are_converted_for_every_go2_body():
