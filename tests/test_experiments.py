@@ -502,4 +502,6 @@ def test_a_failed_cells_progress_line_says_why():
     row = {"status": "solved", "solver": "ipopt", "solver_status": "solved", "task_check": None}
     assert _why(row) == ""
     assert _why({**row, "status": "converged_but_task_failed", "task_check": "+0.00 turns about the flip axis; expected -1 +- 0.25"}) == "  (task check: +0.00 turns about the flip axis; expected -1 +- 0.25)"
-    assert _why({**row, "status": "not_converged", "solver_status": "step_computation_failed"}) == "  (ipopt: step_computation_failed)"
+    assert _why({**row, "status": "not_converged", "converged": False, "solver_status": "step_computation_failed"}) == "  (ipopt: step_computation_failed)"
+    infeasible = {**row, "status": "not_converged", "converged": True, "constraint_violation": 0.02}
+    assert _why(infeasible) == f"  (ipopt converged, but to a violation of 2.0e-02, over the task check's {FEASIBILITY_TOL:g})"
