@@ -154,6 +154,7 @@ class DifferentiableTask:
         if theta is None or isinstance(theta, TaskParams):
             theta = self.transcription.resolve_theta(self.theta if theta is None else theta)
         elif isinstance(theta, Mapping):
+            self.transcription.resolve_theta(theta)  # jtraj.solve's refusals of a mapping (e.g. a force-rate bound the task lacks)
             theta = self.transcription.resolve_theta(self.theta.replace(**theta))
         else:
             raise TypeError(f"theta must be None, a mapping of parameter overrides or a TaskParams, got {type(theta).__name__}")
