@@ -622,7 +622,7 @@ def _vector(value: Any, n: int, source: pathlib.Path, what: str) -> np.ndarray:
 
 #: The keys a robot file may have, at its top level and in its tables.
 _KEYS = {
-    "": ("name", "urdf", "locked_joints", "expected_joints", "standing", "contact", "groups"),
+    "": ("name", "extends", "urdf", "locked_joints", "expected_joints", "standing", "contact", "groups"),
     "standing.": ("base_xyz", "base_wxyz", "joints"),
     "contact[].": ("name", "link", "offset"),
 }
@@ -696,7 +696,7 @@ def _assemble(config, source, name, urdf_path, urdf, locked) -> Robot:
 
     expected_nj = config.get("expected_joints")
     if expected_nj is not None and (not isinstance(expected_nj, int) or isinstance(expected_nj, bool) or expected_nj < 0):
-        raise RobotLoadError(f"{source}: 'expected_joints' must be a whole number, got {expected_nj!r}")
+        raise RobotLoadError(f"{source}: 'expected_joints' must be a whole number >= 0, got {expected_nj!r}")
     if expected_nj is not None and expected_nj != len(joint_names):
         raise RobotLoadError(
             f"{source}: {urdf_path} with locked joints {list(locked)} has {len(joint_names)} joints, "
@@ -750,7 +750,7 @@ def _assemble(config, source, name, urdf_path, urdf, locked) -> Robot:
     base_xyz = _vector(standing.get("base_xyz", [0.0, 0.0, 0.0]), 3, source, "standing.base_xyz")
     base_wxyz = _vector(standing.get("base_wxyz", [1.0, 0.0, 0.0, 0.0]), 4, source, "standing.base_wxyz")
     if not np.linalg.norm(base_wxyz) > 1e-6:
-        raise RobotLoadError(f"{source}: standing.base_wxyz must be a nonzero quaternion (w, x, y, z), got {list(base_wxyz)}")
+        raise RobotLoadError(f"{source}: standing.base_wxyz must be a nonzero quaternion (w, x, y, z), got {base_wxyz.tolist()}")
     base_wxyz = base_wxyz / np.linalg.norm(base_wxyz)
     q_standing = np.zeros(len(joint_names))
     joints_table = standing.get("joints", {})

@@ -304,11 +304,12 @@ def test_unknown_robot_lists_choices():
         (lambda c: c["contact"][0].update(offset=[0.0, 1.0]), "offset"),
         # misspelt keys and tables are refused, not ignored
         (lambda c: c.update(locked_joint=["arm_left_7_joint"]), "unknown key 'locked_joint'; did you mean 'locked_joints'?"),
+        (lambda c: c.update(extend="talos"), "unknown key 'extend'; did you mean 'extends'?"),
         (lambda c: c["standing"].update(joint=c["standing"].pop("joints")), "unknown key standing.'joint'; did you mean 'joints'?"),
         (lambda c: c["contact"][0].update(ofset=[0.0, 0.0, 0.0]), "unknown key contact[].'ofset'; did you mean 'offset'?"),
         # values of the wrong kind name themselves
         (lambda c: c["standing"].update(base_wxyz=[0.0, 0.0, 0.0, 0.0]), "standing.base_wxyz must be a nonzero quaternion"),
-        (lambda c: c.update(expected_joints="32"), "'expected_joints' must be a whole number, got '32'"),
+        (lambda c: c.update(expected_joints="32"), "'expected_joints' must be a whole number >= 0, got '32'"),
         (lambda c: c.update(locked_joints="gripper_left_joint"), "'locked_joints' must be a list of names, got 'gripper_left_joint'"),
         (lambda c: c["groups"].update(left_foot="left_sole"), "group 'left_foot' must be a list of names"),
         (lambda c: c["standing"]["joints"].update(leg_left_4_joint="0.7x"), "standing.joints.leg_left_4_joint must be a finite number (rad), got '0.7x'"),
