@@ -119,20 +119,23 @@ class AbstractParameterization(abc.ABC):
         return f"{type(self).__name__}()"
 
 
-#: The contract's methods whose leading arguments are checked: (name, size) per argument,
-#: size None for the chart's own ``nq``.
-_CHECKED_ARGUMENTS: dict[str, tuple[tuple[str, int | None], ...]] = {
-    "to_pose": (("q", None),),
-    "integrate": (("q", None), ("V_b (body twist)", 6)),
-    "difference": (("q1", None), ("q2", None)),
-    "constraint": (("q", None),),
+#: The contract's methods whose leading arguments are checked, by their names in the contract:
+#: (argument, what it is, size), size None for the chart's own ``nq``.
+_CHECKED_ARGUMENTS: dict[str, tuple[tuple[str, str, int | None], ...]] = {
+    "to_pose": (("q", "q", None),),
+    "integrate": (("q", "q", None), ("V_b", "V_b (body twist)", 6)),
+    "difference": (("q1", "q1", None), ("q2", "q2", None)),
+    "constraint": (("q", "q", None),),
 }
 
 
-def _with_checked_arguments(method: Any, checked: tuple[tuple[str, int | None], ...]) -> Any:
+def _with_checked_arguments(method: Any, checked: tuple[tuple[str, str, int | None], ...]) -> Any:
     @functools.wraps(method)
     def wrapped(self, *args, **kwargs):
-        args = tuple(self._coordinates(a, *checked[i]) if i < len(checked) else a for i, a in enumerate(args))
+        args = tuple(self._coordinates(a, *checked[i][1:]) if i < len(checked) else a for i, a in enumerate(args))
+        for name, what, size in checked[len(args):]:
+            if name in kwargs:
+                kwargs[name] = self._coordinates(kwargs[name], what, size)
         return method(self, *args, **kwargs)
 
     return wrapped
