@@ -351,7 +351,7 @@ def _robustness_group(task, p, sigmas, replicates, seed, variables, exact_hessia
         row = base | {"sigma": float(sigma), "replicate": r} | _row(res) | {"batch": 1}
         jio.append_jsonl(runs_path, row)
         if progress is not None:
-            print(f"{task.name:10s} {p:6s} sigma={sigma:<7g} #{r}: {res.status.value:26s} {res.iterations:4d} it  {res.time_s:6.1f} s", file=progress, flush=True)
+            print(f"{task.name:10s} {p:6s} sigma={sigma:<7g} #{r}: {res.status.value:26s} {res.iterations:4d} it  {res.time_s:6.1f} s{_why(row)}", file=progress, flush=True)
     return len(todo)
 
 
@@ -613,7 +613,10 @@ def plot_iterations(runs: list[dict], path: str | Path) -> None:
         ax.set_title(task)
         ax.set_xlabel("warm-start noise sigma")
         ax.set_ylabel("iterations to convergence")
-    axes[0][0].legend(fontsize=8)
+        if not ax.lines:  # no cell of this task converged: say so rather than leave it blank
+            ax.text(0.5, 0.5, "no converged run", transform=ax.transAxes, ha="center", va="center")
+    if axes[0][0].get_legend_handles_labels()[0]:
+        axes[0][0].legend(fontsize=8)
     fig.tight_layout()
     jio.save_figure(fig, path, dpi=120)
     plt.close(fig)

@@ -496,6 +496,15 @@ def test_release_compiled_forgets_prepared_nlps_and_jax_caches():
         solver._CACHE.update(saved)  # the other tests' prepared NLPs (their programs compile again)
 
 
+@pytest.mark.filterwarnings("error::UserWarning")  # Fig. 2 without a converged run draws no empty legend
+def test_a_stopped_replicates_progress_line_says_why(tmp_path):
+    stream = io.StringIO()
+    robustness([HOP], ["euler"], sigmas=[1e-3], replicates=1, seed=3, out=tmp_path, progress=stream, ipopt_options={"max_iter": 1})
+    [line] = [ln for ln in stream.getvalue().splitlines() if "#0:" in ln]
+    assert line.endswith("  (ipopt: max_iter)") and "not_converged" in line
+    assert (tmp_path / "fig2.png").stat().st_size > 0
+
+
 def test_a_failed_cells_progress_line_says_why():
     from jtraj.experiments import _why
 
