@@ -48,6 +48,7 @@ from jtraj import task as tasks
 from jtraj.deprecation import renamed_argument
 from jtraj.implicit import implicit_solution
 from jtraj.nlp import CostGroup, Dep, KnotNLP
+from jtraj.numbers import is_real
 from jtraj.solver import transcription_options
 from jtraj.transcription import COMPACT_VARIABLES, CONSTRAINT_STAGES, GRAVITY, TaskParams, Transcription, TranscriptionOptions, cost_terms
 
@@ -224,9 +225,9 @@ def differentiable(
         a `DifferentiableTask`: call it with a `TaskParams` (``f.theta`` is the task's).
     """
     variables = renamed_argument(variables, layout, "variables", "layout", COMPACT_VARIABLES)
-    if not _is_number(force_weight) or not (math.isfinite(force_weight) and force_weight > 0):
+    if not is_real(force_weight) or not (math.isfinite(force_weight) and force_weight > 0):
         raise ValueError(f"force_weight must be a finite number > 0 (it makes the contact forces unique), got {force_weight!r}")
-    if not _is_number(weak_tol) or not (0 <= weak_tol < 1):
+    if not is_real(weak_tol) or not (0 <= weak_tol < 1):
         raise ValueError(f"weak_tol must be a number in [0, 1) (relative to the largest multiplier), got {weak_tol!r}")
     backend = solvers.get(solver)  # unknown names and options fail here, before building anything
     opts = forward_options(backend, options)
@@ -257,7 +258,3 @@ def forward_options(backend: solvers.AbstractSolver, options: solvers.AbstractOp
     if backend.name == "ipopt" and (options is None or isinstance(options, Mapping)):
         options = {**IPOPT_OPTIONS, **(options or {})}
     return backend.options(options)
-
-
-def _is_number(v: Any) -> bool:
-    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)

@@ -33,6 +33,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from jtraj import io as jio
+from jtraj.numbers import is_real, is_whole
 
 if TYPE_CHECKING:
     import mujoco
@@ -95,7 +96,7 @@ class RenderOptions:
     def __post_init__(self):
         for name in ("width", "height"):
             v = getattr(self, name)
-            if not isinstance(v, (int, np.integer)) or isinstance(v, bool):
+            if not is_whole(v):
                 raise ValueError(f"{name} must be a whole number of pixels, got {v!r}")
         if self.width < 16 or self.height < 16:
             raise ValueError(f"image size must be at least 16x16 pixels, got {self.width}x{self.height}")
@@ -103,16 +104,12 @@ class RenderOptions:
             v = getattr(self, name)
             if v is None and name in ("distance", "force_length"):
                 continue
-            if not _is_real(v) or not (math.isfinite(v) and v > 0):
+            if not is_real(v) or not (math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
         for name in ("azimuth", "elevation"):
             v = getattr(self, name)
-            if not _is_real(v) or not math.isfinite(v):
+            if not is_real(v) or not math.isfinite(v):
                 raise ValueError(f"{name} must be a finite number of degrees, got {v!r}")
-
-
-def _is_real(v: Any) -> bool:
-    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
 
 
 # ----------------------------------------------------------------------------------------
@@ -678,7 +675,7 @@ def write_video(frames: np.ndarray, path: str | Path, fps: float = 30.0) -> Path
     suffix = path.suffix.lower()
     if suffix not in (".gif", ".mp4"):
         raise ValueError(f"{path}: expected a .mp4 or .gif file name")
-    if not _is_real(fps) or not (math.isfinite(fps) and fps > 0):
+    if not is_real(fps) or not (math.isfinite(fps) and fps > 0):
         raise ValueError(f"fps must be a finite number > 0, got {fps!r}")
     frames = _pixels(frames, 4, "frames")
     path.parent.mkdir(parents=True, exist_ok=True)

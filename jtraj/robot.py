@@ -44,6 +44,7 @@ from jaxlie import SE3, SO3
 
 from jtraj import euler
 from jtraj.constants import GRAVITY
+from jtraj.numbers import is_real, is_whole
 
 # MJX prints "Failed to import warp" (its optional GPU backend) on import: keep the command line
 # clean and pass on anything else it prints.
@@ -695,7 +696,7 @@ def _assemble(config, source, name, urdf_path, urdf, locked) -> Robot:
     joint_names = tuple(joint_names)
 
     expected_nj = config.get("expected_joints")
-    if expected_nj is not None and (not isinstance(expected_nj, int) or isinstance(expected_nj, bool) or expected_nj < 0):
+    if expected_nj is not None and (not is_whole(expected_nj) or expected_nj < 0):
         raise RobotLoadError(f"{source}: 'expected_joints' must be a whole number >= 0, got {expected_nj!r}")
     if expected_nj is not None and expected_nj != len(joint_names):
         raise RobotLoadError(
@@ -762,7 +763,7 @@ def _assemble(config, source, name, urdf_path, urdf, locked) -> Robot:
                 f"{source}: standing.joints names {jname!r}, which is not an actuated joint; "
                 f"expected one of: {', '.join(joint_names)}"
             )
-        if not isinstance(value, (int, float)) or isinstance(value, bool) or not np.isfinite(value):
+        if not is_real(value) or not np.isfinite(value):
             raise RobotLoadError(f"{source}: standing.joints.{jname} must be a finite number (rad), got {value!r}")
         q_standing[joint_names.index(jname)] = float(value)
 

@@ -24,6 +24,7 @@ from jtraj import io
 from jtraj import quaternion as quat
 from jtraj.attitude import models as M
 from jtraj.lie import accumulated_rotation
+from jtraj.numbers import is_real, is_whole
 from jtraj.registry import lookup
 
 __all__ = [
@@ -174,10 +175,10 @@ def _bounds(N: int, n: int) -> tuple[np.ndarray, np.ndarray]:
 
 def _check_n_knots(name: str, n_knots: int, minimum: int, **positive: Any) -> None:
     """``n_knots`` an integer >= ``minimum``; each of ``positive`` a finite number > 0."""
-    if not isinstance(n_knots, (int, np.integer)) or isinstance(n_knots, bool) or n_knots < minimum:
+    if not is_whole(n_knots) or n_knots < minimum:
         raise ValueError(f"benchmark {name}: n_knots must be an integer >= {minimum}, got {n_knots!r}")
     for key, value in positive.items():
-        if not isinstance(value, (int, float, np.integer, np.floating)) or isinstance(value, bool) or not (np.isfinite(value) and value > 0):
+        if not is_real(value) or not (np.isfinite(value) and value > 0):
             raise ValueError(f"benchmark {name}: {key} must be a finite number > 0, got {value!r}")
 
 

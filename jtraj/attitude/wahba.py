@@ -66,6 +66,7 @@ import numpy as np
 from jtraj import io
 from jtraj import quaternion as quat
 from jtraj.lie import SO3, skew
+from jtraj.numbers import is_real, is_whole
 
 __all__ = [
     "PAPER_FIG2_MEAN_DEG",
@@ -198,7 +199,7 @@ def generate_problem(
     rotation vector that perturbs each world vector. init_offset: angle (rad) between the
     initial guess and the SVD solution.
     """
-    if not isinstance(n_vectors, (int, np.integer)) or isinstance(n_vectors, bool) or n_vectors < 2:
+    if not is_whole(n_vectors) or n_vectors < 2:
         raise ValueError(f"n_vectors must be an integer >= 2 (one vector leaves the attitude free about it), got {n_vectors!r}")
     k_att, k_vec, k_noise, k_axis = jax.random.split(key, 4)
     q_true = _unit(jax.random.normal(k_att, (4,)))
@@ -364,10 +365,10 @@ def run_wahba(
 ) -> WahbaResult:
     """Run all methods on ``trials`` problems whose keys are split from ``PRNGKey(seed)``."""
     for name, value, minimum in (("trials", trials, 1), ("iterations", iterations, 1), ("n_vectors", n_vectors, 2), ("seed", seed, 0)):
-        if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < minimum:
+        if not is_whole(value) or value < minimum:
             raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
     for name, degrees in (("noise_std_deg", noise_std_deg), ("init_offset_deg", init_offset_deg)):
-        if not isinstance(degrees, (int, float, np.integer, np.floating)) or isinstance(degrees, bool) or not (math.isfinite(degrees) and degrees >= 0):
+        if not is_real(degrees) or not (math.isfinite(degrees) and degrees >= 0):
             raise ValueError(f"{name} must be a finite number >= 0 (degrees), got {degrees!r}")
     keys = jax.random.split(jax.random.PRNGKey(seed), trials)
     errs = solve_trials(

@@ -1,0 +1,23 @@
+"""What counts as a number in an argument check.
+
+Python's ``bool`` is an ``int``, so ``isinstance(True, int)`` holds; every check of a user's
+count, size, rate or angle refuses it, and takes numpy's scalars as Python's.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+__all__ = ["is_real", "is_whole"]
+
+
+def is_real(value: Any) -> bool:
+    """A Python or numpy integer or float (not a bool); it may still be NaN or infinite."""
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+
+
+def is_whole(value: Any) -> bool:
+    """A Python or numpy integer (not a bool)."""
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
