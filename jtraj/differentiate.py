@@ -152,13 +152,7 @@ class DifferentiableTask:
         `jtraj.solve` checks them (shapes always; values unless traced). Raises `SolveError`
         when the forward solve does not converge (inside ``jax.jit`` that comes as JAX's
         runtime error, whose message ends with the SolveError's)."""
-        if theta is None or isinstance(theta, TaskParams):
-            theta = self.transcription.resolve_theta(self.theta if theta is None else theta)
-        elif isinstance(theta, Mapping):
-            self.transcription.resolve_theta(theta)  # jtraj.solve's refusals of a mapping (e.g. a force-rate bound the task lacks)
-            theta = self.transcription.resolve_theta(self.theta.replace(**theta))
-        else:
-            raise TypeError(f"theta must be None, a mapping of parameter overrides or a TaskParams, got {type(theta).__name__}")
+        theta = self.transcription.resolve_theta(self.theta if theta is None else theta, base=self.theta)
         sol = self._solution(theta)
         return motion(self.transcription, self.nlp, sol.x, theta, sol.lam, sol.degenerate)
 

@@ -346,10 +346,11 @@ class Transcription:
             q_joints_standing=arr(robot.q_joints_standing),
         )
 
-    def resolve_theta(self, theta: TaskParams | Mapping[str, Any] | None = None) -> TaskParams:
-        """``theta`` as `TaskParams`: None is `default_theta`, a mapping overrides some of its
-        fields (``{"friction": 0.5}``), a `TaskParams` is checked against the default's shapes."""
-        default = self.default_theta()
+    def resolve_theta(self, theta: TaskParams | Mapping[str, Any] | None = None, base: TaskParams | None = None) -> TaskParams:
+        """``theta`` as `TaskParams`: None is ``base`` (default `default_theta`), a mapping
+        overrides some of its fields (``{"friction": 0.5}``), a `TaskParams` is checked against
+        its shapes; both are checked for values (`TaskParams.check`)."""
+        default = self.default_theta() if base is None else base
         if theta is None:
             return default
         if isinstance(theta, TaskParams):
