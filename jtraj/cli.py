@@ -196,14 +196,14 @@ def _check_render_args(args: argparse.Namespace) -> None:
 
 def _cmd_render(args: argparse.Namespace) -> int:
     from jtraj.io import FileFormatError
-    from jtraj.render import RenderError, render_directory
+    from jtraj.render import NotDrawable, RenderError, render_directory
 
     _check_render_args(args)
     try:
         paths = render_directory(args.dir, args.out, args.strip, keyframes=args.keyframes, layout=args.layout, spacing=args.spacing, options=_render_options(args))
     except RenderError as e:  # no OpenGL here: the message says what to install
         raise SystemExit(f"jtraj render: {e}") from None
-    except (ValueError, FileFormatError) as e:  # a folder that is not a whole-body solution
+    except (NotDrawable, FileFormatError) as e:  # a folder that is not a whole-body solution
         raise InputError("DIR", args.dir, str(e)) from None
     for path in paths:
         print(f"wrote {path}")

@@ -62,6 +62,11 @@ class RenderError(RuntimeError):
     """Rendering is not possible here; the message says what to install or set."""
 
 
+class NotDrawable(ValueError):
+    """The result (or the folder it was loaded from) holds no legged robot's motion that can be
+    drawn: no trajectory, a rigid-body benchmark's, or NaN base poses; the message says which."""
+
+
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class RenderOptions:
     """How a motion is drawn.
@@ -402,12 +407,12 @@ def _as_result(result) -> Result:
     elif not isinstance(result, Result):
         raise TypeError(f"render takes a Result or the folder `jtraj solve` wrote, got a {type(result).__name__} (pass the Result itself, not its trajectory)")
     if result.trajectory is None:
-        raise ValueError("the result has no trajectory to draw (solve with keep_trajectory=True or load a folder with trajectory.npz)")
+        raise NotDrawable("the result has no trajectory to draw (solve with keep_trajectory=True or load a folder with trajectory.npz)")
     if not hasattr(result.trajectory, "base_xyz_wxyz"):
-        raise ValueError(f"{result.problem!r} is not a legged robot's motion (its trajectory is a {type(result.trajectory).__name__}); draw a rigid-body benchmark with jtraj.render.render_benchmark")
+        raise NotDrawable(f"{result.problem!r} is not a legged robot's motion (its trajectory is a {type(result.trajectory).__name__}); draw a rigid-body benchmark with jtraj.render.render_benchmark")
     bad = ~np.all(np.isfinite(np.asarray(result.trajectory.base_xyz_wxyz)), axis=-1)
     if bad.any():
-        raise ValueError(f"the base pose is NaN or infinite at {int(bad.sum())} knot(s), the first at knot {int(np.argmax(bad))} (the solver's status: {result.solver_status.value}); nothing to draw there")
+        raise NotDrawable(f"the base pose is NaN or infinite at {int(bad.sum())} knot(s), the first at knot {int(np.argmax(bad))} (the solver's status: {result.solver_status.value}); nothing to draw there")
     return result
 
 

@@ -111,7 +111,7 @@ def test_plot_and_render_check_their_folders_before_drawing(tmp_path, monkeypatc
         assert code == 2 and err.startswith(f"jtraj render: {flag}: '/proc/jtraj-x/{name}': cannot create a file in /proc"), err
 
 
-def test_plot_and_render_of_an_attitude_folder(tmp_path, capsys):
+def test_plot_and_render_of_an_attitude_folder(tmp_path, capsys, monkeypatch):
     """`jtraj plot` draws a rigid-body benchmark's folder with its own figure; `jtraj render`
     refuses it in one line, pointing to the benchmark renderer."""
     from test_result import make_result, state_trajectory
@@ -122,6 +122,15 @@ def test_plot_and_render_of_an_attitude_folder(tmp_path, capsys):
     assert code == 2 and err.startswith(f"jtraj render: DIR: {str(run)!r}: 'quadflip' is not a legged robot's motion") and "render_benchmark" in err
     assert err.count("\n") == 1
     assert cli.main(["plot", str(run), "--out", str(tmp_path / "p")]) == 0
+    # only the folder's faults are worded as DIR's: a ValueError from drawing itself is not
+    import jtraj.render
+
+    def draw_fails(*args, **kwargs):
+        raise ValueError("a fault while drawing")
+
+    monkeypatch.setattr(jtraj.render, "render_directory", draw_fails)
+    with pytest.raises(ValueError, match="a fault while drawing"):
+        cli.main(["render", str(run), "--out", str(tmp_path / "v.gif")])
     assert (tmp_path / "p" / "solution.png").stat().st_size > 0 and (tmp_path / "p" / "convergence.png").stat().st_size > 0
 
 

@@ -13,7 +13,7 @@ from jaxlie import SE3
 from jtraj import robot as robots
 from jtraj.cli import main
 from jtraj.plots import friction_cone_ratio, plot_comparison, plot_directory, plot_solution
-from jtraj.render import RenderOptions, interpolate, keyframe_strip, keyframe_times, render, write_image, write_video
+from jtraj.render import NotDrawable, RenderOptions, interpolate, keyframe_strip, keyframe_times, render, write_image, write_video
 from jtraj.result import Outcome, Result
 from jtraj.solvers import Stats
 from jtraj.solvers import Status as SolverStatus
@@ -208,7 +208,7 @@ def test_render_names_what_it_was_given_instead_of_a_result(result):
     poses = np.array(result.trajectory.base_xyz_wxyz)
     poses[7:, 3] = np.nan
     broken = dataclasses.replace(result, trajectory=dataclasses.replace(result.trajectory, base_xyz_wxyz=poses))
-    with pytest.raises(ValueError, match=r"the base pose is NaN or infinite at 4 knot\(s\), the first at knot 7 \(the solver's status: solved\)"):
+    with pytest.raises(NotDrawable, match=r"the base pose is NaN or infinite at 4 knot\(s\), the first at knot 7 \(the solver's status: solved\)"):
         render(broken)
 
 
