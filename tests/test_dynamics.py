@@ -249,12 +249,16 @@ def test_jacobians_equal_jacfwd(name, chart):
 
 
 def test_direct_jacobians_are_mass_matrix_and_contact_jacobians(robot, evaluated):
-    _, out = evaluated
-    np.testing.assert_allclose(out["M_direct"], out["M"], rtol=0, atol=1e-12 * np.abs(out["M"]).max())
-    K, nc = out["Jc"].shape[:2]
-    minus_Jc_T = -out["Jc"].reshape(K, 3 * nc, -1).transpose(0, 2, 1)
-    np.testing.assert_allclose(out["dtau_df"], minus_Jc_T, atol=1e-15)
-    for M in out["M"]:
+    """acceleration_force_jacobians shares its helpers with mass_matrix and contact_jacobians,
+    so it is checked against autodiff of the inverse dynamics (M and -J_c^T by definition, in
+    the column order of ``forces.reshape(-1)``), which the mass-matrix oracles (MuJoCo, pin)
+    do not cover."""
+    states, out = evaluated
+    _, _, da, df = _jacfwd(robot, QUAT1, *states)
+    K = da.shape[0]
+    assert rel_err(out["M_direct"], da) < 1e-10
+    assert rel_err(out["dtau_df"], np.asarray(df).reshape(K, robot.nv, -1)) < 1e-10
+    for M in out["M_direct"]:
         np.testing.assert_allclose(M, M.T, atol=1e-12 * np.abs(M).max())
         assert np.linalg.eigvalsh(M).min() > 0
 
