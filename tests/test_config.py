@@ -19,11 +19,12 @@ def _devices_after_import(env: dict[str, str], before: str = "") -> subprocess.C
 
 
 def test_import_gives_one_cpu_device_per_core():
+    cores = len(os.sched_getaffinity(0))  # counted here, not by the function under test
+    if cores < 2:
+        pytest.skip("one core: one device is also JAX's default, so the count would check nothing")
     out = _devices_after_import({})
     assert out.returncode == 0, out.stderr
-    # the cores this process may use, counted here rather than by the function under test (on a
-    # one-core runner this equals JAX's default and checks nothing; CI's runner has two)
-    assert int(out.stdout) == len(os.sched_getaffinity(0))
+    assert int(out.stdout) == cores
 
 
 @pytest.mark.parametrize(

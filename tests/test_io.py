@@ -23,7 +23,7 @@ def test_write_json_is_strict_and_maps_nonfinite_to_null(tmp_path):
 def test_failed_write_keeps_the_old_file_and_leaves_no_temporary(tmp_path):
     path = tmp_path / "out.json"
     io.write_json(path, {"v": 1})
-    with pytest.raises(TypeError):
+    with pytest.raises(TypeError, match="cannot write object to JSON"):
         io.write_json(path, {"v": object()})
     with pytest.raises(RuntimeError):
         with io.atomic_open(path) as f:

@@ -103,7 +103,7 @@ def test_load_is_cached_and_frozen():
     assert robot_lib.load("talos") is talos
     with pytest.raises(dataclasses.FrozenInstanceError):
         talos.name = "other"
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="read-only"):
         talos.q_joints_standing[0] = 1.0
 
 

@@ -81,7 +81,7 @@ def test_options_from_ipopt_names():
     assert ipopt["hessian_approximation"] == "exact" and ipopt["mu_strategy"] == "adaptive" and ipopt["warm_start_init_point"] == "yes"
     merged = opts.merge({"max_iter": 7, "hessian_approximation": "limited-memory"})
     assert (merged.max_iter, merged.hessian, merged.tol, merged.extra["mu_strategy"]) == (7, "lbfgs", 1.0, "adaptive")
-    with pytest.raises(TypeError):
+    with pytest.raises(TypeError, match="positional argument"):
         IpoptOptions(1e-3)  # keyword-only
 
 

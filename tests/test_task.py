@@ -6,6 +6,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from jtraj import robot as robot_lib
 from jtraj import task as tasks
 from jtraj.task import JointRule, Phase, Task, TaskError
 
@@ -44,7 +45,12 @@ def test_builtin_tasks_validate():
     names = tasks.available()
     assert {"walk", "hopscotch", "big_jump", "handstand", "backflip", "sideflip"} <= set(names)
     for name in names:
-        assert tasks.load(name).validate().name == name
+        t = tasks.load(name)
+        assert t.validate() is t and t.name == name
+        # what validate() stands for, checked here against the robot itself
+        robot = robot_lib.load(t.robot)
+        contacts = {c for phase in t.phases for c in phase.contacts}
+        assert contacts <= set(robot.contact_groups), (name, contacts - set(robot.contact_groups))
 
 
 def test_schedule_of_big_jump():
