@@ -15,9 +15,9 @@ NOTEBOOKS = sorted((Path(__file__).parent.parent / "notebooks").glob("*.ipynb"))
 #: displays, and text its outputs must contain.
 PRODUCES = {
     "attitude": dict(files=(), images=2, text=("small mode", "final median error", "satellite: minimum camera-sun angle", "quadrotor:")),
-    "comparison": dict(files=("compare_small/table_iv.json", "compare_small/table_iv.md", "comparison.png"), images=1, text=("hop",)),
+    "comparison": dict(files=("compare_small/table_iv.json", "compare_small/table_iv.md", "comparison.png"), images=1, text=("| hop | se3 | solved |", "| hop | euler | solved |", "hop ['hop_se3', 'hop_euler']")),
     "design": dict(files=(), images=2, text=("degenerate:",)),
-    "quickstart": dict(files=("trajectory.png",), images=1, text=("se3", "euler")),
+    "quickstart": dict(files=("trajectory.png",), images=1, text=("hop [", "] solved: ", "se3    solved ", "euler  solved ")),
     "robustness": dict(files=("robustness_small/runs.jsonl", "fig2.png"), images=1, text=("runs", "sigma=0.001", "sigma=0.1")),
 }
 
