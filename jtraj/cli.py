@@ -5,7 +5,9 @@ EXPECTED``, before anything compiles or solves); ``jtraj solve`` and ``jtraj att
 exit 3 when the solver converged to a feasible point but the motion does not do the task (e.g. a
 jump instead of a flip) and 4 when it did not return a feasible solution (the outcome
 ``not_converged``, which includes a convergence to a point over the task check's violation
-tolerance).
+tolerance). 1: the work itself failed after the inputs were accepted (``jtraj render`` or a
+successful solve's ``--render`` without a working OpenGL, the solution still saved; ``jtraj
+compare`` with no rows; a failed ``jtraj params`` check).
 """
 
 from __future__ import annotations
@@ -78,11 +80,13 @@ def _cmd_solve(args: argparse.Namespace) -> int:
     plot_result(result, f"{out}/trajectory.png")
     plot_convergence(result, f"{out}/convergence.png")
     print(f"wrote {out}/result.json, {out}/trajectory.npz, {out}/trajectory.png, {out}/convergence.png")
+    code = 0 if result.success else EXIT_TASK_FAILED if result.status is Outcome.TASK_FAILED else EXIT_NOT_CONVERGED
     if args.render:
-        _render_after_solve(out)
-    if result.success:
-        return 0
-    return EXIT_TASK_FAILED if result.status is Outcome.TASK_FAILED else EXIT_NOT_CONVERGED
+        from jtraj.render import render_directory
+
+        if not _render_after_solve("solve", lambda: render_directory(out, f"{out}/motion.mp4", f"{out}/keyframes.png"), out):
+            return code or 1
+    return code
 
 
 def _solve_out(args: argparse.Namespace) -> str:
@@ -163,12 +167,20 @@ def _render_options(args: argparse.Namespace):
     return RenderOptions(width=args.width, height=args.height, fps=args.fps, speed=args.speed, shadows=not args.no_shadows)
 
 
-def _render_after_solve(out: str) -> None:
-    """``solve --render``: the video and the keyframe strip of the solution just written."""
-    from jtraj.render import render_directory
+def _render_after_solve(command: str, draw, out: str) -> bool:
+    """``--render`` after a solve whose files are written: prints the paths ``draw()``
+    writes; where nothing can be drawn here (no OpenGL, `jtraj.render.RenderError`), one line on
+    stderr, and False (the command exits 1 unless the solve's own status is already a failure)."""
+    from jtraj.render import RenderError
 
-    for path in render_directory(out, f"{out}/motion.mp4", f"{out}/keyframes.png"):
+    try:
+        paths = draw()
+    except RenderError as e:
+        print(f"jtraj {command}: --render: {e} (the solution is saved in {out})", file=sys.stderr)
+        return False
+    for path in paths:
         print(f"wrote {path}")
+    return True
 
 
 def _check_render_args(args: argparse.Namespace) -> None:
@@ -282,7 +294,7 @@ def build_parser() -> argparse.ArgumentParser:
     _variables_argument(p, "compact", "variables per knot: compact (q, v, a, f; default), the study's (q, v, a, f, c) or lean (q, v, f)")
     p.add_argument("--exact-hessian", action="store_true", help="exact Hessian of the Lagrangian instead of L-BFGS")
     p.add_argument("--ipopt", action="append", metavar="NAME=VALUE", help="any solver option (Ipopt's names for ipopt), repeatable (e.g. --ipopt max_iter=50)")
-    p.add_argument("--noise", type=float, default=0.0, help="std of Gaussian noise added to the warm start")
+    p.add_argument("--noise", type=float, default=0.0, help="std of Gaussian noise added to the warm start (default 0: none)")
     p.add_argument("--seed", type=int, default=0, help="seed of the noise (default 0)")
     p.add_argument("--replicate", type=int, default=None, metavar="R", help="draw the noise as `jtraj robustness` draws replicate R (same --seed and sigma --noise), to solve one run of a study again with its trajectory")
     p.add_argument("--noise-chart", default=None, choices=["se3", "quat1", "quat2", "quat3", "euler"], help="with --replicate: that run of `jtraj robustness --noise-chart`")
@@ -312,7 +324,7 @@ def build_parser() -> argparse.ArgumentParser:
     _variables_argument(p, "paper", "variables per knot; default: the study's, for comparison with its tables")
     p.add_argument("--out", default="runs/robustness", help="output folder (default runs/robustness)")
     p.add_argument("--workers", type=int, default=1, help="solve (task, parameterization) groups in this many processes (default 1)")
-    p.add_argument("--no-resume", action="store_true", help="solve again the runs already in OUT/runs.jsonl (the old file is kept as runs.jsonl.previous)")
+    p.add_argument("--no-resume", action="store_true", help="solve again the runs already in OUT/runs.jsonl (the old file is moved to runs.jsonl.previous, replacing an earlier one)")
     p.add_argument("--solver", default="ipopt", choices=_solver_names(), help="NLP solver backend (default ipopt); jtraj solves each (task, parameterization, sigma) group's replicates in one batched call (vmapped on a GPU, one per core on a CPU)")
     p.add_argument(
         "--noise-chart", default=None, choices=["se3", "quat1", "quat2", "quat3", "euler"],
@@ -336,7 +348,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="runs/attitude", help="output folder (default runs/attitude)")
     p.add_argument("--knots", type=int, default=None, help="number of knots (default: the paper's)")
     p.add_argument("--solver", default="ipopt", choices=_solver_names(), help="NLP solver backend (default ipopt)")
-    p.add_argument("--render", action="store_true", help="also write OUT/BENCH_VARIANT.mp4 and OUT/BENCH_VARIANT_keyframes.png (not with 'all')")
+    p.add_argument("--render", action="store_true", help="also write OUT/BENCH_VARIANT/motion.mp4 and OUT/BENCH_VARIANT/keyframes.png (not with 'all')")
     p.set_defaults(func=_cmd_attitude)
     _add_render_parsers(sub)
     return parser

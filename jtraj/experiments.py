@@ -426,8 +426,8 @@ def robustness(
     `run_key` (task content, parameterization, variables per knot by name and by content
     (`variables_hash`), Hessian mode, solver options, seed, sigma, replicate, solver). With ``resume`` (default) runs already there are not solved again, so a study
     stopped or killed at any point goes on where it ended; runs of other settings in the file
-    are kept and left out of this call's tables. Without ``resume`` this call's runs are solved
-    again and appended (the first of each key is the one read). The noise of replicate r at
+    are kept and left out of this call's tables. Without ``resume`` the file is moved to
+    ``runs.jsonl.previous`` (replacing an earlier one) and this call's runs start a new one. The noise of replicate r at
     level sigma depends only on (seed, sigma, r) (`noise_key`).
 
     ``workers > 1`` solves (task, parameterization) groups in that many processes, each

@@ -2,7 +2,7 @@
 
 Quaternions are plain arrays ``q = [q_s, q_v]`` (scalar first, "wxyz", Hamilton product),
 the convention of the paper, of MuJoCo and of jaxlie's ``SO3.wxyz``. Equation numbers refer
-to the paper (`shared/seeds/004_*`). Functions take one quaternion (shape (4,)) unless a
+to that paper. Functions take one quaternion (shape (4,)) unless a
 docstring says otherwise; use `jax.vmap` for batches.
 
 Two printed equations of the paper carry sign slips that this module does not copy; the

@@ -257,7 +257,7 @@ def available() -> tuple[str, ...]:
 
 @functools.lru_cache(maxsize=None)
 def load(name: str) -> Robot:
-    """The robot ``name`` (``talos``, ``g1``, ``go2``), from ``robots/<name>.toml``.
+    """The robot ``name`` (`available()`: ``talos``, ``talos_full``, ``g1``, ``go2``), from ``robots/<name>.toml``.
 
     Cached: a second call returns the same object (so jitted functions do not recompile).
     """

@@ -216,7 +216,11 @@ def solve(
         progress: True (default) prints a line per ``progress_every`` iterations to the
             ``sys.stdout`` of the moment; a text stream prints there; False or None is quiet;
             a `jtraj.solvers.AbstractCallback` receives the iterations instead.
+        progress_every: print every this many iterations (default 1: each).
         out: directory to write ``result.json`` and ``trajectory.npz`` into.
+        keep_trajectory: attach the solution's `WholeBodyTrajectory` to the result (default
+            True); False keeps only the figures of the solve (the sweeps' setting), and
+            ``out`` then writes no ``trajectory.npz``.
         theta: the task's parameters (`jtraj.transcription.TaskParams`), or a dict
             overriding some of them (``{"friction": 0.5, "timestep": 0.04}``); other values
             of theta reuse the compiled NLP.

@@ -200,6 +200,16 @@ def test_solve_exit_status_says_what_happened(converged, status, code, monkeypat
     monkeypatch.setattr(jtraj.plots, "plot_result", lambda *a, **k: None)
     monkeypatch.setattr(jtraj.plots, "plot_convergence", lambda *a, **k: None)
     assert cli.main(["solve", "big_jump", "--out", str(tmp_path / "r")]) == code
+    # --render where nothing can be drawn: one line, the solve's status kept, 1 after a success
+    import jtraj.render
+
+    def no_opengl(*args, **kwargs):
+        raise jtraj.render.RenderError("no OpenGL here (test)")
+
+    monkeypatch.setattr(jtraj.render, "render_directory", no_opengl)
+    capsys.readouterr()
+    assert cli.main(["solve", "big_jump", "--out", str(tmp_path / "r"), "--render"]) == (code or 1)
+    assert capsys.readouterr().err == f"jtraj solve: --render: no OpenGL here (test) (the solution is saved in {tmp_path / 'r'})\n"
 
 
 def test_exit_statuses_are_distinct():

@@ -45,12 +45,13 @@ def main(bench: str, variant: str, out_dir: str | Path, n_knots: int | None = No
         statuses = {r["status"] for r in rows}
     else:
         result = main_attitude(bench, variant, out_dir, n_knots=n_knots, solver=solver)
-        if render:
-            from jtraj.render import render_benchmark
-
-            for path in render_benchmark(result, result_directory(out_dir, result)):
-                print(f"wrote {path}")
         statuses = {result.status.value}
-    if statuses <= {Outcome.SOLVED.value}:
-        return 0
-    return EXIT_NOT_CONVERGED if Outcome.NOT_CONVERGED.value in statuses else EXIT_TASK_FAILED
+    code = 0 if statuses <= {Outcome.SOLVED.value} else EXIT_NOT_CONVERGED if Outcome.NOT_CONVERGED.value in statuses else EXIT_TASK_FAILED
+    if bench != "all" and render:
+        from jtraj.cli import _render_after_solve
+        from jtraj.render import render_benchmark
+
+        folder = result_directory(out_dir, result)
+        if not _render_after_solve("attitude", lambda: render_benchmark(result, folder), str(folder)):
+            return code or 1
+    return code
