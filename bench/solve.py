@@ -18,12 +18,14 @@ Variants (Ipopt with the study's settings: L-BFGS Hessian, tol 1e-3, MUMPS; or j
              ``--jtraj NAME=VALUE`` sets its options (`jtraj.solvers.IpmOptions`; e.g.
              ``constr_viol_tol=1e-6``), shown in its row's variant cell
 
-``--ipopt NAME=VALUE`` adds an Ipopt option to the Ipopt variants.
+``--ipopt NAME=VALUE`` adds an Ipopt option to the Ipopt variants; ``print_level`` (3 here) may
+be raised, not lowered, and ``print_timing_statistics`` stays yes: the linear solver's time is
+read from the timing table Ipopt prints.
 
-``--peer`` is a command that runs the public code on one task and prints one JSON line with
-at least ``iterations`` and ``time_s`` (its wall time around Ipopt's solve, model building
-excluded); the default is ``../shared/peers/run-se3-trajopt`` beside the repository when it
-exists. It runs before jtraj's variants, one after the other (never concurrently), and the
+``--peer`` is the path of a runner, run as ``PEER TASK``, that runs the public code on one task
+and prints one JSON line with at least ``iterations`` and ``time_s`` (its wall time around
+Ipopt's solve, model building excluded); the default is ``../shared/peers/run-se3-trajopt``
+beside the repository when it exists. It runs before jtraj's variants, one after the other (never concurrently), and the
 ratio column is its time over each variant's time to solution (compile excluded). Without a
 peer the table has no ratio column.
 
@@ -76,20 +78,27 @@ def ipopt_timing(text: str) -> dict[str, float]:
 
 
 def run_peer(peer: str, task: str) -> dict:
-    """Run the public code on ``task``; its JSON line (iterations, time_s, status, ...)."""
+    """Run the public code on ``task``; its JSON line (iterations, time_s, status, ...), or a
+    one-line SystemExit naming the peer and what it printed."""
     proc = subprocess.run([peer, task], capture_output=True, text=True)
     lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("{")]
     if proc.returncode != 0 or not lines:
         tail = (proc.stderr or proc.stdout).strip().splitlines()[-3:]
         raise SystemExit(f"bench/solve.py: peer {peer} {task} failed (exit {proc.returncode}): {' | '.join(tail)}")
-    return json.loads(lines[-1])
+    try:
+        rec = json.loads(lines[-1])
+    except json.JSONDecodeError:
+        rec = None
+    if not isinstance(rec, dict) or not all(isinstance(rec.get(k), (int, float)) for k in ("iterations", "time_s")):
+        raise SystemExit(f"bench/solve.py: peer {peer} {task} printed {lines[-1][:200]!r}; expected a JSON object with numbers iterations and time_s")
+    return rec
 
 
 def run_variant(task: str, param: str, variant: str, extra: dict, extra_jtraj: dict) -> dict:
     v = VARIANTS[variant]
     if v.get("solver") == "jtraj":
         return run_jtraj(task, param, variant, v, extra_jtraj)
-    opts = dict(print_timing_statistics="yes", print_level=3, **extra)
+    opts = {"print_timing_statistics": "yes", "print_level": 3} | extra  # main() refused values that hide the timing table
     # Ipopt prints its timing table on the C side: capture it from file descriptor 1
     with tempfile.TemporaryFile(mode="w+") as tmp:
         sys.stdout.flush()
@@ -207,7 +216,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--variants", default="paper,compact,lean")
     ap.add_argument("--ipopt", action="append", default=[], metavar="NAME=VALUE", help="extra Ipopt option for every Ipopt variant")
     ap.add_argument("--jtraj", action="append", default=[], metavar="NAME=VALUE", help="option of jtraj's solver for the jtraj variant (e.g. constr_viol_tol=1e-6)")
-    ap.add_argument("--peer", default=str(DEFAULT_PEER) if DEFAULT_PEER.exists() else None, help=f"command running the public code (default {DEFAULT_PEER} when it exists)")
+    ap.add_argument("--peer", default=str(DEFAULT_PEER) if DEFAULT_PEER.exists() else None, help=f"path of the runner of the public code, run as PEER TASK (default {DEFAULT_PEER} when it exists)")
     ap.add_argument("--no-peer", action="store_true", help="do not run the public code")
     ap.add_argument("--repeat", type=int, default=1, metavar="N", help="measure each side N times, alternating, and report medians (default 1)")
     ap.add_argument("--out", help="write DIR/speed.json and DIR/speed.md")
@@ -231,7 +240,14 @@ def main(argv: list[str] | None = None) -> None:
         extra_jtraj = _check_ipopt(args.jtraj, "jtraj", field="--jtraj")
     except ValueError as err:  # InputError, or Ipopt's catalog's IpoptOptionError
         ap.error(str(err))
+    # the timing table is printed at print_level 3 (J_SUMMARY) and up, and only when asked for
+    if extra.get("print_timing_statistics", "yes") != "yes":
+        ap.error(f"--ipopt print_timing_statistics={extra['print_timing_statistics']}: expected yes (the default here): the linear solver's time is read from Ipopt's timing statistics")
+    if extra.get("print_level", 3) < 3:
+        ap.error(f"--ipopt print_level={extra['print_level']}: expected 3 or more (the default here is 3): Ipopt prints its timing statistics from level 3")
     peer = None if args.no_peer else args.peer
+    if peer is not None and not (os.path.isfile(peer) and os.access(peer, os.X_OK)):
+        ap.error(f"--peer: {peer!r}: expected the path of an executable runner (run as PEER TASK)")
     if peer is None and not args.no_peer:
         print(f"bench/solve.py: no peer: the paper's public code is not at {DEFAULT_PEER}; the table has jtraj's rows only (pass --peer PATH to compare, --no-peer to silence this)", file=sys.stderr, flush=True)
     records = []

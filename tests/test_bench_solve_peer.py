@@ -2,7 +2,9 @@
 instead of printing a table without the peer's column and no word why."""
 
 import json
+import re
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 from conftest import bench_module
@@ -26,6 +28,18 @@ def test_a_missing_default_peer_is_announced(monkeypatch, capsys, argv, warned):
         solve.main(["big_jump", "--variants", "jtraj", *argv])
     err = capsys.readouterr().err
     assert (f"no peer: the paper's public code is not at {missing}" in err) == warned
+
+
+def _peer(folder: Path, body: str, name: str = "peer", executable: bool = True) -> Path:
+    """A fake runner of the public code: a shell script running ``body``."""
+    path = folder / name
+    path.write_text(f"#!/bin/sh\n{body}\n")
+    path.chmod(0o755 if executable else 0o644)
+    return path
+
+
+def _no_solve(*args, **kwargs):
+    raise AssertionError("solved, compiled or ran the peer after a bad input")
 
 
 def _run(variant: str, time_s: float, iterations: int = 11) -> dict:
@@ -55,12 +69,13 @@ def test_repeats_alternate_and_report_the_medians(monkeypatch, capsys, tmp_path)
     monkeypatch.setattr(solve, "run_peer", fake_peer)
     monkeypatch.setattr(solve, "run_variant", fake_variant)
     monkeypatch.setattr(solve, "prepare", lambda *a, **k: _Prep)
-    solve.main(["big_jump", "--variants", "jtraj", "--peer", "fake", "--repeat", "3", "--out", str(tmp_path)])
+    peer = _peer(tmp_path, "exit 1")  # main() checks that it is an executable file; fake_peer runs instead
+    solve.main(["big_jump", "--variants", "jtraj", "--peer", str(peer), "--repeat", "3", "--out", str(tmp_path / "out")])
     assert calls == ["peer", "jtraj"] * 3
-    records = json.loads((tmp_path / "speed.json").read_text())
+    records = json.loads((tmp_path / "out" / "speed.json").read_text())
     assert records[0]["peer"]["time_s"] == 14.0 and records[0]["peer"]["times_s"] == [14.0, 11.0, 20.0]
     assert records[0]["variants"][0]["time_s"] == 1.2
-    table = (tmp_path / "speed.md").read_text()
+    table = (tmp_path / "out" / "speed.md").read_text()
     assert "| 1.20 (1.00-2.00) |" in table and "| 14.00 (11.00-20.00) |" in table
     assert "| 11.7x |" in table  # 14.0 / 1.2
     assert "the median of 3 runs" in table
@@ -75,3 +90,96 @@ def test_repeats_that_disagree_on_iterations_are_shown(capsys):
     assert "big_jump [jtraj]: the repeats took different iterations [11, 12, 11]" in capsys.readouterr().err
     assert solve._iterations_cell(rec) == "11/12/11" and rec["iterations"] == 12
     assert solve._iterations_cell(_run("jtraj", 1.0)) == "11"
+
+
+@pytest.mark.parametrize(
+    ("output", "expected"),
+    [
+        ("echo '{not json'", "printed '{not json'; expected a JSON object with numbers iterations and time_s"),
+        ("echo '{\"foo\": 1}'", "printed '{\"foo\": 1}'; expected a JSON object"),
+        ("echo '{\"iterations\": 5}'", "expected a JSON object with numbers iterations and time_s"),
+        ("echo hello", "failed (exit 0): hello"),
+        ("echo boom >&2; exit 3", "failed (exit 3): boom"),
+    ],
+)
+def test_a_peer_that_prints_no_record_stops_with_one_line(tmp_path, output, expected):
+    """Bad output of the runner: one line naming it, the task and what it printed, no traceback
+    (SystemExit's message is printed as it is, exit status 1)."""
+    solve = bench_module("solve")
+    peer = _peer(tmp_path, output)
+    with pytest.raises(SystemExit) as exc:
+        solve.run_peer(str(peer), "big_jump")
+    message = str(exc.value.code)
+    assert message.startswith(f"bench/solve.py: peer {peer} big_jump ") and expected in message
+    assert "\n" not in message
+
+
+def test_a_peer_record_is_returned(tmp_path):
+    solve = bench_module("solve")
+    peer = _peer(tmp_path, 'echo "log line"; echo \'{"iterations": 5, "time_s": 1.5, "status": 0}\'')
+    assert solve.run_peer(str(peer), "big_jump") == {"iterations": 5, "time_s": 1.5, "status": 0}
+
+
+def test_bad_peer_output_stops_before_jtraj_solves(monkeypatch, tmp_path):
+    solve = bench_module("solve")
+    for name in ("prepare", "solve", "run_variant"):
+        monkeypatch.setattr(solve, name, _no_solve)
+    peer = _peer(tmp_path, "echo '{not json'")
+    with pytest.raises(SystemExit, match=re.escape("printed '{not json'")):
+        solve.main(["big_jump", "--variants", "jtraj", "--peer", str(peer)])
+
+
+def _outcome():
+    from jtraj.result import Outcome
+
+    return SimpleNamespace(status=Outcome.SOLVED, success=True, iterations=3, time_s=1.0, time_derivatives=0.1, time_solver=0.9, cost=0.0, constraint_violation=0.0)
+
+
+@pytest.mark.parametrize(("extra", "expected"), [({}, 3), ({"print_level": 5}, 5)])
+def test_ipopt_options_may_raise_the_print_level(monkeypatch, extra, expected):
+    """``--ipopt print_level=5`` was a TypeError (a keyword given twice); the user's level wins
+    over the default 3 (the timing table is printed from 3 up)."""
+    solve = bench_module("solve")
+    seen: dict = {}
+
+    def fake_solve(task, param, **kwargs):
+        seen.update(kwargs["ipopt_options"])
+        return _outcome()
+
+    monkeypatch.setattr(solve, "solve", fake_solve)
+    rec = solve.run_variant("big_jump", "se3", "paper", extra, {})
+    assert seen == {"print_timing_statistics": "yes", "print_level": expected}
+    assert rec["variant"] == "paper" and rec["iterations"] == 3
+
+
+def _refused(solve, argv, capsys, message):
+    with pytest.raises(SystemExit) as exc:
+        solve.main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    assert message in err.strip().splitlines()[-1]
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--ipopt", "print_timing_statistics=no"], "--ipopt print_timing_statistics=no: expected yes"),
+        (["--ipopt", "print_level=2"], "--ipopt print_level=2: expected 3 or more"),
+    ],
+)
+def test_bad_options_are_refused_before_any_work(monkeypatch, capsys, tmp_path, argv, message):
+    solve = bench_module("solve")
+    for name in ("prepare", "solve", "run_variant", "run_peer"):
+        monkeypatch.setattr(solve, name, _no_solve)
+    peer = _peer(tmp_path, "exit 1")
+    _refused(solve, ["big_jump", "--peer", str(peer), *argv], capsys, message)
+
+
+@pytest.mark.parametrize("kind", ["missing", "not executable", "folder"])
+def test_a_peer_that_cannot_run_is_refused_before_any_work(monkeypatch, capsys, tmp_path, kind):
+    solve = bench_module("solve")
+    for name in ("prepare", "solve", "run_variant", "run_peer"):
+        monkeypatch.setattr(solve, name, _no_solve)
+    peer = {"missing": tmp_path / "nothing", "not executable": _peer(tmp_path, "exit 0", executable=False), "folder": tmp_path}[kind]
+    _refused(solve, ["big_jump", "--peer", str(peer)], capsys, f"--peer: '{peer}': expected the path of an executable runner (run as PEER TASK)")
