@@ -30,7 +30,8 @@ ratio column is its time over each variant's time to solution (compile excluded)
 peer the table has no ratio column.
 
 ``--repeat N`` measures each side N times, alternating (the public code, then jtraj's variants,
-N rounds), and reports the median of each with its range: on a shared virtual machine one run
+N rounds), and reports the median of each with its range (N odd: the median is one of the runs,
+whose other columns the row shows): on a shared virtual machine one run
 of either can be off by a third (big_jump's jtraj solve took 2.02 s and then 1.52 s in runs
 minutes apart, and 1.22 s in the session before), and the ratio of two single runs inherits both errors. The iterations of every repeat
 should agree (both sides are deterministic on one machine); where they do not, the table
@@ -54,6 +55,7 @@ from pathlib import Path
 
 from jtraj import io as jio
 from jtraj.cli import _check_ipopt  # the command line's NAME=VALUE parsing and checks
+from jtraj.parameterization import PARAMETERIZATIONS
 from jtraj.provenance import write_results
 from jtraj.solver import prepare, solve
 from jtraj.task import task_argument
@@ -142,7 +144,8 @@ def run_jtraj(task: str, param: str, variant: str, v: dict, options: dict) -> di
 
 
 def _median_of(runs: list[dict], what: str) -> dict:
-    """The run of median ``time_s`` (the lower middle one for an even count) with every run's
+    """The run of median ``time_s`` (the lower middle one for an even count, which main()
+    refuses: the table's other columns are that run's) with every run's
     time in ``times_s``. Repeats that took different iterations (they should not: both sides
     are deterministic on one machine) are kept, said on stderr and shown in the table."""
     order = sorted(runs, key=lambda r: r["time_s"])
@@ -212,13 +215,13 @@ def markdown(records: list[dict]) -> str:
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("tasks", nargs="*", type=task_argument)
-    ap.add_argument("--param", default="se3")
+    ap.add_argument("--param", default="se3", choices=list(PARAMETERIZATIONS))
     ap.add_argument("--variants", default="paper,compact,lean")
     ap.add_argument("--ipopt", action="append", default=[], metavar="NAME=VALUE", help="extra Ipopt option for every Ipopt variant")
     ap.add_argument("--jtraj", action="append", default=[], metavar="NAME=VALUE", help="option of jtraj's solver for the jtraj variant (e.g. constr_viol_tol=1e-6)")
     ap.add_argument("--peer", default=str(DEFAULT_PEER) if DEFAULT_PEER.exists() else None, help=f"path of the runner of the public code, run as PEER TASK (default {DEFAULT_PEER} when it exists)")
     ap.add_argument("--no-peer", action="store_true", help="do not run the public code")
-    ap.add_argument("--repeat", type=int, default=1, metavar="N", help="measure each side N times, alternating, and report medians (default 1)")
+    ap.add_argument("--repeat", type=int, default=1, metavar="N", help="measure each side N times (N odd), alternating, and report medians (default 1)")
     ap.add_argument("--out", help="write DIR/speed.json and DIR/speed.md")
     ap.add_argument("--table-only", action="store_true", help="rewrite OUT/speed.md from OUT/speed.json, solve nothing")
     args = ap.parse_args(argv)
@@ -229,8 +232,8 @@ def main(argv: list[str] | None = None) -> None:
         return
     if not args.tasks:
         ap.error("give at least one task")
-    if args.repeat < 1:
-        ap.error("--repeat: expected at least 1")
+    if args.repeat < 1 or args.repeat % 2 == 0:
+        ap.error(f"--repeat: {args.repeat}: expected an odd count (at least 1), so that the median is one of the runs")
     variants = [v for v in args.variants.split(",") if v]
     for v in variants:
         if v not in VARIANTS:

@@ -166,6 +166,9 @@ def _refused(solve, argv, capsys, message):
     [
         (["--ipopt", "print_timing_statistics=no"], "--ipopt print_timing_statistics=no: expected yes"),
         (["--ipopt", "print_level=2"], "--ipopt print_level=2: expected 3 or more"),
+        (["--param", "bogus"], "argument --param: invalid choice: 'bogus'"),
+        (["--repeat", "2"], "--repeat: 2: expected an odd count (at least 1), so that the median is one of the runs"),
+        (["--repeat", "0"], "--repeat: 0: expected an odd count"),
     ],
 )
 def test_bad_options_are_refused_before_any_work(monkeypatch, capsys, tmp_path, argv, message):
