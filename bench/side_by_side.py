@@ -8,7 +8,9 @@ For every task (and noise draw): the paper's code (SE(3) tangent, its own settin
 runner script, which prints one JSON line), then ``jtraj.solve(task, "se3", variables=...)`` for
 each choice of variables. Iterations are what is compared: on a shared machine the times are noisy. Writes
 ``OUT/side_by_side.json`` (one row per solve), ``OUT/side_by_side.md`` (the table the README
-quotes) and ``OUT/provenance.json``. Rows already in the JSON are kept (resume).
+quotes) and ``OUT/provenance.json``. Rows already in the JSON are kept (resume), except the
+solves that failed (rows with status ``error``): they run again. The exit status is nonzero when
+a solve failed.
 
 The noise of the paper's runner is numpy's ``default_rng(seed)`` on its own variable vector,
 jtraj's is ``numpy default_rng(seed)`` on jtraj's: same distribution, not the same draws (the
@@ -130,7 +132,9 @@ def peer_iterates(task: str, peer_src: Path = DEFAULT_PEER_SRC, peer_python: Pat
         run = subprocess.run([str(peer_python), str(driver), str(script), str(out)], cwd=work, env=env, capture_output=True, text=True)
         if run.returncode != 0:
             raise RuntimeError(f"the public code failed on {task}: {run.stderr[-800:]}")
-        line = next(line for line in run.stdout.splitlines() if line.startswith("PEERSTATS"))
+        line = next((line for line in run.stdout.splitlines() if line.startswith("PEERSTATS")), None)
+        if line is None:
+            raise RuntimeError(f"the public code printed no PEERSTATS line on {task}: {run.stdout[-800:]}")
         d = np.load(out)
         return dict(stats=d["stats"], base=d["base"], peerstats=ast.literal_eval(line[len("PEERSTATS") :].strip()))
 
@@ -138,9 +142,12 @@ def peer_iterates(task: str, peer_src: Path = DEFAULT_PEER_SRC, peer_python: Pat
 def run_peer_checked(task: str, sigma: float, seed: int, peer_src: Path = DEFAULT_PEER_SRC, peer_python: Path = DEFAULT_PEER_PYTHON) -> dict:
     """One solve of the paper's code through `peer_iterates`, its last iterate's base motion
     put through jtraj's task check (`jtraj.success`): the row `run_peer` gives, with ``turns``,
-    ``off_axis_share`` and ``task_ok``."""
+    ``off_axis_share`` and ``task_ok``; an ``error`` row where the code failed."""
     problem = builtin_task(task)
-    d = peer_iterates(task, peer_src, peer_python, sigma, seed)
+    try:
+        d = peer_iterates(task, peer_src, peer_python, sigma, seed)
+    except RuntimeError as e:
+        return _error_row(task, sigma, seed, str(e)[-500:])
     check = success.evaluate(d["base"][-1], problem.flip_axis, problem.flip_turns)
     st = d["peerstats"]
     return dict(
@@ -159,19 +166,28 @@ def run_peer_checked(task: str, sigma: float, seed: int, peer_src: Path = DEFAUL
     )
 
 
+def _error_row(task: str, sigma: float, seed: int, error: str) -> dict:
+    """The row of a failed solve of the paper's code (not done: a later run solves it again)."""
+    return dict(code="paper", task=task, sigma=sigma, seed=seed, status="error", converged=False, iterations=None, error=error)
+
+
 def run_peer(peer: Path, task: str, sigma: float, seed: int) -> dict:
-    """One solve of the paper's code: its runner's JSON line as a row."""
+    """One solve of the paper's code: its runner's JSON line as a row; an ``error`` row where
+    the runner failed, and a one-line SystemExit where its last line is not its JSON record."""
     if not peer.exists():
         raise FileNotFoundError(f"the paper code's runner {peer} does not exist: pass --peer PATH, or --peer '' to skip it")
     cmd = [str(peer), task] + (["--sigma", repr(sigma), "--seed", str(seed)] if sigma else [])
     out = subprocess.run(cmd, capture_output=True, text=True)
     if out.returncode != 0:
-        return dict(code="paper", task=task, sigma=sigma, seed=seed, status="error", converged=False, iterations=None, error=out.stderr[-500:])
-    d = json.loads(out.stdout.strip().splitlines()[-1])
+        return _error_row(task, sigma, seed, out.stderr[-500:])
+    last = (out.stdout.strip().splitlines() or [""])[-1]
+    try:
+        d = json.loads(last)
+        status, iterations = int(d["status"]), int(d["iterations"])
+    except (ValueError, KeyError, TypeError):  # not JSON (a ValueError), not an object, no such key, not a number
+        raise SystemExit(f"bench/side_by_side.py: the paper code's runner {peer} {task} printed {last[:200]!r}; expected a JSON line with status and iterations") from None
     # Ipopt's status 0 (solved) and 1 (solved to acceptable level) count as converged
-    return dict(
-        code="paper", task=task, sigma=sigma, seed=seed, status=int(d["status"]), converged=int(d["status"]) in (0, 1), iterations=int(d["iterations"]), cost=d.get("obj"), time_s=d.get("time_s")
-    )
+    return dict(code="paper", task=task, sigma=sigma, seed=seed, status=status, converged=status in (0, 1), iterations=iterations, cost=d.get("obj"), time_s=d.get("time_s"))
 
 
 def jtraj_task(name: str, robots: dict[str, str], code_costs: bool) -> Task:
@@ -292,7 +308,9 @@ def main(argv: list[str] | None = None) -> None:
     out.mkdir(parents=True, exist_ok=True)
     path = out / "side_by_side.json"
     rows = io.read_json(path) if path.exists() else []
-    done = {(r["code"], r["task"], r["sigma"], r["seed"]) for r in rows}
+    # a failed solve (an error row) is not done: it runs again, and its new row replaces the old
+    done = {(r["code"], r["task"], r["sigma"], r["seed"]) for r in rows if r.get("status") != "error"}
+    failed: list[str] = []
     seeds = [int(s) for s in args.seeds.split(",")] if args.sigma else [0]
     for task in args.tasks.split(","):
         for seed in seeds:
@@ -308,15 +326,25 @@ def main(argv: list[str] | None = None) -> None:
                 if lay
             ]
             for code, job in jobs:
-                if (code, task, args.sigma, seed) in done:
+                key = (code, task, args.sigma, seed)
+                if key in done:
                     continue
                 row = job()
                 print(json.dumps(row), flush=True)
-                rows.append(row)
+                old = [i for i, r in enumerate(rows) if (r["code"], r["task"], r["sigma"], r["seed"]) == key]  # a failed one
+                if old:
+                    rows[old[0]] = row
+                else:
+                    rows.append(row)
+                if row["status"] == "error":
+                    failed.append(f"{code} on {task} (sigma {args.sigma:g}, seed {seed})")
+                    print(f"bench/side_by_side.py: {failed[-1]} failed: {(row['error'].strip().splitlines() or [''])[-1]}", file=sys.stderr, flush=True)
                 io.write_json(path, rows)
                 io.write_text(out / "side_by_side.md", render(rows))
     io.write_text(out / "side_by_side.md", render(rows))
     write_provenance(out, ["python", "bench/side_by_side.py", *(sys.argv[1:] if argv is None else argv)])
+    if failed:
+        raise SystemExit(f"bench/side_by_side.py: {len(failed)} solve(s) failed, their rows say error in {path}; run again to retry them: {'; '.join(failed)}")
 
 
 if __name__ == "__main__":
