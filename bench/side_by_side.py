@@ -32,6 +32,7 @@ import ast
 import dataclasses
 import functools
 import json
+import math
 import os
 import statistics
 import subprocess
@@ -43,9 +44,10 @@ import numpy as np
 
 import jtraj
 from jtraj import io, success
+from jtraj.cli import InputError, _check_names, _check_robots, _load_valid_task
 from jtraj.provenance import write_provenance
-from jtraj.solver import with_changes
-from jtraj.task import Task, retarget
+from jtraj.solver import VARIABLES, with_changes
+from jtraj.task import Task, TaskError, available, retarget
 from jtraj.task import load as load_task
 
 #: The public code's runner: ../shared/peers/run-se3-trajopt beside the repository (pass
@@ -203,15 +205,43 @@ def jtraj_label(variables: str, robots: dict[str, str], code_costs: bool, change
     return ", ".join([f"jtraj {variables}", *robots.values(), *(["code's costs"] if code_costs else []), *(f"{k}={v}" for k, v in (changes or {}).items())])
 
 
-def parse_changes(ap: argparse.ArgumentParser, items: list[str], variables: str) -> dict[str, str]:
-    """``--set FIELD=VALUE`` items as a dict, checked against ``variables``' options (a parser
-    error otherwise)."""
-    changes = dict(item.split("=", 1) for item in items)
-    try:
-        with_changes(variables, changes)
-    except ValueError as e:
-        ap.error(f"--set: {e}")
+def parse_changes(ap: argparse.ArgumentParser, items: list[str], variables: str | list[str]) -> dict[str, str]:
+    """``--set FIELD=VALUE`` items as a dict, checked against the options of ``variables`` (a
+    name or several: each must take the changes; a parser error otherwise)."""
+    changes = {}
+    for item in items:
+        field, sep, value = item.partition("=")
+        if not sep or not field or not value:
+            ap.error(f"--set: {item!r}: expected FIELD=VALUE, e.g. force_limits=rows")
+        changes[field] = value
+    for name in [variables] if isinstance(variables, str) else variables:
+        try:
+            with_changes(name, changes)
+        except ValueError as e:
+            ap.error(f"--set: {e}" + (f" (with --variables {name})" if not isinstance(variables, str) else ""))
     return changes
+
+
+def seed_list(text: str) -> list[int]:
+    """argparse ``type=`` of ``--seeds``: comma-separated seeds >= 0."""
+    try:
+        seeds = [int(s) for s in text.split(",")]
+    except ValueError:
+        seeds = []
+    if not seeds or min(seeds) < 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected comma-separated seeds >= 0, e.g. 0,1,2")
+    return seeds
+
+
+def noise_level(text: str) -> float:
+    """argparse ``type=`` of ``--sigma``: a finite standard deviation >= 0."""
+    try:
+        sigma = float(text)
+    except ValueError:
+        sigma = math.nan
+    if not (math.isfinite(sigma) and sigma >= 0):
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a noise level (standard deviation) >= 0")
+    return sigma
 
 
 def run_jtraj(task: str, variables: str, sigma: float, seed: int, robots: dict[str, str] | None = None, code_costs: bool = False, changes: dict[str, str] | None = None) -> dict:
@@ -282,11 +312,11 @@ def render(rows: list[dict]) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--tasks", default=",".join(TASKS))
+    ap.add_argument("--tasks", default=",".join(TASKS), help=f"comma-separated built-in tasks (with a peer: some of {','.join(TASKS)})")
     ap.add_argument("--variables", "--layouts", dest="variables", default="paper", help="comma-separated jtraj.solver.VARIABLES names ('' for none; --layouts: the former name)")
-    ap.add_argument("--sigma", type=float, default=0.0)
-    ap.add_argument("--seeds", default="0")
-    ap.add_argument("--peer", default=str(DEFAULT_PEER), help="the paper code's runner script ('' to skip it)")
+    ap.add_argument("--sigma", type=noise_level, default=0.0)
+    ap.add_argument("--seeds", type=seed_list, default="0", help="comma-separated seeds of the noise draws (with --sigma > 0)")
+    ap.add_argument("--peer", default=str(DEFAULT_PEER), help="path of the paper code's runner script, run as PEER TASK [--sigma S --seed N] ('' to skip it)")
     ap.add_argument("--peer-src", type=Path, default=DEFAULT_PEER_SRC, help="the public code's sources (noisy flips run them through a driver that reads the last iterate)")
     ap.add_argument("--peer-python", type=Path, default=DEFAULT_PEER_PYTHON, help="the Python of the environment the runner creates")
     ap.add_argument("--robot", action="append", default=[], metavar="ROBOT=OTHER", help="jtraj solves tasks on ROBOT with the model OTHER (e.g. talos=talos_full: the study's Talos)")
@@ -300,19 +330,35 @@ def main(argv: list[str] | None = None) -> None:
     )
     ap.add_argument("--out", default="results/side_by_side")
     args = ap.parse_args(argv)
-    if args.peer and not Path(args.peer).exists():  # before anything is solved
-        ap.error(f"the paper code's runner {args.peer} does not exist: pass --peer PATH, or --peer '' to skip it")
-    robots = dict(item.split("=", 1) for item in args.robot)
-    changes = parse_changes(ap, args.set, args.variables.split(",")[0] or "paper")
+    # every input is checked before anything is solved
+    if args.peer and not (os.path.isfile(args.peer) and os.access(args.peer, os.X_OK)):
+        ap.error(f"--peer: {args.peer!r}: expected the path of the paper code's executable runner, or --peer '' to skip it")
+    names = [v for v in args.variables.split(",") if v]
+    try:
+        robots = _check_robots(args.robot)
+        tasks = _check_names("--tasks", args.tasks, list(TASKS) if args.peer else available(), "tasks")
+        for name in names:
+            if name not in VARIABLES:
+                raise InputError("--variables", name, f"unknown variables; expected some of {', '.join(VARIABLES)} (comma-separated; '' for none)")
+        for task in tasks if robots else []:  # the task on the other robot passes its checks
+            _load_valid_task(task, robots)
+    except (InputError, TaskError) as e:
+        ap.error(str(e))
+    changes = parse_changes(ap, args.set, names or "paper")
+    if args.peer and args.sigma and any(builtin_task(t).flip_axis is not None for t in tasks) and not args.peer_python.exists():
+        ap.error(f"--peer-python: '{args.peer_python}' does not exist: run the public code's runner once (it creates its environment), or pass --peer-python")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     path = out / "side_by_side.json"
-    rows = io.read_json(path) if path.exists() else []
+    try:
+        rows = io.read_json(path) if path.exists() else []
+    except io.FileFormatError as e:
+        ap.error(f"--out: {e}")
     # a failed solve (an error row) is not done: it runs again, and its new row replaces the old
     done = {(r["code"], r["task"], r["sigma"], r["seed"]) for r in rows if r.get("status") != "error"}
     failed: list[str] = []
-    seeds = [int(s) for s in args.seeds.split(",")] if args.sigma else [0]
-    for task in args.tasks.split(","):
+    seeds = args.seeds if args.sigma else [0]
+    for task in tasks:
         for seed in seeds:
             # a flip's draw goes through the driver, whose last iterate the task check reads
             peer = (

@@ -27,8 +27,10 @@ import numpy as np
 
 import jtraj
 from jtraj import solvers, success
+from jtraj.cli import InputError, _check_robots, _load_valid_task
 from jtraj.provenance import write_results
 from jtraj.solver import VARIABLES, with_changes
+from jtraj.task import TaskError
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
@@ -122,12 +124,23 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--no-peer", action="store_true")
     ap.add_argument("--out", type=Path)
     args = ap.parse_args(argv)
-    robots = dict(r.split("=", 1) for r in args.robot)
+    # every input is checked before the public code or jtraj solves
+    try:
+        robots = _check_robots(args.robot)
+        if robots:
+            _load_valid_task(args.task, robots)  # the task on the other robot passes its checks
+    except (InputError, TaskError) as e:
+        ap.error(str(e))
+    changes = parse_changes(ap, args.set, args.variables)
+    if not args.no_peer and not args.peer_python.exists():
+        ap.error(f"--peer-python: '{args.peer_python}' does not exist: run the public code's runner once (it creates its environment), pass --peer-python, or --no-peer")
     task = jtraj_task(args.task, robots, args.code_costs)
     runs = []
     if not args.no_peer:
-        runs.append(run_peer(args.task, args.peer_src, args.peer_python, task.flip_axis, task.flip_turns))
-    changes = parse_changes(ap, args.set, args.variables)
+        try:
+            runs.append(run_peer(args.task, args.peer_src, args.peer_python, task.flip_axis, task.flip_turns))
+        except RuntimeError as e:
+            raise SystemExit(f"bench/trace_iterates.py: {e}") from None
     runs.append(run_jtraj(args.task, args.variables, robots, args.code_costs, changes))
     text = render(runs)
     print(text)

@@ -1,6 +1,6 @@
 """bench/side_by_side.py with fake runners of the paper's code (shell scripts in tmp_path) and
 no jtraj solve: a failed solve is an error row that the next run retries, and the exit status
-says so; bad runner output stops with one line."""
+says so; bad runner output and bad arguments stop with one line before anything is solved."""
 
 import json
 from pathlib import Path
@@ -55,4 +55,45 @@ def test_unparsable_peer_output_stops_with_one_line(sbs, tmp_path, body, printed
     with pytest.raises(SystemExit) as exc:
         sbs.run_peer(peer, "walk", 0.0, 0)
     assert exc.value.code == f"bench/side_by_side.py: the paper code's runner {peer} walk printed {printed}; expected a JSON line with status and iterations"
+
+
+def _refused(sbs, argv, capsys, message):
+    with pytest.raises(SystemExit) as exc:
+        sbs.main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    assert message in err.strip().splitlines()[-1]
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--variables", "paper,bogus"], "--variables: 'bogus': unknown variables; expected some of paper, compact, lean"),
+        (["--tasks", "walk,bogus"], "--tasks: 'bogus': unknown task; expected some of walk, hopscotch"),
+        (["--robot", "talos"], "--robot: 'talos': expected ROBOT=OTHER"),
+        (["--robot", "talos=nobody"], "unknown robot 'nobody'"),
+        (["--set", "force_limits"], "--set: 'force_limits': expected FIELD=VALUE"),
+        # checked against every variables name, not only the first
+        (["--variables", "paper,lean", "--set", "contact_height=row"], "it needs contact_variables=True (with --variables lean)"),
+        (["--sigma", "0.5", "--seeds", "a,b"], "argument --seeds: 'a,b': expected comma-separated seeds >= 0"),
+        (["--sigma", "0.5", "--seeds", "-1"], "argument --seeds: '-1': expected comma-separated seeds >= 0"),
+        (["--sigma", "-1"], "argument --sigma: '-1': expected a noise level (standard deviation) >= 0"),
+        (["--sigma", "nan"], "argument --sigma: 'nan': expected a noise level"),
+    ],
+)
+def test_bad_arguments_are_refused_before_any_solve(sbs, monkeypatch, tmp_path, capsys, argv, message):
+    for name in ("run_peer", "run_peer_checked", "run_jtraj", "peer_iterates"):
+        monkeypatch.setattr(sbs, name, _no_solve)
+    peer = _peer(tmp_path, "exit 1")
+    _refused(sbs, ["--peer", str(peer), "--out", str(tmp_path / "out"), *argv], capsys, message)
+    assert not (tmp_path / "out" / "side_by_side.json").exists()
+
+
+@pytest.mark.parametrize("kind", ["missing", "not executable"])
+def test_a_peer_that_cannot_run_is_refused(sbs, monkeypatch, tmp_path, capsys, kind):
+    for name in ("run_peer", "run_peer_checked", "run_jtraj"):
+        monkeypatch.setattr(sbs, name, _no_solve)
+    peer = tmp_path / "nothing" if kind == "missing" else _peer(tmp_path, "exit 0", executable=False)
+    _refused(sbs, ["--peer", str(peer), "--out", str(tmp_path / "out")], capsys, f"--peer: '{peer}': expected the path of the paper code's executable runner")
 
