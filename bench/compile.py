@@ -60,12 +60,14 @@ def table(records: list[dict]) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    from jtraj.task import task_argument  # the tasks are checked here; the children compile
+    from jtraj.parameterization import PARAMETERIZATIONS
+    from jtraj.solver import VARIABLES
+    from jtraj.task import task_argument  # the inputs are checked here; the children compile
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("tasks", nargs="*", type=task_argument, default=["big_jump"])
-    ap.add_argument("--param", default="se3")
-    ap.add_argument("--variables", default="paper")
+    ap.add_argument("--param", default="se3", choices=list(PARAMETERIZATIONS))
+    ap.add_argument("--variables", default="paper", choices=list(VARIABLES))
     ap.add_argument("--flags", default="", help="XLA_FLAGS settings separated by '|', one process each (empty: none)")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--out", type=Path)

@@ -87,6 +87,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jtraj.nlp import ConstraintGroup, Dep, KnotNLP, Layout
+from jtraj.parameterization import PARAMETERIZATIONS
 from jtraj.provenance import write_results
 from jtraj.solver import prepare, solve
 from jtraj.task import task_argument
@@ -588,17 +589,17 @@ def markdown(records: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("tasks", nargs="*", type=task_argument, default=["big_jump"])
-    ap.add_argument("--param", default="se3")
+    ap.add_argument("--param", default="se3", choices=list(PARAMETERIZATIONS))
     ap.add_argument("--jtraj", action="store_true", help="also solve with jtraj's own interior point")
     ap.add_argument("--no-ipopt", action="store_true", help="skip the Ipopt solve")
     ap.add_argument("--hessian", default="exact", choices=HESSIANS, help="FATROP's Hessian: exact, or its stage blocks with eigenvalues clipped at 1e-6")
     ap.add_argument("--rtol", type=float, default=1e-7, help="relative tolerance of drop_dependent's rank decision (default 1e-7)")
     ap.add_argument("--print-level", type=int, default=0, help="FATROP's print_level (0 quiet, 10 a line per iteration)")
     ap.add_argument("--out", help="write DIR/fatrop.json, DIR/fatrop.md, DIR/provenance.json")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     records = []
     for task in args.tasks:
         rec = dict(task=task, param=args.param, machine=dict(cpus=os.cpu_count(), load_1min=os.getloadavg()[0]), solvers=[])
@@ -630,7 +631,7 @@ def main() -> None:
         rec["load_1min_after"] = os.getloadavg()[0]
         records.append(rec)
         if args.out:
-            write_results(args.out, "fatrop", records, markdown(records), "bench/fatrop.py")
+            write_results(args.out, "fatrop", records, markdown(records), "bench/fatrop.py", argv)
     print(markdown(records))
 
 

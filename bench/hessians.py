@@ -20,7 +20,9 @@ import argparse
 
 import jtraj
 from jtraj.experiments import ALL_TASKS
+from jtraj.parameterization import PARAMETERIZATIONS
 from jtraj.provenance import write_results
+from jtraj.solver import VARIABLES
 from jtraj.solvers.ipm import IpmOptions
 from jtraj.tables import markdown_table
 from jtraj.task import task_argument
@@ -55,14 +57,19 @@ def table(rows: list[dict]) -> str:
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("tasks", nargs="*", type=task_argument, default=list(ALL_TASKS))
-    ap.add_argument("--param", default="se3")
-    ap.add_argument("--hessians", default=",".join(HESSIANS))
-    ap.add_argument("--variables", default="compact")
+    ap.add_argument("--param", default="se3", choices=list(PARAMETERIZATIONS))
+    ap.add_argument("--hessians", default=",".join(HESSIANS), help=f"comma-separated, some of {','.join(HESSIANS)}")
+    ap.add_argument("--variables", default="compact", choices=list(VARIABLES))
     ap.add_argument("--out")
     args = ap.parse_args(argv)
     hessians = [h for h in args.hessians.split(",") if h]
+    if not hessians:
+        ap.error(f"--hessians: {args.hessians!r}: expected some of {','.join(HESSIANS)}")
     for h in hessians:
-        IpmOptions(hessian=h)  # an unknown name fails here, with the option's own message
+        try:
+            IpmOptions(hessian=h)  # an unknown name fails here, with the option's own message
+        except ValueError as e:  # InvalidOptionError
+            ap.error(f"--hessians: {e}")
     rows: list[dict] = []
     for task in args.tasks:  # the files after each task: a long run keeps what it solved
         rows += run([task], hessians, args.param, args.variables)

@@ -20,11 +20,12 @@ RULES = {
 
 
 def main(argv: list[str] | None = None) -> None:
+    from jtraj.parameterization import PARAMETERIZATIONS
     from jtraj.task import task_argument  # jtraj after the module's own settings
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("task", nargs="?", type=task_argument, default="big_jump")
-    ap.add_argument("--param", default="se3")
+    ap.add_argument("--param", default="se3", choices=list(PARAMETERIZATIONS))
     ap.add_argument("--repeat", type=int, default=2)
     args = ap.parse_args(argv)
 

@@ -31,8 +31,11 @@ from typing import Any
 import jtraj
 from jtraj.cli import InputError, _check_ipopt  # the command line's NAME=VALUE parsing and checks
 from jtraj.experiments import ALL_TASKS
+from jtraj.parameterization import PARAMETERIZATIONS
 from jtraj.provenance import write_results
+from jtraj.solver import VARIABLES
 from jtraj.tables import markdown_table
+from jtraj.task import task_argument
 
 
 def parse_variant(text: str) -> tuple[str, dict[str, Any]]:
@@ -93,11 +96,11 @@ def table(records: list[dict]) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("tasks", nargs="*", default=list(ALL_TASKS))
+    ap.add_argument("tasks", nargs="*", type=task_argument, default=list(ALL_TASKS))
     ap.add_argument("--variant", action="append", required=True, help="NAME=OPTION:VALUE[,OPTION:VALUE...] (repeatable; the first is the baseline)")
     ap.add_argument("--rounds", type=int, default=3)
-    ap.add_argument("--param", default="se3")
-    ap.add_argument("--variables", default="compact")
+    ap.add_argument("--param", default="se3", choices=list(PARAMETERIZATIONS))
+    ap.add_argument("--variables", default="compact", choices=list(VARIABLES))
     ap.add_argument("--out")
     args = ap.parse_args(argv)
     if args.rounds < 1:

@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 
 import jtraj
+from jtraj.cli import InputError, _check_params
 from jtraj.provenance import write_results
 from jtraj.task import Phase, Task
 
@@ -50,7 +51,11 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--params", default="se3,quat1,quat2,quat3,euler")
     ap.add_argument("--out")
     args = ap.parse_args(argv)
-    rows = run([p for p in args.params.split(",") if p])
+    try:
+        params = _check_params("--params", args.params)
+    except InputError as e:
+        ap.error(str(e))
+    rows = run(params)
     if args.out:
         write_results(args.out, "params_hop", rows, render(rows), "bench/params_hop.py", argv)
 

@@ -135,12 +135,14 @@ def table(records: list[dict]) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
+    from jtraj.parameterization import PARAMETERIZATIONS
+    from jtraj.solver import VARIABLES
     from jtraj.task import task_argument  # jtraj after the module's own settings
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("tasks", nargs="*", type=task_argument, default=["walk", "big_jump", "backflip", "sideflip"])
-    ap.add_argument("--param", default="se3")
-    ap.add_argument("--variables", default="paper", help="the variables per knot (default: the study's, as the robustness study solves)")
+    ap.add_argument("--param", default="se3", choices=list(PARAMETERIZATIONS))
+    ap.add_argument("--variables", default="paper", choices=list(VARIABLES), help="the variables per knot (default: the study's, as the robustness study solves)")
     ap.add_argument("--out")
     a = ap.parse_args(argv)
     records = []

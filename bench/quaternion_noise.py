@@ -135,23 +135,31 @@ def table(records: list[dict]) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
+    from jtraj.cli import InputError, _check_params
+    from jtraj.solver import VARIABLES
+    from jtraj.task import task_argument
+
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--task", default="walk")
-    ap.add_argument("--params", default="quat1,quat2")
+    ap.add_argument("--task", default="walk", type=task_argument)
+    ap.add_argument("--params", default="quat1,quat2", help="comma-separated parameterizations")
     ap.add_argument("--sigma", type=float, default=0.5)
     ap.add_argument("--draws", type=int, default=20)
     ap.add_argument("--first", type=int, default=0, help="first draw (replicate number)")
     ap.add_argument("--modes", default="raw,unit,se3", help=f"warm starts to solve, of {','.join(MODES)}")
     ap.add_argument("--max-iter", type=int, default=200)
-    ap.add_argument("--variables", default="paper")
+    ap.add_argument("--variables", default="paper", choices=list(VARIABLES))
     ap.add_argument("--solver", default="jtraj", choices=("jtraj", "ipopt"), help="jtraj's (batched) or Ipopt (one by one, as Table III)")
     ap.add_argument("--out", type=Path)
     a = ap.parse_args(argv)
+    try:
+        params = _check_params("--params", a.params)
+    except InputError as e:
+        ap.error(str(e))
     modes = tuple(a.modes.split(","))
     if not modes or set(modes) - set(MODES):
         ap.error(f"--modes {a.modes}: expected modes of {','.join(MODES)}")
     records = []
-    for param in a.params.split(","):
+    for param in params:
         records += run(a.task, param, a.sigma, a.draws, a.max_iter, a.variables, modes, a.first, a.solver)
     text = table(records)
     print(text, end="")

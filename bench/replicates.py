@@ -47,15 +47,17 @@ import numpy as np
 
 from jtraj import solvers
 from jtraj.experiments import noisy_warm_starts
+from jtraj.parameterization import PARAMETERIZATIONS
 from jtraj.solver import compile_callbacks, prepare, solve, solver_options
 from jtraj.success import FEASIBILITY_TOL
 from jtraj.success import evaluate as check_motion
+from jtraj.task import task_argument
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--task", default="big_jump")
-    ap.add_argument("--param", default="se3")
+    ap.add_argument("--task", default="big_jump", type=task_argument)
+    ap.add_argument("--param", default="se3", choices=list(PARAMETERIZATIONS))
     ap.add_argument("--sigma", type=float, default=0.1)
     ap.add_argument("--replicates", type=int, default=10)
     ap.add_argument("--strategies", default="vmap,threads", help="comma-separated ways to time: vmap, threads (solve_batch's strategies), vectorized (vmap with cpu_batch='vectorized')")
@@ -64,7 +66,7 @@ def main() -> None:
     ap.add_argument("--jtraj-sequential", action="store_true", help="also time jtraj's solver one replicate at a time")
     ap.add_argument("--no-ipopt", action="store_true", help="skip the sequential Ipopt solves")
     ap.add_argument("--out", help="write the figures to this JSON file")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     batches = [int(b) for b in args.batches.split(",") if b.strip()]
     strategies = [s.strip() for s in args.strategies.split(",") if s.strip()]
     from jtraj.solvers.ipm import JtrajSolver
