@@ -72,6 +72,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--out", type=Path)
     a = ap.parse_args(argv)
+    if a.repeats < 1:
+        ap.error(f"--repeats: {a.repeats}: expected an integer >= 1 (the table gives the fastest of them)")
     records = []
     for task in a.tasks:
         for flags in a.flags.split("|"):

@@ -49,11 +49,15 @@ def best_of(fn, repeat):
     return min(times)
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--knots-scale", type=int, default=1, help="divide the timestep by this (more knots)")
     ap.add_argument("--repeat", type=int, default=3)
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
+    if args.knots_scale < 1:
+        ap.error(f"--knots-scale: {args.knots_scale}: expected an integer >= 1 (the timestep is divided by it)")
+    if args.repeat < 1:
+        ap.error(f"--repeat: {args.repeat}: expected an integer >= 1")
     f = differentiable(hop(args.knots_scale))
     theta = f.theta
 

@@ -57,14 +57,17 @@ def pinocchio_model(robot):
     return robot_lib.to_pinocchio(robot)
 
 
-def main():
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--robot", default="talos")
+    parser.add_argument("--robot", default="talos", choices=robot_lib.available())
     parser.add_argument("--knots", type=int, default=66)
     parser.add_argument("--repeats", type=int, default=30)
     parser.add_argument("--param", default="quat1", choices=list(PARAMETERIZATIONS))
     parser.add_argument("--skip-mjx", action="store_true", help="skip the slow jacfwd-through-MJX baseline")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
+    for name in ("knots", "repeats"):
+        if getattr(args, name) < 1:
+            parser.error(f"--{name}: {getattr(args, name)}: expected an integer >= 1")
 
     robot = robot_lib.load(args.robot)
     param = PARAMETERIZATIONS[args.param]

@@ -92,15 +92,31 @@ def table(records: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def shapes(text: str) -> list[tuple[int, int, int]]:
+    """argparse ``type=`` of ``--shapes``: comma-separated ``KxNxC``, K and N at least 1, C
+    coupled columns of the N (1 <= C <= N)."""
+    out = []
+    for item in text.split(","):
+        try:
+            K, n, c = (int(x) for x in item.split("x"))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{item!r}: expected KxNxC (knots, block size, coupled columns), e.g. 47x156x96") from None
+        if K < 1 or not 1 <= c <= n:
+            raise argparse.ArgumentTypeError(f"{item!r}: expected K >= 1 knots and 1 <= C <= N coupled columns of the N x N blocks")
+        out.append((K, n, c))
+    return out
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--shapes", default="47x156x96,121x78x48", help="KxNxC,... (knots, block size, coupled columns)")
+    ap.add_argument("--shapes", type=shapes, default="47x156x96,121x78x48", help="KxNxC,... (knots, block size, coupled columns)")
     ap.add_argument("--rounds", type=int, default=15)
     ap.add_argument("--out")
     args = ap.parse_args(argv)
+    if args.rounds < 1:
+        ap.error(f"--rounds: {args.rounds}: expected an integer >= 1")
     records = []
-    for shape in args.shapes.split(","):
-        K, n, c = (int(x) for x in shape.split("x"))
+    for K, n, c in args.shapes:
         records.append(measure(K, n, c, args.rounds))
         print(table(records[-1:]).splitlines()[-1], flush=True)
     md = table(records)

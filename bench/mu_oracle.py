@@ -28,6 +28,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--param", default="se3", choices=list(PARAMETERIZATIONS))
     ap.add_argument("--repeat", type=int, default=2)
     args = ap.parse_args(argv)
+    if args.repeat < 1:
+        ap.error(f"--repeat: {args.repeat}: expected an integer >= 1")
 
     from jtraj.solver import prepare
     from jtraj.solvers import JtrajSolver

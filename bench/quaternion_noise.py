@@ -28,6 +28,7 @@ two cores.
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 import numpy as np
@@ -155,6 +156,11 @@ def main(argv: list[str] | None = None) -> None:
         params = _check_params("--params", a.params)
     except InputError as e:
         ap.error(str(e))
+    if not (math.isfinite(a.sigma) and a.sigma >= 0):
+        ap.error(f"--sigma: {a.sigma}: expected a noise level (standard deviation) >= 0")
+    for name, least in (("draws", 1), ("first", 0), ("max_iter", 1)):
+        if getattr(a, name) < least:
+            ap.error(f"--{name.replace('_', '-')}: {getattr(a, name)}: expected an integer >= {least}")
     modes = tuple(a.modes.split(","))
     if not modes or set(modes) - set(MODES):
         ap.error(f"--modes {a.modes}: expected modes of {','.join(MODES)}")

@@ -39,6 +39,7 @@ import argparse
 import contextlib
 import dataclasses
 import json
+import math
 import os
 import platform
 
@@ -67,7 +68,12 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--no-ipopt", action="store_true", help="skip the sequential Ipopt solves")
     ap.add_argument("--out", help="write the figures to this JSON file")
     args = ap.parse_args(argv)
-    batches = [int(b) for b in args.batches.split(",") if b.strip()]
+    try:
+        batches = [int(b) for b in args.batches.split(",") if b.strip()]
+    except ValueError:
+        ap.error(f"--batches: {args.batches!r}: expected comma-separated batch sizes >= 1, e.g. 100,1000")
+    if not (math.isfinite(args.sigma) and args.sigma >= 0):
+        ap.error(f"--sigma: {args.sigma}: expected a noise level (standard deviation) >= 0")
     strategies = [s.strip() for s in args.strategies.split(",") if s.strip()]
     from jtraj.solvers.ipm import JtrajSolver
 

@@ -45,16 +45,30 @@ def timed(fn, *args, reps: int = 3) -> float:
     return (time.perf_counter() - t0) / reps
 
 
-def main() -> None:
+def sizes(text: str) -> list[int]:
+    """argparse ``type=`` of ``--sizes``: comma-separated block sizes >= 1."""
+    try:
+        out = [int(s) for s in text.split(",")]
+    except ValueError:
+        out = []
+    if not out or min(out) < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected comma-separated block sizes >= 1, e.g. 32,132")
+    return out
+
+
+def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--members", type=int, default=4)
     ap.add_argument("--knots", type=int, default=47)
-    ap.add_argument("--sizes", default="32,132")
+    ap.add_argument("--sizes", type=sizes, default="32,132")
     ap.add_argument("--repeats", type=int, default=50)
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
+    for name in ("members", "knots", "repeats"):
+        if getattr(args, name) < 1:
+            ap.error(f"--{name}: {getattr(args, name)}: expected an integer >= 1")
     rng = np.random.default_rng(0)
     print(f"JAX {jax.__version__} on {jax.devices()[0].platform}; {args.members} members, {args.knots} knots, {args.repeats} sweeps", flush=True)
-    for n in (int(s) for s in args.sizes.split(",")):
+    for n in args.sizes:
         L = jnp.asarray(0.01 * rng.standard_normal((args.members, args.knots, n, n)))
         b = jnp.asarray(rng.standard_normal((args.members, args.knots, n)))
         run = lambda L, b: sweeps(L, b, args.repeats)  # noqa: E731

@@ -47,7 +47,23 @@ WORK = {
     "fatrop": ["prepare", "solve", "solve_fatrop"],
     "params_hop": ["run"],
     "compile": ["run_child"],
+    "factor_split": ["measure"],
+    "vmap_cpu": ["timed", "sweeps"],
+    "dynamics": ["timed", "batched", "jtraj.robot.load"],
+    "differentiate": ["differentiable"],
 }
+
+
+def _without_work(monkeypatch, script: str):
+    """``bench/SCRIPT.py`` with what it calls to do its work (`WORK`) replaced by `_no_work`."""
+    mod = bench_module(script)
+    for name in WORK[script]:
+        if "." in name:
+            monkeypatch.setattr(name, _no_work)
+        else:
+            monkeypatch.setattr(mod, name, _no_work)
+    return mod
+
 
 UNKNOWN_PARAM = "argument --param: invalid choice: 'bogus' (choose from 'se3', 'quat1', 'quat2', 'quat3', 'euler')"
 UNKNOWN_VARIABLES = "argument --variables: invalid choice: 'bogus' (choose from 'paper', 'compact', 'lean')"
@@ -79,10 +95,35 @@ UNKNOWN_TASK = "unknown task; expected one of ['backflip', 'big_jump',"
     ],
 )
 def test_tasks_parameterizations_and_variables_are_checked(monkeypatch, capsys, script, argv, message):
-    mod = bench_module(script)
-    for name in WORK[script]:
-        if "." in name:
-            monkeypatch.setattr(name, _no_work)
-        else:
-            monkeypatch.setattr(mod, name, _no_work)
-    _refused(mod.main, argv, capsys, message)
+    _refused(_without_work(monkeypatch, script).main, argv, capsys, message)
+
+
+@pytest.mark.parametrize(
+    ("script", "argv", "message"),
+    [
+        ("factor_split", ["--shapes", "bogus"], "argument --shapes: 'bogus': expected KxNxC (knots, block size, coupled columns), e.g. 47x156x96"),
+        ("factor_split", ["--shapes", "47x156x96,2x4"], "argument --shapes: '2x4': expected KxNxC"),
+        ("factor_split", ["--shapes", "2x4x8"], "argument --shapes: '2x4x8': expected K >= 1 knots and 1 <= C <= N coupled columns"),
+        ("factor_split", ["--rounds", "0"], "--rounds: 0: expected an integer >= 1"),
+        ("vmap_cpu", ["--sizes", "x"], "argument --sizes: 'x': expected comma-separated block sizes >= 1"),
+        ("vmap_cpu", ["--sizes", "32,0"], "argument --sizes: '32,0': expected comma-separated block sizes >= 1"),
+        ("vmap_cpu", ["--members", "0"], "--members: 0: expected an integer >= 1"),
+        ("replicates", ["--batches", "x"], "--batches: 'x': expected comma-separated batch sizes >= 1"),
+        ("replicates", ["--batches", "0"], "--replicates and --batches take positive whole numbers"),
+        ("replicates", ["--sigma", "-1"], "--sigma: -1.0: expected a noise level (standard deviation) >= 0"),
+        ("dynamics", ["--robot", "bogus"], "argument --robot: invalid choice: 'bogus' (choose from 'g1', 'go2', 'talos', 'talos_full')"),
+        ("dynamics", ["--knots", "0"], "--knots: 0: expected an integer >= 1"),
+        ("dynamics", ["--repeats", "0"], "--repeats: 0: expected an integer >= 1"),
+        ("differentiate", ["--knots-scale", "0"], "--knots-scale: 0: expected an integer >= 1"),
+        ("differentiate", ["--knots-scale", "-1"], "--knots-scale: -1: expected an integer >= 1"),
+        ("differentiate", ["--repeat", "0"], "--repeat: 0: expected an integer >= 1"),
+        ("compile", ["big_jump", "--repeats", "0"], "--repeats: 0: expected an integer >= 1"),
+        ("mu_oracle", ["big_jump", "--repeat", "0"], "--repeat: 0: expected an integer >= 1"),
+        ("quaternion_noise", ["--draws", "0"], "--draws: 0: expected an integer >= 1"),
+        ("quaternion_noise", ["--first", "-1"], "--first: -1: expected an integer >= 0"),
+        ("quaternion_noise", ["--max-iter", "0"], "--max-iter: 0: expected an integer >= 1"),
+        ("quaternion_noise", ["--sigma", "-1"], "--sigma: -1.0: expected a noise level (standard deviation) >= 0"),
+    ],
+)
+def test_lists_and_counts_are_checked(monkeypatch, capsys, script, argv, message):
+    _refused(_without_work(monkeypatch, script).main, argv, capsys, message)
