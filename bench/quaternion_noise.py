@@ -64,6 +64,37 @@ def rotation_noise(tr, starts: np.ndarray, clean: np.ndarray) -> np.ndarray:
     return np.asarray(fn(starts[:, 1:-1, q.start : q.start + nb], clean[1:-1, q.start : q.start + nb]))
 
 
+def check_modes(task: str, params: list[str], variables: str, modes: tuple[str, ...]) -> None:
+    """ValueError, before anything compiles, where `run` cannot solve a (parameterization, mode)
+    pair: the cheap checks of every pair first, then those that build each chart's warm start
+    (about 3 s a transcription, against minutes of solves)."""
+    from jtraj.experiments import check_noise_chart
+    from jtraj.parameterization import PARAMETERIZATIONS
+    from jtraj.robot import load as load_robot
+    from jtraj.solver import transcription_options
+    from jtraj.task import load as load_task
+    from jtraj.transcription import Transcription
+
+    for param in params:
+        if param in modes:
+            raise ValueError(f"--modes: {param}: with --params {param} it is mode raw (the chart's own draws); leave one out")
+        if "unit" in modes and not param.startswith("quat"):
+            raise ValueError(f"--modes: unit: needs quaternion charts; --params has {param}")
+    if "unit" in modes:
+        t = load_task(task)
+        robot, options = load_robot(t.robot), transcription_options(variables)
+        for param in params:
+            tr = Transcription(robot, t, PARAMETERIZATIONS[param], options)
+            rho = tr.warm_start()[:, tr.layout.slice("q")][:, 3:7]
+            if not np.allclose(np.linalg.norm(rho, axis=1), 1.0):
+                raise ValueError(f"--modes: unit: needs a quaternion chart whose warm start's q[3:7] are unit quaternions; {param}'s are not")
+    for chart in (m for m in modes if m in PARAMETERIZATIONS):
+        try:
+            check_noise_chart([task], params, variables, chart)
+        except ValueError as e:  # NoiseChartError
+            raise ValueError(f"--modes: {chart}: {e}") from None
+
+
 def run(task: str, param: str, sigma: float, draws: int, max_iter: int, variables: str, modes: tuple[str, ...] = MODES, first: int = 0, solver: str = "jtraj") -> list[dict]:
     """Each mode's solves of draws ``first .. first + draws - 1`` with ``solver`` (jtraj's: one
     batched call per mode; Ipopt: one by one, as the study); one record per solve."""
@@ -77,6 +108,7 @@ def run(task: str, param: str, sigma: float, draws: int, max_iter: int, variable
     tr, nlp = prep.transcription, prep.nlp
     x0 = tr.warm_start()
     q = tr.layout.slice("q")
+    # main() checked these pairs (`check_modes`) before anything compiled; kept for direct calls
     if "unit" in modes and not (tr.param.name.startswith("quat") and np.allclose(np.linalg.norm(x0[:, q][:, 3:7], axis=1), 1.0)):
         raise SystemExit(f"{param}: mode unit needs a quaternion chart whose warm start's q[3:7] are unit quaternions")
     if param in modes:
@@ -164,6 +196,10 @@ def main(argv: list[str] | None = None) -> None:
     modes = tuple(a.modes.split(","))
     if not modes or set(modes) - set(MODES):
         ap.error(f"--modes {a.modes}: expected modes of {','.join(MODES)}")
+    try:  # every (parameterization, mode) pair, before the first solve
+        check_modes(a.task, params, a.variables, modes)
+    except ValueError as e:
+        ap.error(str(e))
     records = []
     for param in params:
         records += run(a.task, param, a.sigma, a.draws, a.max_iter, a.variables, modes, a.first, a.solver)

@@ -127,3 +127,17 @@ def test_tasks_parameterizations_and_variables_are_checked(monkeypatch, capsys, 
 )
 def test_lists_and_counts_are_checked(monkeypatch, capsys, script, argv, message):
     _refused(_without_work(monkeypatch, script).main, argv, capsys, message)
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--params", "quat1,quat2", "--modes", "raw,quat2"], "--modes: quat2: with --params quat2 it is mode raw"),
+        (["--params", "quat1,se3", "--modes", "raw,unit"], "--modes: unit: needs quaternion charts; --params has se3"),
+        # needs each chart's warm start (a few seconds): a flip's full turn, which SE(3)'s Log cannot write
+        (["--task", "backflip", "--params", "quat1,euler", "--modes", "raw,se3"], "--modes: se3: backflip: the se3 warm start written in the euler chart is not the euler warm start"),
+    ],
+)
+def test_quaternion_noise_checks_every_parameterization_and_mode_first(monkeypatch, capsys, argv, message):
+    """The pairs were checked in `run`, after the first parameterization's compile and solves."""
+    _refused(_without_work(monkeypatch, "quaternion_noise").main, argv, capsys, message)
