@@ -581,10 +581,14 @@ def markdown(records: list[dict]) -> str:
         if "dropped_rows" in rec:
             lines.append(f"\n{rec['task']}: FATROP's stage form leaves out {sum(rec['dropped_rows'].values())} linearly dependent equality rows {rec['dropped_rows']} (rank tolerance {rec.get('rtol', 1e-7):g}).")
     cpus = records[0]["machine"]["cpus"] if records else None
+    # the notes of the solvers the records hold (--hessian, --no-ipopt, --jtraj)
+    names = {r["solver"] for rec in records for r in rec["solvers"]}
+    hessians = [text for name, text in (("fatrop", "exact Hessian from JAX"), ("fatrop (clip)", "JAX's exact Hessian with each stage block's eigenvalues clipped at 1e-6")) if name in names]
     lines.append(
-        f"\nMachine: {cpus} CPUs. FATROP: exact Hessian from JAX, tol 1e-3, the task's max_iter, on the stage form of the compact NLP "
-        "(bench/fatrop.py docstring); Ipopt: jtraj's defaults (L-BFGS, tol 1e-3, MUMPS); cost and violation of the original NLP. "
-        "FATROP's status is its return code (0: converged). jtraj's time is its whole jitted solve (no separate JAX evaluation)."
+        f"\nMachine: {cpus} CPUs. FATROP: {' / '.join(hessians)}, tol 1e-3, the task's max_iter, on the stage form of the compact NLP (bench/fatrop.py docstring); "
+        + ("Ipopt: jtraj's defaults (L-BFGS, tol 1e-3, MUMPS); " if "ipopt" in names else "")
+        + "cost and violation of the original NLP. FATROP's status is its return code (0: converged)."
+        + (" jtraj's time is its whole jitted solve (no separate JAX evaluation)." if "jtraj" in names else "")
     )
     return "\n".join(lines) + "\n"
 
