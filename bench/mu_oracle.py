@@ -5,7 +5,7 @@ time, and time per pass (an NLP evaluation: an iteration or a backtracking step)
 
 The rules: the default (Ipopt's: quality-function oracle, obj-constr-filter) and the former one
 (LOQO oracle, KKT-error). Each is solved ``--repeat`` times from the task's warm start with the
-compact variables, alternating, so a change in the machine's load shows as a change between
+compact variables and the task's iteration limit (as ``jtraj.solve`` sets it), alternating, so a change in the machine's load shows as a change between
 repeats; compile is excluded (one program per rule, compiled before the first solve).
 """
 
@@ -31,14 +31,16 @@ def main(argv: list[str] | None = None) -> None:
     if args.repeat < 1:
         ap.error(f"--repeat: {args.repeat}: expected an integer >= 1")
 
-    from jtraj.solver import prepare
-    from jtraj.solvers import JtrajSolver
+    from jtraj import solvers
+    from jtraj.solver import prepare, solver_options
 
     prep = prepare(args.task, args.param)
     x0 = prep.transcription.warm_start()
-    solver = JtrajSolver()
+    solver = solvers.get("jtraj")
+    max_iter = prep.transcription.task.max_iter  # IpmOptions' own default (200) is not the task's (walk: 50)
+    options = {name: solver_options(solver, rule, None, False, max_iter) for name, rule in RULES.items()}
     for _ in range(args.repeat):
-        for name, opts in RULES.items():
+        for name, opts in options.items():
             sol = solver.solve(prep.nlp, x0, prep.nlp.theta, opts)
             t, its, passes = sol.stats.time_total, sol.stats.iterations, sol.stats.obj_evals
             print(f"{args.task} {name:48s} {sol.status.value:14s} {its:4d} it {t:7.2f} s  {t / max(its, 1):.3f} s/it  {passes} passes  {t / max(passes, 1):.3f} s/pass", flush=True)
