@@ -29,8 +29,10 @@ On a GPU, jtraj's programs run on the GPU and Ipopt's NLP functions on the same 
 (``jax.default_device``), where a solver that calls them one point at a time belongs.
 
 Prints the JAX device, one line per replicate (status, iterations, violation, task success) and,
-last, ``replicates: vmapped X s, sequential Y s, speedup Z``; ``--out`` writes every figure as
-JSON.
+last, ``replicates: vmapped X s, sequential Y s, speedup Z``; ``--out F.json`` writes every figure
+as JSON (atomically, strict JSON), with the run's provenance (command, date, machine, versions)
+under ``provenance``. It stays one file, not `jtraj.provenance.write_results`' folder: there is no
+table to render, and the results/replicates_* folders hold such files under their commands.
 """
 
 from __future__ import annotations
@@ -38,17 +40,20 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
-import json
 import math
 import os
 import platform
+import sys
 
 import jax
 import numpy as np
 
+from jtraj import io as jio
 from jtraj import solvers
+from jtraj.cli import InputError, _check_out
 from jtraj.experiments import noisy_warm_starts
 from jtraj.parameterization import PARAMETERIZATIONS
+from jtraj.provenance import provenance
 from jtraj.solver import compile_callbacks, prepare, solve, solver_options
 from jtraj.success import FEASIBILITY_TOL
 from jtraj.success import evaluate as check_motion
@@ -82,6 +87,13 @@ def main(argv: list[str] | None = None) -> None:
         ap.error(f"--strategies takes some of {', '.join(known)}")
     if args.replicates < 1 or any(b < 1 for b in batches):
         ap.error("--replicates and --batches take positive whole numbers")
+    if args.out is not None:  # a file that can be written, before minutes of solves
+        try:
+            if os.path.isdir(args.out):
+                raise InputError("--out", args.out, "is a folder; expected the path of a JSON file")
+            _check_out(os.path.dirname(os.path.abspath(args.out)), shown=args.out)
+        except InputError as e:
+            ap.error(str(e))
     if args.no_ipopt:
         args.jtraj_sequential = True  # something to compare with
 
@@ -164,8 +176,8 @@ def main(argv: list[str] | None = None) -> None:
         report["ipopt_sequential_s"] = t_ipopt
     report["speedup"] = {s: sequential / t for s, t in timed.items()}
     if args.out:
-        with open(args.out, "w") as f:
-            json.dump(report, f, indent=1)
+        report["provenance"] = provenance(["python", "bench/replicates.py", *(sys.argv[1:] if argv is None else argv)])
+        jio.write_json(args.out, report, indent=1)
     against = "jtraj one at a time" if args.no_ipopt else "Ipopt"
     # the first strategy's line last (vmap's, by default: the issue's line)
     for s in reversed(strategies):

@@ -1,0 +1,52 @@
+"""bench/replicates.py with a fake solver: ``--out F.json`` is one JSON file written atomically
+with the run's provenance, an output that cannot be written is refused before any solve, and
+the last line (README and scripts read it) is unchanged."""
+
+import json
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from conftest import bench_module
+
+
+def _fake_run(monkeypatch, mod, replicates: int = 2):
+    sol = SimpleNamespace(converged=True, x=None, status=SimpleNamespace(value="solved"), stats=SimpleNamespace(iterations=7, time_total=3.0))
+    backend = SimpleNamespace(name="jtraj", options=lambda merged: merged, solve_batch=lambda nlp, starts, theta, strategy, options: ([sol] * len(starts), 1.0, 5.0))
+    tr = SimpleNamespace(resolve_theta=lambda theta: None, warm_start=lambda: np.zeros((3, 4)), decode=lambda x, theta: SimpleNamespace(base_xyz_wxyz=None), task=SimpleNamespace(max_iter=50, flip_axis=None, flip_turns=0))
+    nlp = SimpleNamespace(violation=lambda x, theta: 0.0)
+    monkeypatch.setattr(mod, "prepare", lambda task, param: SimpleNamespace(transcription=tr, nlp=nlp))
+    monkeypatch.setattr(mod.solvers, "get", lambda name: backend)
+    monkeypatch.setattr(mod, "noisy_warm_starts", lambda x0, sigmas, n, seed: np.zeros((1, n, *x0.shape)))
+    monkeypatch.setattr(mod, "check_motion", lambda *a: SimpleNamespace(ok=True))
+    ipopt = SimpleNamespace(time_s=10.0, iterations=11, constraint_violation=1e-9, success=True, status=SimpleNamespace(value="solved"))
+    monkeypatch.setattr(mod, "solve", lambda *a, **k: ipopt)
+
+
+def test_out_is_one_json_file_with_provenance(monkeypatch, capsys, tmp_path):
+    mod = bench_module("replicates")
+    _fake_run(monkeypatch, mod)
+    out = tmp_path / "replicates.json"
+    mod.main(["--replicates", "2", "--strategies", "vmap", "--out", str(out)])
+    assert capsys.readouterr().out.splitlines()[-1] == "replicates: vmapped 1.00 s, sequential 20.00 s, speedup 20.00 (sequential: Ipopt)"
+    report = json.loads(out.read_text())
+    assert (report["vmapped_s"], report["ipopt_sequential_s"], report["speedup"]) == (1.0, 20.0, {"vmap": 20.0})
+    assert report["provenance"]["command"] == f"python bench/replicates.py --replicates 2 --strategies vmap --out {out}"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["replicates.json"]  # no temporary file left, no other file
+
+
+@pytest.mark.parametrize("kind", ["folder", "unwritable"])
+def test_an_out_that_cannot_be_written_is_refused_before_any_solve(monkeypatch, capsys, tmp_path, kind):
+    mod = bench_module("replicates")
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("solved before refusing --out")
+
+    monkeypatch.setattr(mod, "prepare", no_work)
+    out = str(tmp_path) if kind == "folder" else "/proc/no/replicates.json"
+    with pytest.raises(SystemExit) as exc:
+        mod.main(["--out", out])
+    assert exc.value.code == 2
+    last = capsys.readouterr().err.strip().splitlines()[-1]
+    assert f"--out: '{out}': " in last
+    assert ("is a folder; expected the path of a JSON file" if kind == "folder" else "cannot create a file in") in last
