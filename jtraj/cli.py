@@ -120,21 +120,23 @@ def _split(text: str) -> list[str]:
 
 def _cmd_compare(args: argparse.Namespace) -> int:
     from jtraj.experiments import compare
-    from jtraj.provenance import write_provenance
+    from jtraj.provenance import begin_run, end_run
 
+    run = begin_run(args.out, ["jtraj", *args.argv])
     rows = compare(args.tasks_checked, _split(args.params), out=args.out, variables=args.variables, exact_hessian=args.exact_hessian, save_trajectories=not args.no_trajectories, executor=args.executor, workers=args.workers, ray_address=args.ray_address, solver=args.solver)
-    write_provenance(args.out)
+    end_run(args.out, run)
     print((__import__("pathlib").Path(args.out) / "table_iv.md").read_text())
     return 0 if rows else 1
 
 
 def _cmd_robustness(args: argparse.Namespace) -> int:
     from jtraj.experiments import robustness
-    from jtraj.provenance import write_provenance
+    from jtraj.provenance import begin_run, end_run
 
     sigmas = args.sigmas_checked
+    run = begin_run(args.out, ["jtraj", *args.argv])
     robustness(args.tasks_checked, _split(args.params), sigmas, replicates=args.replicates, seed=args.seed, out=args.out, variables=args.variables, workers=args.workers, resume=not args.no_resume, ipopt_options=args.ipopt_checked or None, executor=args.executor, ray_address=args.ray_address, solver=args.solver, noise_chart=args.noise_chart)
-    write_provenance(args.out)
+    end_run(args.out, run)
     print((__import__("pathlib").Path(args.out) / "table_iii.md").read_text())
     return 0
 
@@ -571,6 +573,7 @@ def _input_errors() -> tuple[type[BaseException], ...]:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.argv = sys.argv[1:] if argv is None else list(argv)  # provenance.json's command
     # one handler for every input error, wherever it is found: one line, exit status 2
     try:
         _check_inputs(args)

@@ -1,7 +1,10 @@
 """Where a table came from: the command, the date, the machine and the software versions.
 
 `jtraj compare` and `jtraj robustness` write ``provenance.json`` beside their tables so that a
-number quoted from ``results/`` can be traced to the run that produced it.
+number quoted from ``results/`` can be traced to the run that produced it: when the run starts
+(``"complete": false``, so a table left by a stopped run is not taken for a finished one's) and
+again when it ends. A run that resumes a folder keeps the folder's earlier records under
+``"earlier"``, oldest first: its tables may hold their runs.
 """
 
 from __future__ import annotations
@@ -10,11 +13,12 @@ import datetime
 import os
 import platform
 import shlex
+import subprocess
 import sys
 from importlib import metadata
 from pathlib import Path
 
-__all__ = ["provenance", "write_provenance", "write_results"]
+__all__ = ["begin_run", "end_run", "provenance", "write_provenance", "write_results"]
 
 
 def _version(dist: str) -> str | None:
@@ -53,6 +57,29 @@ def vector_extension(cpuinfo: str) -> str | None:
     return None
 
 
+def source() -> dict | None:
+    """The git commit jtraj runs from and whether its tracked files differ from it (``dirty``),
+    when jtraj is imported from a git checkout (an editable install); None otherwise."""
+    root = Path(__file__).resolve().parent.parent
+    if not (root / ".git").exists():
+        return None
+    try:
+        def git(*args: str) -> str:
+            return subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True, timeout=20, check=True).stdout.strip()
+
+        return {"commit": git("rev-parse", "HEAD"), "dirty": bool(git("status", "--porcelain", "--untracked-files=no"))}
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
+def _jax_devices() -> dict:
+    """JAX's backend and its devices' kind and count (a GPU's name, or the CPU devices jtraj made)."""
+    import jax
+
+    devices = jax.devices()
+    return {"backend": jax.default_backend(), "devices": len(devices), "device_kind": devices[0].device_kind}
+
+
 def provenance(argv: list[str] | None = None) -> dict:
     """Command line (``argv``, default this process's), UTC date, machine and versions.
 
@@ -66,12 +93,21 @@ def provenance(argv: list[str] | None = None) -> dict:
     machine = {"cores": os.cpu_count(), "cpu": _cpu_model(cpuinfo), "vector_extension": vector_extension(cpuinfo), "system": f"{platform.system()} {platform.release()}", "python": platform.python_version()}
     if os.environ.get("XLA_FLAGS"):
         machine["xla_flags"] = os.environ["XLA_FLAGS"]
-    return {
+    record = {
         "command": shlex.join(["jtraj", *argv[1:]] if Path(argv[0]).name in ("jtraj", "cli.py") else argv),
-        "date_utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "date_utc": _now(),
         "machine": machine,
+        "jax": _jax_devices(),
         "versions": {"jtraj": jtraj.__version__, "jax": _version("jax"), "cyipopt": _version("cyipopt-wheels") or _version("cyipopt"), "mujoco": _version("mujoco")},
     }
+    src = source()
+    if src is not None:
+        record["source"] = src
+    return record
+
+
+def _now() -> str:
+    return datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
 def write_provenance(out: str | Path, argv: list[str] | None = None) -> Path:
@@ -80,6 +116,38 @@ def write_provenance(out: str | Path, argv: list[str] | None = None) -> Path:
 
     Path(out).mkdir(parents=True, exist_ok=True)
     return io.write_json(Path(out) / "provenance.json", provenance(argv))
+
+
+def begin_run(out: str | Path, argv: list[str] | None = None) -> dict:
+    """Write ``out/provenance.json`` as a sweep starts, marked ``"complete": false``; an earlier
+    record in the folder (of a run this one resumes or adds to) is kept under ``"earlier"``.
+    Returns the record for `end_run`."""
+    from jtraj import io
+
+    path = Path(out) / "provenance.json"
+    record = provenance(argv)
+    record["complete"] = False
+    earlier: list = []
+    if path.is_file():
+        try:
+            previous = io.read_json(path)
+        except (OSError, ValueError):
+            previous = None  # an unreadable record is replaced
+        if isinstance(previous, dict):
+            earlier = list(previous.pop("earlier", []) or []) + [previous]
+    if earlier:
+        record["earlier"] = earlier
+    Path(out).mkdir(parents=True, exist_ok=True)
+    io.write_json(path, record)
+    return record
+
+
+def end_run(out: str | Path, record: dict) -> Path:
+    """Write ``record`` (from `begin_run`) again, marked complete with its end date."""
+    from jtraj import io
+
+    record = {**record, "complete": True, "date_end_utc": _now()}
+    return io.write_json(Path(out) / "provenance.json", record)
 
 
 def write_results(out: str | Path, name: str, records: object, markdown: str, script: str, argv: list[str] | None = None) -> list[Path]:

@@ -2,6 +2,7 @@
 naming the field, the value and what was expected, before anything compiles or solves."""
 
 import dataclasses
+import json
 import types
 
 import pytest
@@ -250,7 +251,6 @@ def test_compare_passes_the_solver_to_every_cell(solver, monkeypatch, tmp_path, 
     """`jtraj compare --solver S` runs the real `experiments.compare`; each of its cells' solves
     (faked here) gets S, and the table it prints names S in every row."""
     import jtraj.experiments
-    import jtraj.provenance
 
     cells = []
 
@@ -264,12 +264,15 @@ def test_compare_passes_the_solver_to_every_cell(solver, monkeypatch, tmp_path, 
 
     monkeypatch.setattr(jtraj.experiments, "solve", fake_solve)
     monkeypatch.setattr(jtraj.experiments, "_row", fake_row)
-    monkeypatch.setattr(jtraj.provenance, "write_provenance", lambda out: None)
     argv = ["compare", "--tasks", "big_jump,walk", "--params", "se3,euler", "--out", str(tmp_path)]
     assert cli.main(argv + (["--solver", solver] if solver != "ipopt" else [])) == 0
     assert cells == [(t, p, solver) for t in ("big_jump", "walk") for p in ("se3", "euler")]
     rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| big_jump") or line.startswith("| walk")]
     assert len(rows) == 4 and all(line.rstrip(" |").endswith(solver) for line in rows)
+    # provenance.json names this call's arguments (not the test runner's sys.argv), complete
+    prov = json.loads((tmp_path / "provenance.json").read_text())
+    assert prov["command"].startswith("jtraj compare --tasks big_jump,walk --params se3,euler --out ")
+    assert prov["complete"] is True and "earlier" not in prov
 
 
 def test_compare_rejects_an_unknown_solver(no_solve, capsys):
@@ -281,7 +284,6 @@ def test_compare_rejects_an_unknown_solver(no_solve, capsys):
 
 def test_robustness_passes_the_solver_and_noise_chart(monkeypatch, tmp_path, capsys):
     import jtraj.experiments
-    import jtraj.provenance
 
     seen = {}
 
@@ -291,7 +293,6 @@ def test_robustness_passes_the_solver_and_noise_chart(monkeypatch, tmp_path, cap
         return []
 
     monkeypatch.setattr(jtraj.experiments, "robustness", fake_robustness)
-    monkeypatch.setattr(jtraj.provenance, "write_provenance", lambda out: None)
     assert cli.main(["robustness", "--tasks", "big_jump", "--sigmas", "0.1", "--solver", "jtraj", "--out", str(tmp_path)]) == 0
     assert seen["solver"] == "jtraj" and seen["sigmas"] == [0.1]
     assert seen["ipopt_options"] is None  # the study's settings
@@ -315,7 +316,6 @@ def test_set_changes_the_variables_options(monkeypatch, tmp_path, capsys):
     a field that is not a string field, a value the options refuse or a malformed item is one
     line and exit status 2, before anything is solved."""
     import jtraj.experiments
-    import jtraj.provenance
     from jtraj.transcription import PAPER_VARIABLES
 
     seen = {}
@@ -326,7 +326,6 @@ def test_set_changes_the_variables_options(monkeypatch, tmp_path, capsys):
         return []
 
     monkeypatch.setattr(jtraj.experiments, "robustness", fake_robustness)
-    monkeypatch.setattr(jtraj.provenance, "write_provenance", lambda out: None)
     argv = ["robustness", "--tasks", "big_jump", "--out", str(tmp_path)]
     assert cli.main([*argv, "--set", "force_limits=rows", "--set", "contact_height=row"]) == 0
     assert seen["variables"] == dataclasses.replace(PAPER_VARIABLES, force_limits="rows", contact_height="row")
@@ -358,7 +357,6 @@ def test_robot_option_moves_the_tasks_to_that_model(monkeypatch, tmp_path, capsy
         return [{}]
 
     monkeypatch.setattr(jtraj.experiments, "compare", fake_compare)
-    monkeypatch.setattr("jtraj.provenance.write_provenance", lambda *a, **k: None)
     assert cli.main(["compare", "--tasks", "walk,sideflip", "--params", "se3", "--out", str(tmp_path), "--robot", "talos=talos_full"]) == 0
     walk, sideflip = seen["tasks"]
     assert (walk.name, walk.robot) == ("walk", "talos_full")
@@ -372,7 +370,6 @@ def test_each_task_is_loaded_once(monkeypatch, tmp_path):
     read (and moved to the ``--robot`` model) once, by the check."""
     import jtraj.experiments
     import jtraj.plots
-    import jtraj.provenance
     import jtraj.solver
     from jtraj import task as tasks
 
@@ -394,7 +391,6 @@ def test_each_task_is_loaded_once(monkeypatch, tmp_path):
     monkeypatch.setattr(jtraj.plots, "plot_result", lambda *a, **k: None)
     monkeypatch.setattr(jtraj.plots, "plot_convergence", lambda *a, **k: None)
     monkeypatch.setattr(jtraj.experiments, "compare", fake_compare)
-    monkeypatch.setattr(jtraj.provenance, "write_provenance", lambda out: None)
 
     assert cli.main(["solve", "big_jump", "--robot", "talos=talos_full", "--out", str(tmp_path / "r")]) == 0
     assert loads == ["big_jump"] and (seen["task"].name, seen["task"].robot) == ("big_jump", "talos_full")
