@@ -191,16 +191,20 @@ def _finish(plt, fig, path):
 def plot_comparison(directory: str | Path, path: str | Path | None = None):
     """The motions of a ``jtraj compare`` folder side by side: one column per
     parameterization, two rows per task (base position; accumulated base rotation), titled
-    with each run's outcome and iterations. Runs without a saved trajectory are left blank.
-    Returns the figure, or writes it to ``path`` and returns the path."""
-    import json
-
+    with each run's outcome and iterations. Runs without a saved trajectory, with an unreadable
+    one, or with one that is not the table's run (a folder left by an earlier run: other outcome
+    or iterations) are left blank, their title saying which. Returns the figure, or writes it to
+    ``path`` and returns the path. A table_iv.json that is not a list of rows with ``task`` and
+    ``parameterization`` raises `jtraj.io.FileFormatError` naming it."""
     plt = _pyplot()
     directory = Path(directory)
     table = directory / "table_iv.json"
     if not table.is_file():
         raise FileNotFoundError(f"{directory}: no table_iv.json (expected a folder written by `jtraj compare`)")
-    rows = json.loads(table.read_text())
+    rows = jio.read_json(table)
+    if not (isinstance(rows, list) and rows and all(isinstance(r, dict) and isinstance(r.get("task"), str) and isinstance(r.get("parameterization"), str) for r in rows)):
+        raise jio.FileFormatError(f"{table}: expected a non-empty list of Table IV rows, each with a task and a parameterization (as `jtraj compare` writes)")
+    by_cell = {(r["task"], r["parameterization"]): r for r in rows}
     tasks = list(dict.fromkeys(r["task"] for r in rows))
     params = list(dict.fromkeys(r["parameterization"] for r in rows))
     fig, axes = plt.subplots(2 * len(tasks), len(params), figsize=(3.2 * len(params), 2.3 * 2 * len(tasks)), squeeze=False, sharex="row")
@@ -208,10 +212,18 @@ def plot_comparison(directory: str | Path, path: str | Path | None = None):
         for j, param in enumerate(params):
             top, bottom = axes[2 * i, j], axes[2 * i + 1, j]
             run = directory / f"{task}_{param}"
-            if not (run / "trajectory.npz").is_file():
+            row = by_cell.get((task, param))
+            if row is None or not (run / "trajectory.npz").is_file():
                 top.set_title(f"{task} [{param}]: no trajectory", fontsize=8)
                 continue
-            result = Result.load(run)
+            try:
+                result = Result.load(run)
+            except jio.FileFormatError:
+                top.set_title(f"{task} [{param}]: unreadable result", fontsize=8)
+                continue
+            if (result.status.value, result.iterations) != (row.get("status"), row.get("iterations")):
+                top.set_title(f"{task} [{param}]: saved run is not the table's", fontsize=8)
+                continue
             t = result.trajectory
             touching = t.in_contact.any(axis=1)
             for ax in (top, bottom):

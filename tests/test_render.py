@@ -12,6 +12,7 @@ from jaxlie import SE3
 
 from jtraj import robot as robots
 from jtraj.cli import main
+from jtraj.io import FileFormatError
 from jtraj.plots import friction_cone_ratio, plot_comparison, plot_directory, plot_solution
 from jtraj.render import NotDrawable, RenderOptions, interpolate, keyframe_strip, keyframe_times, render, write_image, write_video
 from jtraj.result import Outcome, Result
@@ -254,7 +255,7 @@ def test_plots_are_written(result, tmp_path):
     compare = tmp_path / "compare"
     for param in ("se3", "euler"):
         result.save(compare / f"made_up_flip_{param}")
-    rows = [{"task": "made_up_flip", "parameterization": p} for p in ("se3", "euler", "quat1")]
+    rows = [{"task": "made_up_flip", "parameterization": p, "status": result.status.value, "iterations": result.iterations} for p in ("se3", "euler", "quat1")]
     (compare / "table_iv.json").write_text(json.dumps(rows))
     fig = plot_comparison(compare)
     assert fig.axes[0].get_title().startswith("made_up_flip [se3]: solved")
@@ -262,6 +263,21 @@ def test_plots_are_written(result, tmp_path):
     assert [p.name for p in plot_directory(compare)] == ["comparison.png"]
     with pytest.raises(FileNotFoundError, match=r"table_iv\.json"):
         plot_directory(tmp_path / "nothing")
+    # a folder left by an earlier run (the table's row took other iterations) and an unreadable
+    # one are left blank with a title saying so; the other cells are still drawn
+    rows[1]["iterations"] = result.iterations + 16
+    (compare / "table_iv.json").write_text(json.dumps(rows))
+    (compare / "made_up_flip_quat1").mkdir()
+    (compare / "made_up_flip_quat1" / "trajectory.npz").write_bytes(b"torn")
+    fig = plot_comparison(compare)
+    assert fig.axes[0].get_title().startswith("made_up_flip [se3]: solved")
+    assert fig.axes[1].get_title() == "made_up_flip [euler]: saved run is not the table's"
+    assert fig.axes[2].get_title() == "made_up_flip [quat1]: unreadable result"
+    # a damaged table is a FileFormatError naming it (`jtraj plot` prints it in one line, exit 2)
+    for text in ("[{\"task\": \"made_up_fl", "[]", '[{"task": "walk"}]', '{"task": "walk"}'):
+        (compare / "table_iv.json").write_text(text)
+        with pytest.raises(FileFormatError, match=r"table_iv\.json"):
+            plot_comparison(compare)
 
 
 def test_render_and_plot_commands(result, tmp_path, capsys):
