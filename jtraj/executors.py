@@ -11,6 +11,12 @@ finish, in completion order, so the caller can checkpoint each group's rows as i
 ``fn`` must be importable (a module-level function) and its arguments and results picklable:
 both executors ship them to other processes.
 
+A group that raises, an interrupt (Ctrl-C) or a caller that stops iterating (an exception in its
+loop, ``close()``) ends the sweep: groups not started are cancelled, those running are stopped
+(their worker processes terminated, their Ray tasks cancelled), and the exception goes on to
+the caller. A local worker killed from outside (e.g. by the kernel, out of memory) ends it with
+`WorkerLostError`.
+
 - `LocalExecutor`: ``workers`` fresh Python processes (spawn: JAX is not fork-safe); with
   ``workers <= 1`` the groups run in this process, one after the other.
 - `RayExecutor`: one Ray task per group on the cluster ``ray.init(address=...)`` connects to
@@ -21,11 +27,12 @@ both executors ship them to other processes.
 from __future__ import annotations
 
 import abc
+import contextlib
 import dataclasses
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Generator, Sequence
 from typing import Any
 
-__all__ = ["AbstractExecutor", "LocalExecutor", "RayExecutor", "EXECUTORS", "ExecutorUnavailableError", "executor_for"]
+__all__ = ["AbstractExecutor", "LocalExecutor", "RayExecutor", "EXECUTORS", "ExecutorUnavailableError", "WorkerLostError", "executor_for"]
 
 #: Names accepted by `executor_for` and the command line's ``--executor``.
 EXECUTORS = ("local", "ray")
@@ -36,12 +43,18 @@ class ExecutorUnavailableError(RuntimeError):
     cluster at the given address (the message says which, and what to do)."""
 
 
+class WorkerLostError(RuntimeError):
+    """A worker process ended without handing back its group (killed from outside, e.g. by the
+    kernel when memory ran out); the sweep's other groups were stopped."""
+
+
 class AbstractExecutor(abc.ABC):
     """Runs independent groups of a sweep; see the module docstring."""
 
     @abc.abstractmethod
-    def map(self, fn: Callable[..., Any], arg_list: Sequence[tuple]) -> Iterator[tuple[int, Any]]:
-        """Yield ``(i, fn(*arg_list[i]))`` for every i, in the order the groups finish."""
+    def map(self, fn: Callable[..., Any], arg_list: Sequence[tuple]) -> Generator[tuple[int, Any], None, None]:
+        """Yield ``(i, fn(*arg_list[i]))`` for every i, in the order the groups finish; closing
+        the generator (``contextlib.closing``) stops the groups left."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -57,12 +70,24 @@ class LocalExecutor(AbstractExecutor):
             return
         import multiprocessing
         from concurrent.futures import ProcessPoolExecutor, as_completed
+        from concurrent.futures.process import BrokenProcessPool
 
         # JAX is not fork-safe: workers start fresh interpreters
-        with ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"))
+        try:
             futures = {pool.submit(fn, *args): i for i, args in enumerate(arg_list)}
             for f in as_completed(futures):
-                yield futures[f], f.result()
+                try:
+                    result = f.result()
+                except BrokenProcessPool as e:
+                    raise WorkerLostError("a worker process ended without finishing its group (killed from outside, e.g. by the kernel when memory ran out; fewer workers need less)") from e
+                yield futures[f], result
+        except BaseException:
+            # the pool's own exit (a with block) waits for every queued group: minutes to hours
+            # of solves nobody collects after a Ctrl-C or a failed group
+            _stop(pool)
+            raise
+        pool.shutdown()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -101,10 +126,29 @@ class RayExecutor(AbstractExecutor):
                 ) from None
         remote = ray.remote(num_cpus=self.num_cpus, max_retries=0)(fn)
         pending = {remote.remote(*args): i for i, args in enumerate(arg_list)}
-        while pending:
-            ready, _ = ray.wait(list(pending), num_returns=1)
-            for ref in ready:
-                yield pending.pop(ref), ray.get(ref)
+        try:
+            while pending:
+                ready, _ = ray.wait(list(pending), num_returns=1)
+                for ref in ready:
+                    yield pending.pop(ref), ray.get(ref)
+        except BaseException:
+            for ref in pending:  # queued tasks are dropped, running ones' workers killed
+                with contextlib.suppress(Exception):
+                    ray.cancel(ref, force=True)
+            raise
+
+
+def _stop(pool) -> None:
+    """Cancel a process pool's groups not started and terminate its worker processes."""
+    processes = list((pool._processes or {}).values())  # shutdown() forgets them
+    pool.shutdown(wait=False, cancel_futures=True)
+    for p in processes:
+        p.terminate()
+    for p in processes:
+        p.join(5)
+        if p.is_alive():  # SIGTERM ignored or handled
+            p.kill()
+            p.join()
 
 
 def _import_ray():

@@ -9,6 +9,7 @@ Markdown tables and a figure.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import json
@@ -27,7 +28,7 @@ import numpy as np
 from jtraj import io as jio
 from jtraj import solvers
 from jtraj.deprecation import renamed_argument
-from jtraj.executors import executor_for
+from jtraj.executors import WorkerLostError, executor_for
 from jtraj.parameterization import PARAMETERIZATIONS
 from jtraj.result import Outcome
 from jtraj.solver import evaluate, prepare, solve, solver_options, transcription_options, variables_label
@@ -82,24 +83,33 @@ def compare(
     ``executor`` (`jtraj.executors`): ``"local"`` solves in this process (``workers`` > 1: in
     that many worker processes), ``"ray"`` one Ray task per solve on the cluster at
     ``ray_address``. Rows keep the order of ``tasks`` x ``params`` whatever the executor.
+    table_iv.{json,md} are written again as each cell finishes; a cell that raises, or an
+    interrupt, stops the other cells, and the tables hold the cells finished before it.
     """
     variables = renamed_argument(variables, layout, "variables", "layout", "paper")
     progress = _progress_stream(progress)
     out = Path(out)
     solvers.get(solver)  # an unknown name fails here, before the first solve
     jobs = [(task, p, variables, exact_hessian, solver, str(out / f"{task if isinstance(task, str) else task.name}_{p}") if save_trajectories else None) for task in tasks for p in params]
-    if executor == "local" and workers <= 1:
-        rows = []
-        for job in jobs:
-            rows.append(_compare_one(*job, progress=progress))
-            _write_table_iv(rows, out)
-        return rows
+    in_process = executor == "local" and workers <= 1
+    cells = ((i, _compare_one(*job, progress=progress)) for i, job in enumerate(jobs)) if in_process else executor_for(executor, workers, ray_address).map(_compare_one, jobs)
     done: dict[int, dict] = {}
-    for i, row in executor_for(executor, workers, ray_address).map(_compare_one, jobs):
-        done[i] = row
-        if progress is not None:
-            print(f"{row['task']:10s} {row['parameterization']:6s}: {row['status']:26s} {row['iterations']:4d} it{_why(row)}", file=progress, flush=True)
-        _write_table_iv([done[k] for k in sorted(done)], out)
+    try:
+        with contextlib.closing(cells):  # stops the executor's other cells on the way out
+            for i, row in cells:
+                done[i] = row
+                if progress is not None and not in_process:  # a solve here prints its own lines
+                    print(f"{row['task']:10s} {row['parameterization']:6s}: {row['status']:26s} {row['iterations']:4d} it{_why(row)}", file=progress, flush=True)
+                _write_table_iv([done[k] for k in sorted(done)], out)
+    except BaseException as e:
+        # the cells finished so far, also one that arrived as the interrupt or a broken progress stream came
+        if done:
+            with contextlib.suppress(Exception):  # the first error is the one to report
+                _write_table_iv([done[k] for k in sorted(done)], out)
+        if isinstance(e, WorkerLostError):
+            kept = f"{out / 'table_iv.json'} holds the {len(done)} of {len(jobs)} cells finished before it" if done else f"none of the {len(jobs)} cells had finished"
+            raise WorkerLostError(f"{e}; {kept}") from e.__cause__  # one message, after the pool's own error
+        raise
     return [done[k] for k in sorted(done)]
 
 
@@ -433,7 +443,9 @@ def robustness(
     ``workers > 1`` solves (task, parameterization) groups in that many processes, each
     appending to the same file. ``executor="ray"`` makes each group a Ray task on the cluster
     at ``ray_address`` (`jtraj.executors`); its rows come back when the group finishes and are
-    appended here, under the same keys and resume rules. Returns this call's runs; writes table_iii.{json,md} and fig2.png.
+    appended here, under the same keys and resume rules. A group that raises, or an interrupt,
+    stops the groups running and queued (`jtraj.executors`); the runs they finished stay in the
+    file. Returns this call's runs; writes table_iii.{json,md} and fig2.png.
     ``progress`` as in `compare`; ``layout`` is the deprecated former name of ``variables``.
 
     ``solver`` (`jtraj.solvers.SOLVERS`): ``"ipopt"`` solves the replicates one by one;
@@ -480,12 +492,19 @@ def robustness(
             _robustness_group(*a, progress=progress)
             _write_robustness_outputs(_select(read_runs(runs_path, progress), *a[:10]), sigmas, out, figure=False)
     elif executor == "local":
-        for _ in executor_for("local", workers).map(_robustness_group_in_worker, [(*a, progress is not None) for a in args]):
-            pass
+        groups = executor_for("local", workers).map(_robustness_group_in_worker, [(*a, progress is not None) for a in args])
+        try:
+            with contextlib.closing(groups):
+                for _ in groups:
+                    pass
+        except WorkerLostError as e:
+            raise WorkerLostError(f"{e}; the runs finished before it are kept in {runs_path}, and the same call again resumes from them") from e.__cause__
     else:
-        for _, rows in executor_for(executor, workers, ray_address).map(_robustness_group_rows, [a[:-1] for a in args]):
-            for row in rows:
-                jio.append_jsonl(runs_path, row)
+        groups = executor_for(executor, workers, ray_address).map(_robustness_group_rows, [a[:-1] for a in args])
+        with contextlib.closing(groups):
+            for _, rows in groups:
+                for row in rows:
+                    jio.append_jsonl(runs_path, row)
     runs = [r for a in args for r in _select(read_runs(runs_path, progress), *a[:10])]
     _write_robustness_outputs(runs, sigmas, out)
     return runs

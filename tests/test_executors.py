@@ -8,12 +8,16 @@ local Ray instance when Ray is installed (the ``ray`` extra, part of the ``test`
 from __future__ import annotations
 
 import operator
+import os
+import signal
 import sys
+import time
 import types
+from pathlib import Path
 
 import pytest
 
-from jtraj.executors import EXECUTORS, ExecutorUnavailableError, LocalExecutor, RayExecutor, executor_for
+from jtraj.executors import EXECUTORS, ExecutorUnavailableError, LocalExecutor, RayExecutor, WorkerLostError, executor_for
 
 
 def test_local_in_process_keeps_order():
@@ -24,6 +28,59 @@ def test_local_in_process_keeps_order():
 def test_local_workers_return_every_group():
     out = dict(LocalExecutor(workers=2).map(operator.mul, [(2, 3), (4, 5), (6, 7)]))
     assert out == {0: 6, 1: 20, 2: 42}
+
+
+def _group(i: int, folder: str, action: str) -> int:
+    """A group for worker processes: writes its process id to ``folder/started-i``, then
+    returns i at once ("quick"), after 60 s ("sleep"), raises ("raise") or kills its own
+    process ("die")."""
+    Path(folder, f"started-{i}").write_text(str(os.getpid()))
+    if action == "raise":
+        raise RuntimeError(f"group {i} failed")
+    if action == "die":
+        os.kill(os.getpid(), signal.SIGKILL)
+    if action == "sleep":
+        time.sleep(60)
+    return i
+
+
+def _workers_ended(folder: Path) -> bool:
+    """Whether every process that started a `_group` has ended (and was reaped)."""
+    for path in folder.glob("started-*"):
+        try:
+            os.kill(int(path.read_text()), 0)
+        except ProcessLookupError:
+            continue
+        return False
+    return True
+
+
+def test_local_workers_stop_when_a_group_raises(tmp_path):
+    """The error comes back at once and the workers solving or queued for other groups are
+    stopped (the pool's with block waited for every queued group: here 2 x 60 s)."""
+    start = time.monotonic()
+    with pytest.raises(RuntimeError, match="group 1 failed"):
+        list(LocalExecutor(workers=2).map(_group, [(0, str(tmp_path), "sleep"), (1, str(tmp_path), "raise"), (2, str(tmp_path), "sleep"), (3, str(tmp_path), "sleep")]))
+    assert time.monotonic() - start < 40
+    assert (tmp_path / "started-1").exists() and _workers_ended(tmp_path)
+
+
+def test_local_workers_stop_when_the_caller_is_interrupted(tmp_path):
+    """A Ctrl-C in the caller's loop (thrown into the generator where it waits) stops the
+    workers instead of waiting for their groups."""
+    groups = LocalExecutor(workers=2).map(_group, [(0, str(tmp_path), "quick"), (1, str(tmp_path), "sleep"), (2, str(tmp_path), "sleep")])
+    start = time.monotonic()
+    assert next(groups) == (0, 0)
+    with pytest.raises(KeyboardInterrupt):
+        groups.throw(KeyboardInterrupt)
+    assert time.monotonic() - start < 40
+    assert _workers_ended(tmp_path)
+
+
+def test_a_killed_local_worker_is_one_clear_error(tmp_path):
+    with pytest.raises(WorkerLostError, match=r"a worker process ended without finishing its group \(killed from outside"):
+        list(LocalExecutor(workers=2).map(_group, [(0, str(tmp_path), "die"), (1, str(tmp_path), "sleep")]))
+    assert _workers_ended(tmp_path)
 
 
 def _fake_ray(calls: dict) -> types.ModuleType:
@@ -50,7 +107,11 @@ def _fake_ray(calls: dict) -> types.ModuleType:
     def wait(refs, num_returns=1):
         return refs[-num_returns:], refs[:-num_returns]
 
+    def cancel(ref, force=False):
+        calls.setdefault("cancelled", []).append((ref.value, force))
+
     ray.init = init
+    ray.cancel = cancel
     ray.is_initialized = lambda: state["initialized"]
     ray.remote = remote
     ray.wait = wait
@@ -66,6 +127,18 @@ def test_ray_executor_submits_one_task_per_group(monkeypatch):
     assert calls["options"]["num_cpus"] == 1.0
     assert [i for i, _ in out] == [2, 1, 0]  # completion order, not submission order
     assert dict(out) == {0: 9, 1: 8, 2: 7}
+
+
+def test_ray_tasks_left_are_cancelled_when_the_caller_stops(monkeypatch):
+    """A Ctrl-C or an error in the caller's loop cancels the tasks not handed back (force:
+    a running one's worker is killed) rather than leave them running on the cluster."""
+    calls: dict = {}
+    monkeypatch.setitem(sys.modules, "ray", _fake_ray(calls))
+    groups = RayExecutor().map(operator.sub, [(10, 1), (10, 2), (10, 3)])
+    assert next(groups) == (2, 7)
+    with pytest.raises(KeyboardInterrupt):
+        groups.throw(KeyboardInterrupt)
+    assert sorted(calls["cancelled"]) == [(8, True), (9, True)]
 
 
 def test_ray_missing_says_how_to_install(monkeypatch):

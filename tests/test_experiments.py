@@ -8,6 +8,8 @@ import signal
 import subprocess
 import sys
 import time
+import types
+import zlib
 from pathlib import Path
 
 import jax.numpy as jnp
@@ -15,9 +17,11 @@ import numpy as np
 import pytest
 from test_transcription import HOP
 
+import jtraj.experiments as experiments
+from jtraj.executors import WorkerLostError
 from jtraj.experiments import RUN_KEY, RUNS_FILE, chart_noisy_warm_starts, compare, noisy_warm_starts, read_runs, robustness, run_key
 from jtraj.plots import plot_convergence, plot_result
-from jtraj.result import Result
+from jtraj.result import Outcome, Result
 from jtraj.solvers import Status
 from jtraj.success import FEASIBILITY_TOL
 
@@ -514,3 +518,85 @@ def test_a_failed_cells_progress_line_says_why():
     assert _why({**row, "status": "not_converged", "converged": False, "solver_status": "step_computation_failed"}) == "  (ipopt: step_computation_failed)"
     infeasible = {**row, "status": "not_converged", "converged": True, "constraint_violation": 0.02}
     assert _why(infeasible) == f"  (ipopt converged, but to a violation of 2.0e-02, over the task check's {FEASIBILITY_TOL:g})"
+
+
+# The sweeps' bookkeeping without compiles or solves: `fake_solves` replaces prepare, the noisy
+# warm starts and solve in jtraj.experiments (in this process only: worker processes import the
+# real ones), and `_StoppingExecutor` stands for worker processes that end partway.
+
+
+def _fake_result(task, p):
+    """What `jtraj.solve` returns, with the fields the sweeps' rows take."""
+    name = task if isinstance(task, str) else task.name
+    it = 10 + zlib.crc32(f"{name}{p}".encode()) % 20
+    return types.SimpleNamespace(
+        task=name, parameterization=p, solver="ipopt", status=Outcome.SOLVED, solver_status=Status.SOLVED, converged=True, success=True, turns=None, iterations=it,
+        obj_evals=it + 1, grad_evals=it, con_evals=it, jac_evals=it, cost=1.0, constraint_violation=1e-9, time_s=0.01, time_compile=0.0, metrics={},
+    )
+
+
+@pytest.fixture
+def fake_solves(monkeypatch):
+    """The (task, parameterization, out) of every solve of a sweep, each answered at once."""
+    solved = []
+
+    def solve(task, p, out=None, **kwargs):
+        solved.append((task, p, out))
+        return _fake_result(task, p)
+
+    monkeypatch.setattr(experiments, "prepare", lambda task, p, variables: types.SimpleNamespace(transcription=None, time_compile=0.0))
+    monkeypatch.setattr(experiments, "chart_noisy_warm_starts", lambda tr, chart, levels, numbers, seed=0, source=None: np.zeros((len(levels), len(numbers), 1)))
+    monkeypatch.setattr(experiments, "solve", solve)
+    return solved
+
+
+class _StoppingExecutor:
+    """Runs the first ``finished`` groups in this process, then raises `WorkerLostError` (``lost``)
+    or ends; ``closed`` says whether the caller closed the generator (what stops real workers)."""
+
+    def __init__(self, finished: int, lost: bool = True):
+        self.finished, self.lost, self.closed = finished, lost, False
+
+    def map(self, fn, arg_list):
+        try:
+            for i in range(self.finished):
+                yield i, fn(*arg_list[i])
+            if self.lost:
+                raise WorkerLostError("a worker process ended without finishing its group")
+        finally:
+            self.closed = True
+
+
+def test_compare_keeps_the_finished_cells_when_a_worker_is_lost(tmp_path, monkeypatch, fake_solves):
+    executor = _StoppingExecutor(2)
+    monkeypatch.setattr(experiments, "executor_for", lambda *args: executor)
+    with pytest.raises(WorkerLostError, match=r"ended without finishing its group; .*table_iv.json holds the 2 of 3 cells finished before it$"):
+        compare(["walk"], ["se3", "quat1", "euler"], out=tmp_path, progress=None, save_trajectories=False, workers=2)
+    assert [r["parameterization"] for r in json.loads((tmp_path / "table_iv.json").read_text())] == ["se3", "quat1"]
+    assert executor.closed
+
+
+def test_compare_keeps_a_cell_whose_progress_line_failed(tmp_path, monkeypatch, fake_solves):
+    """A cell that arrives as the progress stream breaks (a Ctrl-C that ended the `tee` of
+    `jtraj compare | tee log`) is in the table: it was finished."""
+
+    class Broken(io.StringIO):
+        def write(self, text):
+            if "\n" in self.getvalue():  # the second line
+                raise BrokenPipeError("[Errno 32] Broken pipe")
+            return super().write(text)
+
+    executor = _StoppingExecutor(2, lost=False)
+    monkeypatch.setattr(experiments, "executor_for", lambda *args: executor)
+    with pytest.raises(BrokenPipeError):
+        compare(["walk"], ["se3", "quat1", "euler"], out=tmp_path, progress=Broken(), save_trajectories=False, workers=2)
+    assert [r["parameterization"] for r in json.loads((tmp_path / "table_iv.json").read_text())] == ["se3", "quat1"]
+    assert executor.closed
+
+
+def test_robustness_says_where_the_runs_are_when_a_worker_is_lost(tmp_path, monkeypatch, fake_solves):
+    executor = _StoppingExecutor(1)
+    monkeypatch.setattr(experiments, "executor_for", lambda *args: executor)
+    with pytest.raises(WorkerLostError, match=r"ended without finishing its group; the runs finished before it are kept in .*runs.jsonl, and the same call again resumes from them$"):
+        robustness(["walk"], ["se3", "euler"], sigmas=[0.1], replicates=2, out=tmp_path, progress=None, workers=2)
+    assert len(read_runs(tmp_path / RUNS_FILE)) == 2 and executor.closed
