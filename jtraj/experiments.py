@@ -488,9 +488,11 @@ def robustness(
         print(f"resuming: {len(before) - unknown} runs already in {runs_path}", file=progress, flush=True)
     args = [(t, p, tuple(sigmas), replicates, seed, variables, exact_hessian, ipopt_options, solver, noise_chart, done, runs_path) for t in tasks for p in params]
     if executor == "local" and workers <= 1:
-        for a in args:
+        for k, a in enumerate(args):
             _robustness_group(*a, progress=progress)
-            _write_robustness_outputs(_select(read_runs(runs_path, progress), *a[:10]), sigmas, out, figure=False)
+            # a checkpoint: the table of every group so far, should the study stop here
+            runs = read_runs(runs_path, progress)
+            _write_robustness_outputs([r for b in args[: k + 1] for r in _select(runs, *b[:10])], sigmas, out, figure=False)
     elif executor == "local":
         groups = executor_for("local", workers).map(_robustness_group_in_worker, [(*a, progress is not None) for a in args])
         try:

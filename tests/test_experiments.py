@@ -600,3 +600,21 @@ def test_robustness_says_where_the_runs_are_when_a_worker_is_lost(tmp_path, monk
     with pytest.raises(WorkerLostError, match=r"ended without finishing its group; the runs finished before it are kept in .*runs.jsonl, and the same call again resumes from them$"):
         robustness(["walk"], ["se3", "euler"], sigmas=[0.1], replicates=2, out=tmp_path, progress=None, workers=2)
     assert len(read_runs(tmp_path / RUNS_FILE)) == 2 and executor.closed
+
+
+def test_robustness_checkpoint_table_holds_every_group_so_far(tmp_path, monkeypatch, fake_solves):
+    """The Table III written after each group of a sequential study has all groups solved so
+    far (it had the last group's only), so a study that stops leaves the table of its groups."""
+    solve = experiments.solve
+
+    def fail_on_euler(task, p, **kwargs):
+        if p == "euler":
+            raise RuntimeError("boom")
+        return solve(task, p, **kwargs)
+
+    monkeypatch.setattr(experiments, "solve", fail_on_euler)
+    with pytest.raises(RuntimeError, match="boom"):
+        robustness(["walk", "big_jump"], ["se3", "quat1", "euler"], sigmas=[0.1], replicates=1, out=tmp_path, progress=None)
+    table = (tmp_path / "table_iii.md").read_text()
+    assert "| walk | se3 | 100% / 100% |" in table and "| walk | quat1 | 100% / 100% |" in table
+    assert [(r["task"], r["parameterization"]) for r in json.loads((tmp_path / "table_iii.json").read_text())] == [("walk", "se3"), ("walk", "quat1")]
