@@ -166,14 +166,23 @@ def append_jsonl(path: str | Path, record: Any) -> None:
     One ``write`` of a line opened with ``O_APPEND`` lands whole at the end of the file even
     with several processes appending at once (lines here are far below the pipe-buffer size
     that local file systems honour in practice); a kill can leave at most one partial last
-    line, which `read_jsonl` reports and skips.
+    line, which `read_jsonl` reports and skips. A file that does not end in a newline (that
+    torn line, or files joined by hand) gets one before the record, in the same write: glued
+    onto the last line, the record and that line would both be lost. (Two appends that find
+    the same missing newline leave an empty line, which `read_jsonl` skips.) A short write is
+    continued until the whole line is written.
     """
     line = (json.dumps(to_jsonable(record), allow_nan=False, separators=(",", ":")) + "\n").encode()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    fd = os.open(path, os.O_RDWR | os.O_APPEND | os.O_CREAT, 0o644)
     try:
-        os.write(fd, line)
+        size = os.fstat(fd).st_size
+        if size and os.pread(fd, 1, size - 1) != b"\n":
+            line = b"\n" + line
+        rest = memoryview(line)
+        while rest:
+            rest = rest[os.write(fd, rest) :]
         os.fsync(fd)
     finally:
         os.close(fd)

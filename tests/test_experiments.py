@@ -618,3 +618,17 @@ def test_robustness_checkpoint_table_holds_every_group_so_far(tmp_path, monkeypa
     table = (tmp_path / "table_iii.md").read_text()
     assert "| walk | se3 | 100% / 100% |" in table and "| walk | quat1 | 100% / 100% |" in table
     assert [(r["task"], r["parameterization"]) for r in json.loads((tmp_path / "table_iii.json").read_text())] == [("walk", "se3"), ("walk", "quat1")]
+
+
+def test_robustness_resumes_a_runs_file_without_a_final_newline(tmp_path, fake_solves, capsys):
+    """A runs file whose valid last line has no newline (joined with "\\n".join) keeps that
+    run, and the next run is appended on a line of its own (it was glued onto that line,
+    and both runs set aside as a corrupt line)."""
+    kw = dict(sigmas=[0.1], out=tmp_path, progress=None)
+    robustness(["walk"], ["se3"], replicates=2, **kw)
+    path = tmp_path / RUNS_FILE
+    path.write_text(path.read_text().rstrip("\n"))
+    assert len(read_runs(path)) == 2
+    runs = robustness(["walk"], ["se3"], replicates=3, **kw)
+    assert [r["replicate"] for r in runs] == [0, 1, 2] and len(read_runs(path)) == 3
+    assert len(fake_solves) == 3 and not list(tmp_path.glob("*.corrupt-*")) and "warning" not in capsys.readouterr().err

@@ -55,6 +55,28 @@ def test_jsonl_append_and_torn_last_line(tmp_path):
     assert bad == [4]
 
 
+@pytest.mark.parametrize("last", ['{"i": 0}', '{"i": 0}\n{"i": 1, "x"'])
+def test_jsonl_append_after_a_last_line_without_newline(tmp_path, last):
+    """A file that ends without a newline (files joined by hand, a torn write) gets one before
+    the record: glued onto the last line, both were lost."""
+    path = tmp_path / "runs.jsonl"
+    path.write_text(last)
+    io.append_jsonl(path, {"i": 2})
+    io.append_jsonl(path, {"i": 3})
+    records, bad = io.read_jsonl(path)
+    assert records == [{"i": 0}, {"i": 2}, {"i": 3}]
+    assert bad == ([] if last.endswith("}") else [2])
+
+
+def test_jsonl_append_finishes_a_short_write(tmp_path, monkeypatch):
+    path = tmp_path / "runs.jsonl"
+    write = os.write
+    monkeypatch.setattr(os, "write", lambda fd, data: write(fd, bytes(data[:5])))  # 5 bytes a call at most
+    io.append_jsonl(path, {"task": "walk", "replicate": 1})
+    io.append_jsonl(path, {"task": "walk", "replicate": 2})
+    assert io.read_jsonl(path) == ([{"task": "walk", "replicate": 1}, {"task": "walk", "replicate": 2}], [])
+
+
 def test_npz_and_figure_round_trip(tmp_path):
     a = np.random.default_rng(0).standard_normal((4, 3))
     io.write_npz(tmp_path / "t.npz", a=a, names=np.array(["x", "y"]))
