@@ -90,7 +90,10 @@ def compare(
     progress = _progress_stream(progress)
     out = Path(out)
     solvers.get(solver)  # an unknown name fails here, before the first solve
-    jobs = [(task, p, variables, exact_hessian, solver, str(out / f"{task if isinstance(task, str) else task.name}_{p}") if save_trajectories else None) for task in tasks for p in params]
+    # a cell's folder is named after its task (a .toml path's file name need not be), as its
+    # rows are and as `jtraj.plots.plot_comparison` looks for it: OUT/{task}_{parameterization}
+    names = [load_task(t).name for t in tasks]
+    jobs = [(task, p, variables, exact_hessian, solver, str(out / f"{name}_{p}") if save_trajectories else None) for task, name in zip(tasks, names) for p in params]
     in_process = executor == "local" and workers <= 1
     cells = ((i, _compare_one(*job, progress=progress)) for i, job in enumerate(jobs)) if in_process else executor_for(executor, workers, ray_address).map(_compare_one, jobs)
     done: dict[int, dict] = {}

@@ -527,7 +527,7 @@ def test_a_failed_cells_progress_line_says_why():
 
 def _fake_result(task, p):
     """What `jtraj.solve` returns, with the fields the sweeps' rows take."""
-    name = task if isinstance(task, str) else task.name
+    name = experiments.load_task(task).name
     it = 10 + zlib.crc32(f"{name}{p}".encode()) % 20
     return types.SimpleNamespace(
         task=name, parameterization=p, solver="ipopt", status=Outcome.SOLVED, solver_status=Status.SOLVED, converged=True, success=True, turns=None, iterations=it,
@@ -632,3 +632,18 @@ def test_robustness_resumes_a_runs_file_without_a_final_newline(tmp_path, fake_s
     runs = robustness(["walk"], ["se3"], replicates=3, **kw)
     assert [r["replicate"] for r in runs] == [0, 1, 2] and len(read_runs(path)) == 3
     assert len(fake_solves) == 3 and not list(tmp_path.glob("*.corrupt-*")) and "warning" not in capsys.readouterr().err
+
+
+def test_compare_names_the_cells_of_task_files_after_their_tasks(tmp_path, fake_solves):
+    """A task given as a .toml path: its cell's folder is OUT/{task name}_{parameterization},
+    where its rows and `jtraj plot` look (it was OUT/{the path as given}_..., outside OUT for
+    an absolute path)."""
+    from importlib.resources import files
+
+    task_file = tmp_path / "elsewhere" / "mywalk.toml"
+    task_file.parent.mkdir()
+    task_file.write_text(files("jtraj.tasks").joinpath("walk.toml").read_text())
+    out = tmp_path / "out"
+    rows = compare([str(task_file), "big_jump"], ["se3"], out=out, progress=None)
+    assert [(r["task"], r["parameterization"]) for r in rows] == [("walk", "se3"), ("big_jump", "se3")]
+    assert [folder for _, _, folder in fake_solves] == [str(out / "walk_se3"), str(out / "big_jump_se3")]
