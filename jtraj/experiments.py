@@ -93,6 +93,8 @@ def compare(
     # a cell's folder is named after its task (a .toml path's file name need not be), as its
     # rows are and as `jtraj.plots.plot_comparison` looks for it: OUT/{task}_{parameterization}
     names = [load_task(t).name for t in tasks]
+    _refuse_repeats("compare", "tasks", tasks, names, "task")
+    _refuse_repeats("compare", "params", params, params, "parameterization")
     jobs = [(task, p, variables, exact_hessian, solver, str(out / f"{name}_{p}") if save_trajectories else None) for task, name in zip(tasks, names) for p in params]
     in_process = executor == "local" and workers <= 1
     cells = ((i, _compare_one(*job, progress=progress)) for i, job in enumerate(jobs)) if in_process else executor_for(executor, workers, ray_address).map(_compare_one, jobs)
@@ -114,6 +116,21 @@ def compare(
             raise WorkerLostError(f"{e}; {kept}") from e.__cause__  # one message, after the pool's own error
         raise
     return [done[k] for k in sorted(done)]
+
+
+def _refuse_repeats(function: str, argument: str, given: Sequence, keys: Sequence, what: str) -> None:
+    """A ValueError naming the items of ``given`` whose ``keys`` (a task's name, a noise level's
+    value) repeat: a sweep would solve, count and table them twice."""
+    groups: dict = {}
+    for item, key in zip(given, keys):
+        groups.setdefault(key, []).append(f"Task {item.name!r}" if isinstance(item, Task) else repr(item if isinstance(item, (str, float, int)) else str(item)))
+    found = []
+    for key, items in groups.items():
+        labels = list(dict.fromkeys(items))
+        if len(items) > 1:
+            found.append(f"{labels[0]} given {len(items)} times" if len(labels) == 1 else f"{' and '.join(labels)} are the same {what} ({key!r})")
+    if found:
+        raise ValueError(f"{function}: {argument}: {'; '.join(found)}; expected each {what} once")
 
 
 def _why(row: dict) -> str:
@@ -469,12 +486,16 @@ def robustness(
     for s in sigmas:
         if not (math.isfinite(s) and s >= 0):
             raise ValueError(f"robustness: sigma={s!r}: expected noise levels (standard deviations) >= 0")
+    loaded = [load_task(t) for t in tasks]
+    _refuse_repeats("robustness", "tasks", tasks, [t.name for t in loaded], "task")
+    tasks = loaded
+    _refuse_repeats("robustness", "params", params, params, "parameterization")
+    _refuse_repeats("robustness", "sigmas", sigmas, sigmas, "noise level")
     progress = _progress_stream(progress)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     runs_path = out / RUNS_FILE
     solvers.get(solver)  # an unknown name fails here, before the first solve
-    tasks = [load_task(t) for t in tasks]
     if not tasks or not params or not sigmas or replicates < 1:
         raise ValueError("robustness: no runs (empty tasks, parameterizations or sigmas, or replicates < 1)")
     if noise_chart is not None and progress is not None:

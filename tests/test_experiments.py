@@ -647,3 +647,32 @@ def test_compare_names_the_cells_of_task_files_after_their_tasks(tmp_path, fake_
     rows = compare([str(task_file), "big_jump"], ["se3"], out=out, progress=None)
     assert [(r["task"], r["parameterization"]) for r in rows] == [("walk", "se3"), ("big_jump", "se3")]
     assert [folder for _, _, folder in fake_solves] == [str(out / "walk_se3"), str(out / "big_jump_se3")]
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        (dict(sigmas=[0.1, 1e-1, 0.5]), "robustness: sigmas: 0.1 given 2 times; expected each noise level once"),
+        (dict(params=["se3", "euler", "se3"]), "robustness: params: 'se3' given 2 times; expected each parameterization once"),
+        (dict(tasks=["walk", "big_jump", "walk"]), "robustness: tasks: 'walk' given 2 times; expected each task once"),
+    ],
+)
+def test_robustness_refuses_repeated_settings(tmp_path, fake_solves, kwargs, message):
+    """A repeated noise level (0.1 and 1e-1), parameterization or task was solved, counted and
+    tabled twice (duplicate columns); it is refused before anything is written or solved."""
+    kw = dict(tasks=["walk"], params=["se3"], sigmas=[0.1], replicates=1, out=tmp_path / "study", progress=None) | kwargs
+    with pytest.raises(ValueError, match=f"^{message}$"):
+        robustness(**kw)
+    assert not fake_solves and not (tmp_path / "study").exists()
+
+
+def test_compare_refuses_repeated_tasks_and_parameterizations(tmp_path, fake_solves):
+    from importlib.resources import files
+
+    task_file = tmp_path / "mywalk.toml"
+    task_file.write_text(files("jtraj.tasks").joinpath("walk.toml").read_text())
+    with pytest.raises(ValueError, match=r"^compare: tasks: 'walk' and '.*mywalk.toml' are the same task \('walk'\); expected each task once$"):
+        compare(["walk", str(task_file)], ["se3"], out=tmp_path / "out", progress=None)
+    with pytest.raises(ValueError, match=r"^compare: params: 'se3' given 2 times; expected each parameterization once$"):
+        compare(["walk"], ["se3", "se3"], out=tmp_path / "out", progress=None)
+    assert not fake_solves and not (tmp_path / "out").exists()
