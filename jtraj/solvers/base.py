@@ -47,6 +47,8 @@ __all__ = [
     "EvaluationTimer",
     "BoundNLP",
     "bind",
+    "initial_guess",
+    "invalid_problem",
 ]
 
 
@@ -394,16 +396,69 @@ class BoundNLP:
     g_lower: np.ndarray
     g_upper: np.ndarray
 
+    def inconsistent(self) -> str | None:
+        """What is wrong when a lower bound exceeds its upper one (the first such bound,
+        variables before constraint rows), else None: Ipopt's INVALID_PROBLEM."""
+        for name, lower, upper in (("x", self.x_lower, self.x_upper), ("g", self.g_lower, self.g_upper)):
+            bad = np.flatnonzero(lower > upper)
+            if bad.size:
+                i = int(bad[0])
+                return f"inconsistent bounds: {name}_lower[{i}]={float(lower[i])!r} > {name}_upper[{i}]={float(upper[i])!r} ({bad.size} such {name} bound(s))"
+        return None
+
+
+def _checked(f: BoundNLP) -> BoundNLP:
+    """``f``, unless a bound is NaN (a solver would silently drop that bound): ValueError
+    naming the first one."""
+    for name in ("x_lower", "x_upper", "g_lower", "g_upper"):
+        bad = np.flatnonzero(np.isnan(getattr(f, name)))
+        if bad.size:
+            raise ValueError(f"the NLP's bound {name}[{int(bad[0])}] is NaN ({bad.size} NaN entries of {name}); check theta and the bounds' functions")
+    return f
+
+
+def initial_guess(nlp: Any, x0: Any, name: str = "x0") -> np.ndarray:
+    """``x0`` as the (n,) vector of ``nlp``'s variables, from shape (n,) or, for a knot NLP,
+    (n_knots, nz); any other shape (a scalar or one value would be broadcast by the clip into
+    the bounds) raises ValueError naming ``name`` before anything compiles."""
+    x = np.asarray(x0, float)
+    n = int(nlp.n)
+    shapes: list[tuple[int, ...]] = [(n,)]
+    knots, nz = getattr(nlp, "n_knots", None), getattr(nlp, "nz", None)
+    if isinstance(knots, int) and isinstance(nz, int) and knots * nz == n:
+        shapes.append((knots, nz))
+    if x.shape not in shapes:
+        raise ValueError(f"{name} of shape {x.shape}: expected {' or '.join(str(s) for s in shapes)} (the NLP's {n} variables)")
+    return x.reshape(-1)
+
+
+def invalid_problem(f: BoundNLP, x0: np.ndarray, message: str, m: int) -> Solution:
+    """The `Solution` of a problem refused before its solve (`Status.INVALID_PROBLEM`, as
+    Ipopt returns it): ``x0`` (n,) as it was given, nothing evaluated."""
+    n = len(x0)
+    return Solution(
+        x=np.asarray(x0, float),
+        status=Status.INVALID_PROBLEM,
+        message=message,
+        objective=float("nan"),
+        constraint_violation=float("nan"),
+        mult_g=np.zeros(m),
+        mult_x_lower=np.zeros(n),
+        mult_x_upper=np.zeros(n),
+        stats=Stats(),
+    )
+
 
 def bind(nlp: Any, theta: Any = None) -> BoundNLP:
     """Fix ``theta`` in ``nlp``'s functions. An NLP with parameters has ``bounds(theta)`` and
     functions of ``(x, theta)``; one without takes x alone (``theta`` must then be None).
-    ``theta=None`` means the NLP's own default parameters ``nlp.theta`` where it has them."""
+    ``theta=None`` means the NLP's own default parameters ``nlp.theta`` where it has them.
+    A NaN bound raises ValueError (bounds where lower > upper are `BoundNLP.inconsistent`)."""
     if callable(getattr(nlp, "bounds", None)):
         if theta is None:
             theta = getattr(nlp, "theta", None)
         x_lower, x_upper, g_lower, g_upper = (np.asarray(b, float) for b in nlp.bounds(theta))
-        return BoundNLP(
+        return _checked(BoundNLP(
             objective=lambda x: nlp.objective(x, theta),
             gradient=lambda x: nlp.gradient(x, theta),
             constraints=lambda x: nlp.constraints(x, theta),
@@ -413,10 +468,10 @@ def bind(nlp: Any, theta: Any = None) -> BoundNLP:
             x_upper=x_upper,
             g_lower=g_lower,
             g_upper=g_upper,
-        )
+        ))
     if theta is not None:
         raise TypeError(f"{type(nlp).__name__} takes no parameters theta; pass theta=None")
-    return BoundNLP(
+    return _checked(BoundNLP(
         objective=lambda x: nlp.objective(x),
         gradient=lambda x: nlp.gradient(x),
         constraints=lambda x: nlp.constraints(x),
@@ -426,4 +481,4 @@ def bind(nlp: Any, theta: Any = None) -> BoundNLP:
         x_upper=np.asarray(nlp.x_upper, float),
         g_lower=np.asarray(nlp.g_lower, float),
         g_upper=np.asarray(nlp.g_upper, float),
-    )
+    ))

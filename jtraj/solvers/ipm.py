@@ -94,6 +94,8 @@ from jtraj.solvers.base import (
     Status,
     _positive,
     bind,
+    initial_guess,
+    invalid_problem,
     max_violation,
 )
 from jtraj.solvers.stage import StageView
@@ -1282,12 +1284,22 @@ class JtrajSolver(AbstractSolver):
         if callback is not None and callback.wants_iterates:
             raise ValueError("jtraj's solver runs as one compiled program and reports no intermediate iterates: record them with solver='ipopt'")
         opts = self.options(options)
+        x0 = initial_guess(nlp, x0)
+        if theta is None:  # the NLP's own parameters (`bind`), also for the program's key below
+            theta = getattr(nlp, "theta", None)
+        f = bind(nlp, theta)
+        problem = f.inconsistent()
+        if problem is not None:  # as Ipopt returns it, before anything compiles
+            solution = invalid_problem(f, x0, problem, len(f.g_lower))
+            if callback is not None:
+                callback.on_start(nlp)
+                callback.on_end(solution)
+            return solution
         ipm = self.ipm(nlp, opts)
         if callback is not None:
             callback.on_start(nlp)
         view = ipm.view
-        f = bind(nlp, theta)
-        x0 = np.clip(np.asarray(x0, float).reshape(-1), f.x_lower, f.x_upper).reshape(view.K, view.n)
+        x0 = np.clip(x0, f.x_lower, f.x_upper).reshape(view.K, view.n)
         # compile ahead (once per NLP, options and parameter shapes), so that the time below is
         # the solve's alone; a printing callback says so first (about a minute on a whole-body
         # task without the compilation cache)
@@ -1352,14 +1364,24 @@ class JtrajSolver(AbstractSolver):
         if threads is not None and threads < 1:
             raise ValueError(f"solve_batch: threads={threads}; expected a positive count or None (the CPU count)")
         opts = self.options(options)
-        ipm = self.ipm(nlp, opts)
-        view = ipm.view
-        f = bind(nlp, theta)
-        x0s = np.asarray(x0s, float).reshape(len(x0s), -1)
+        x0s = np.asarray(x0s, float)
+        n = int(nlp.n)
+        shapes = [(n,)] + ([(nlp.n_knots, nlp.nz)] if hasattr(nlp, "n_knots") else [])
+        if x0s.ndim < 2 or len(x0s) < 1 or x0s.shape[1:] not in shapes:
+            raise ValueError(f"solve_batch: x0s of shape {x0s.shape}: expected B >= 1 initial guesses, of shape " + " or ".join("(B, " + ", ".join(map(str, shape)) + ")" for shape in shapes))
+        x0s = x0s.reshape(len(x0s), n)
         count = len(x0s)
         size = count if batch_size is None else batch_size
         if not 1 <= count <= size:
             raise ValueError(f"solve_batch: {count} initial guesses for a batch of {size}; expected 1 to {size}")
+        if theta is None:  # the NLP's own parameters (`bind`), also for the program's key below
+            theta = getattr(nlp, "theta", None)
+        f = bind(nlp, theta)
+        problem = f.inconsistent()
+        if problem is not None:  # as Ipopt returns it, before anything compiles
+            return [invalid_problem(f, x0, problem, len(f.g_lower)) for x0 in x0s], 0.0, 0.0
+        ipm = self.ipm(nlp, opts)
+        view = ipm.view
         x0s = np.clip(x0s, f.x_lower, f.x_upper).reshape(count, view.K, view.n)
         if strategy == "threads":
             return self._solve_threads(ipm, f, x0s, theta, opts, threads)

@@ -26,6 +26,8 @@ from jtraj.solvers.base import (
     Status,
     _positive,
     bind,
+    initial_guess,
+    invalid_problem,
     max_violation,
 )
 
@@ -242,10 +244,18 @@ class IpoptSolver(AbstractSolver):
 
         opts = self.options(options)
         assert isinstance(opts, IpoptOptions)
+        x0 = initial_guess(nlp, x0)
+        f = bind(nlp, theta)
+        problem_text = f.inconsistent()
+        if problem_text is not None:  # Ipopt's INVALID_PROBLEM, with the bound named
+            solution = invalid_problem(f, x0, problem_text, nlp.m)
+            if callback is not None:
+                callback.on_start(nlp)
+                callback.on_end(solution)
+            return solution
         exact = opts.hessian == "exact"
         if exact:
             nlp.build_hessian()
-        f = bind(nlp, theta)
         problem_obj = _Problem(nlp, f, exact, callback)
         problem = cyipopt.Problem(n=nlp.n, m=nlp.m, problem_obj=problem_obj, lb=f.x_lower, ub=f.x_upper, cl=f.g_lower, cu=f.g_upper)
         problem_obj.problem = problem
@@ -254,7 +264,7 @@ class IpoptSolver(AbstractSolver):
                 problem.add_option(key, value)
             except TypeError as e:  # cyipopt raises TypeError for unknown options and bad values
                 raise InvalidOptionError(f"Ipopt rejected option {key}={value!r}: {e}") from None
-        x0 = np.clip(np.asarray(x0, float), f.x_lower, f.x_upper)
+        x0 = np.clip(x0, f.x_lower, f.x_upper)
         if callback is not None:
             callback.on_start(nlp)
         t0 = time.perf_counter()

@@ -1,0 +1,105 @@
+"""The solvers' inputs (initial guesses, parameters, bounds) are checked on the host, before
+anything compiles, with errors that name them; a problem Ipopt calls invalid is invalid for
+jtraj's solver too. Tiny knot problems (tests/test_ipm.py's double integrator)."""
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from test_ipm import H_STEP, U_MAX, K, double_integrator
+
+from jtraj import solvers
+from jtraj.nlp import ConstraintGroup, CostGroup, Dep, KnotNLP, Layout
+from jtraj.solvers import Status
+from jtraj.solvers.base import bind
+
+
+def speed_limited(theta=None) -> KnotNLP:
+    """The double integrator with its speed limits as parameters vmin <= v <= vmax."""
+    layout = Layout((("p", 1), ("v", 1), ("u", 1)))
+
+    def step(theta, data, p, v, u, p1, v1):
+        return jnp.concatenate([p1 - p - H_STEP * v1, v1 - v - H_STEP * u])
+
+    groups = [
+        ConstraintGroup("dynamics", (Dep("p"), Dep("v"), Dep("u"), Dep("p", 1), Dep("v", 1)), step, np.arange(K - 1),
+                        np.zeros((K - 1, 2)), np.zeros((K - 1, 2)), np.ones((K - 1, 2), bool)),
+        ConstraintGroup("speed", (Dep("v"),), lambda theta, data, v: v, np.arange(K),
+                        lambda th: th["vmin"] * jnp.ones((K, 1)), lambda th: th["vmax"] * jnp.ones((K, 1)), np.ones((K, 1), bool)),
+    ]
+    costs = [CostGroup("effort", (Dep("u"),), lambda theta, data, u: 0.5 * jnp.sum(u**2), np.arange(K))]
+    lower = np.tile([-np.inf, -np.inf, -U_MAX], (K, 1))
+    upper = np.tile([np.inf, np.inf, U_MAX], (K, 1))
+    lower[0] = upper[0] = [0.0, 0.0, 0.0]
+    lower[-1, :2] = upper[-1, :2] = [1.0, 0.0]
+    lower[-1, 2] = upper[-1, 2] = 0.0
+    theta = {"vmin": jnp.asarray(-1.0), "vmax": jnp.asarray(0.35)} if theta is None else theta
+    return KnotNLP(layout, K, costs, groups, lower, upper, theta=theta)
+
+
+def no_program(nlp: KnotNLP) -> bool:
+    """Nothing of jtraj's solver was built (let alone compiled) for ``nlp``."""
+    return not nlp.solver_programs
+
+
+def test_theta_none_means_the_nlps_own_parameters():
+    nlp = speed_limited()
+    jt = solvers.get("jtraj")
+    given = jt.solve(nlp, np.zeros(nlp.n), nlp.theta)
+    assert given.converged
+    default = jt.solve(nlp, np.zeros(nlp.n))  # was TypeError: 'NoneType' object is not subscriptable
+    assert default.status is given.status and default.stats.iterations == given.stats.iterations
+    np.testing.assert_array_equal(default.x, given.x)
+    batch, _, compiled = jt.solve_batch(nlp, np.zeros((1, nlp.n)), strategy="threads")
+    assert compiled == 0.0  # the program of the solves above
+    np.testing.assert_array_equal(batch[0].x, given.x)
+
+
+@pytest.mark.parametrize("x0s", [np.zeros(K * 3), np.zeros((0, K * 3)), [], np.zeros((2, K * 3, 1)), np.zeros((2, 5))])
+def test_solve_batch_wants_a_batch_of_whole_guesses(x0s):
+    nlp = double_integrator()
+    with pytest.raises(ValueError, match=r"x0s of shape .*expected B >= 1 initial guesses, of shape \(B, 48\) or \(B, 16, 3\)"):
+        solvers.get("jtraj").solve_batch(nlp, x0s, strategy="threads")
+    assert no_program(nlp)
+
+
+@pytest.mark.parametrize("solver", ["jtraj", "ipopt"])
+@pytest.mark.parametrize("x0", [0.3, [0.3], np.zeros((K * 3, 1)), np.zeros((K, 2)), np.zeros(K * 3 + 1)])
+def test_an_initial_guess_of_another_size_is_refused(solver, x0):
+    nlp = double_integrator()
+    with pytest.raises(ValueError, match=r"x0 of shape .*: expected \(48,\) or \(16, 3\)"):
+        solvers.get(solver).solve(nlp, x0)
+    assert no_program(nlp)
+
+
+def test_ipopt_takes_a_knot_shaped_guess():
+    nlp = double_integrator()
+    x0 = np.zeros((K, 3))
+    a = solvers.get("ipopt").solve(nlp, x0)
+    b = solvers.get("ipopt").solve(nlp, x0.reshape(-1))
+    assert a.converged and a.stats.iterations == b.stats.iterations
+
+
+@pytest.mark.parametrize("solver", ["jtraj", "ipopt"])
+def test_nan_bounds_are_refused(solver):
+    nlp = speed_limited()
+    theta = {"vmin": jnp.asarray(-1.0), "vmax": jnp.asarray(np.nan)}
+    with pytest.raises(ValueError, match=r"bound g_upper\[\d+\] is NaN"):
+        solvers.get(solver).solve(nlp, np.zeros(nlp.n), theta)
+    assert no_program(nlp)
+    f = bind(nlp)
+    lower = np.where(np.arange(nlp.n) == 3, np.nan, f.x_lower).reshape(K, 3)
+    with pytest.raises(ValueError, match=r"bound x_lower\[3\] is NaN"):
+        bind(KnotNLP(nlp.layout, K, nlp.costs, nlp.groups, lower, f.x_upper.reshape(K, 3), theta=nlp.theta))
+
+
+def test_inconsistent_bounds_are_an_invalid_problem_for_both_solvers():
+    nlp = speed_limited()
+    theta = {"vmin": jnp.asarray(0.5), "vmax": jnp.asarray(0.35)}
+    ipopt = solvers.get("ipopt").solve(nlp, np.zeros(nlp.n), theta)
+    jt = solvers.get("jtraj").solve(nlp, np.zeros(nlp.n), theta)
+    batch, total, compiled = solvers.get("jtraj").solve_batch(nlp, np.zeros((2, nlp.n)), theta)
+    assert no_program(nlp)  # refused before compiling (it was NUMERICAL_ERROR after a compile)
+    first = "g_lower[30]=0.5 > g_upper[30]=0.35"  # the first speed row, after the 2(K-1) dynamics rows
+    for s in [ipopt, jt, *batch]:
+        assert s.status is Status.INVALID_PROBLEM and first in s.message
+    assert len(batch) == 2 and total == compiled == 0.0
