@@ -11,7 +11,7 @@ import pytest
 
 from jtraj import solvers
 from jtraj.nlp import ConstraintGroup, CostGroup, Dep, KnotNLP, Layout
-from jtraj.solvers import AbstractCallback, InvalidOptionError, IpoptOptions, IpoptSolver, Status
+from jtraj.solvers import AbstractCallback, InvalidOptionError, IpmOptions, IpoptOptions, IpoptSolver, Status
 from jtraj.solvers.base import bind
 from jtraj.solvers.ipopt import IPOPT_STATUS
 
@@ -63,6 +63,11 @@ def test_ipopt_return_codes_map_to_the_enumeration():
         ({"max_iter": 2.5}, "max_iter=2.5: expected an integer"),
         ({"hessian": "bfgs"}, r"hessian='bfgs': expected one of \['exact', 'lbfgs'\]"),
         ({"linear_solver": "umfpack"}, "linear_solver='umfpack'"),
+        # a known linear solver whose library this Ipopt lacks (the solve said only "Invalid option encountered")
+        ({"linear_solver": "ma27"}, "linear_solver='ma27': not available in this Ipopt build"),
+        # Ipopt's integer options are C ints (a raw OverflowError at the solve)
+        ({"max_iter": 10**12}, r"max_iter=1000000000000: expected an integer in \[0, 2147483647\]"),
+        ({"extra": {"acceptable_iter": 2**31}}, "acceptable_iter=2147483648: expected an integer"),
         ({"extra": {"tol": 1e-3}}, r"use IpoptOptions\(tol=...\)"),
         # other Ipopt options against the bundled Ipopt's list, here and not when a solve starts
         ({"extra": {"max_itr": 3}}, "max_itr=3: unknown Ipopt option; did you mean max_iter"),
@@ -72,6 +77,57 @@ def test_ipopt_return_codes_map_to_the_enumeration():
 def test_bad_options_fail_at_construction(kwargs, match):
     with pytest.raises(InvalidOptionError, match=match):
         IpoptOptions(**kwargs)
+
+
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        # int32 counters in the compiled program: the loop ended at once with INTERNAL_ERROR 'RUNNING'
+        ({"max_iter": 70_000_000}, r"max_iter=70000000: expected at most 61356674 with max_line_search=30 and max_soc=4"),
+        ({"max_iter": 2**31}, r"max_iter=2147483648: expected an integer in \[0, 2147483647\]"),
+        ({"lbfgs_memory": 2**40}, "lbfgs_memory=1099511627776: expected an integer in"),
+    ],
+)
+def test_bad_jtraj_options_fail_at_construction(kwargs, match):
+    with pytest.raises(InvalidOptionError, match=match):
+        IpmOptions(**kwargs)
+    IpmOptions(max_iter=61356674)  # the largest the default line search allows
+
+
+def test_stdout_capture_is_one_thread_at_a_time():
+    """Two threads' captures of file descriptor 1 (options built in threads) interleaved and
+    could leave the process's stdout redirected to a closed temporary file."""
+    import os
+    import threading
+    import time
+
+    from jtraj.solvers import ipopt_catalog
+
+    stdout = os.readlink("/proc/self/fd/1")
+    inside, release, order = threading.Event(), threading.Event(), []
+
+    def first():
+        with ipopt_catalog._captured_stdout():
+            order.append("first in")
+            inside.set()
+            release.wait(5)
+            order.append("first out")
+
+    def second():
+        inside.wait(5)
+        with ipopt_catalog._captured_stdout():
+            order.append("second in")
+
+    threads = [threading.Thread(target=first), threading.Thread(target=second)]
+    for t in threads:
+        t.start()
+    inside.wait(5)
+    time.sleep(0.2)
+    release.set()
+    for t in threads:
+        t.join()
+    assert order == ["first in", "first out", "second in"]
+    assert os.readlink("/proc/self/fd/1") == stdout
 
 
 def test_options_from_ipopt_names():
@@ -175,6 +231,12 @@ def test_record_iterates_keeps_ipopts_iterates(walk_nlp):
 def test_iteration_limit_is_reported(walk_nlp):
     sol = IpoptSolver().solve(walk_nlp, np.zeros(walk_nlp.n), None, {"max_iter": 1, "tol": 1e-12})
     assert sol.status is Status.MAX_ITER and "iteration" in sol.status.message
+
+
+def test_wall_time_limit_is_reported_with_a_message(walk_nlp):
+    sol = IpoptSolver().solve(walk_nlp, np.zeros(walk_nlp.n), None, {"max_wall_time": 1e-9, "tol": 1e-12})
+    assert sol.status is Status.MAX_WALL_TIME
+    assert sol.message == Status.MAX_WALL_TIME.message  # cyipopt's text for -5 was 'Unknown status'
 
 
 def test_unknown_ipopt_option_names_it(walk_nlp):

@@ -103,6 +103,10 @@ from jtraj.solvers.stage import StageView
 __all__ = ["IpmOptions", "IpmStatus", "IpmResult", "IPM", "JtrajSolver"]
 
 
+#: the largest integer of the compiled program's counters (int32)
+_INT32_MAX = 2**31 - 1
+
+
 class IpmStatus(enum.IntEnum):
     """Termination of the interior-point loop (int codes, so they live in JAX arrays)."""
 
@@ -305,6 +309,8 @@ class IpmOptions(AbstractOptions):
             elif isinstance(default, int):
                 if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < 0:
                     raise InvalidOptionError(f"jtraj option {field.name}={value!r}: expected an integer >= 0")
+                if value > _INT32_MAX:  # the program counts in int32
+                    raise InvalidOptionError(f"jtraj option {field.name}={value!r}: expected an integer in [0, {_INT32_MAX}]")
             elif value is None and "None" in str(field.type):
                 continue
             elif isinstance(default, float) and (isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)) or not np.isfinite(value)):
@@ -314,6 +320,12 @@ class IpmOptions(AbstractOptions):
             if not getattr(self, name) >= 0:
                 raise InvalidOptionError(f"jtraj option {name}={getattr(self, name)!r}: expected a number >= 0")
         _positive(self, "mu_max", "feasibility_polish_tol", allow_none=True)
+        per_iteration = self.max_line_search + 1 + self.max_soc
+        if (self.max_iter + 1) * per_iteration > _INT32_MAX:  # IPM._max_passes, an int32 loop bound
+            raise InvalidOptionError(
+                f"jtraj option max_iter={self.max_iter!r}: expected at most {_INT32_MAX // per_iteration - 1} with max_line_search={self.max_line_search} "
+                f"and max_soc={self.max_soc} (the solver bounds its evaluations, (max_iter + 1) (max_line_search + 1 + max_soc), in a 32-bit integer)"
+            )
 
     def compiled_part(self) -> "IpmOptions":
         """These options with the `RUNTIME_FIELDS` at fixed values (the polish kept on or off):

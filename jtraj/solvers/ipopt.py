@@ -59,6 +59,8 @@ IPOPT_STATUS: dict[int, Status] = {
 
 #: Linear solvers Ipopt can be built with (MUMPS is the one in the wheel).
 LINEAR_SOLVERS = ("mumps", "ma27", "ma57", "ma77", "ma86", "ma97", "pardiso", "pardisomkl", "spral", "wsmp")
+#: the largest value of Ipopt's integer options (a C int)
+INT_MAX = 2**31 - 1
 SCALING_METHODS = ("none", "gradient-based", "equilibration-based", "user-scaling")
 HESSIANS = {"lbfgs": "limited-memory", "exact": "exact"}
 
@@ -104,10 +106,19 @@ class IpoptOptions(AbstractOptions):
         _positive(self, "acceptable_tol", "constr_viol_tol", "acceptable_constr_viol_tol", allow_none=True)
         if isinstance(self.max_iter, bool) or not isinstance(self.max_iter, (int, np.integer)) or self.max_iter < 0:
             raise InvalidOptionError(f"Ipopt option max_iter={self.max_iter!r}: expected an integer >= 0")
+        if self.max_iter > INT_MAX:  # Ipopt's integer options are C ints (cyipopt: OverflowError at the solve)
+            raise InvalidOptionError(f"Ipopt option max_iter={self.max_iter!r}: expected an integer in [0, {INT_MAX}]")
         if self.hessian not in HESSIANS:
             raise InvalidOptionError(f"Ipopt option hessian={self.hessian!r}: expected one of {sorted(HESSIANS)}")
         if self.linear_solver not in LINEAR_SOLVERS:
             raise InvalidOptionError(f"Ipopt option linear_solver={self.linear_solver!r}: expected one of {list(LINEAR_SOLVERS)}")
+        if self.linear_solver != "mumps":
+            # loaded at run time from a library that may be absent: Ipopt would stop the solve
+            # with "Invalid option encountered", without naming it
+            from jtraj.solvers import ipopt_catalog
+
+            if not ipopt_catalog.linear_solver_available(self.linear_solver):
+                raise InvalidOptionError(f"Ipopt option linear_solver={self.linear_solver!r}: not available in this Ipopt build (its library is not installed); expected 'mumps'")
         if self.nlp_scaling_method not in SCALING_METHODS:
             raise InvalidOptionError(f"Ipopt option nlp_scaling_method={self.nlp_scaling_method!r}: expected one of {list(SCALING_METHODS)}")
         if not isinstance(self.extra, dict):
@@ -272,11 +283,15 @@ class IpoptSolver(AbstractSolver):
         total = time.perf_counter() - t0
         g = np.asarray(f.constraints(jnp.asarray(x)))
         message = info["status_msg"]
+        message = message.decode() if isinstance(message, bytes) else str(message)
+        status = IPOPT_STATUS.get(int(info["status"]), Status.INTERNAL_ERROR)
+        if message == "Unknown status":  # cyipopt has no text for some codes (-5: max_wall_time)
+            message = status.message
         history = tuple(problem_obj.history)
         solution = Solution(
             x=np.asarray(x),
-            status=IPOPT_STATUS.get(int(info["status"]), Status.INTERNAL_ERROR),
-            message=message.decode() if isinstance(message, bytes) else str(message),
+            status=status,
+            message=message,
             objective=float(info["obj_val"]),
             constraint_violation=max_violation(g, f.g_lower, f.g_upper, x, f.x_lower, f.x_upper),
             mult_g=np.asarray(info["mult_g"]),

@@ -26,6 +26,7 @@ import os
 import re
 import sys
 import tempfile
+import threading
 from typing import Any
 
 import numpy as np
@@ -79,10 +80,17 @@ def _problem():
     return cyipopt.Problem(n=1, m=0, problem_obj=_Tiny(), lb=[-1.0], ub=[1.0], cl=[], cu=[])
 
 
+#: one capture of file descriptor 1 at a time: two threads' captures interleaved (building
+#: options in threads, the first use of `catalog`) saved and restored each other's redirection
+#: and could leave the process's stdout in a closed temporary file
+_CAPTURE_LOCK = threading.Lock()
+
+
 @contextlib.contextmanager
 def _captured_stdout():
-    """Capture what C code writes on file descriptor 1 (Ipopt prints there, not via Python)."""
-    with tempfile.TemporaryFile(mode="w+") as tmp:
+    """Capture what C code writes on file descriptor 1 (Ipopt prints there, not via Python);
+    one thread at a time (`_CAPTURE_LOCK`)."""
+    with _CAPTURE_LOCK, tempfile.TemporaryFile(mode="w+") as tmp:
         sys.stdout.flush()
         saved = os.dup(1)
         os.dup2(tmp.fileno(), 1)
@@ -196,6 +204,8 @@ def check(name: str, value: Any) -> Any:
     above = x >= spec.upper if spec.upper_strict else x > spec.upper
     if below or above or math.isnan(x):
         raise IpoptOptionError(name, value, f"expected {'a real number' if real else 'an integer'} in {_range(spec)}")
+    if not real and abs(int(value)) > 2**31 - 1:  # a C int: cyipopt raises OverflowError at the solve
+        raise IpoptOptionError(name, value, f"expected an integer in {_range(spec)} of at most {2**31 - 1} in magnitude")
     return x if real else int(value)
 
 
