@@ -329,24 +329,48 @@ def run_key(row: dict) -> tuple:
     return tuple(row.get(k, _KEY_DEFAULTS.get(k)) for k in RUN_KEY)
 
 
+#: the fields of a run that the tables read, beside those of its key
+_RUN_FIELDS = ("task", "converged", "constraint_violation", "success", "iterations")
+
+
+def _not_a_run(record) -> str | None:
+    """Why a parsed line of a runs file is not a run (None: it is one)."""
+    if not isinstance(record, dict):
+        return f"a JSON {type(record).__name__}, not an object"
+    missing = [k for k in (*RUN_KEY, *_RUN_FIELDS) if k not in record and k not in _KEY_DEFAULTS]
+    return f"no {', '.join(map(repr, missing))}" if missing else None
+
+
+def _lines(numbers: list[int]) -> str:
+    """Line numbers for a message: the first five, and how many more."""
+    return f"{numbers[:5]}" + (f" and {len(numbers) - 5} more" if len(numbers) > 5 else "")
+
+
 def read_runs(path: str | Path, progress: TextIO | None = None) -> list[dict]:
     """Runs of a runs.jsonl file, first of each key kept. A file with lines that do not parse
-    (a kill during a write, damage) is moved aside to ``runs.jsonl.corrupt-N`` with a warning
-    on ``progress`` (None: the ``sys.stderr`` of the call), and the good lines are written back."""
+    (a kill during a write, damage) or are not runs (not a JSON object, or without a field of a
+    run's key or one the tables read) is moved aside to ``runs.jsonl.corrupt-N`` with a warning
+    on ``progress`` (None: the ``sys.stderr`` of the call), and the lines that are runs are
+    written back (the runs of the others are solved again)."""
     path = Path(path)
-    records, bad = jio.read_jsonl(path)
-    if bad:
+    numbered, bad = jio.read_jsonl_lines(path)
+    checked = [(line, r, _not_a_run(r)) for line, r in numbered]
+    records = [r for _, r, why in checked if why is None]
+    odd = [(line, why) for line, _, why in checked if why is not None]
+    if bad or odd:
         n = 1
         while path.with_name(f"{path.name}.corrupt-{n}").exists():
             n += 1
         aside = path.with_name(f"{path.name}.corrupt-{n}")
         os.replace(path, aside)
-        jio.write_text(path, "".join(jio.dumps(r, indent=None) + "\n" for r in records if isinstance(r, dict)))
-        print(f"warning: {path}: line(s) {bad[:5]} did not parse; the file was moved to {aside} and its {len(records)} good runs kept", file=progress or sys.stderr, flush=True)
+        jio.write_text(path, "".join(jio.dumps(r, indent=None) + "\n" for r in records))
+        found = [f"line(s) {_lines(bad)} did not parse"] if bad else []
+        if odd:
+            found.append(f"line(s) {_lines([line for line, _ in odd])} are not runs ({'; '.join(f'line {line}: {why}' for line, why in odd[:3])}{'; ...' if len(odd) > 3 else ''})")
+        print(f"warning: {path}: {' and '.join(found)}; the file was moved to {aside} and its {len(records)} good runs kept", file=progress or sys.stderr, flush=True)
     seen: dict[tuple, dict] = {}
     for r in records:
-        if isinstance(r, dict) and all(k in r or k in _KEY_DEFAULTS for k in RUN_KEY):
-            seen.setdefault(run_key(r), r)
+        seen.setdefault(run_key(r), r)
     return list(seen.values())
 
 
@@ -505,12 +529,16 @@ def robustness(
     if not resume and runs_path.exists():
         os.replace(runs_path, runs_path.with_name(runs_path.name + ".previous"))
     done = {run_key(r) for r in before}
-    unknown = sum(1 for r in before if "variables_hash" not in r)
-    if progress is not None and unknown:
-        print(f"note: {unknown} runs in {runs_path} were written without the content of their variables (before jtraj recorded it) and are not resumed", file=progress, flush=True)
-    if progress is not None and len(before) > unknown:
-        print(f"resuming: {len(before) - unknown} runs already in {runs_path}", file=progress, flush=True)
     args = [(t, p, tuple(sigmas), replicates, seed, variables, exact_hessian, ipopt_options, solver, noise_chart, done, runs_path) for t in tasks for p in params]
+    if progress is not None and before:
+        wanted = {run_key(_group_key(*a[:2], variables, exact_hessian, ipopt_options, seed, solver, noise_chart) | {"sigma": s, "replicate": r}) for a in args for s in sigmas for r in range(replicates)}
+        unknown = sum(1 for r in before if "variables_hash" not in r)
+        others = sum(1 for r in before if "variables_hash" in r and run_key(r) not in wanted)
+        if unknown:
+            print(f"note: {unknown} runs in {runs_path} were written without the content of their variables (before jtraj recorded it) and are not resumed", file=progress, flush=True)
+        if len(before) > unknown:
+            kept = f"; its {others} runs of other settings are kept" if others else ""
+            print(f"resuming: {len(wanted & done)} of this call's {len(wanted)} runs already in {runs_path}{kept}", file=progress, flush=True)
     if executor == "local" and workers <= 1:
         for k, a in enumerate(args):
             _robustness_group(*a, progress=progress)

@@ -40,6 +40,7 @@ __all__ = [
     "read_json",
     "append_jsonl",
     "read_jsonl",
+    "read_jsonl_lines",
     "write_npz",
     "save_figure",
 ]
@@ -191,6 +192,12 @@ def append_jsonl(path: str | Path, record: Any) -> None:
 def read_jsonl(path: str | Path) -> tuple[list[Any], list[int]]:
     """Records of a JSON-lines file and the 1-based numbers of the lines that did not parse
     (a torn last line after a kill, or damage). A missing file gives no records."""
+    numbered, bad = read_jsonl_lines(path)
+    return [record for _, record in numbered], bad
+
+
+def read_jsonl_lines(path: str | Path) -> tuple[list[tuple[int, Any]], list[int]]:
+    """`read_jsonl` with the 1-based line number of each record: ``([(line, record), ...], bad)``."""
     path = Path(path)
     if not path.exists():
         return [], []
@@ -200,7 +207,7 @@ def read_jsonl(path: str | Path) -> tuple[list[Any], list[int]]:
             if not raw.strip():
                 continue
             try:
-                records.append(json.loads(raw.decode("utf-8"), parse_constant=_reject_constant))
+                records.append((i, json.loads(raw.decode("utf-8"), parse_constant=_reject_constant)))
             except (UnicodeDecodeError, ValueError):
                 bad.append(i)
     return records, bad

@@ -279,9 +279,13 @@ def test_summary_keeps_solvers_and_noise_charts_apart(tmp_path, monkeypatch):
     assert [(r["solver"], r["noise_chart"]) for r in summarize_robustness(old)] == [("ipopt", None)]
 
 
+#: the result fields of a run that the tables read (`read_runs` sets aside rows without them)
+_RESULT = {"converged": True, "constraint_violation": 0.0, "success": True, "iterations": 12}
+
+
 def test_corrupt_runs_file_is_moved_aside(tmp_path, capsys):
     path = tmp_path / RUNS_FILE
-    good = {"task_hash": "h", "parameterization": "se3", "layout": "paper", "hessian": "limited-memory", "options_hash": "o", "seed": 0, "sigma": 0.1, "replicate": 0, "task": "t"}
+    good = {"task_hash": "h", "parameterization": "se3", "layout": "paper", "hessian": "limited-memory", "options_hash": "o", "seed": 0, "sigma": 0.1, "replicate": 0, "task": "t"} | _RESULT
     path.write_text(json.dumps(good) + "\n" + json.dumps(good | {"replicate": 0, "cost": 2.0}) + "\n" + '{"task_hash": "h", "param')
     runs = read_runs(path)  # the warning goes to the sys.stderr of the call (capsys's here)
     assert runs == [good]  # the duplicate key is read once, the torn line dropped
@@ -444,7 +448,7 @@ def test_jtraj_robustness_resumes_only_the_missing_replicates(jtraj_study, tmp_p
 
 
 def test_rows_without_a_solver_are_ipopt_runs(tmp_path):
-    old = {"task_hash": "h", "parameterization": "se3", "layout": "paper", "hessian": "limited-memory", "options_hash": "o", "seed": 0, "sigma": 0.1, "replicate": 0, "task": "t"}
+    old = {"task_hash": "h", "parameterization": "se3", "layout": "paper", "hessian": "limited-memory", "options_hash": "o", "seed": 0, "sigma": 0.1, "replicate": 0, "task": "t"} | _RESULT
     (tmp_path / RUNS_FILE).write_text(json.dumps(old) + "\n" + json.dumps(old | {"solver": "jtraj"}) + "\n")
     runs = read_runs(tmp_path / RUNS_FILE)
     assert len(runs) == 2  # the two solvers' runs do not collide
@@ -676,3 +680,32 @@ def test_compare_refuses_repeated_tasks_and_parameterizations(tmp_path, fake_sol
     with pytest.raises(ValueError, match=r"^compare: params: 'se3' given 2 times; expected each parameterization once$"):
         compare(["walk"], ["se3", "se3"], out=tmp_path / "out", progress=None)
     assert not fake_solves and not (tmp_path / "out").exists()
+
+
+def test_rows_that_are_not_runs_are_set_aside_with_the_torn_lines(tmp_path, fake_solves, capsys):
+    """Lines that parse but are not runs (not an object, a row without a key field or without a
+    field the tables read) are reported in the torn lines' warning and set aside with them, so
+    their runs are solved again: a row without 'success' crashed Table III with a KeyError,
+    rows without a key field were dropped without a word, and the counts included them."""
+    kw = dict(sigmas=[0.1], replicates=3, seed=4, out=tmp_path)
+    robustness(["walk"], ["se3"], progress=None, **kw)
+    path = tmp_path / RUNS_FILE
+    lines = path.read_text().splitlines()
+    no_key = {k: v for k, v in json.loads(lines[0]).items() if k != "task_hash"}
+    no_success = {k: v for k, v in json.loads(lines[1]).items() if k != "success"}
+    other_seed = json.loads(lines[2]) | {"seed": 5}
+    text = [lines[0], "", "[1, 2]", json.dumps(no_key), json.dumps(no_success), lines[2], json.dumps(other_seed), lines[2][:40]]
+    path.write_text("\n".join(text))
+    fake_solves.clear()
+    capsys.readouterr()
+    stream = io.StringIO()
+    runs = robustness(["walk"], ["se3"], progress=stream, **kw)
+    warning, resuming = stream.getvalue().splitlines()[:2]
+    assert warning == (
+        f"warning: {path}: line(s) [8] did not parse and line(s) [3, 4, 5] are not runs (line 3: a JSON list, not an object; line 4: no 'task_hash'; "
+        f"line 5: no 'success'); the file was moved to {path}.corrupt-1 and its 3 good runs kept"
+    )
+    assert resuming == f"resuming: 2 of this call's 3 runs already in {path}; its 1 runs of other settings are kept"
+    assert [r["replicate"] for r in runs] == [0, 1, 2] and [p for _, p, _ in fake_solves] == ["se3"]  # replicate 1 solved again
+    assert (tmp_path / f"{RUNS_FILE}.corrupt-1").read_text() == "\n".join(text)
+    assert len(path.read_text().splitlines()) == 4 and len(read_runs(path)) == 4

@@ -53,6 +53,7 @@ def test_jsonl_append_and_torn_last_line(tmp_path):
     records, bad = io.read_jsonl(path)
     assert records == [{"i": 0, "x": 0.5}, {"i": 1, "x": None}, {"i": 2, "x": 0.5}]
     assert bad == [4]
+    assert io.read_jsonl_lines(path) == (list(enumerate(records, 1)), [4])  # with their line numbers
 
 
 @pytest.mark.parametrize("last", ['{"i": 0}', '{"i": 0}\n{"i": 1, "x"'])
