@@ -86,12 +86,36 @@ def test_bad_options_fail_at_construction(kwargs, match):
         ({"max_iter": 70_000_000}, r"max_iter=70000000: expected at most 61356674 with max_line_search=30 and max_soc=4"),
         ({"max_iter": 2**31}, r"max_iter=2147483648: expected an integer in \[0, 2147483647\]"),
         ({"lbfgs_memory": 2**40}, "lbfgs_memory=1099511627776: expected an integer in"),
+        # the ranges of the options that follow Ipopt's (they were not checked at all)
+        ({"bound_push": 0.0}, r"bound_push=0.0: expected a number in \(0, inf\)"),
+        ({"bound_frac": 0.6}, r"bound_frac=0.6: expected a number in \(0, 0.5\]"),
+        ({"mu_min": 0.0}, r"mu_min=0.0: expected a number in \(0, inf\)"),
+        ({"kappa_mu": 1.0}, r"kappa_mu=1.0: expected a number in \(0, 1\)"),
+        ({"theta_mu": 2.0}, r"theta_mu=2.0: expected a number in \(1, 2\)"),
+        ({"tau_min": 1.0}, r"tau_min=1.0: expected a number in \(0, 1\)"),
+        ({"kappa_sigma": 0.5}, r"kappa_sigma=0.5: expected a number in \[1, inf\)"),
+        ({"s_max": -1.0}, r"s_max=-1.0: expected a number in \(0, inf\)"),
+        ({"armijo": 0.5}, r"armijo=0.5: expected a number in \(0, 0.5\)"),
+        ({"sigma_min": 10.0, "sigma_max": 1.0}, "sigma_min=10.0: expected at most sigma_max=1.0"),
+        ({"lbfgs_init_min": 2.0, "lbfgs_init_max": 1.0}, "lbfgs_init_min=2.0: expected at most lbfgs_init_max=1.0"),
+        ({"max_line_search_failures": 0}, "max_line_search_failures=0: expected an integer >= 1"),
     ],
 )
 def test_bad_jtraj_options_fail_at_construction(kwargs, match):
     with pytest.raises(InvalidOptionError, match=match):
         IpmOptions(**kwargs)
     IpmOptions(max_iter=61356674)  # the largest the default line search allows
+
+
+def test_jtraj_option_ranges_are_ipopts():
+    from jtraj.solvers import ipopt_catalog
+
+    specs = ipopt_catalog.catalog()
+    for name, (lo, lo_open, hi, hi_open, ipopt_name) in IpmOptions.RANGES.items():
+        spec = specs[ipopt_name]
+        ours = (lo, lo_open, hi, hi_open) if name != "kappa_sigma" else (0.0, True, np.inf, True)  # Ipopt: below 1 turns it off
+        assert ours == (spec.lower, spec.lower_strict, spec.upper, spec.upper_strict), name
+        assert getattr(IpmOptions(), name) == float(spec.default) or name == "armijo", name  # armijo is unused (Ipopt's eta_phi is)
 
 
 def test_stdout_capture_is_one_thread_at_a_time():

@@ -197,7 +197,10 @@ class IpmOptions(AbstractOptions):
             replaced by the accumulated ``c_soc = alpha c_soc + c(trial)``) are tried, while each
             lowers the violation by the factor ``kappa_soc``; then backtracking resumes along
             the original direction. ``max_soc=0`` turns them off.
-        armijo: sufficient-decrease constant of the merit line search.
+        armijo: not used: the filter line search's sufficient-decrease constant is Ipopt's
+            ``eta_phi`` = 1e-8 (`IPM.ETA_PHI`), whatever this is set to. The field is kept
+            (with Ipopt's range for eta_phi) because recorded options (results/) list it;
+            making it effective at its default 1e-4 would change every solve's iterations.
         max_line_search_failures: consecutive failed line searches before giving up.
         bfgs_init: initial element Hessian scale of the BFGS approximation.
         bfgs_scaling: rescale each element's initial matrix by its first curvature pair.
@@ -234,6 +237,35 @@ class IpmOptions(AbstractOptions):
 
     #: the options passed to the compiled program as values (a change does not recompile)
     RUNTIME_FIELDS: ClassVar[tuple[str, ...]] = _Tolerances._fields
+
+    #: the valid ranges of the options that follow Ipopt's: (lower, lower open, upper, upper
+    #: open, Ipopt's name), as the bundled Ipopt lists them (a test compares them with
+    #: `jtraj.solvers.ipopt_catalog`), except kappa_sigma: below 1 Ipopt skips the safeguard,
+    #: whose interval this solver would invert
+    RANGES: ClassVar[dict[str, tuple[float, bool, float, bool, str]]] = {
+        "bound_push": (0.0, True, np.inf, True, "bound_push"),
+        "bound_frac": (0.0, True, 0.5, False, "bound_frac"),
+        "mu_min": (0.0, True, np.inf, True, "mu_min"),
+        "mu_max_fact": (0.0, True, np.inf, True, "mu_max_fact"),
+        "kappa_eps": (0.0, True, np.inf, True, "barrier_tol_factor"),
+        "kappa_mu": (0.0, True, 1.0, True, "mu_linear_decrease_factor"),
+        "theta_mu": (1.0, True, 2.0, True, "mu_superlinear_decrease_power"),
+        "tau_min": (0.0, True, 1.0, True, "tau_min"),
+        "kappa_sigma": (1.0, False, np.inf, True, "kappa_sigma"),
+        "s_max": (0.0, True, np.inf, True, "s_max"),
+        "armijo": (0.0, True, 0.5, True, "eta_phi"),
+        "kappa_soc": (0.0, True, np.inf, True, "kappa_soc"),
+        "sigma_min": (0.0, False, np.inf, True, "sigma_min"),
+        "sigma_max": (0.0, True, np.inf, True, "sigma_max"),
+        "lbfgs_init_val": (0.0, True, np.inf, True, "limited_memory_init_val"),
+        "lbfgs_init_min": (0.0, True, np.inf, True, "limited_memory_init_val_min"),
+        "lbfgs_init_max": (0.0, True, np.inf, True, "limited_memory_init_val_max"),
+        "filter_margin_fact": (0.0, True, 1.0, True, "filter_margin_fact"),
+        "filter_max_margin": (0.0, True, np.inf, True, "filter_max_margin"),
+        "adaptive_mu_kkterror_red_fact": (0.0, True, 1.0, True, "adaptive_mu_kkterror_red_fact"),
+        "adaptive_mu_monotone_init_factor": (0.0, True, np.inf, True, "adaptive_mu_monotone_init_factor"),
+        "quality_function_section_sigma_tol": (0.0, False, 1.0, True, "quality_function_section_sigma_tol"),
+    }
 
     tol: float = 1e-3
     max_iter: int = 200
@@ -320,6 +352,16 @@ class IpmOptions(AbstractOptions):
             if not getattr(self, name) >= 0:
                 raise InvalidOptionError(f"jtraj option {name}={getattr(self, name)!r}: expected a number >= 0")
         _positive(self, "mu_max", "feasibility_polish_tol", allow_none=True)
+        for name, (lo, lo_open, hi, hi_open, _) in self.RANGES.items():
+            value = getattr(self, name)
+            if (value <= lo if lo_open else value < lo) or (value >= hi if hi_open else value > hi):
+                interval = f"{'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
+                raise InvalidOptionError(f"jtraj option {name}={value!r}: expected a number in {interval}")
+        for low, high in (("sigma_min", "sigma_max"), ("lbfgs_init_min", "lbfgs_init_max")):
+            if getattr(self, low) > getattr(self, high):
+                raise InvalidOptionError(f"jtraj option {low}={getattr(self, low)!r}: expected at most {high}={getattr(self, high)!r}")
+        if self.max_line_search_failures < 1:
+            raise InvalidOptionError(f"jtraj option max_line_search_failures={self.max_line_search_failures!r}: expected an integer >= 1")
         per_iteration = self.max_line_search + 1 + self.max_soc
         if (self.max_iter + 1) * per_iteration > _INT32_MAX:  # IPM._max_passes, an int32 loop bound
             raise InvalidOptionError(
