@@ -232,6 +232,11 @@ def solve(
         raise ValueError(f"solve: noise={noise!r}: expected a standard deviation >= 0")
     backend = solvers.get(solver)
     solver_options(backend, options, ipopt_options, exact_hessian, 0)  # the task's limit comes below
+    if isinstance(progress_every, bool) or not isinstance(progress_every, int) or progress_every < 1:
+        raise ValueError(f"solve: progress_every={progress_every!r}: expected an integer >= 1")
+    callback = solvers.resolve_progress(progress, progress_every)
+    if callback is not None and callback.wants_iterates and not backend.reports_iterates:
+        raise ValueError(f"solve: progress={progress!r} records the iterates, which solver={backend.name!r} does not report: record them with solver='ipopt'")
     prep = prepare(task, parameterization, variables)
     tr, nlp = prep.transcription, prep.nlp
     theta_given = theta is not None
@@ -250,7 +255,6 @@ def solve(
     elif noise:
         x0 = x0 + noise * np.random.default_rng(seed).standard_normal(x0.shape)
     opts = solver_options(backend, options, ipopt_options, exact_hessian, tr.task.max_iter)
-    callback = solvers.resolve_progress(progress, progress_every)
     say = callback.write if isinstance(callback, solvers.PrintProgress) else None
     if say is not None:
         say(

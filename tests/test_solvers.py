@@ -178,8 +178,13 @@ def test_solve_refuses_bad_arguments_before_building_anything(monkeypatch):
         ({"ipopt_options": {"max_itr": 3}}, "did you mean max_iter"),
         ({"options": {"tol": -1.0}}, "tol=-1.0: expected a positive number"),
         ({"solver": "snopt"}, "unknown solver 'snopt'"),
+        # progress arguments (they were refused only after the NLP was built)
+        ({"progress_every": 0}, "progress_every=0: expected an integer >= 1"),
+        ({"progress": False, "progress_every": 1.5}, "progress_every=1.5: expected an integer >= 1"),
+        ({"progress": "loud"}, "progress='loud': expected True, False/None, a text stream or an AbstractCallback"),
+        ({"progress": solvers.RecordIterates(), "solver": "jtraj"}, "which solver='jtraj' does not report: record them with solver='ipopt'"),
     ):
-        with pytest.raises(ValueError, match=match):
+        with pytest.raises((ValueError, TypeError), match=match):
             jtraj.solver.solve("big_jump", **kwargs)
 
 

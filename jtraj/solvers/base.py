@@ -352,6 +352,9 @@ class AbstractSolver(abc.ABC):
 
     name: ClassVar[str]
     Options: ClassVar[type[AbstractOptions]]
+    #: whether the callback's ``on_iterate`` gets the iterates (a callback that wants them,
+    #: `RecordIterates`, is refused otherwise)
+    reports_iterates: ClassVar[bool] = True
 
     def options(self, options: AbstractOptions | dict[str, Any] | None = None, **overrides: Any) -> AbstractOptions:
         """The options object from None (defaults), a mapping or an options object, with

@@ -1328,6 +1328,7 @@ class JtrajSolver(AbstractSolver):
 
     name: ClassVar[str] = "jtraj"
     Options: ClassVar[type[AbstractOptions]] = IpmOptions
+    reports_iterates: ClassVar[bool] = False  # one compiled program: no intermediate iterates
 
     @staticmethod
     def ipm(nlp: Any, options: IpmOptions) -> IPM:
@@ -1335,7 +1336,7 @@ class JtrajSolver(AbstractSolver):
         return IPM(nlp, options)
 
     def solve(self, nlp: Any, x0: np.ndarray, theta: Any = None, options: AbstractOptions | dict[str, Any] | None = None, callback: AbstractCallback | None = None) -> Solution:
-        if callback is not None and callback.wants_iterates:
+        if callback is not None and callback.wants_iterates and not self.reports_iterates:
             raise ValueError("jtraj's solver runs as one compiled program and reports no intermediate iterates: record them with solver='ipopt'")
         opts = self.options(options)
         x0 = initial_guess(nlp, x0)
