@@ -437,13 +437,25 @@ def _check_tasks(field: str, text: str, robots: dict[str, str] | None = None) ->
 
     names = _check_names(field, text, tasks.available(), "tasks", allow_files=True)
     checked = [_load_valid_task(name, robots) for name in names]
+    _check_once(field, [t.name for t in checked], "task")  # walk and a .toml of walk, too
     return checked if robots else names
+
+
+def _check_once(field: str, values: list, what: str) -> None:
+    """A sweep's list gives each value once (a repeat would be solved and counted twice)."""
+    seen: set = set()
+    for v in values:
+        if v in seen:
+            raise InputError(field, v, f"{what} given {values.count(v)} times; expected each {what} once", verbatim=False)
+        seen.add(v)
 
 
 def _check_params(field: str, text: str) -> list[str]:
     from jtraj.parameterization import PARAMETERIZATIONS
 
-    return _check_names(field, text, list(PARAMETERIZATIONS), "parameterizations")
+    names = _check_names(field, text, list(PARAMETERIZATIONS), "parameterizations")
+    _check_once(field, names, "parameterization")
+    return names
 
 
 def _check_ipopt(items: list[str] | None, solver: str = "ipopt", field: str = "--ipopt") -> dict[str, Any]:
@@ -526,6 +538,7 @@ def _check_inputs(args: argparse.Namespace) -> None:
             if not (math.isfinite(sigma) and sigma >= 0):
                 raise InputError("--sigmas", text, "expected comma-separated noise levels >= 0, e.g. 1e-6,1e-3,0.1,0.5")
             sigmas.append(sigma)
+        _check_once("--sigmas", sigmas, "noise level")
         args.sigmas_checked = sigmas
         _check_positive_int("--replicates", args.replicates)
         args.ipopt_checked = _check_ipopt(args.ipopt, args.solver)

@@ -61,6 +61,10 @@ def _run(argv, capsys):
         (["solve", "big_jump", "--solver", "jtraj", "--ipopt", "tol=1e-6", "--ipopt", "constr_viol_tol=-1"], "jtraj solve: --ipopt: 'constr_viol_tol=-1': jtraj option constr_viol_tol=-1"),
         (["attitude", "all", "--render"], "jtraj attitude: --render: all: draws one benchmark; give its name"),
         (["robustness", "--tasks", "big_jump", "--ipopt", "max_itr=3"], "jtraj robustness: --ipopt max_itr: 3: unknown Ipopt option; did you mean max_iter"),
+        # a sweep's repeats would be solved and counted twice
+        (["robustness", "--tasks", "big_jump", "--sigmas", "0.1,1e-1"], "jtraj robustness: --sigmas: 0.1: noise level given 2 times; expected each noise level once"),
+        (["compare", "--params", "se3,euler,se3"], "jtraj compare: --params: 'se3': parameterization given 2 times"),
+        (["compare", "--tasks", "walk,big_jump,tasks/walk.toml"], "jtraj compare: --tasks: 'walk': task given 2 times"),
     ],
 )
 def test_bad_command_lines(argv, line, capsys, no_solve):
