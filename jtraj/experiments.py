@@ -19,7 +19,7 @@ import sys
 import zlib
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TextIO
+from typing import Any, TextIO
 
 import jax
 import jax.numpy as jnp
@@ -671,25 +671,37 @@ def plot_iterations(runs: list[dict], path: str | Path) -> None:
 
     summary = summarize_robustness(runs)
     tasks = list(dict.fromkeys(r["task"] for r in summary))
+    # one colour and marker per setting in every panel (a setting with no converged run in one
+    # panel must not shift the others' colours there), and one legend for the figure
+    settings = list(dict.fromkeys((r["parameterization"], _setting(r)) for r in summary))
+    cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    markers = "osD^vP*X"
+    style = {key: dict(color=cycle[i % len(cycle)], marker=markers[i % len(markers)]) for i, key in enumerate(settings)}
+    positive = [r["sigma"] for r in summary if r["sigma"] > 0]
     fig, axes = plt.subplots(1, len(tasks), figsize=(4 * len(tasks), 3.4), squeeze=False)
+    legend: dict[str, Any] = {}
     for ax, task in zip(axes[0], tasks):
-        for p, setting in dict.fromkeys((r["parameterization"], _setting(r)) for r in summary if r["task"] == task):
+        for p, setting in settings:
             rows = [r for r in summary if r["task"] == task and (r["parameterization"], _setting(r)) == (p, setting) and r["iterations_median"] is not None]
             if not rows:
                 continue
             s = np.array([r["sigma"] for r in rows])
             med = np.array([r["iterations_median"] for r in rows])
             label = setting_label(rows[0], summary, PARAMETERIZATIONS[p].label if p in PARAMETERIZATIONS else p)
-            ax.plot(s, med, marker="o", label=label)
-            ax.fill_between(s, [r["iterations_p25"] for r in rows], [r["iterations_p75"] for r in rows], alpha=0.2)
-        ax.set_xscale("log")
+            (line,) = ax.plot(s, med, label=label, **style[(p, setting)])
+            legend.setdefault(label, line)
+            ax.fill_between(s, [r["iterations_p25"] for r in rows], [r["iterations_p75"] for r in rows], alpha=0.2, color=style[(p, setting)]["color"])
+        if len(positive) < len(summary):  # sigma 0 (no noise) has no place on a log axis
+            ax.set_xscale("symlog", linthresh=min(positive, default=1.0))
+        else:
+            ax.set_xscale("log")
         ax.set_title(task)
         ax.set_xlabel("warm-start noise sigma")
         ax.set_ylabel("iterations to convergence")
         if not ax.lines:  # no cell of this task converged: say so rather than leave it blank
             ax.text(0.5, 0.5, "no converged run", transform=ax.transAxes, ha="center", va="center")
-    if axes[0][0].get_legend_handles_labels()[0]:
-        axes[0][0].legend(fontsize=8)
+    if legend:
+        axes[0][0].legend(list(legend.values()), list(legend), fontsize=8)
     fig.tight_layout()
     jio.save_figure(fig, path, dpi=120)
     plt.close(fig)

@@ -279,6 +279,33 @@ def test_summary_keeps_solvers_and_noise_charts_apart(tmp_path, monkeypatch):
     assert [(r["solver"], r["noise_chart"]) for r in summarize_robustness(old)] == [("ipopt", None)]
 
 
+def test_fig2_gives_each_setting_one_colour_in_every_panel(tmp_path, monkeypatch):
+    """Fig. 2: a setting keeps its colour and marker across tasks even where another setting has
+    no converged run (the colours used to follow each panel's own cycle); one legend lists every
+    setting drawn; sigma 0 is drawn (a symmetric log axis), not dropped off a log axis."""
+    import jtraj.experiments as experiments
+    from jtraj.experiments import plot_iterations
+
+    def run(task, p, sigma, converged, iterations):
+        return dict(task=task, parameterization=p, sigma=sigma, converged=converged, constraint_violation=1e-9, success=converged, iterations=iterations)
+
+    runs = [run("walk", p, s, True, 20 + i) for i, p in enumerate(("se3", "quat1", "euler")) for s in (0.0, 0.1)]
+    runs += [run("backflip", "se3", s, True, 30) for s in (0.0, 0.1)] + [run("backflip", "quat1", s, False, 200) for s in (0.0, 0.1)]
+    runs += [run("backflip", "euler", s, True, 40) for s in (0.0, 0.1)]
+    figures = []
+    save = experiments.jio.save_figure
+    monkeypatch.setattr(experiments.jio, "save_figure", lambda fig, path, **k: (figures.append(fig), save(fig, path, **k))[1])
+    plot_iterations(runs, tmp_path / "fig2.png")
+    walk, backflip = figures[0].axes[:2]
+    colour = {line.get_label(): (line.get_color(), line.get_marker()) for line in walk.get_lines()}
+    assert len(set(colour.values())) == 3
+    for line in backflip.get_lines():  # Euler's line on the back-flip is Euler's colour, not Quaternion #1's
+        assert (line.get_color(), line.get_marker()) == colour[line.get_label()]
+    assert [line.get_label() for line in backflip.get_lines()] == [walk.get_lines()[0].get_label(), walk.get_lines()[2].get_label()]
+    assert [t.get_text() for t in walk.get_legend().get_texts()] == list(colour) and backflip.get_legend() is None
+    assert walk.get_xscale() == "symlog" and list(walk.get_lines()[0].get_xdata()) == [0.0, 0.1]
+
+
 #: the result fields of a run that the tables read (`read_runs` sets aside rows without them)
 _RESULT = {"converged": True, "constraint_violation": 0.0, "success": True, "iterations": 12}
 
