@@ -380,8 +380,10 @@ class AbstractSolver(abc.ABC):
         options: AbstractOptions | dict[str, Any] | None = None,
         callback: AbstractCallback | None = None,
     ) -> Solution:
-        """Solve ``nlp`` with parameters ``theta`` from the primal guess ``x0`` (n,) (clipped
-        into the variable bounds)."""
+        """Solve ``nlp`` with parameters ``theta`` (None: ``nlp.theta``) from the primal guess
+        ``x0`` (n,) or (n_knots, nz) (clipped into the variable bounds; another shape is a
+        ValueError, `initial_guess`). A NaN bound is a ValueError; a lower bound above its
+        upper one returns `Status.INVALID_PROBLEM` naming it, before anything compiles."""
 
 
 @dataclasses.dataclass(frozen=True)
