@@ -45,6 +45,11 @@ def test_every_status_has_a_message_and_acceptable_is_not_solved():
     assert Status.SOLVED.converged and Status.ACCEPTABLE.converged and Status.ACCEPTABLE is not Status.SOLVED
     assert not any(s.converged for s in Status if s not in (Status.SOLVED, Status.ACCEPTABLE))
     assert Status("max_iter") is Status.MAX_ITER
+    # the shared status jtraj's line-search failure maps to says what happened in jtraj's solver
+    # (committed runs name it restoration_failed, so the value stays)
+    from jtraj.solvers.ipm import _STATUS, IpmStatus
+
+    assert _STATUS[IpmStatus.LINE_SEARCH_FAILED] is Status.RESTORATION_FAILED and "line search" in Status.RESTORATION_FAILED.message
 
 
 def test_ipopt_return_codes_map_to_the_enumeration():

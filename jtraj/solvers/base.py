@@ -77,7 +77,7 @@ class Status(MessageEnum):
     INFEASIBLE = ("infeasible", "the solver found the constraints locally infeasible; check bounds and targets")
     DIVERGING = ("diverging", "the iterates diverged (an unbounded objective or badly scaled problem)")
     SEARCH_DIRECTION_TOO_SMALL = ("search_direction_too_small", "the search direction became too small to make progress; the tolerance may be too tight")
-    RESTORATION_FAILED = ("restoration_failed", "the feasibility restoration phase failed; try another warm start or scaling")
+    RESTORATION_FAILED = ("restoration_failed", "the feasibility restoration phase failed (Ipopt), or the filter line search failed several times in a row (jtraj's solver, which has no restoration phase); try another warm start or scaling")
     STEP_COMPUTATION_FAILED = ("step_computation_failed", "no step could be computed: a singular or ill-conditioned KKT system, or (Ipopt) a line search that found no acceptable step at an almost feasible point, where Ipopt does not fall back on restoration")
     NUMERICAL_ERROR = ("numerical_error", "a function returned NaN or Inf; check the model near the iterate")
     USER_STOP = ("user_stop", "a callback asked the solver to stop")
