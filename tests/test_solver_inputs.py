@@ -103,3 +103,23 @@ def test_inconsistent_bounds_are_an_invalid_problem_for_both_solvers():
     for s in [ipopt, jt, *batch]:
         assert s.status is Status.INVALID_PROBLEM and first in s.message
     assert len(batch) == 2 and total == compiled == 0.0
+
+
+def test_a_stop_request_jtraj_cannot_honour_warns():
+    """jtraj's solver replays its iterations to the callback after its compiled loop has ended:
+    a callback returning False cannot stop it, and it says so instead of ignoring the request."""
+    from jtraj.solvers.base import AbstractCallback
+
+    class StopAtTwo(AbstractCallback):
+        def __init__(self):
+            self.seen = []
+
+        def on_iteration(self, it):
+            self.seen.append(it.iter)
+            return it.iter < 2
+
+    nlp = speed_limited()
+    stop = StopAtTwo()
+    with pytest.warns(RuntimeWarning, match=r"cannot stop at a callback's request \(iteration 2\)"):
+        solution = solvers.get("jtraj").solve(nlp, np.zeros(nlp.n), nlp.theta, callback=stop)
+    assert stop.seen == [0, 1, 2] and solution.converged  # ran to its own end

@@ -209,7 +209,9 @@ def _positive(options: AbstractOptions, *names: str, allow_none: bool = False) -
 
 class AbstractCallback:
     """Hooks a solver calls: ``on_start`` once, ``on_iteration`` after every iteration (return
-    False to stop the solve with `Status.USER_STOP`), ``on_end`` with the `Solution`.
+    False to stop the solve with `Status.USER_STOP`; jtraj's own solver reports its iterations
+    after its compiled loop has ended, so it cannot stop there and warns), ``on_end`` with the
+    `Solution`.
 
     A callback whose ``wants_iterates`` is True also gets ``on_iterate(it, x)`` with the
     iterate's variables (unscaled, length ``nlp.n``) before ``on_iteration``. Ipopt provides

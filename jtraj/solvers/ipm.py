@@ -74,6 +74,7 @@ import dataclasses
 import enum
 import os
 import time
+import warnings
 from typing import Any, ClassVar, NamedTuple
 
 import jax
@@ -1495,6 +1496,13 @@ class JtrajSolver(AbstractSolver):
         if callback is not None:
             for it in history:
                 if callback.on_iteration(it) is False:
+                    # the iterations are replayed after the compiled loop has ended: too late to stop
+                    warnings.warn(
+                        f"jtraj's solver cannot stop at a callback's request (iteration {it.iter}): it reports its iterations after its compiled loop "
+                        "has run to its own end; stop it by its options (max_iter, tol) or use solver='ipopt'",
+                        RuntimeWarning,
+                        stacklevel=2,
+                    )
                     break
         g = np.asarray(f.constraints(jnp.asarray(x)))
         passes = int(r.passes)
