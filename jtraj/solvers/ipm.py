@@ -190,7 +190,8 @@ class IpmOptions(AbstractOptions):
             ``residual_ratio_singular`` (1e-5, the ratio at which Ipopt deems a solve wrong):
             measured on the six tasks (``bench/options.py``, docs/measurements.md), 1e-10 took
             the same iterations (the handstand one fewer) and made the solves 1.04x to 1.22x as
-            long.
+            long. The step counts differ from Ipopt's (10 and 1); they have not been
+            measured apart from the ratio.
         max_line_search: backtracking steps per iteration.
         max_soc, kappa_soc: Ipopt's second-order corrections: when the first trial point of an
             iteration is rejected and raised the constraint violation, up to ``max_soc``

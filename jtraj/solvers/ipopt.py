@@ -80,8 +80,9 @@ class IpoptOptions(AbstractOptions):
         nlp_scaling_method: Ipopt's ``nlp_scaling_method``.
         acceptable_tol, constr_viol_tol, acceptable_constr_viol_tol: Ipopt's options of those
             names; None leaves Ipopt's default.
-        extra: any other Ipopt option by its Ipopt name (booleans become "yes"/"no"); Ipopt
-            itself checks the names when the solve starts.
+        extra: any other Ipopt option by its Ipopt name (booleans become "yes"/"no"), checked
+            when the options are built against the bundled Ipopt's own option list (names,
+            types, ranges; `jtraj.solvers.ipopt_catalog`).
     """
 
     solver_name: ClassVar[str] = "Ipopt"
