@@ -85,3 +85,24 @@ def pytest_collection_modifyitems(session, config, items):
         return (name == "test_render.py", -FILE_SECONDS.get(name, 0))
 
     items.sort(key=rank)  # stable: the order within a file is kept
+
+
+def fake_peer(folder: Path, body: str, name: str = "peer", executable: bool = True) -> Path:
+    """A fake runner of the paper's public code for the benchmarks' tests: a shell script
+    running ``body``."""
+    path = folder / name
+    path.write_text(f"#!/bin/sh\n{body}\n")
+    path.chmod(0o755 if executable else 0o644)
+    return path
+
+
+def refused(main, argv, capsys, message: str) -> None:
+    """``main(argv)`` (a benchmark's) stops with argparse's one-line error containing
+    ``message``, exit status 2, no traceback."""
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    last = err.strip().splitlines()[-1]
+    assert ": error: " in last and message in last, last

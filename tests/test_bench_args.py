@@ -3,21 +3,11 @@
 work with a function that fails the test if it is called."""
 
 import pytest
-from conftest import bench_module
+from conftest import bench_module, refused
 
 
 def _no_work(*args, **kwargs):
     raise AssertionError("did work after a bad input")
-
-
-def _refused(main, argv, capsys, message):
-    with pytest.raises(SystemExit) as exc:
-        main(argv)
-    assert exc.value.code == 2
-    err = capsys.readouterr().err
-    assert "Traceback" not in err
-    last = err.strip().splitlines()[-1]
-    assert ": error: " in last and message in last, last
 
 
 @pytest.mark.parametrize(
@@ -33,7 +23,7 @@ def test_trace_iterates(monkeypatch, capsys, argv, message):
     mod = bench_module("trace_iterates")
     for name in ("run_peer", "run_jtraj", "peer_iterates"):
         monkeypatch.setattr(mod, name, _no_work)
-    _refused(mod.main, ["backflip", *argv], capsys, message)
+    refused(mod.main, ["backflip", *argv], capsys, message)
 
 
 #: what each script calls to do its work: replaced by `_no_work` (a dotted name: in jtraj)
@@ -95,7 +85,7 @@ UNKNOWN_TASK = "unknown task; expected one of ['backflip', 'big_jump',"
     ],
 )
 def test_tasks_parameterizations_and_variables_are_checked(monkeypatch, capsys, script, argv, message):
-    _refused(_without_work(monkeypatch, script).main, argv, capsys, message)
+    refused(_without_work(monkeypatch, script).main, argv, capsys, message)
 
 
 @pytest.mark.parametrize(
@@ -126,7 +116,7 @@ def test_tasks_parameterizations_and_variables_are_checked(monkeypatch, capsys, 
     ],
 )
 def test_lists_and_counts_are_checked(monkeypatch, capsys, script, argv, message):
-    _refused(_without_work(monkeypatch, script).main, argv, capsys, message)
+    refused(_without_work(monkeypatch, script).main, argv, capsys, message)
 
 
 @pytest.mark.parametrize(
@@ -140,4 +130,4 @@ def test_lists_and_counts_are_checked(monkeypatch, capsys, script, argv, message
 )
 def test_quaternion_noise_checks_every_parameterization_and_mode_first(monkeypatch, capsys, argv, message):
     """The pairs were checked in `run`, after the first parameterization's compile and solves."""
-    _refused(_without_work(monkeypatch, "quaternion_noise").main, argv, capsys, message)
+    refused(_without_work(monkeypatch, "quaternion_noise").main, argv, capsys, message)

@@ -6,19 +6,12 @@ import json
 from pathlib import Path
 
 import pytest
-from conftest import bench_module
+from conftest import bench_module, fake_peer, refused
 
 
 @pytest.fixture(scope="module")
 def sbs():
     return bench_module("side_by_side")
-
-
-def _peer(folder: Path, body: str, name: str = "peer", executable: bool = True) -> Path:
-    path = folder / name
-    path.write_text(f"#!/bin/sh\n{body}\n")
-    path.chmod(0o755 if executable else 0o644)
-    return path
 
 
 def _no_solve(*args, **kwargs):
@@ -34,14 +27,14 @@ def test_a_failed_peer_solve_is_retried_and_exits_nonzero(sbs, monkeypatch, tmp_
     out = tmp_path / "out"
     argv = ["--tasks", "walk,big_jump", "--variables", "", "--out", str(out)]
     # the runner fails on walk only
-    flaky = _peer(tmp_path, 'if [ "$1" = walk ]; then echo boom >&2; exit 3; fi\necho \'{"status": 0, "iterations": 11, "time_s": 2.0}\'')
+    flaky = fake_peer(tmp_path, 'if [ "$1" = walk ]; then echo boom >&2; exit 3; fi\necho \'{"status": 0, "iterations": 11, "time_s": 2.0}\'')
     with pytest.raises(SystemExit) as exc:
         sbs.main([*argv, "--peer", str(flaky)])
     assert exc.value.code == "bench/side_by_side.py: 1 solve(s) failed, their rows say error in " + f"{out / 'side_by_side.json'}; run again to retry them: paper on walk (sigma 0, seed 0)"
     assert "paper on walk (sigma 0, seed 0) failed: boom" in capsys.readouterr().err
     assert [(r["task"], r["status"]) for r in _rows(out)] == [("walk", "error"), ("big_jump", 0)]
     # the next run solves walk again (big_jump is done), and its row replaces the error row in place
-    ok = _peer(tmp_path, 'echo "$1" >> "$(dirname "$0")/calls"\necho \'{"status": 0, "iterations": 14, "time_s": 1.0}\'', name="ok")
+    ok = fake_peer(tmp_path, 'echo "$1" >> "$(dirname "$0")/calls"\necho \'{"status": 0, "iterations": 14, "time_s": 1.0}\'', name="ok")
     sbs.main([*argv, "--peer", str(ok)])
     calls = (tmp_path / "calls").read_text().split()
     assert calls == ["walk"]
@@ -51,19 +44,10 @@ def test_a_failed_peer_solve_is_retried_and_exits_nonzero(sbs, monkeypatch, tmp_
 
 @pytest.mark.parametrize(("body", "printed"), [("echo '{not json'", "'{not json'"), ("echo hello", "'hello'"), ("echo '{\"foo\": 1}'", "'{\"foo\": 1}'"), ("true", "''")])
 def test_unparsable_peer_output_stops_with_one_line(sbs, tmp_path, body, printed):
-    peer = _peer(tmp_path, body)
+    peer = fake_peer(tmp_path, body)
     with pytest.raises(SystemExit) as exc:
         sbs.run_peer(peer, "walk", 0.0, 0)
     assert exc.value.code == f"bench/side_by_side.py: the paper code's runner {peer} walk printed {printed}; expected a JSON line with status and iterations"
-
-
-def _refused(sbs, argv, capsys, message):
-    with pytest.raises(SystemExit) as exc:
-        sbs.main(argv)
-    assert exc.value.code == 2
-    err = capsys.readouterr().err
-    assert "Traceback" not in err
-    assert message in err.strip().splitlines()[-1]
 
 
 @pytest.mark.parametrize(
@@ -85,8 +69,8 @@ def _refused(sbs, argv, capsys, message):
 def test_bad_arguments_are_refused_before_any_solve(sbs, monkeypatch, tmp_path, capsys, argv, message):
     for name in ("run_peer", "run_peer_checked", "run_jtraj", "peer_iterates"):
         monkeypatch.setattr(sbs, name, _no_solve)
-    peer = _peer(tmp_path, "exit 1")
-    _refused(sbs, ["--peer", str(peer), "--out", str(tmp_path / "out"), *argv], capsys, message)
+    peer = fake_peer(tmp_path, "exit 1")
+    refused(sbs.main, ["--peer", str(peer), "--out", str(tmp_path / "out"), *argv], capsys, message)
     assert not (tmp_path / "out" / "side_by_side.json").exists()
 
 
@@ -94,6 +78,6 @@ def test_bad_arguments_are_refused_before_any_solve(sbs, monkeypatch, tmp_path, 
 def test_a_peer_that_cannot_run_is_refused(sbs, monkeypatch, tmp_path, capsys, kind):
     for name in ("run_peer", "run_peer_checked", "run_jtraj"):
         monkeypatch.setattr(sbs, name, _no_solve)
-    peer = tmp_path / "nothing" if kind == "missing" else _peer(tmp_path, "exit 0", executable=False)
-    _refused(sbs, ["--peer", str(peer), "--out", str(tmp_path / "out")], capsys, f"--peer: '{peer}': expected the path of the paper code's executable runner")
+    peer = tmp_path / "nothing" if kind == "missing" else fake_peer(tmp_path, "exit 0", executable=False)
+    refused(sbs.main, ["--peer", str(peer), "--out", str(tmp_path / "out")], capsys, f"--peer: '{peer}': expected the path of the paper code's executable runner")
 

@@ -7,7 +7,7 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
-from conftest import bench_module
+from conftest import bench_module, fake_peer, refused
 
 
 class _Stop(Exception):
@@ -30,14 +30,6 @@ def test_a_missing_default_peer_is_announced(monkeypatch, capsys, argv, warned):
     assert (f"no peer: the paper's public code is not at {missing}" in err) == warned
 
 
-def _peer(folder: Path, body: str, name: str = "peer", executable: bool = True) -> Path:
-    """A fake runner of the public code: a shell script running ``body``."""
-    path = folder / name
-    path.write_text(f"#!/bin/sh\n{body}\n")
-    path.chmod(0o755 if executable else 0o644)
-    return path
-
-
 def _no_solve(*args, **kwargs):
     raise AssertionError("solved, compiled or ran the peer after a bad input")
 
@@ -54,7 +46,7 @@ def test_repeats_alternate_and_report_the_medians(monkeypatch, capsys, tmp_path)
     peer_times = iter([14.0, 11.0, 20.0])
     jtraj_times = iter([2.0, 1.0, 1.2])
 
-    def fake_peer(peer, task):
+    def peer_run(peer, task):
         calls.append("peer")
         return dict(iterations=11, time_s=next(peer_times), status=0, obj=0.0, cons=1e-6)
 
@@ -66,10 +58,10 @@ def test_repeats_alternate_and_report_the_medians(monkeypatch, capsys, tmp_path)
         class nlp:
             n, m = 10, 5
 
-    monkeypatch.setattr(solve, "run_peer", fake_peer)
+    monkeypatch.setattr(solve, "run_peer", peer_run)
     monkeypatch.setattr(solve, "run_variant", fake_variant)
     monkeypatch.setattr(solve, "prepare", lambda *a, **k: _Prep)
-    peer = _peer(tmp_path, "exit 1")  # main() checks that it is an executable file; fake_peer runs instead
+    peer = fake_peer(tmp_path, "exit 1")  # main() checks that it is an executable file; peer_run runs instead
     solve.main(["big_jump", "--variants", "jtraj", "--peer", str(peer), "--repeat", "3", "--out", str(tmp_path / "out")])
     assert calls == ["peer", "jtraj"] * 3
     records = json.loads((tmp_path / "out" / "speed.json").read_text())
@@ -106,7 +98,7 @@ def test_a_peer_that_prints_no_record_stops_with_one_line(tmp_path, output, expe
     """Bad output of the runner: one line naming it, the task and what it printed, no traceback
     (SystemExit's message is printed as it is, exit status 1)."""
     solve = bench_module("solve")
-    peer = _peer(tmp_path, output)
+    peer = fake_peer(tmp_path, output)
     with pytest.raises(SystemExit) as exc:
         solve.run_peer(str(peer), "big_jump")
     message = str(exc.value.code)
@@ -116,7 +108,7 @@ def test_a_peer_that_prints_no_record_stops_with_one_line(tmp_path, output, expe
 
 def test_a_peer_record_is_returned(tmp_path):
     solve = bench_module("solve")
-    peer = _peer(tmp_path, 'echo "log line"; echo \'{"iterations": 5, "time_s": 1.5, "status": 0}\'')
+    peer = fake_peer(tmp_path, 'echo "log line"; echo \'{"iterations": 5, "time_s": 1.5, "status": 0}\'')
     assert solve.run_peer(str(peer), "big_jump") == {"iterations": 5, "time_s": 1.5, "status": 0}
 
 
@@ -124,7 +116,7 @@ def test_bad_peer_output_stops_before_jtraj_solves(monkeypatch, tmp_path):
     solve = bench_module("solve")
     for name in ("prepare", "solve", "run_variant"):
         monkeypatch.setattr(solve, name, _no_solve)
-    peer = _peer(tmp_path, "echo '{not json'")
+    peer = fake_peer(tmp_path, "echo '{not json'")
     with pytest.raises(SystemExit, match=re.escape("printed '{not json'")):
         solve.main(["big_jump", "--variants", "jtraj", "--peer", str(peer)])
 
@@ -152,15 +144,6 @@ def test_ipopt_options_may_raise_the_print_level(monkeypatch, extra, expected):
     assert rec["variant"] == "paper" and rec["iterations"] == 3
 
 
-def _refused(solve, argv, capsys, message):
-    with pytest.raises(SystemExit) as exc:
-        solve.main(argv)
-    assert exc.value.code == 2
-    err = capsys.readouterr().err
-    assert "Traceback" not in err
-    assert message in err.strip().splitlines()[-1]
-
-
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
@@ -175,8 +158,8 @@ def test_bad_options_are_refused_before_any_work(monkeypatch, capsys, tmp_path, 
     solve = bench_module("solve")
     for name in ("prepare", "solve", "run_variant", "run_peer"):
         monkeypatch.setattr(solve, name, _no_solve)
-    peer = _peer(tmp_path, "exit 1")
-    _refused(solve, ["big_jump", "--peer", str(peer), *argv], capsys, message)
+    peer = fake_peer(tmp_path, "exit 1")
+    refused(solve.main, ["big_jump", "--peer", str(peer), *argv], capsys, message)
 
 
 @pytest.mark.parametrize("kind", ["missing", "not executable", "folder"])
@@ -184,5 +167,5 @@ def test_a_peer_that_cannot_run_is_refused_before_any_work(monkeypatch, capsys, 
     solve = bench_module("solve")
     for name in ("prepare", "solve", "run_variant", "run_peer"):
         monkeypatch.setattr(solve, name, _no_solve)
-    peer = {"missing": tmp_path / "nothing", "not executable": _peer(tmp_path, "exit 0", executable=False), "folder": tmp_path}[kind]
-    _refused(solve, ["big_jump", "--peer", str(peer)], capsys, f"--peer: '{peer}': expected the path of an executable runner (run as PEER TASK)")
+    peer = {"missing": tmp_path / "nothing", "not executable": fake_peer(tmp_path, "exit 0", executable=False), "folder": tmp_path}[kind]
+    refused(solve.main, ["big_jump", "--peer", str(peer)], capsys, f"--peer: '{peer}': expected the path of an executable runner (run as PEER TASK)")
