@@ -18,9 +18,11 @@ U_MAX = 0.6
 V_MAX = 0.35
 
 
-def double_integrator() -> KnotNLP:
+def double_integrator(speed_lower=None, speed_upper=None, theta=None) -> KnotNLP:
     """Move a unit mass from p=0 to p=1 at rest in (K-1) h seconds with least effort,
-    |u| <= U_MAX (a variable bound) and v <= V_MAX (an inequality row): both become active."""
+    |u| <= U_MAX (a variable bound) and v <= V_MAX (an inequality row): both become active.
+    ``speed_lower``/``speed_upper`` replace the speed row's bounds (arrays, or functions of
+    ``theta``, the NLP's parameters)."""
     layout = Layout((("p", 1), ("v", 1), ("u", 1)))
     pairs = np.arange(K - 1)
 
@@ -31,7 +33,8 @@ def double_integrator() -> KnotNLP:
         ConstraintGroup("dynamics", (Dep("p"), Dep("v"), Dep("u"), Dep("p", 1), Dep("v", 1)), step, pairs,
                         np.zeros((K - 1, 2)), np.zeros((K - 1, 2)), np.ones((K - 1, 2), bool)),
         ConstraintGroup("speed", (Dep("v"),), lambda theta, data, v: v, np.arange(K),
-                        np.full((K, 1), -np.inf), np.full((K, 1), V_MAX), np.ones((K, 1), bool)),
+                        np.full((K, 1), -np.inf) if speed_lower is None else speed_lower,
+                        np.full((K, 1), V_MAX) if speed_upper is None else speed_upper, np.ones((K, 1), bool)),
     ]
     costs = [CostGroup("effort", (Dep("u"),), lambda theta, data, u: 0.5 * jnp.sum(u**2), np.arange(K))]
     lower = np.tile([-np.inf, -np.inf, -U_MAX], (K, 1))
@@ -39,7 +42,7 @@ def double_integrator() -> KnotNLP:
     lower[0] = upper[0] = [0.0, 0.0, 0.0]
     lower[-1, :2] = upper[-1, :2] = [1.0, 0.0]
     lower[-1, 2] = upper[-1, 2] = 0.0
-    return KnotNLP(layout, K, costs, groups, lower, upper)
+    return KnotNLP(layout, K, costs, groups, lower, upper, theta=theta)
 
 
 @pytest.fixture(scope="module")

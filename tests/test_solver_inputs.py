@@ -5,35 +5,18 @@ jtraj's solver too. Tiny knot problems (tests/test_ipm.py's double integrator)."
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from test_ipm import H_STEP, U_MAX, K, double_integrator
+from test_ipm import K, double_integrator
 
 from jtraj import solvers
-from jtraj.nlp import ConstraintGroup, CostGroup, Dep, KnotNLP, Layout
+from jtraj.nlp import KnotNLP
 from jtraj.solvers import Status
 from jtraj.solvers.base import bind
 
 
 def speed_limited(theta=None) -> KnotNLP:
     """The double integrator with its speed limits as parameters vmin <= v <= vmax."""
-    layout = Layout((("p", 1), ("v", 1), ("u", 1)))
-
-    def step(theta, data, p, v, u, p1, v1):
-        return jnp.concatenate([p1 - p - H_STEP * v1, v1 - v - H_STEP * u])
-
-    groups = [
-        ConstraintGroup("dynamics", (Dep("p"), Dep("v"), Dep("u"), Dep("p", 1), Dep("v", 1)), step, np.arange(K - 1),
-                        np.zeros((K - 1, 2)), np.zeros((K - 1, 2)), np.ones((K - 1, 2), bool)),
-        ConstraintGroup("speed", (Dep("v"),), lambda theta, data, v: v, np.arange(K),
-                        lambda th: th["vmin"] * jnp.ones((K, 1)), lambda th: th["vmax"] * jnp.ones((K, 1)), np.ones((K, 1), bool)),
-    ]
-    costs = [CostGroup("effort", (Dep("u"),), lambda theta, data, u: 0.5 * jnp.sum(u**2), np.arange(K))]
-    lower = np.tile([-np.inf, -np.inf, -U_MAX], (K, 1))
-    upper = np.tile([np.inf, np.inf, U_MAX], (K, 1))
-    lower[0] = upper[0] = [0.0, 0.0, 0.0]
-    lower[-1, :2] = upper[-1, :2] = [1.0, 0.0]
-    lower[-1, 2] = upper[-1, 2] = 0.0
     theta = {"vmin": jnp.asarray(-1.0), "vmax": jnp.asarray(0.35)} if theta is None else theta
-    return KnotNLP(layout, K, costs, groups, lower, upper, theta=theta)
+    return double_integrator(lambda th: th["vmin"] * jnp.ones((K, 1)), lambda th: th["vmax"] * jnp.ones((K, 1)), theta)
 
 
 def no_program(nlp: KnotNLP) -> bool:
@@ -108,15 +91,7 @@ def test_inconsistent_bounds_are_an_invalid_problem_for_both_solvers():
 def test_a_stop_request_jtraj_cannot_honour_warns():
     """jtraj's solver replays its iterations to the callback after its compiled loop has ended:
     a callback returning False cannot stop it, and it says so instead of ignoring the request."""
-    from jtraj.solvers.base import AbstractCallback
-
-    class StopAtTwo(AbstractCallback):
-        def __init__(self):
-            self.seen = []
-
-        def on_iteration(self, it):
-            self.seen.append(it.iter)
-            return it.iter < 2
+    from test_solvers import StopAtTwo
 
     nlp = speed_limited()
     stop = StopAtTwo()

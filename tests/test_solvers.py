@@ -226,15 +226,18 @@ def test_ipopt_solution_multipliers_satisfy_stationarity(walk_nlp):
     assert s.time_evaluations > 0.0  # time_solver = time_total - time_evaluations by definition
 
 
+class StopAtTwo(AbstractCallback):
+    """Records the iterations it sees and asks to stop at iteration 2."""
+
+    def __init__(self):
+        self.seen = []
+
+    def on_iteration(self, it):
+        self.seen.append(it.iter)
+        return it.iter < 2
+
+
 def test_callback_can_stop_the_solve(walk_nlp):
-    class StopAtTwo(AbstractCallback):
-        def __init__(self):
-            self.seen = []
-
-        def on_iteration(self, it):
-            self.seen.append(it.iter)
-            return it.iter < 2
-
     cb = StopAtTwo()
     sol = IpoptSolver().solve(walk_nlp, np.zeros(walk_nlp.n), None, IpoptOptions(tol=1e-12), cb)
     assert sol.status is Status.USER_STOP and not sol.converged
