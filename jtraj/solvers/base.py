@@ -47,6 +47,7 @@ __all__ = [
     "EvaluationTimer",
     "BoundNLP",
     "bind",
+    "guess_shapes",
     "initial_guess",
     "invalid_problem",
 ]
@@ -424,26 +425,33 @@ def _checked(f: BoundNLP) -> BoundNLP:
     return f
 
 
-def initial_guess(nlp: Any, x0: Any, name: str = "x0") -> np.ndarray:
-    """``x0`` as the (n,) vector of ``nlp``'s variables, from shape (n,) or, for a knot NLP,
-    (n_knots, nz); any other shape (a scalar or one value would be broadcast by the clip into
-    the bounds) raises ValueError naming ``name`` before anything compiles."""
-    x = np.asarray(x0, float)
+def guess_shapes(nlp: Any) -> list[tuple[int, ...]]:
+    """The shapes an initial guess of ``nlp`` may take: (n,) and, for a knot NLP, (n_knots, nz)."""
     n = int(nlp.n)
     shapes: list[tuple[int, ...]] = [(n,)]
     knots, nz = getattr(nlp, "n_knots", None), getattr(nlp, "nz", None)
     if isinstance(knots, int) and isinstance(nz, int) and knots * nz == n:
         shapes.append((knots, nz))
+    return shapes
+
+
+def initial_guess(nlp: Any, x0: Any, name: str = "x0") -> np.ndarray:
+    """``x0`` as the (n,) vector of ``nlp``'s variables, from one of `guess_shapes`; any other
+    shape (a scalar or one value would be broadcast by the clip into the bounds) raises
+    ValueError naming ``name`` before anything compiles."""
+    x = np.asarray(x0, float)
+    shapes = guess_shapes(nlp)
     if x.shape not in shapes:
-        raise ValueError(f"{name} of shape {x.shape}: expected {' or '.join(str(s) for s in shapes)} (the NLP's {n} variables)")
+        raise ValueError(f"{name} of shape {x.shape}: expected {' or '.join(str(s) for s in shapes)} (the NLP's {nlp.n} variables)")
     return x.reshape(-1)
 
 
-def invalid_problem(f: BoundNLP, x0: np.ndarray, message: str, m: int) -> Solution:
+def invalid_problem(f: BoundNLP, x0: np.ndarray, message: str, m: int, nlp: Any = None, callback: AbstractCallback | None = None) -> Solution:
     """The `Solution` of a problem refused before its solve (`Status.INVALID_PROBLEM`, as
-    Ipopt returns it): ``x0`` (n,) as it was given, nothing evaluated."""
+    Ipopt returns it): ``x0`` (n,) as it was given, nothing evaluated. A ``callback`` gets its
+    start (with ``nlp``) and this end, as after a solve."""
     n = len(x0)
-    return Solution(
+    solution = Solution(
         x=np.asarray(x0, float),
         status=Status.INVALID_PROBLEM,
         message=message,
@@ -454,6 +462,10 @@ def invalid_problem(f: BoundNLP, x0: np.ndarray, message: str, m: int) -> Soluti
         mult_x_upper=np.zeros(n),
         stats=Stats(),
     )
+    if callback is not None:
+        callback.on_start(nlp)
+        callback.on_end(solution)
+    return solution
 
 
 def bind(nlp: Any, theta: Any = None) -> BoundNLP:

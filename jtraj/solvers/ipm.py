@@ -95,6 +95,7 @@ from jtraj.solvers.base import (
     Status,
     _positive,
     bind,
+    guess_shapes,
     initial_guess,
     invalid_problem,
     max_violation,
@@ -1347,11 +1348,7 @@ class JtrajSolver(AbstractSolver):
         f = bind(nlp, theta)
         problem = f.inconsistent()
         if problem is not None:  # as Ipopt returns it, before anything compiles
-            solution = invalid_problem(f, x0, problem, len(f.g_lower))
-            if callback is not None:
-                callback.on_start(nlp)
-                callback.on_end(solution)
-            return solution
+            return invalid_problem(f, x0, problem, len(f.g_lower), nlp, callback)
         ipm = self.ipm(nlp, opts)
         if callback is not None:
             callback.on_start(nlp)
@@ -1423,7 +1420,7 @@ class JtrajSolver(AbstractSolver):
         opts = self.options(options)
         x0s = np.asarray(x0s, float)
         n = int(nlp.n)
-        shapes = [(n,)] + ([(nlp.n_knots, nlp.nz)] if hasattr(nlp, "n_knots") else [])
+        shapes = guess_shapes(nlp)
         if x0s.ndim < 2 or len(x0s) < 1 or x0s.shape[1:] not in shapes:
             raise ValueError(f"solve_batch: x0s of shape {x0s.shape}: expected B >= 1 initial guesses, of shape " + " or ".join("(B, " + ", ".join(map(str, shape)) + ")" for shape in shapes))
         x0s = x0s.reshape(len(x0s), n)

@@ -260,11 +260,7 @@ class IpoptSolver(AbstractSolver):
         f = bind(nlp, theta)
         problem_text = f.inconsistent()
         if problem_text is not None:  # Ipopt's INVALID_PROBLEM, with the bound named
-            solution = invalid_problem(f, x0, problem_text, nlp.m)
-            if callback is not None:
-                callback.on_start(nlp)
-                callback.on_end(solution)
-            return solution
+            return invalid_problem(f, x0, problem_text, nlp.m, nlp, callback)
         exact = opts.hessian == "exact"
         if exact:
             nlp.build_hessian()
