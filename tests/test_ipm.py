@@ -127,7 +127,7 @@ def test_quality_function_and_loqo_oracles_reach_the_same_solution(toy):
     assert len(mu_qf) != len(mu_loqo) or not np.allclose(mu_qf, mu_loqo)
     # the first direction: mu = sigma avg(d z) with sigma in [sigma_min, sigma_max]
     p, st = qf._start(jnp.zeros((K, 3)), None)
-    st, _ = qf._iteration(p, st, jnp.zeros((), jnp.int32), None)
+    st, _ = qf._iteration(p, st, jnp.zeros((2,), jnp.int32), None)  # (values, derivatives) so far
     avg = float(qf._complementarity(p, st)[0])
     assert bool(st.free_mode) and qf.options.sigma_min * avg <= float(st.mu) <= qf.options.sigma_max * avg
     with pytest.raises(solvers.InvalidOptionError, match="mu_oracle"):
@@ -204,6 +204,8 @@ def test_vmap_keeps_members_line_searches_apart():
         np.testing.assert_allclose(float(batched.objective[i]), float(one.objective), rtol=1e-6)
         np.testing.assert_allclose(np.asarray(batched.x[i]), np.asarray(one.x), atol=3e-4)
         backtracks.append(int(batched.passes[i]) - int(batched.iterations[i]))
+        # derivatives come only at accepted points: the initial point and one per iteration
+        assert int(batched.derivative_passes[i]) == int(batched.iterations[i]) + 1
     assert max(backtracks) > 10 and min(backtracks) == 1  # (the first evaluation is not an iteration)
     assert len({int(i) for i in batched.iterations}) > 1  # each member stopped at its own iteration
 
@@ -224,10 +226,11 @@ def test_negative_curvature_goes_through_inertia_correction():
     # iteration by iteration: once the barrier's curvature no longer outweighs -I, the Newton
     # matrices need delta_w > 0 (measured 2026-12-04: from the second iteration to the eleventh)
     p, st = ipm._start(z0, None)
-    step = jax.jit(lambda st, n: ipm._iteration(p, st, n, None)[0])
+    step = jax.jit(lambda st, passes: ipm._iteration(p, st, passes, None))
     delta_w = []
-    for n in range(100):
-        st = step(st, jnp.asarray(n, jnp.int32))
+    passes = jnp.zeros((2,), jnp.int32)  # (values, derivatives) evaluated so far
+    for _ in range(100):
+        st, passes = step(st, passes)
         delta_w.append(float(st.delta_w))
         if int(st.status) != IpmStatus.RUNNING:
             break
@@ -309,6 +312,11 @@ def test_registered_backend_returns_the_shared_solution(toy):
     sol = backend.solve(nlp, np.zeros(nlp.n), None, opts)
     assert sol.status is solvers.Status.SOLVED and sol.converged
     assert sol.constraint_violation < 1e-7 and sol.stats.iterations == len(sol.history) - 1
+    # values at the initial point and every trial, derivatives at the initial point and every
+    # accepted one (a converged solve accepts one point per iteration)
+    st = sol.stats
+    assert st.grad_evals == st.jac_evals == st.iterations + 1 and st.obj_evals == st.con_evals >= st.grad_evals
+    assert st.hess_evals == 0  # L-BFGS, the default
     assert sol.mult_g.shape == (nlp.m,)
     # the multipliers satisfy stationarity: grad f + J^T y - z_L + z_U = 0 on the free variables
     r = np.asarray(nlp.gradient(sol.x, None)) + nlp.dense_jacobian(sol.x).T @ sol.mult_g - sol.mult_x_lower + sol.mult_x_upper

@@ -395,8 +395,10 @@ class IpmResult(NamedTuple):
         z_lower, z_upper: (K, n) bound multipliers.
         status: `IpmStatus` code.
         iterations, objective, constr_viol (unscaled, original bounds), dual_inf, compl,
-        error (scaled optimality error), mu, passes (NLP evaluations: iterations plus
-        backtracking steps).
+        error (scaled optimality error), mu, passes (evaluations of the objective and
+        constraints: the initial point and every line-search trial), derivative_passes
+        (evaluations of the gradient and Jacobian, and of the Hessian with ``hessian="exact"``:
+        one at the initial point and one at each accepted point).
         history: (max_iter + 1, 5) per iteration: objective, constr_viol, dual_inf, log10 mu,
             primal step size (NaN after the last iteration).
     """
@@ -414,6 +416,7 @@ class IpmResult(NamedTuple):
     error: jax.Array
     mu: jax.Array
     passes: jax.Array
+    derivative_passes: jax.Array
     history: jax.Array
 
 
@@ -785,11 +788,12 @@ class IPM:
         return p, st
 
     def _finish(self, p: _Problem, st: _State, passes: jax.Array) -> IpmResult:
+        """The result of the state; ``passes`` is the (values, derivatives) evaluation count."""
         err, dual_inf, _, compl = self._error(p, st, 0.0)
         return IpmResult(
             x=st.x, y=st.y, z_lower=st.zl, z_upper=st.zu, status=st.status, iterations=st.it,
             objective=st.f, constr_viol=self._constr_viol(p, st.c), dual_inf=dual_inf, compl=compl,
-            error=err, mu=st.mu, passes=passes, history=st.history,
+            error=err, mu=st.mu, passes=passes[0], derivative_passes=passes[1], history=st.history,
         )
 
     def _solve(self, x0: jax.Array, theta: Any, tols: _Tolerances) -> IpmResult:
@@ -797,16 +801,18 @@ class IPM:
 
         def cond(carry):
             st, passes = carry
-            return (st.status == int(IpmStatus.RUNNING)) & (passes < self._max_passes)
+            return (st.status == int(IpmStatus.RUNNING)) & (passes[0] < self._max_passes)
 
         o = self.options
+        # evaluations so far: (objective and constraints, their derivatives)
+        none = jnp.zeros((2,), jnp.int32)
         if o.feasibility_polish_tol is None:
 
             def body(carry):
                 st, passes = carry
                 return self._iteration(p, st, passes, theta)
 
-            st, passes = lax.while_loop(cond, body, (st, jnp.zeros((), jnp.int32)))
+            st, passes = lax.while_loop(cond, body, (st, none))
             return self._finish(p, st, passes)
 
         # feasibility polish (IpmOptions.feasibility_polish_tol): from the first converged
@@ -833,7 +839,7 @@ class IPM:
             return new._replace(status=jnp.where(more, running, new.status).astype(jnp.int32)), passes, saved, polishing, start
 
         st, passes, saved, polishing, _ = lax.while_loop(
-            lambda carry: cond(carry[:2]), polish_body, (st, jnp.zeros((), jnp.int32), st, jnp.asarray(False), jnp.zeros((), jnp.int32))
+            lambda carry: cond(carry[:2]), polish_body, (st, none, st, jnp.asarray(False), jnp.zeros((), jnp.int32))
         )
         # polished to the limit without reaching the tolerance: the converged iterate of lower
         # violation (the loop also ends, RUNNING, when the evaluation bound is reached)
@@ -842,7 +848,8 @@ class IPM:
 
     @property
     def _max_passes(self) -> int:
-        """Bound on NLP evaluations: every iteration's full line search."""
+        """Bound on evaluations of the objective and constraints: every iteration's full line
+        search."""
         return (self.options.max_iter + 1) * (self.options.max_line_search + 1 + self.options.max_soc)
 
     FILTER_SIZE = 64
@@ -860,7 +867,8 @@ class IPM:
         Only an accepted point needs the Jacobian, so a rejected trial costs one evaluation of
         the objective and constraints. Under ``vmap`` the line search is its own loop, so the
         derivatives and the Newton step run once per iteration for the whole batch, not once per
-        trial of its slowest member (a batched ``cond`` computes both branches)."""
+        trial of its slowest member (a batched ``cond`` computes both branches). ``passes``
+        counts the evaluations so far, (objective and constraints, their derivatives)."""
         o = self.options
         K, m = self.view.K, self.view.m
         zero = jnp.zeros(())
@@ -874,7 +882,7 @@ class IPM:
 
         def trial_cond(ls):
             status, done, passes = ls[2], ls[8], ls[11]
-            return (~done) & (status == int(IpmStatus.RUNNING)) & (passes < self._max_passes)
+            return (~done) & (status == int(IpmStatus.RUNNING)) & (passes[0] < self._max_passes)
 
         def trial_body(ls):
             alpha, trials, status, *_, passes, soc = ls
@@ -917,7 +925,7 @@ class IPM:
             back = ~advance & ~do_soc
             alpha = jnp.where(back, 0.5 * alpha, alpha)
             trials = jnp.where(back, trials + 1, trials).astype(jnp.int32)
-            return (alpha, trials, status, xt, s_t, ft, ct, th_t, advance, f_type & armijo, give_up & ~st.first, passes + 1, soc)
+            return (alpha, trials, status, xt, s_t, ft, ct, th_t, advance, f_type & armijo, give_up & ~st.first, passes.at[0].add(1), soc)
 
         alpha, trials, status, xt, s_t, ft, ct, th_t, done, f_step, failed, passes, soc = lax.while_loop(trial_cond, trial_body, init)
         # the accepted point came from a correction: its step is the one taken (primal length
@@ -934,7 +942,7 @@ class IPM:
             gt, Jt = self.view.derivatives(xt, theta)
             return self._advance(p, st, (xt, s_t, ft, ct, gt, Jt, th_t), f_step, failed, theta)
 
-        return lax.cond(done, accepted, lambda st: st, st), passes
+        return lax.cond(done, accepted, lambda st: st, st), passes.at[1].add(done.astype(jnp.int32))
 
     def _advance(self, p: _Problem, st: _State, trial, f_step, failed, theta) -> _State:
         """Accept the trial point: update multipliers, Hessian, filter, barrier; test
@@ -1503,7 +1511,7 @@ class JtrajSolver(AbstractSolver):
                     )
                     break
         g = np.asarray(f.constraints(jnp.asarray(x)))
-        passes = int(r.passes)
+        values, derivatives = int(r.passes), int(r.derivative_passes)
         return Solution(
             x=x,
             status=_STATUS[code],
@@ -1513,6 +1521,6 @@ class JtrajSolver(AbstractSolver):
             mult_g=np.asarray(view.from_stage_rows(r.y)),
             mult_x_lower=np.asarray(r.z_lower).reshape(-1),
             mult_x_upper=np.asarray(r.z_upper).reshape(-1),
-            stats=Stats(iterations, passes, passes, passes, passes, iterations if opts.hessian == "exact" else 0, total, 0.0),
+            stats=Stats(iterations, values, derivatives, values, derivatives, derivatives if opts.hessian == "exact" else 0, total, 0.0),
             history=history,
         )
