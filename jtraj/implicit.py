@@ -43,11 +43,17 @@ def _in_main_thread_device(host: Callable) -> Callable:
     about 30 s). On a CPU-only JAX, where the CPU is the default device anyway, the host code
     runs with the setting cleared, as in the main thread. Elsewhere it is left alone: there
     the cleared setting would dispatch to the accelerator from inside a running computation.
+
+    The host code also runs in JAX's evaluation context: called eagerly from the derivative
+    rule of an eager ``jax.grad``, it would otherwise run under the gradient's partial
+    evaluation, where ``jnp.asarray`` of a value gives a tracer, and host code that converts
+    it back to numpy fails (the first ``jax.grad`` of a `jtraj.differentiable` function, whose
+    forward solve builds its warm start in numpy, raised TracerArrayConversionError).
     """
 
     @functools.wraps(host)
     def wrapped(*args):
-        with jax.default_device(None) if jax.default_backend() == "cpu" else contextlib.nullcontext():
+        with jax.core.eval_context(), jax.default_device(None) if jax.default_backend() == "cpu" else contextlib.nullcontext():
             return host(*args)
 
     return wrapped

@@ -115,6 +115,20 @@ def test_grad_composes_with_jit_and_jvp_agrees(hop):
     np.testing.assert_allclose(float(dloss), expected, rtol=1e-6, atol=1e-9)
 
 
+def test_first_call_can_be_under_grad(hop):
+    """The README's ``jax.grad(lambda th: f(th).cost)(f.theta)`` as the function's first call:
+    the forward solve builds the task's warm start in numpy, inside the eager gradient's rule
+    (regression: TracerArrayConversionError when no solve had run before)."""
+    theta = hop.theta
+    hop.warm_start_from(None)
+    g_first = jax.grad(lambda th: hop(th).cost)(theta)
+    hop.warm_start_from(None)
+    hop(theta)  # the way the other tests call it: a solve first, then the gradient
+    g_after = jax.grad(lambda th: hop(th).cost)(theta)
+    for a, b in zip(jax.tree.leaves(g_first), jax.tree.leaves(g_after), strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-9)
+
+
 def test_bad_arguments_are_refused_before_building(monkeypatch):
     """differentiable() checks its numbers and its solver before it builds the task's NLP."""
     import jtraj.differentiate as D
