@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from collections.abc import Mapping
 from typing import Any
 
@@ -128,6 +129,16 @@ class DifferentiableTask:
                     f"{tr.task.name}: {backend.name} did not converge at this theta ({sol.status.value}: {sol.status.message}; "
                     f"{sol.stats.iterations} iterations, violation {sol.constraint_violation:.1e})"
                 )
+            if sol.status is not solvers.Status.SOLVED:
+                # Ipopt's acceptable level allows a violation and a complementarity of 1e-2 by
+                # default: the active set read off such a point, and the derivatives, may be wrong
+                warnings.warn(
+                    f"{tr.task.name}: {backend.name} stopped at an approximate solution ({sol.status.value}: {sol.status.message}; "
+                    f"violation {sol.constraint_violation:.1e}): the derivatives are those of this point and may be wrong "
+                    f"(Ipopt: acceptable_iter=0 solves on to tol; a warnings filter 'error' refuses such points)",
+                    RuntimeWarning,
+                    stacklevel=2,
+                )
             self._x_warm = sol.x
             return sol.x, sol.mult_g
 
@@ -151,7 +162,8 @@ class DifferentiableTask:
         fields (``{"friction": 0.6}``) or None (``self.theta``). Values are checked as
         `jtraj.solve` checks them (shapes always; values unless traced). Raises `SolveError`
         when the forward solve does not converge (inside ``jax.jit`` that comes as JAX's
-        runtime error, whose message ends with the SolveError's)."""
+        runtime error, whose message ends with the SolveError's), and warns (RuntimeWarning)
+        when it converged only to the acceptable level (`jtraj.solvers.Status.ACCEPTABLE`)."""
         theta = self.transcription.resolve_theta(self.theta if theta is None else theta, base=self.theta)
         sol = self._solution(theta)
         return motion(self.transcription, self.nlp, sol.x, theta, sol.lam, sol.degenerate)

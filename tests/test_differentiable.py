@@ -197,3 +197,21 @@ def test_call_checks_theta_and_a_failed_solve_raises_solve_error(hop):
     finally:
         hop.options = options
     assert not hop.last_solution.status.converged
+
+
+def test_a_solve_stopped_at_the_acceptable_level_warns(hop):
+    """Ipopt's acceptable level (violation and complementarity up to 1e-2) is "converged" to
+    the Status, but the derivatives at such a point may be wrong: it warns, not silently
+    (regression: the motion and its derivatives came back without a word)."""
+    from jtraj.differentiate import forward_options
+
+    options = hop.options
+    hop.options = forward_options(hop.backend, {"acceptable_iter": 1, "acceptable_tol": 1e3, "acceptable_constr_viol_tol": 1e3, "acceptable_compl_inf_tol": 1e3})
+    hop.warm_start_from(None)
+    try:
+        with pytest.warns(RuntimeWarning, match="approximate solution"):
+            hop(hop.theta)
+    finally:
+        hop.options = options
+        hop.warm_start_from(None)
+    assert hop.last_solution.status.value == "acceptable"
