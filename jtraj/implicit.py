@@ -8,9 +8,11 @@ the host, so `jax.jvp`, `jax.grad`, `jax.vjp` and `jax.jacobian` (one factorizat
 columns solved together) all work, under `jax.jit` too. Derivatives are first order only (the
 callbacks have no derivatives of their own).
 
-K is assembled and its LU factored once per forward solve, on the host, and kept (a small
-cache keyed by a token that the forward pass returns); a reverse pass then costs one
-transposed triangular solve plus the JAX evaluation of ``(dr/dtheta)^T w``.
+K is assembled once per forward solve, on the host, and kept (a small cache keyed by a token
+that the forward pass returns); its LU is factored at the first linear solve with it (the
+first tangent or reverse pass), so a solve without derivatives does not pay for it. A reverse
+pass then costs that factorization once, one transposed triangular solve and the JAX
+evaluation of ``(dr/dtheta)^T w``.
 """
 
 from __future__ import annotations
