@@ -31,7 +31,7 @@ import numpy as np
 
 from jtraj.sensitivity import ActiveArrays, KKTSystem, ParametricNLP, kkt_system, residual
 
-__all__ = ["ImplicitSolution", "implicit_solution"]
+__all__ = ["ImplicitSolution", "implicit_solution", "SecondOrderError"]
 
 
 def _in_main_thread_device(host: Callable) -> Callable:
@@ -57,6 +57,31 @@ def _in_main_thread_device(host: Callable) -> Callable:
     def wrapped(*args):
         with jax.core.eval_context(), jax.default_device(None) if jax.default_backend() == "cpu" else contextlib.nullcontext():
             return host(*args)
+
+    return wrapped
+
+
+class SecondOrderError(NotImplementedError):
+    """A derivative of the implicit derivatives (``jax.hessian``, ``jax.jacfwd`` of ``jax.grad``)
+    was asked for: they are first order only."""
+
+
+def _first_order_only(callback: Callable) -> Callable:
+    """``callback`` (a `jax.pure_callback` call) with a derivative rule that refuses in words.
+
+    Differentiating the derivative rule reaches the callbacks themselves, whose own refusal
+    ("Pure callbacks do not support JVP. Please use `jax.custom_jvp`") does not say what was
+    asked of jtraj or what to do instead.
+    """
+    wrapped = jax.custom_jvp(callback)
+
+    @wrapped.defjvp
+    def refuse(primals, tangents):
+        raise SecondOrderError(
+            "derivatives through the solver (jtraj.implicit) are first order only: jax.hessian, jax.jacfwd of jax.grad or a gradient "
+            "of a jax.jvp of a solution are not available; differentiate once (jax.grad, jax.jacobian, jax.jvp, jax.vjp), or take "
+            "finite differences of first derivatives"
+        )
 
     return wrapped
 
@@ -145,9 +170,13 @@ def implicit_solution(
         jax.ShapeDtypeStruct((), jnp.int64),
     )
 
+    @_first_order_only
+    def forward_callback(theta):
+        return jax.pure_callback(host_forward, out_shapes, theta, vmap_method="sequential")
+
     def primal(theta) -> ImplicitSolution:
         if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(theta)):
-            outs = jax.pure_callback(host_forward, out_shapes, theta, vmap_method="sequential")
+            outs = forward_callback(theta)
         else:
             # Called with values (eagerly, or as the primal of an eager `jax.grad`): solve here
             # rather than through the callback, so that ``forward``'s own exception (a failed
@@ -181,12 +210,16 @@ def implicit_solution(
         return out.reshape(batch + (b.shape[-1],))
 
     def linear_solve(sol: ImplicitSolution, theta, b, transpose: bool):
-        return jax.pure_callback(
-            lambda *args: host_solve(transpose, *args),
-            jax.ShapeDtypeStruct(b.shape, b.dtype),
-            sol.token, sol.x, sol.lam, theta, b,
-            vmap_method="broadcast_all",
-        )
+        @_first_order_only
+        def callback(token, x, lam, theta, b):
+            return jax.pure_callback(
+                lambda *args: host_solve(transpose, *args),
+                jax.ShapeDtypeStruct(b.shape, b.dtype),
+                token, x, lam, theta, b,
+                vmap_method="broadcast_all",
+            )
+
+        return callback(sol.token, sol.x, sol.lam, theta, b)
 
     # The tangent (dx, dlam) is one compiled program, made once here. `jax.grad` of the
     # solution called eagerly (outside `jax.jit`) used to differentiate the rule's body op by

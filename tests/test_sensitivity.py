@@ -156,3 +156,20 @@ def test_weakly_active_constraint_is_flagged_and_one_sided():
     assert abs(left - 1.0) < 1e-3 and abs(right) < 1e-3  # the two one-sided derivatives differ
     assert abs(d - 1.0) < 1e-8  # treated as inactive: the side where it is slack
     assert not bool(solve(jnp.array([-0.5])).degenerate)
+
+
+def test_second_derivatives_are_refused_in_words():
+    """Derivatives are first order only; asking for more says so (regression: JAX's own
+    "Pure callbacks do not support JVP. Please use `jax.custom_jvp`", which jtraj already uses)."""
+    from jtraj.implicit import SecondOrderError
+
+    nlp, theta, x0 = nonlinear()
+    solve = implicit_solution(nlp, ipopt_forward(nlp, x0))
+    th = jnp.asarray(theta)
+    for second in (
+        lambda: jax.hessian(lambda t: solve(t).x.sum())(th),
+        lambda: jax.jit(jax.hessian(lambda t: solve(t).x.sum()))(th),
+        lambda: jax.grad(lambda t: jax.jvp(lambda u: solve(u).x.sum(), (t,), (jnp.ones(4),))[1])(th),
+    ):
+        with pytest.raises(SecondOrderError, match="first order only"):
+            second()
