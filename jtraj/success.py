@@ -97,9 +97,15 @@ def evaluate(base_xyz_wxyz: np.ndarray, flip_axis=None, flip_turns: float | None
     a, max_step = rotation_vector(base_xyz_wxyz)
     norm = float(np.linalg.norm(a))
     total = norm / (2 * math.pi)
+    # NaN compares False with every threshold below: without this check a trajectory with NaN
+    # (a diverged solve) or a zero quaternion would pass every test and read as done.
+    finite = bool(np.all(np.isfinite(base_xyz_wxyz))) and math.isfinite(norm) and math.isfinite(max_step)
+    not_finite = "the base trajectory has NaN or infinite values (or a zero quaternion); no motion to check"
     if flip_axis is None:
         if flip_turns is not None:
             raise ValueError("flip_turns needs a flip_axis")
+        if not finite:
+            return TaskCheck(False, None, total, None, not_finite)
         if max_step > MAX_STEP:
             return TaskCheck(False, None, total, None, f"the base turns {max_step:.2f} rad between two knots; too coarse to tell its rotation")
         if total >= TURN_TOLERANCE:
@@ -114,6 +120,8 @@ def evaluate(base_xyz_wxyz: np.ndarray, flip_axis=None, flip_turns: float | None
     along = float(a @ e)
     turns = along / (2 * math.pi)
     share = float(np.linalg.norm(a - along * e) / norm) if norm > 0 else 0.0
+    if not finite:
+        return TaskCheck(False, turns, total, share, not_finite)
     if max_step > MAX_STEP:
         return TaskCheck(False, turns, total, share, f"the base turns {max_step:.2f} rad between two knots; too coarse to tell its rotation")
     if abs(turns - flip_turns) > TURN_TOLERANCE:

@@ -72,3 +72,19 @@ def test_tasks_without_flip_reject_a_somersault():
 def test_too_coarse_steps_are_not_guessed():
     check = success.evaluate(_about(Y, [0.0, -0.95 * np.pi, -1.9 * np.pi, -2 * np.pi]), **BACKFLIP)
     assert not check.ok and "too coarse" in check.reason
+
+
+@pytest.mark.parametrize("where", ["nan_quaternion", "nan_position", "zero_quaternion"])
+def test_regression_non_finite_trajectory_fails(where):
+    """Regression: NaN compares False with every threshold, so a diverged solve's trajectory
+    (NaN) or one with a zero quaternion passed both checks and read as done."""
+    traj = _about(Y, _ramp(-2 * np.pi))
+    if where == "nan_quaternion":
+        traj[10, 3:7] = np.nan
+    elif where == "nan_position":
+        traj[10, 0] = np.nan
+    else:
+        traj[10, 3:7] = 0.0
+    for kwargs in (BACKFLIP, {}):
+        check = success.evaluate(traj, **kwargs)
+        assert not check.ok and "NaN or infinite" in check.reason, (kwargs, check)
