@@ -121,6 +121,16 @@ class DifferentiableTask:
 
         def forward(theta):
             theta = jax.tree_util.tree_map(jnp.asarray, theta)
+            # differentiable() checks the task's weights; theta can set them too (here they are
+            # values, also under jax.jit): without them the optimum is not unique and the
+            # derivatives came back wrong without a word (a zero acceleration weight on the
+            # Go2 hop: d cost / d target x 0.025 against 0.037 by re-solving)
+            weights = {name: float(getattr(theta, name)) for name in ("configuration_weight", "acceleration_weight")}
+            if not all(w > 0 for w in weights.values()):
+                raise ValueError(
+                    f"{tr.task.name}: theta sets " + " and ".join(f"{k}={v}" for k, v in weights.items())
+                    + "; differentiable tasks need configuration_weight > 0 and acceleration_weight > 0 for a unique optimum"
+                )
             x0 = tr.warm_start(theta).reshape(-1) if self._x_warm is None else self._x_warm
             sol = backend.solve(nlp, x0, theta, self.options)
             self.last_solution = sol
@@ -160,7 +170,8 @@ class DifferentiableTask:
     def __call__(self, theta: TaskParams | dict[str, Any] | None = None) -> OptimalMotion:
         """The optimal motion at ``theta``: a `TaskParams`, a mapping of overrides of ``self.theta``'s
         fields (``{"friction": 0.6}``) or None (``self.theta``). Values are checked as
-        `jtraj.solve` checks them (shapes always; values unless traced). Raises `SolveError`
+        `jtraj.solve` checks them (shapes always; values unless traced), and the cost weights
+        must stay > 0 (`differentiable`; a ValueError). Raises `SolveError`
         when the forward solve does not converge (inside ``jax.jit`` that comes as JAX's
         runtime error, whose message ends with the SolveError's), and warns (RuntimeWarning)
         when it converged only to the acceptable level (`jtraj.solvers.Status.ACCEPTABLE`)."""

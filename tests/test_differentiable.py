@@ -199,6 +199,17 @@ def test_call_checks_theta_and_a_failed_solve_raises_solve_error(hop):
     assert not hop.last_solution.status.converged
 
 
+def test_theta_with_a_zero_cost_weight_is_refused(hop):
+    """differentiable() refuses a task without positive configuration and acceleration weights
+    (no unique optimum); theta sets them too, and is refused the same way (regression: with
+    acceleration_weight 0, d cost / d target x came back 0.025 where re-solving gives 0.037)."""
+    solves = hop.last_solution
+    for weight in ("acceleration_weight", "configuration_weight"):
+        with pytest.raises(ValueError, match=f"{weight}=0.0.*need configuration_weight > 0 and acceleration_weight > 0"):
+            jax.grad(lambda th: hop(th).cost)(hop.theta.replace(**{weight: 0.0}))
+    assert hop.last_solution is solves  # refused before a solve
+
+
 def test_a_solve_stopped_at_the_acceptable_level_warns(hop):
     """Ipopt's acceptable level (violation and complementarity up to 1e-2) is "converged" to
     the Status, but the derivatives at such a point may be wrong: it warns, not silently
