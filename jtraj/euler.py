@@ -37,11 +37,28 @@ def rotation_matrix(rpy: jax.Array) -> jax.Array:
     return _rz(rpy[2]) @ _ry(rpy[1]) @ _rx(rpy[0])
 
 
+#: Below this cos(pitch) `from_rotation_matrix` takes the yaw from the roll (see there).
+_LOCK_COS = 1e-6
+
+
 def from_rotation_matrix(Rm: jax.Array) -> jax.Array:
-    """Inverse of `rotation_matrix` with pitch in [-pi/2, pi/2]; (3, 3) -> (3,)."""
+    """Inverse of `rotation_matrix` with pitch in [-pi/2, pi/2]; (3, 3) -> (3,).
+
+    At gimbal lock only yaw - roll (pitch pi/2) or yaw + roll (pitch -pi/2) is determined:
+    there the roll is read as elsewhere and the yaw is computed from it, so that
+    ``rotation_matrix(from_rotation_matrix(Rm)) == Rm`` holds at the lock too.
+    """
     roll = jnp.arctan2(Rm[2, 1], Rm[2, 2])
-    pitch = jnp.arctan2(-Rm[2, 0], jnp.sqrt(Rm[2, 1] ** 2 + Rm[2, 2] ** 2))
+    cos_pitch = jnp.sqrt(Rm[2, 1] ** 2 + Rm[2, 2] ** 2)
+    pitch = jnp.arctan2(-Rm[2, 0], cos_pitch)
     yaw = jnp.arctan2(Rm[1, 0], Rm[0, 0])
+    # Near the lock Rm[2, 1], Rm[2, 2], Rm[1, 0] and Rm[0, 0] are all ~cos(pitch): at the lock
+    # they are rounding noise, and the two arctan2 give a roll and a yaw that do not belong
+    # together (a pose off by up to pi). Column 1 of Rm Rx(roll)^T = Rz(yaw) Ry(pitch) is
+    # (-sin yaw, cos yaw, 0) for any pitch, which gives the yaw that goes with the roll.
+    sr, cr = jnp.sin(roll), jnp.cos(roll)
+    yaw_from_roll = jnp.arctan2(Rm[0, 2] * sr - Rm[0, 1] * cr, Rm[1, 1] * cr - Rm[1, 2] * sr)
+    yaw = jnp.where(cos_pitch < _LOCK_COS, yaw_from_roll, yaw)
     return jnp.stack([roll, pitch, yaw])
 
 

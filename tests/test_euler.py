@@ -25,3 +25,21 @@ def test_rate_matrix_maps_body_rate_to_angle_rates(rng):
         Rm = euler.rotation_matrix(rpy)
         path = lambda t: euler.from_rotation_matrix(Rm @ lie.exp(SO3, omega * t).as_matrix())
         np.testing.assert_allclose(jax.jacfwd(path)(0.0), euler.rate_matrix(rpy) @ omega, atol=1e-12)
+
+
+def test_regression_from_rotation_matrix_at_gimbal_lock_keeps_the_rotation():
+    """At pitch +-pi/2 the entries that give roll and yaw are rounding noise when the matrix
+    does not come from `rotation_matrix` (here a turn about y by Exp): roll and yaw came out
+    unrelated, a pose 0.25 rad from the input for yaw 0.5, and the Euler chart's `from_pose`
+    (documented to move such a pose by the gimbal margin only) inherited it."""
+    from jtraj.parameterization import get
+
+    chart = get("euler")
+    for pitch in (-np.pi / 2, np.pi / 2, -3 * np.pi / 2):
+        for roll, yaw in ((0.0, 0.5), (0.3, -2.0), (-1.1, 2.9)):
+            R = SO3.from_z_radians(yaw) @ lie.exp(SO3, jnp.array([0.0, pitch, 0.0])) @ SO3.from_x_radians(roll)
+            rpy = euler.from_rotation_matrix(R.as_matrix())
+            np.testing.assert_allclose(euler.rotation_matrix(rpy), R.as_matrix(), atol=1e-12)
+            T = lie.SE3.from_rotation_and_translation(R, jnp.zeros(3))
+            moved = float(jnp.linalg.norm(lie.minus(chart.to_pose(chart.from_pose(T)), T)))
+            assert moved <= euler.GIMBAL_MARGIN * (1 + 1e-9), (pitch, roll, yaw, moved)
