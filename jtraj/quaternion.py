@@ -167,9 +167,13 @@ def geodesic_cost(q: jax.Array, q_goal: jax.Array) -> jax.Array:
 def geodesic_cost_gradient(q: jax.Array, q_goal: jax.Array) -> jax.Array:
     """Gradient of eq. 40 with respect to a rotation: ``-sign(q_g^T q) q_g^T G(q)`` (eq. 41).
 
-    Equals ``jax.grad(lambda phi: geodesic_cost(L(q) @ cayley(phi), q_goal))(zeros(3))``.
+    Equals ``jax.grad(lambda phi: geodesic_cost(L(q) @ cayley(phi), q_goal))(zeros(3))``,
+    also at ``q_g^T q = 0`` (q half a turn from the goal, the cost's maximum), where the
+    sign is taken as +1 as JAX's derivative of ``abs`` takes it: ``sign(0) = 0`` would give a
+    zero gradient there, a stationary point for a gradient method at the worst attitude.
     """
-    return -jnp.sign(q_goal @ q) * (q_goal @ attitude_jacobian(q))
+    sign = jnp.where(q_goal @ q >= 0, 1.0, -1.0)
+    return -sign * (q_goal @ attitude_jacobian(q))
 
 
 def geodesic_cost_hessian(q: jax.Array, q_goal: jax.Array) -> jax.Array:
