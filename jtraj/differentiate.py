@@ -80,7 +80,8 @@ class OptimalMotion:
         forces: (K, P, 3) contact forces, world frame (N).
         cost: () the NLP's objective at the solution.
         degenerate: () bool: strict complementarity fails, derivatives are one-sided.
-        x: (n,) the NLP's solution vector; lam: (m,) its constraint multipliers.
+        x: (n,) the NLP's solution vector; lam: (m,) its constraint multipliers, 0 on the rows
+            the derivatives hold inactive (`jtraj.implicit.ImplicitSolution.lam`).
     """
 
     t: jax.Array

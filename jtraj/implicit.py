@@ -93,7 +93,9 @@ class ImplicitSolution:
 
     Attributes:
         x: (n,) primal solution.
-        lam: (m,) constraint multipliers (Ipopt's convention; 0 on inactive rows).
+        lam: (m,) constraint multipliers (Ipopt's convention), 0 on the rows the derivatives hold
+            inactive: inactive, weakly active, and active rows that involve only variables at
+            their bounds (`jtraj.sensitivity.ActiveSet.dropped_rows`).
         degenerate: () bool, strict complementarity fails: derivatives are one-sided.
         active: the active set held fixed by the derivatives (bool arrays).
         token: () int64, the host-side handle of the factorized sensitivity system.
