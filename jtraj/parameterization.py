@@ -237,8 +237,9 @@ class Quaternion1(_QuaternionBase):
 
     integrate: ``p + R(rho) v h``, ``rho + 1/2 L(rho) H omega h`` (rho normalized first);
     difference: ``(p2 - p1, rho2 - rho1)``. Not inverse maps; the documented relation is
-    ``difference(q, integrate(q, V, h)) == (R(rho) v h, 1/2 L(rho) H omega h)``, and the step
-    agrees with ``Exp_q(q) Exp(V h)`` to first order in h.
+    ``difference(q, integrate(q, V, h)) == (R(rho) v h, 1/2 L(rho) H omega h)`` for a unit
+    rho (for another norm the step starts from rho / |rho|, so the difference also holds
+    ``rho / |rho| - rho``), and the step agrees with ``Exp_q(q) Exp(V h)`` to first order in h.
     """
 
     name: ClassVar[str] = "quat1"
