@@ -70,11 +70,15 @@ class AbstractParameterization(abc.ABC):
                 setattr(cls, method, _with_checked_arguments(cls.__dict__[method], checked))
 
     def _coordinates(self, value: Any, what: str, size: int | None = None) -> jax.Array:
-        """``value`` as a float array whose last axis has ``size`` entries (default ``nq``)."""
+        """``value`` as a float array of shape (``size``,) (default ``nq``)."""
         size = self.nq if size is None else size
         value = jnp.asarray(value)
         if value.ndim == 0 or value.shape[-1] != size:
             raise ValueError(f"{type(self).__name__}: {what} has {size} entries on its last axis ({self.label}), got shape {value.shape}")
+        if value.ndim != 1:
+            # the charts index single configurations (q[3:7]): a batch would be sliced along
+            # its first axis and fail deep inside with a shape error naming neither
+            raise ValueError(f"{type(self).__name__}: {what} must be one configuration of shape ({size},), got shape {value.shape}; use jax.vmap for batches")
         return value if jnp.issubdtype(value.dtype, jnp.floating) else value.astype(float)
 
     @property

@@ -296,3 +296,18 @@ def test_wrong_sizes_are_refused_by_name(param):
         param.integrate(param.from_pose(SE3.identity()), V_b=jnp.zeros(3), h=0.1)
     q = np.asarray(param.from_pose(SE3.identity())).round().astype(int)
     np.testing.assert_allclose(param.to_qpos(q), [0, 0, 0, 1, 0, 0, 0], atol=1e-15)
+
+
+@pytest.mark.parametrize("param", PARAMS, ids=IDS)
+def test_regression_batches_are_refused_with_a_pointer_to_vmap(param):
+    """Regression: the contract is one configuration, but a (K, nq) batch passed the size
+    check (last axis) and then failed inside with JAX shape errors ("dot_general requires
+    contracting dimensions...", a bare AssertionError for the Euler chart) naming neither
+    the argument nor jax.vmap."""
+    qs = jnp.stack([param.from_pose(SE3.identity())] * 3)
+    for call in (lambda: param.to_qpos(qs), lambda: param.integrate(qs, jnp.zeros((3, 6)), 0.1), lambda: param.difference(qs, qs)):
+        with pytest.raises(ValueError, match=r"must be one configuration of shape .*use jax.vmap for batches"):
+            call()
+    with pytest.raises(ValueError, match=r"qpos \(xyz_wxyz\) must be one configuration of shape \(7,\)"):
+        param.from_qpos(jnp.zeros((3, 7)).at[:, 3].set(1.0))
+    np.testing.assert_allclose(jax.vmap(param.to_qpos)(qs), np.tile([0.0, 0, 0, 1, 0, 0, 0], (3, 1)), atol=1e-15)
