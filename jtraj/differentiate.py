@@ -106,8 +106,9 @@ class DifferentiableTask:
         nlp: its NLP (with the force regularization).
         theta: the task's default parameters (`TaskParams`); change fields with
             ``f.theta.replace(friction=0.5)``.
-        options: the forward solve's options (`forward_options`); a new options object
-            applies from the next call.
+        options: the forward solve's options (`forward_options`). Assigned an options object,
+            a dict or None, it takes them as `differentiable`'s ``options`` does (for Ipopt a
+            dict over `IPOPT_OPTIONS`), checked, from the next call on.
         last_solution: the backend's `jtraj.solvers.Solution` of the latest forward solve.
     """
 
@@ -154,6 +155,16 @@ class DifferentiableTask:
             return sol.x, sol.mult_g
 
         self._solution = implicit_solution(nlp, forward, weak_tol=weak_tol)
+
+    @property
+    def options(self) -> solvers.AbstractOptions:
+        return self._options
+
+    @options.setter
+    def options(self, options: solvers.AbstractOptions | dict[str, Any] | None) -> None:
+        # a dict went to the backend as it was: Ipopt's defaults (tol 1e-8, L-BFGS) replaced
+        # the tight IPOPT_OPTIONS that differentiable() merges a dict over
+        self._options = forward_options(self.backend, options)
 
     def warm_start_from(self, x: np.ndarray | None) -> None:
         """Warm-start the next forward solve from ``x`` (None: the task's warm start): the

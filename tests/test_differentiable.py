@@ -159,6 +159,24 @@ def test_forward_options_keep_the_tight_defaults_a_dict_does_not_change():
     assert forward_options(ipopt, given) is given or forward_options(ipopt, given) == given
 
 
+def test_options_assigned_as_a_dict_keep_the_tight_defaults(hop):
+    """``f.options = {...}`` takes a dict as differentiable(options=...) does (regression: the
+    dict went to Ipopt as it was, with Ipopt's tol 1e-8 and L-BFGS instead of IPOPT_OPTIONS)."""
+    from jtraj import solvers
+    from jtraj.differentiate import IPOPT_OPTIONS
+
+    options = hop.options
+    try:
+        hop.options = {"max_iter": 50}
+        assert isinstance(hop.options, solvers.IpoptOptions)
+        assert hop.options.max_iter == 50 and hop.options.tol == IPOPT_OPTIONS["tol"] and hop.options.hessian == "exact"
+        with pytest.raises(ValueError, match="max_iter"):
+            hop.options = {"max_iter": -1}
+    finally:
+        hop.options = options
+    assert hop.options is options
+
+
 def test_call_checks_theta_and_a_failed_solve_raises_solve_error(hop):
     import dataclasses
 
