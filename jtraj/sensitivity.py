@@ -61,7 +61,16 @@ __all__ = ["ParametricNLP", "DenseNLP", "ActiveSet", "KKTSystem", "kkt_system", 
 
 
 class SingularKKTError(RuntimeError):
-    """The sensitivity system is singular (linear independence of the active constraints fails)."""
+    """The sensitivity system has no solution here: its LU found it exactly singular (the
+    reduced Hessian is singular on the active constraints' null space, an optimum that is not
+    unique), or the solve left a residual (dependent active constraints that theta moves
+    inconsistently). Dependent active constraints alone are not an error (`KKTSystem.solve`).
+
+    A singularity that rounding hides is not always caught: the LU then succeeds and dx is
+    one of many (measured: ``min (0.1 x0 + 0.3 x1 - theta)^2`` gives dx = (4, 2) without an
+    error; the Go2 hop with a zero acceleration weight, which `jtraj.differentiable` refuses,
+    gave 0.025 and 0.034 for a derivative of 0.037). The NLP must have a unique optimum.
+    """
 
 
 class ParametricNLP(Protocol):
