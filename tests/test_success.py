@@ -88,3 +88,17 @@ def test_regression_non_finite_trajectory_fails(where):
     for kwargs in (BACKFLIP, {}):
         check = success.evaluate(traj, **kwargs)
         assert not check.ok and "NaN or infinite" in check.reason, (kwargs, check)
+
+
+@pytest.mark.parametrize("degrees", [90.0, 135.0, 180.0, -180.0])
+def test_regression_a_planned_turn_is_not_a_somersault(degrees):
+    """Regression: tasks without a flip failed whenever the base turned a quarter turn in all,
+    so a task whose target turns the base (``target.rotation_rpy``, here a yaw) failed as a
+    somersault when it did that turn; the check now measures the rotation beyond the turn
+    from the first to the last attitude, which a spin on top of the planned turn still fails."""
+    Z = [0.0, 0.0, 1.0]
+    turn = np.radians(degrees)
+    assert success.evaluate(_about(Z, _ramp(turn))).ok
+    spin = success.evaluate(_about(Z, _ramp(turn + np.sign(turn) * 2 * np.pi, n=60)))
+    assert not spin.ok and "somersault" in spin.reason
+    assert spin.total_turns == pytest.approx(abs(degrees) / 360 + 1.0)
