@@ -29,6 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jtraj.numbers import is_real, is_whole
 from jtraj.sensitivity import ActiveArrays, KKTSystem, ParametricNLP, kkt_system, residual
 
 __all__ = ["ImplicitSolution", "implicit_solution", "SecondOrderError"]
@@ -145,8 +146,15 @@ def implicit_solution(
             (a numpy pytree theta in); it should solve tightly (the derivatives are those of
             the exact solution) and may raise on failure.
         weak_tol: weak-activity tolerance of `jtraj.sensitivity.active_set`.
-        cache_size: how many factorized systems to keep for backward passes.
+        cache_size: how many factorized systems to keep for backward passes (an integer >= 0;
+            a pass whose system is no longer kept rebuilds it from the solution).
     """
+    # checked here: a negative size failed at the first solve with a bare KeyError, a
+    # negative or NaN weak_tol was taken without a word
+    if not is_real(weak_tol) or not (0 <= weak_tol < 1):
+        raise ValueError(f"weak_tol must be a number in [0, 1) (relative to the largest multiplier), got {weak_tol!r}")
+    if not is_whole(cache_size) or cache_size < 0:
+        raise ValueError(f"cache_size must be an integer >= 0 (factorized systems kept), got {cache_size!r}")
     n, m = nlp.n, nlp.m
     cache = _SystemCache(cache_size)
     bool_n = jax.ShapeDtypeStruct((n,), jnp.bool_)

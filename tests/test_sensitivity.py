@@ -173,3 +173,22 @@ def test_second_derivatives_are_refused_in_words():
     ):
         with pytest.raises(SecondOrderError, match="first order only"):
             second()
+
+
+def test_bad_options_are_refused_when_built():
+    """implicit_solution checks weak_tol and cache_size (regression: cache_size=-1 raised a
+    bare KeyError at the first solve, weak_tol=-1 or NaN was taken without a word)."""
+    nlp, theta, x0 = nonlinear()
+    forward = ipopt_forward(nlp, x0)
+    for kwargs, match in [
+        ({"weak_tol": -1.0}, r"weak_tol must be a number in \[0, 1\)"),
+        ({"weak_tol": float("nan")}, r"weak_tol must be a number in \[0, 1\)"),
+        ({"cache_size": -1}, "cache_size must be an integer >= 0"),
+        ({"cache_size": 2.5}, "cache_size must be an integer >= 0"),
+    ]:
+        with pytest.raises(ValueError, match=match):
+            implicit_solution(nlp, forward, **kwargs)
+    # nothing kept is allowed: every pass rebuilds its system from the solution
+    J0 = jax.jacobian(lambda th: implicit_solution(nlp, forward, cache_size=0)(th).x)(jnp.asarray(theta))
+    J = jax.jacobian(lambda th: implicit_solution(nlp, forward)(th).x)(jnp.asarray(theta))
+    np.testing.assert_allclose(J0, J, rtol=1e-12, atol=1e-14)
