@@ -166,6 +166,12 @@ def implicit_solution(
         x, lam = forward(theta)
         x = np.asarray(x, float)
         lam = np.asarray(lam, float)
+        # a wrong shape failed deep in the active set ("operands could not be broadcast"), and
+        # a NaN solution came back as the value and as a "not differentiable" error later
+        if x.shape != (n,) or lam.shape != (m,):
+            raise ValueError(f"forward returned x of shape {x.shape} and lam of shape {lam.shape}; expected ({n},) and ({m},), the NLP's sizes")
+        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(lam))):
+            raise ValueError("forward returned NaN or infinite x or lam: a failed solve? forward should raise when its solver fails")
         system = kkt_system(nlp, x, lam, theta, weak_tol=weak_tol)
         a = system.active
         token = cache.put(system)

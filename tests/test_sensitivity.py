@@ -192,3 +192,18 @@ def test_bad_options_are_refused_when_built():
     J0 = jax.jacobian(lambda th: implicit_solution(nlp, forward, cache_size=0)(th).x)(jnp.asarray(theta))
     J = jax.jacobian(lambda th: implicit_solution(nlp, forward)(th).x)(jnp.asarray(theta))
     np.testing.assert_allclose(J0, J, rtol=1e-12, atol=1e-14)
+
+
+def test_a_forward_returning_garbage_is_refused_in_words():
+    """A forward that returns wrong shapes or NaN is named (regression: a broadcast error deep
+    in the active set; NaN came back as the solution, and under a gradient as "not
+    differentiable")."""
+    nlp, theta, x0 = nonlinear()
+    for x, lam, match in [
+        (np.zeros(4), np.zeros(2), r"x of shape \(4,\) and lam of shape \(2,\); expected \(3,\) and \(2,\)"),
+        (np.zeros(3), np.zeros(3), r"lam of shape \(3,\); expected \(3,\) and \(2,\)"),
+        (np.array([np.nan, 0.0, 0.0]), np.zeros(2), "NaN or infinite x or lam"),
+    ]:
+        solve = implicit_solution(nlp, lambda th, x=x, lam=lam: (x, lam))
+        with pytest.raises(ValueError, match=match):
+            solve(jnp.asarray(theta))
