@@ -198,7 +198,7 @@ def test_a_forward_returning_garbage_is_refused_in_words():
     """A forward that returns wrong shapes or NaN is named (regression: a broadcast error deep
     in the active set; NaN came back as the solution, and under a gradient as "not
     differentiable")."""
-    nlp, theta, x0 = nonlinear()
+    nlp, theta, _ = nonlinear()
     for x, lam, match in [
         (np.zeros(4), np.zeros(2), r"x of shape \(4,\) and lam of shape \(2,\); expected \(3,\) and \(2,\)"),
         (np.zeros(3), np.zeros(3), r"lam of shape \(3,\); expected \(3,\) and \(2,\)"),
