@@ -90,7 +90,17 @@ def nonlinear():
     return DenseNLP(f, g, bounds, 3, 2), np.array([2.0, 0.7, 1.5, 0.8]), np.array([0.5, 0.5, 0.5])
 
 
-PROBLEMS = {"equality_qp": equality_qp, "inequality_qp": inequality_qp, "nonlinear": nonlinear}
+def lower_row_upper_bound():
+    # a nonlinear row active at its (parametric) lower bound, where the multiplier is negative
+    # and its curvature enters the Hessian with that sign, and a variable at its parametric
+    # upper bound (the other problems hold rows at upper bounds and variables at lower ones)
+    f = lambda x, th: jnp.sum((x[:2] - th[:2]) ** 2) + (x[2] - 3.0) ** 2 + x[0] * x[2]
+    g = lambda x, th: jnp.array([x[0] ** 2 + x[1] ** 2])
+    bounds = lambda th: (jnp.full(3, -jnp.inf), jnp.array([jnp.inf, jnp.inf, th[3]]), jnp.array([th[2]]), jnp.array([jnp.inf]))
+    return DenseNLP(f, g, bounds, 3, 1), np.array([0.3, 0.2, 1.0, 1.5]), np.array([1.0, 1.0, 0.0])
+
+
+PROBLEMS = {"equality_qp": equality_qp, "inequality_qp": inequality_qp, "nonlinear": nonlinear, "lower_row_upper_bound": lower_row_upper_bound}
 
 
 @pytest.mark.parametrize("name", sorted(PROBLEMS))
@@ -113,6 +123,17 @@ def test_active_set_of_the_inequality_problem():
     np.testing.assert_array_equal(a.at_bound, [False, False, True, True])
     assert not a.degenerate
     np.testing.assert_allclose(x[2:], theta[4:], atol=1e-9)  # driven by its bounds
+
+
+def test_active_set_of_the_lower_row_upper_bound_problem():
+    nlp, theta, x0 = lower_row_upper_bound()
+    x, lam = ipopt_forward(nlp, x0)(theta)
+    a = kkt_system(nlp, x, lam, theta).active
+    assert lam[0] < 0  # Ipopt's sign at a lower bound
+    np.testing.assert_array_equal(a.row_active, [True])
+    np.testing.assert_array_equal(a.row_upper, [False])
+    np.testing.assert_array_equal(a.at_bound, [False, False, True])
+    np.testing.assert_array_equal(a.at_upper, [False, False, True])
 
 
 def test_grad_vjp_jvp_agree_and_compose_with_jit():
