@@ -137,6 +137,17 @@ def test_satellite_definition_and_keep_out_geometry():
     assert angles[0] > 40 and angles[-1] > 40 and angles.min() < 36
 
 
+@pytest.mark.parametrize("n_knots", [16, 20, 24])
+def test_quadrotor_flip_refuses_waypoints_on_one_knot(n_knots):
+    """Regression: at these counts the scaled knots of two waypoints (roll 180 and 270 degrees)
+    coincided, two contradictory hard attitude targets on one knot, an infeasible problem."""
+    with pytest.raises(ValueError, match=f"benchmark quadflip: n_knots={n_knots} puts two attitude waypoints on one knot"):
+        B.quadrotor_flip(n_knots)
+    for ok in (n_knots - 1, n_knots + 1):
+        knots = [t.knot for t in B.quadrotor_flip(ok).targets]
+        assert len(set(knots)) == len(knots)
+
+
 def test_bad_requests_are_reported():
     with pytest.raises(ValueError, match=r"unknown benchmark 'loop'.*barrelroll"):
         B.solve_benchmark("loop", "attitude")

@@ -220,7 +220,8 @@ class QuadrotorFlip(Benchmark):
         and an attitude weight of 1e-2 toward the goal attitude. Warm start (dynamically
         infeasible, as in the paper): position linear from start to goal, attitude turning
         uniformly through 360 degrees about x, v = omega = 0, hover thrust.
-        For ``n_knots < 101`` the waypoint knots are scaled to the same times.
+        For ``n_knots != 101`` the waypoint knots are scaled to the same times; a count that
+        puts two waypoints on one knot (11 to 14, 16, 20, 24) raises ValueError.
         """
         _check_n_knots("quadflip", n_knots, 11, tf=tf)
         model = M.Quadrotor()
@@ -245,9 +246,12 @@ class QuadrotorFlip(Benchmark):
         q_weight = np.full(N, 1e-2)
         R = np.full((N, nu), 1e-2)
         R[-1] = 0.0
+        knots = [_scaled_knot(k1 - 1, 101, N) for k1, _, _ in waypoints]
+        if len(set(knots)) < len(knots):
+            # two hard attitude targets (e.g. roll 180 and 270 degrees) on one knot: infeasible
+            raise ValueError(f"benchmark quadflip: n_knots={n_knots} puts two attitude waypoints on one knot (waypoint knots {knots}); use another n_knots (every n_knots >= 25 works)")
         targets = []
-        for k1, roll, pos in waypoints:
-            k = _scaled_knot(k1 - 1, 101, N)
+        for k, (_, roll, pos) in zip(knots, waypoints):
             x_ref[k, M.POS] = pos
             Q[k, M.POS] = 10.0
             targets.append(AttitudeTarget(k, tuple(M.quat_about_axis(ex, math.radians(roll))), f"roll {roll:.0f} deg"))
