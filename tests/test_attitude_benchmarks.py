@@ -164,6 +164,26 @@ def test_bad_requests_are_reported():
         B.satellite_slew(n_knots=21)  # 5 s steps cannot resolve the 0.3 Hz mode
 
 
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["quadflip", "--knots", "5"], "--knots: 5: benchmark quadflip: n_knots must be an integer >= 11"),
+        (["quadflip", "--knots", "20"], "--knots: 20: benchmark quadflip: n_knots=20 puts two attitude waypoints on one knot"),
+        (["all", "--knots", "30"], "--knots: 30: satellite: step 3.45 s is too long"),
+    ],
+)
+def test_cli_refuses_a_knot_count_in_one_line(argv, message, tmp_path, capsys):
+    """Regression: a knot count the benchmark refuses ended ``jtraj attitude`` in a traceback
+    (for ``all``, after solving the benchmarks before the satellite); it is a bad input."""
+    from jtraj.cli import EXIT_BAD_INPUT
+    from jtraj.cli import main as jtraj_main
+
+    assert jtraj_main(["attitude", *argv, "--out", str(tmp_path)]) == EXIT_BAD_INPUT
+    err = capsys.readouterr().err
+    assert err.startswith(f"jtraj attitude: {message}") and err.count("\n") == 1, err
+    assert not any(tmp_path.iterdir())  # nothing was solved or written
+
+
 # ---------------------------------------------------------------------------------------- solves
 
 

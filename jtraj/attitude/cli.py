@@ -5,7 +5,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from jtraj.attitude.benchmarks import PAPER_ITERATIONS
+from jtraj.attitude import benchmarks
+from jtraj.attitude.benchmarks import BENCHMARKS, PAPER_ITERATIONS
 from jtraj.attitude.solve import compare_benchmarks, result_directory, solve_benchmark
 from jtraj.result import Outcome, Result
 
@@ -38,8 +39,15 @@ def main(bench: str, variant: str, out_dir: str | Path, n_knots: int | None = No
     3 when every solve converged but one does not do it, 4 when one did not converge (2 stays a
     bad input's). With ``render``, one benchmark's motion is also drawn
     (`jtraj.render.render_benchmark`, which needs MuJoCo) into its folder."""
-    from jtraj.cli import EXIT_NOT_CONVERGED, EXIT_TASK_FAILED
+    from jtraj.cli import EXIT_NOT_CONVERGED, EXIT_TASK_FAILED, InputError
 
+    # a knot count a benchmark refuses (too few, two quadflip waypoints on one knot, a satellite
+    # step too long for RK4) is a bad input: one line and exit 2 before anything is solved
+    for name in BENCHMARKS if bench == "all" else (bench,):
+        try:
+            benchmarks.get(name, n_knots)
+        except ValueError as e:
+            raise InputError("--knots", n_knots, str(e)) from None
     if bench == "all":
         rows = compare_benchmarks(out_dir, n_knots=n_knots, solver=solver)
         statuses = {r["status"] for r in rows}
