@@ -164,6 +164,19 @@ def test_bad_requests_are_reported():
         B.satellite_slew(n_knots=21)  # 5 s steps cannot resolve the 0.3 Hz mode
 
 
+def test_a_built_benchmark_refuses_factory_arguments():
+    """Regression: solve_benchmark(a built Benchmark, n_knots=21, tf=...) solved the benchmark as
+    built (101 knots), silently ignoring the arguments its docstring sends to the factory."""
+    built = B.quadrotor_flip()
+    assert B.benchmarks.get(built) is built
+    with pytest.raises(ValueError, match=r"benchmark quadflip: \{'n_knots': 21, 'tf': 4.0\} cannot change a built benchmark"):
+        B.benchmarks.get(built, 21, tf=4.0)
+    with pytest.raises(ValueError, match=r"benchmark quadflip: \{'n_knots': 21\} cannot change a built benchmark"):
+        B.solve_benchmark(built, n_knots=21, progress=False)
+    with pytest.raises(ValueError, match=r"benchmark quadflip: \{'tf': 4.0\} cannot change a built benchmark"):
+        B.solve_benchmark(built, tf=4.0, progress=False)
+
+
 @pytest.mark.parametrize(
     "argv, message",
     [

@@ -515,8 +515,11 @@ satellite_slew = SatelliteSlew.build
 
 def get(name: str | Benchmark, n_knots: int | None = None, **kwargs: Any) -> Benchmark:
     """The benchmark ``name`` of `BENCHMARKS` built with ``n_knots`` (default: the paper's) and
-    ``kwargs`` (e.g. ``tf``), or the benchmark itself."""
+    ``kwargs`` (e.g. ``tf``), or the benchmark itself (which takes neither: it is built)."""
     if isinstance(name, Benchmark):
+        if n_knots is not None or kwargs:
+            given = {**({"n_knots": n_knots} if n_knots is not None else {}), **kwargs}
+            raise ValueError(f"benchmark {name.name}: {given} cannot change a built benchmark; pass its name ({name.name!r}) or build it with them ({type(name).__name__}.build)")
         return name
     cls = lookup(BENCHMARKS, name, "benchmark")
     if n_knots is not None:

@@ -73,7 +73,8 @@ def solve_benchmark(
     """Solve a benchmark (a name of `jtraj.attitude.benchmarks.BENCHMARKS` or a `Benchmark`)
     in one formulation.
 
-    ``n_knots`` (and any ``benchmark_kwargs``, e.g. ``tf``) go to the benchmark's factory;
+    ``n_knots`` (and any ``benchmark_kwargs``, e.g. ``tf``) go to the benchmark's factory
+    (with a built `Benchmark` they raise ValueError);
     ``options`` (a dict of option names or the solver's options object) go over
     `IPOPT_OPTIONS` for Ipopt. JAX functions are compiled before the solver starts, so
     ``time_s`` is the solve alone. With ``out``, saves into `result_directory`.
