@@ -48,7 +48,8 @@ measurement is ``v_body[i] = A(q_true)^T Exp(xi_i) v_world[i]`` with
 a Rayleigh-distributed angle with scale 5 degrees, mean 6.3 degrees); the initial guess is
 the SVD solution rotated by exactly 10 degrees about a uniformly random axis,
 ``q_init = q_svd (x) Exp(10 deg * axis)``, so that every curve starts at 10 degrees as in
-Fig. 2 (the SVD solution itself is about 1 degree from the true attitude).
+Fig. 2 (the SVD solution itself is about 2 degrees from the true attitude: 1.4 degrees per
+axis, ``5 / sqrt(2 n / 3)`` for n = 20 vectors; mean 2.3 degrees over the 100 trials of seed 0).
 """
 
 from __future__ import annotations
