@@ -162,6 +162,11 @@ def test_bad_requests_are_reported():
         B.barrel_roll(speed=float("inf"))
     with pytest.raises(ValueError, match="too long"):
         B.satellite_slew(n_knots=21)  # 5 s steps cannot resolve the 0.3 Hz mode
+    # regression: a negative angle became the cone of its absolute value, 200 a cone about -sun
+    for angle in (-10.0, 180.0, 200.0, float("nan"), "40"):
+        with pytest.raises(ValueError, match=r"benchmark satellite: keep_out_deg must be None or a number of degrees in \[0, 180\)"):
+            B.satellite_slew(keep_out_deg=angle)
+    assert B.satellite_slew(keep_out_deg=0.0).keep_out.angle_deg == 0.0
 
 
 def test_a_built_benchmark_refuses_factory_arguments():

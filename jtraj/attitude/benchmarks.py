@@ -414,7 +414,7 @@ class SatelliteSlew(Benchmark):
         attitude, modes at rest (``eta = eta_dot = 0``), wheels free, in ``tf`` = 100 s with
         N = 401 knots (h = 0.25 s); wheel torques ``|u_i| <= 0.5`` N m; the camera axis
         (0.360, -0.930, 0.079) must stay ``keep_out_deg`` (40) degrees or more from the sun
-        direction (1, 0, 0) at every knot (eq. 43; None drops it). The geodesic (constant-axis)
+        direction (1, 0, 0) at every knot (eq. 43; an angle in [0, 180), None drops it). The geodesic (constant-axis)
         slew passes 35 degrees from the sun, so the constraint is active. Stage costs (documented
         choices): 1/2 (10 |omega|^2 + 10 |eta|^2 + 10 |eta_dot|^2 + |u|^2) and an attitude weight
         of 1 toward the goal. Warm start: at rest at the initial attitude, zero torques (the
@@ -423,6 +423,9 @@ class SatelliteSlew(Benchmark):
         The RK4 step must resolve the fastest flexible mode: ``2 pi f_max h`` above 2.5 raises.
         """
         _check_n_knots("satellite", n_knots, 11, tf=tf)
+        if keep_out_deg is not None and not (is_real(keep_out_deg) and 0.0 <= keep_out_deg < 180.0):
+            # cos() would take -10 for 10 and 200 for 160 degrees without a word
+            raise ValueError(f"benchmark satellite: keep_out_deg must be None or a number of degrees in [0, 180), got {keep_out_deg!r}")
         model = M.FlexibleSpacecraft()
         N, nx, nu = n_knots, model.nx, model.nu
         h = tf / (N - 1)
