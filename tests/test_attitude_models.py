@@ -277,6 +277,4 @@ def test_vmap_equals_loop(name, rng):
     us = jnp.stack([random_control(model, rng) for _ in range(4)])
     batched = jax.jit(jax.vmap(lambda x, u: M.rk4(model.dynamics, x, u, 0.01)))(xs, us)
     for i in range(4):
-        np.testing.assert_allclose(
-            batched[i], M.rk4(model.dynamics, xs[i], us[i], 0.01), rtol=1e-13, atol=1e-15
-        )
+        np.testing.assert_allclose(batched[i], M.rk4(model.dynamics, xs[i], us[i], 0.01), rtol=1e-13, atol=1e-15)

@@ -181,9 +181,7 @@ def test_vmap_equals_loop():
     for i in range(3):
         single = one(keys[i], **kwargs)
         for name in W.WahbaErrors._fields:
-            np.testing.assert_allclose(
-                getattr(batched, name)[i], getattr(single, name), rtol=1e-10, atol=1e-15
-            )
+            np.testing.assert_allclose(getattr(batched, name)[i], getattr(single, name), rtol=1e-10, atol=1e-15)
 
 
 def test_convergence_order_estimates():

@@ -162,8 +162,6 @@ class Benchmark(abc.ABC):
             raise ValueError(f"benchmark {self.name}: a lower bound exceeds its upper bound")
 
 
-
-
 def _scaled_knot(k_full: int, n_full: int, n_knots: int) -> int:
     """Knot index of the full-size problem mapped to a horizon of n_knots (same time)."""
     return round(k_full * (n_knots - 1) / (n_full - 1))
@@ -187,14 +185,10 @@ def _slerp_path(q0: np.ndarray, axis, angle: float, n: int) -> np.ndarray:
     return np.stack([M.quat_about_axis(axis, angle * s) for s in np.linspace(0, 1, n)]) @ np.asarray(quat.R(jnp.asarray(q0))).T
 
 
-
-
 def _angle_between(qa: np.ndarray, qb: np.ndarray) -> float:
     """Rotation angle (deg) between two (possibly non-unit) quaternions."""
     qa, qb = qa / np.linalg.norm(qa), qb / np.linalg.norm(qb)
     return math.degrees(2 * math.acos(min(1.0, abs(float(qa @ qb)))))
-
-
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -398,8 +392,6 @@ CAMERA_BODY = tuple(np.array([0.360, -0.930, 0.079]) / np.linalg.norm([0.360, -0
 SUN_WORLD = (1.0, 0.0, 0.0)
 
 
-
-
 @dataclasses.dataclass(frozen=True, eq=False)
 class SatelliteSlew(Benchmark):
     """The flexible spacecraft slew of the paper's Section VI-A (see `build`)."""
@@ -432,8 +424,7 @@ class SatelliteSlew(Benchmark):
         stiffest = 2 * math.pi * max(model.modal_frequencies_hz) * h
         if stiffest > 2.5:
             raise ValueError(
-                f"satellite: step {h:.3g} s is too long for the {max(model.modal_frequencies_hz)} Hz mode "
-                f"(2 pi f h = {stiffest:.2f} > 2.5, RK4 loses stability); use more knots or a shorter tf"
+                f"satellite: step {h:.3g} s is too long for the {max(model.modal_frequencies_hz)} Hz mode (2 pi f h = {stiffest:.2f} > 2.5, RK4 loses stability); use more knots or a shorter tf"
             )
         q0 = M.quat_about_axis((1.0, 2.0, 3.0), math.radians(150.0))
         x0 = np.zeros(nx)

@@ -78,9 +78,7 @@ def rk4(f: Dynamics, x: jax.Array, u: jax.Array, h: float | jax.Array) -> jax.Ar
     return x + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
 
 
-def rigid_body_dynamics(
-    x: jax.Array, force_world: jax.Array, torque_body: jax.Array, mass: float, inertia: jax.Array
-) -> jax.Array:
+def rigid_body_dynamics(x: jax.Array, force_world: jax.Array, torque_body: jax.Array, mass: float, inertia: jax.Array) -> jax.Array:
     """Eq. 10 for ``x = [r, q, v, omega]`` (13,): force in the world frame (N), torque about
     the centre of mass in the body frame (N m), ``inertia`` (3, 3) in the body frame (kg m^2).
 
@@ -351,10 +349,7 @@ def _pyramid_axes(elevation_deg: float) -> tuple[tuple[float, float, float], ...
     # Spin axes at 45, 135, 225, 315 degrees of azimuth about body z, tilted elevation_deg
     # out of the xy plane.
     b = math.radians(elevation_deg)
-    return tuple(
-        (math.cos(b) * math.cos(a), math.cos(b) * math.sin(a), math.sin(b))
-        for a in (math.pi / 4 + k * math.pi / 2 for k in range(4))
-    )
+    return tuple((math.cos(b) * math.cos(a), math.cos(b) * math.sin(a), math.sin(b)) for a in (math.pi / 4 + k * math.pi / 2 for k in range(4)))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -437,9 +432,7 @@ class FlexibleSpacecraft:
         eta, eta_dot = x[self.ETA], x[self.ETA_DOT]
         H = self.angular_momentum_body(x)
         elastic = m["C"] @ eta_dot + m["K"] @ eta
-        w_dot = jnp.linalg.solve(
-            m["J"] - m["delta"].T @ m["delta"], -jnp.cross(w, H) - m["A_w"] @ u + m["delta"].T @ elastic
-        )
+        w_dot = jnp.linalg.solve(m["J"] - m["delta"].T @ m["delta"], -jnp.cross(w, H) - m["A_w"] @ u + m["delta"].T @ elastic)
         eta_ddot = -m["delta"] @ w_dot - elastic
         q_dot = 0.5 * quat.L(q) @ quat.H @ w
         return jnp.concatenate([x[VEL], q_dot, jnp.zeros(3, x.dtype), w_dot, eta_dot, eta_ddot, u])

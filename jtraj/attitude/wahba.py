@@ -148,9 +148,7 @@ def rotation_matrix_euler_rodrigues(q: jax.Array) -> jax.Array:
     return jnp.eye(3, dtype=q.dtype) + 2.0 * q[0] * K + 2.0 * K @ K
 
 
-def wahba_residual(
-    q: jax.Array, problem: WahbaProblem, rotation: RotationFn = quat.rotation_matrix
-) -> jax.Array:
+def wahba_residual(q: jax.Array, problem: WahbaProblem, rotation: RotationFn = quat.rotation_matrix) -> jax.Array:
     """Stacked residuals ``r_i = v_world[i] - A(q) v_body[i]`` (eq. 19); (4,) -> (3 n,).
 
     ``rotation`` gives ``A(q)``; it matters only for q off the unit sphere (Algorithm 1).
@@ -305,16 +303,12 @@ def solve_trial(
         projected=errors(projected_gauss_newton(problem, iterations)),
         multiplicative=errors(multiplicative_gauss_newton(problem, iterations)),
         newton=errors(multiplicative_newton(problem, iterations)),
-        projected_homogeneous=errors(
-            projected_gauss_newton(problem, iterations, quat.rotation_matrix)
-        ),
+        projected_homogeneous=errors(projected_gauss_newton(problem, iterations, quat.rotation_matrix)),
     )
 
 
 def _solve_trials(keys, iterations, n_vectors, noise_std, init_offset):
-    return jax.vmap(solve_trial, in_axes=(0, None, None, None, None))(
-        keys, iterations, n_vectors, noise_std, init_offset
-    )
+    return jax.vmap(solve_trial, in_axes=(0, None, None, None, None))(keys, iterations, n_vectors, noise_std, init_offset)
 
 
 #: `solve_trial` vmapped over a batch of keys (trials,) and jit-compiled; ``iterations`` and
@@ -501,9 +495,7 @@ def plot_wahba(result: WahbaResult, path: str | Path | None = None):
     return fig
 
 
-def main_wahba(
-    out_dir: str | Path, trials: int = 100, iterations: int = 12, seed: int = 0
-) -> dict:
+def main_wahba(out_dir: str | Path, trials: int = 100, iterations: int = 12, seed: int = 0) -> dict:
     """Run the experiment and write ``out_dir``/wahba.npz, wahba.json and wahba.png.
 
     Prints a short summary and returns the summary dictionary.
