@@ -122,6 +122,15 @@ def test_quadrotor_motor_torques():
     np.testing.assert_allclose(v_dot, [0.0, -9.81, -9.81], atol=1e-14)
 
 
+def test_quat_about_axis():
+    np.testing.assert_allclose(M.quat_about_axis((0.0, 0.0, 2.0), math.pi / 2), [math.cos(math.pi / 4), 0.0, 0.0, math.sin(math.pi / 4)], atol=1e-16)
+    np.testing.assert_allclose(M.quat_about_axis((1.0, 0.0, 0.0), 2 * math.pi), [-1.0, 0.0, 0.0, 0.0], atol=1e-15)  # continuous branch
+    # regression: a zero axis gave NaNs, a 2-vector a 3-element "quaternion", both silently
+    for axis in ((0.0, 0.0, 0.0), (1.0, 0.0), (1.0, np.nan, 0.0)):
+        with pytest.raises(ValueError, match="quat_about_axis: axis must be a finite nonzero 3-vector"):
+            M.quat_about_axis(axis, 1.0)
+
+
 def test_flat_plate_coefficients():
     """One plate, no fuselage: C_L = 2 sin a cos a and C_D = 2 sin^2 a at every angle."""
     S, rho, V = 0.3, 1.225, 4.0

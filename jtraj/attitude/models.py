@@ -100,7 +100,10 @@ def quat_about_axis(axis, angle: float) -> np.ndarray:
     here). Angles beyond pi give the quaternion on the continuous branch from the identity:
     ``angle = 2 pi`` gives ``[-1, 0, 0, 0]``."""
     a = np.asarray(axis, float)
-    a = a / np.linalg.norm(a)
+    n = np.linalg.norm(a) if a.shape == (3,) else 0.0
+    if not (np.isfinite(n) and n > 0.0):
+        raise ValueError(f"quat_about_axis: axis must be a finite nonzero 3-vector, got {axis!r}")
+    a = a / n
     return np.concatenate([[math.cos(angle / 2)], math.sin(angle / 2) * a])
 
 
