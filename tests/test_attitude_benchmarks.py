@@ -202,6 +202,16 @@ def test_cli_refuses_a_knot_count_in_one_line(argv, message, tmp_path, capsys):
     assert not any(tmp_path.iterdir())  # nothing was solved or written
 
 
+def test_cli_main_blames_knots_only_when_given(tmp_path):
+    """Without --knots, an error of the benchmark is not reported as '--knots: None: ...'."""
+    from jtraj.attitude.cli import main as attitude_main
+    from jtraj.cli import InputError
+
+    with pytest.raises(ValueError, match="unknown benchmark 'loop'") as err:
+        attitude_main("loop", "attitude", tmp_path)
+    assert not isinstance(err.value, InputError), err.value
+
+
 # ---------------------------------------------------------------------------------------- solves
 
 
