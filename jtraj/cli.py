@@ -545,6 +545,7 @@ def _check_inputs(args: argparse.Namespace) -> None:
     elif cmd == "wahba":
         _check_positive_int("--trials", args.trials)
         _check_positive_int("--iterations", args.iterations)
+        _check_positive_int("--seed", args.seed, 0)  # JAX's PRNGKey refuses a negative seed
         _check_out(args.out)
     elif cmd == "attitude":
         if args.render and args.bench == "all":

@@ -60,6 +60,7 @@ def _run(argv, capsys):
         # several items: the error names the bad one alone
         (["solve", "big_jump", "--solver", "jtraj", "--ipopt", "tol=1e-6", "--ipopt", "constr_viol_tol=-1"], "jtraj solve: --ipopt: 'constr_viol_tol=-1': jtraj option constr_viol_tol=-1"),
         (["attitude", "all", "--render"], "jtraj attitude: --render: all: draws one benchmark; give its name"),
+        (["wahba", "--seed", "-1"], "jtraj wahba: --seed: -1: expected an integer >= 0"),
         (["robustness", "--tasks", "big_jump", "--ipopt", "max_itr=3"], "jtraj robustness: --ipopt max_itr: 3: unknown Ipopt option; did you mean max_iter"),
         # a sweep's repeats would be solved and counted twice
         (["robustness", "--tasks", "big_jump", "--sigmas", "0.1,1e-1"], "jtraj robustness: --sigmas: 0.1: noise level given 2 times; expected each noise level once"),
