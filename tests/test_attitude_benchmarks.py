@@ -251,7 +251,7 @@ def test_barrel_roll_short():
 @pytest.mark.slow
 def test_barrel_roll_naive_is_much_slower():
     """The naive barrel roll converges only after hundreds of iterations (365 at N = 21, none
-    within 1000 at N = 101, see the module docs of `benchmarks`). The attitude formulation must
+    within 1000 at N = 101, measured when this test was written). The attitude formulation must
     converge; the naive one, given three times the attitude formulation's iterations, must
     not (a cap that both hit would prove nothing, so the budget follows the measured count)."""
     att = solve("barrelroll", "attitude")

@@ -27,7 +27,7 @@ def small_task(**changes):
 
 def test_builtin_tasks_load_with_paper_knot_counts():
     assert tasks.available() == ["backflip", "big_jump", "handstand", "hopscotch", "sideflip", "walk"]
-    expected = {  # round(duration / h) per phase, summed (REFERENCE.md)
+    expected = {  # round(duration / h) per phase, summed (the paper's phase durations and time steps)
         "walk": 20 + 3 * (8 + 6 + 8 + 6) + 20,
         "hopscotch": 6 + 4 + 10 + 4 + 10 + 4 + 10 + 4 + 10 + 4 + 20,
         "big_jump": 20 + 6 + 20,

@@ -166,7 +166,7 @@ class Quadrotor:
     ``+km u``, rotors 2 and 4 ``-km u``. No rotor dynamics, no drag, no thrust limits (the
     commands may go negative; bound them in the problem if wanted).
 
-    Parameters (paper / REFERENCE.md): mass 0.5 kg, J = diag(0.0023, 0.0023, 0.004) kg m^2,
+    Parameters (the attitude paper's public benchmark code): mass 0.5 kg, J = diag(0.0023, 0.0023, 0.004) kg m^2,
     arm 0.175 m, kf 1.0 N per unit command, km 0.0245 N m per unit command, g = 9.81 m/s^2.
     """
 
