@@ -354,6 +354,12 @@ def _check_and_normalize(t: Task) -> None:
         duration = _real(phase.duration, f"phases[{i}].duration", "expected a positive number of seconds", positive=True)
         if round(duration / t.timestep) < 1:
             raise TaskError(f"phases[{i}].duration", duration, f"shorter than one knot (timestep {t.timestep:g} s); expected at least {t.timestep / 2:g} s")
+        # a phase is a whole number of knot intervals: rounding 0.12 s to 0.1 s at 0.05 s
+        # would silently change the motion (a shorter flight) from what the file says
+        knots = duration / t.timestep
+        if abs(knots - round(knots)) > 1e-6 * max(1.0, knots):
+            below, above = math.floor(knots) * t.timestep, math.ceil(knots) * t.timestep
+            raise TaskError(f"phases[{i}].duration", duration, f"not a whole number of timesteps ({t.timestep:g} s); expected a multiple such as {below:.6g} or {above:.6g} s")
         checked.append(Phase(tuple(contacts), duration))
     put("phases", tuple(checked))
     if not checked[0].contacts:

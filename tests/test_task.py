@@ -85,6 +85,8 @@ def test_warm_start_ramp_reaches_full_turn_over_flight():
         (dict(phases=(Phase(FEET, 0.1), Phase((), 0.0), Phase(FEET, 0.1))), r"^phases\[1\].duration: 0.0: expected a positive"),
         (dict(phases=(Phase(FEET, 0.1), Phase((), 0.01), Phase(FEET, 0.1))), r"^phases\[1\].duration: 0.01: shorter than one knot"),
         (dict(phases=(Phase("FL_foot", 0.1),)), r"^phases\[0\].contacts: 'FL_foot': expected a list of contact names"),
+        # a duration between knots was rounded to the nearest knot (0.12 s flew 0.1 s)
+        (dict(phases=(Phase(FEET, 0.1), Phase((), 0.12), Phase(FEET, 0.1))), r"^phases\[1\].duration: 0.12: not a whole number of timesteps \(0.05 s\); expected a multiple such as 0.1 or 0.15 s$"),
         (dict(friction=-0.5), r"^friction: -0.5: expected a positive"),
         (dict(friction="high"), r"^friction: 'high': expected a positive"),
         (dict(max_iter=-3), r"^max_iter: -3: expected a positive whole number"),
@@ -171,6 +173,7 @@ phases = [1]
         ("timestep = 0.05", "timestep = 0", r"timestep: 0: expected a positive number of seconds"),
         ("timestep = 0.05", 'timestep = "fast"', r"timestep: 'fast': expected a positive number"),
         ("duration = 0.1", "duration = 0", r"phases\[1\].duration: 0: expected a positive"),
+        ("duration = 0.1", "duration = 0.33", r"phases\[1\].duration: 0.33: not a whole number of timesteps \(0.05 s\); expected a multiple such as 0.3 or 0.35 s"),
         ("[target]\n", "[target]\nrotation_rpy = 3\n", r"target.rotation_rpy: 3: expected a list of 3 numbers"),
         ('robot = "go2"', 'robot = "spot"', r"robot: 'spot': expected one of"),
         ('robot = "go2"', 'robot = "go2"\nspeed = 3', r"speed: unknown field"),
