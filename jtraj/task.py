@@ -387,7 +387,14 @@ def _check_and_normalize(t: Task) -> None:
             raise TaskError(f"warm_start_rules[{i}].profile", rule.profile, "expected 'ramp' or 'hold'")
         axis = _vector(rule.axis, f"warm_start_rules[{i}].axis", nonzero=True)
         angle = _real(rule.angle, f"warm_start_rules[{i}].angle", "expected an angle in radians")
-        rules.append(RotationRule(rule.profile, axis, angle, _indices(rule.phases, f"warm_start_rules[{i}].phases", len(checked))))
+        phases_i = _indices(rule.phases, f"warm_start_rules[{i}].phases", len(checked))
+        if rule.profile is Profile.RAMP and sorted(set(phases_i)) != list(range(min(phases_i), max(phases_i) + 1)):
+            # a ramp runs from its first phase's start to its last phase's end: a gap in the
+            # list would be ramped through as if it were listed
+            raise TaskError(
+                f"warm_start_rules[{i}].phases", _Raw(repr(list(phases_i))), f"a ramp spans consecutive phases; expected every index from {min(phases_i)} to {max(phases_i)}"
+            )
+        rules.append(RotationRule(rule.profile, axis, angle, phases_i))
     put("warm_start_rules", tuple(rules))
     joint_rules = []
     for i, rule in enumerate(tuple(t.warm_start_joints)):

@@ -164,6 +164,8 @@ phases = [1]
         ("angle = 0.5\n", "", r"warm_start_rules\[0\].angle: missing: expected a rotation angle"),
         ("axis = [0.0, 1.0, 0.0]\n", "", r"warm_start_rules\[0\].axis: missing"),
         ("phases = [1]\n", "", r"warm_start_rules\[0\].phases: missing"),
+        # a ramp over [0, 2] ramped through phase 1 as well
+        ("phases = [1]\n", "phases = [0, 2]\n", r"warm_start_rules\[0\].phases: \[0, 2\]: a ramp spans consecutive phases; expected every index from 0 to 2"),
         ('robot = "go2"', 'robot = "go2"\nfriction = "high"', r"friction: 'high': expected a positive friction coefficient"),
         ('robot = "go2"', 'robot = "go2"\nmax_iter = "lots"', r"max_iter: 'lots': expected a positive whole number"),
         ('robot = "go2"', 'robot = "go2"\nmax_iter = -1', r"max_iter: -1: expected"),
