@@ -258,6 +258,9 @@ class Result:
             fields = {f.name: _float_or_nan(f, data[f.name]) for f in dataclasses.fields(cls) if f.name not in ("stats", "trajectory")}
             fields["status"] = _member(Outcome, data["status"])
             fields["solver_status"] = _member(Status, data["solver_status"])
+            # the numbers of these tables are floats too (NaN for a failed group or iteration)
+            fields["violation_by_group"] = _nan_for_null(fields["violation_by_group"])
+            fields["history"] = [_nan_for_null(row) for row in fields["history"]] if isinstance(fields["history"], list) else fields["history"]
         except KeyError as e:
             raise io.FileFormatError(f"{path}: missing field {e.args[0]!r}; not a jtraj result") from None
         except ValueError as e:
@@ -269,6 +272,11 @@ class Result:
 def _float_or_nan(field: dataclasses.Field, value: Any) -> Any:
     """A float field's value as read back: strict JSON writes NaN and infinities as null."""
     return math.nan if value is None and field.type in ("float", float) else value
+
+
+def _nan_for_null(table: Any) -> Any:
+    """A table of floats as read back: its nulls (NaN and infinities when written) are NaN."""
+    return {k: math.nan if v is None else v for k, v in table.items()} if isinstance(table, dict) else table
 
 
 def _member(enum_cls: Any, value: Any) -> Any:

@@ -109,6 +109,18 @@ def test_non_finite_numbers_are_written_as_strict_json(tmp_path):
     assert "cost nan, violation nan" in back.summary()
 
 
+def test_non_finite_numbers_in_the_float_tables_come_back_as_nan(tmp_path):
+    """The per-group violations and the history's numbers are floats too: strict JSON writes
+    NaN and inf as null, and they came back as None where the top-level floats came back NaN."""
+    row = {"iter": 3, "objective": float("nan"), "inf_pr": float("inf"), "inf_du": 0.5, "mu": 0.1, "alpha_pr": 0.0}
+    r = make_result(None, violation_by_group={"dynamics": float("nan"), "bounds": 0.0}, history=[row])
+    back = Result.load(r.save(tmp_path))
+    assert np.isnan(back.violation_by_group["dynamics"]) and back.violation_by_group["bounds"] == 0.0
+    (loaded,) = back.history
+    assert loaded.keys() == row.keys() and np.isnan(loaded["objective"]) and np.isnan(loaded["inf_pr"])
+    assert {k: loaded[k] for k in ("iter", "inf_du", "mu", "alpha_pr")} == {"iter": 3, "inf_du": 0.5, "mu": 0.1, "alpha_pr": 0.0}
+
+
 def test_load_takes_the_result_file_for_its_folder(tmp_path):
     make_result(state_trajectory()).save(tmp_path / "r")
     assert_same(Result.load(tmp_path / "r" / "result.json"), Result.load(tmp_path / "r"))
