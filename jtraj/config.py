@@ -55,11 +55,13 @@ def default_cache_dir() -> Path:
 
 def enable_compilation_cache(path: str | Path | None = None) -> Path | None:
     """Turn on JAX's persistent compilation cache (default ``~/.cache/jtraj/jax``), so a second
-    process reuses the compiled NLP functions. ``JTRAJ_NO_CACHE=1`` turns it off."""
+    process reuses the compiled NLP functions. ``JTRAJ_NO_CACHE=1`` turns it off (``0``,
+    ``false``, ``no``, ``off`` or an empty value leave it on); an empty ``JTRAJ_CACHE_DIR`` is
+    the default folder, not the working directory."""
     global _enabled
-    if os.environ.get("JTRAJ_NO_CACHE"):
+    if os.environ.get("JTRAJ_NO_CACHE", "").strip().lower() not in ("", "0", "false", "no", "off"):
         return None
-    target = Path(path) if path is not None else Path(os.environ.get("JTRAJ_CACHE_DIR", default_cache_dir()))
+    target = Path(path) if path is not None else Path(os.environ.get("JTRAJ_CACHE_DIR") or default_cache_dir())
     if _enabled == target:
         return target
     target.mkdir(parents=True, exist_ok=True)

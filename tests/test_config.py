@@ -56,3 +56,33 @@ def test_split_cpu_leaves_a_started_jax_alone():
     assert len(jax.devices("cpu")) == 2
     assert config.split_cpu(3) is None
     assert len(jax.devices("cpu")) == 2
+
+
+@pytest.mark.parametrize(
+    "env, expected",
+    [
+        ({"JTRAJ_NO_CACHE": "1"}, None),
+        # 0 turned the cache off as well (any non-empty value did): every process compiled again
+        ({"JTRAJ_NO_CACHE": "0"}, "default"),
+        ({"JTRAJ_NO_CACHE": "false"}, "default"),
+        # an empty folder name put the cache into the working directory
+        ({"JTRAJ_CACHE_DIR": ""}, "default"),
+        ({"JTRAJ_CACHE_DIR": "elsewhere"}, "elsewhere"),
+    ],
+)
+def test_cache_switches_read_as_documented(monkeypatch, tmp_path, env, expected):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    for name in ("JTRAJ_NO_CACHE", "JTRAJ_CACHE_DIR"):
+        monkeypatch.delenv(name, raising=False)
+    for name, value in env.items():
+        monkeypatch.setenv(name, value)
+    updates: dict = {}
+    monkeypatch.setattr(jax.config, "update", lambda name, value: updates.__setitem__(name, value))  # this process's cache stays as it is
+    monkeypatch.setattr(config, "_enabled", None)
+    target = config.enable_compilation_cache()
+    if expected is None:
+        assert target is None and not updates
+    else:
+        want = tmp_path / "xdg" / "jtraj" / "jax" if expected == "default" else tmp_path / expected
+        assert target is not None and target.absolute() == want and updates["jax_compilation_cache_dir"] == str(target)
