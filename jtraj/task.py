@@ -397,6 +397,7 @@ def _check_and_normalize(t: Task) -> None:
         rules.append(RotationRule(rule.profile, axis, angle, phases_i))
     put("warm_start_rules", tuple(rules))
     joint_rules = []
+    set_by: dict[tuple[int, str], int] = {}  # (phase, joint) -> the rule that sets it
     for i, rule in enumerate(tuple(t.warm_start_joints)):
         if not isinstance(rule, JointRule):
             raise TaskError(f"warm_start_joints[{i}]", rule, "expected a JointRule(phases, joints, place_on_terrain)")
@@ -410,6 +411,12 @@ def _check_and_normalize(t: Task) -> None:
             raise TaskError(f"warm_start_joints[{i}].joints", _Raw("{}"), "expected at least one joint = angle (rad)")
         if not isinstance(rule.place_on_terrain, bool):
             raise TaskError(f"warm_start_joints[{i}].place_on_terrain", rule.place_on_terrain, "expected true or false")
+        for joint, value in joints:
+            for p in phases_i:
+                # two rules for one joint in one phase: the later one won without a word
+                j = set_by.setdefault((p, joint), i)
+                if j != i:
+                    raise TaskError(f"warm_start_joints[{i}].joints.{joint}", value, f"also set in phase {p} by warm_start_joints[{j}]; expected each joint set by one rule per phase")
         joint_rules.append(JointRule(phases_i, tuple(joints), rule.place_on_terrain))
     put("warm_start_joints", tuple(joint_rules))
     if t.flip_axis is not None:

@@ -97,12 +97,22 @@ def test_warm_start_ramp_reaches_full_turn_over_flight():
         (dict(flip_turns=1), r"^flip_turns: 1: expected no flip_turns without a flip_axis"),
         (dict(target_translation=(1.0, 0.0)), r"^target_translation: \[1.0, 0.0\]: expected a list of 3 numbers$"),
         (dict(warm_start_joints=(JointRule((7,), (("FL_calf_joint", -1.0),)),)), r"^warm_start_joints\[0\].phases: \[7\]: expected a non-empty list of phase indices in 0..2"),
+        # two rules setting one joint in one phase: the later one won without a word
+        (
+            dict(warm_start_joints=(JointRule((0, 1), (("FL_calf_joint", -1.0),)), JointRule((1,), (("FL_thigh_joint", 0.5), ("FL_calf_joint", -2.0))))),
+            r"^warm_start_joints\[1\].joints.FL_calf_joint: -2.0: also set in phase 1 by warm_start_joints\[0\]; expected each joint set by one rule per phase$",
+        ),
     ],
 )
 def test_bad_tasks_fail_when_built(changes, match):
     # robot-independent checks: building the Task is enough, no robot model is loaded
     with pytest.raises(TaskError, match=match):
         small_task(**changes)
+
+
+def test_joint_rules_may_share_a_phase_or_a_joint():
+    rules = (JointRule((0,), (("FL_calf_joint", -1.0),)), JointRule((1,), (("FL_calf_joint", -2.0),)), JointRule((0, 1), (("FL_thigh_joint", 0.5),)))
+    assert small_task(warm_start_joints=rules).warm_start_joints == rules
 
 
 @pytest.mark.parametrize(
