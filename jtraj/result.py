@@ -9,7 +9,11 @@ decoded trajectory (any dataclass of arrays: `jtraj.transcription.Trajectory` fo
 Files: ``save(DIR)`` writes ``DIR/result.json`` (strict JSON, atomically) and
 ``DIR/trajectory.npz`` (atomically; removed when the result has no trajectory, so that an
 older one cannot be taken for this result's); `Result.load` reads them back and raises
-`jtraj.io.FileFormatError` naming the file when one is missing, empty or corrupt.
+`jtraj.io.FileFormatError` naming the file when one is missing, empty or corrupt. Each file
+is atomic, the pair is not: ``result.json`` records a digest of the trajectory file's arrays
+(``trajectory_sha256``, null without a trajectory), so that a save interrupted between the
+two files is refused by `Result.load` instead of pairing one solve's result with another's
+trajectory. Files written before the digest load as they are.
 
 This module imports neither MuJoCo nor the transcription: the trajectory's class is recorded
 by name in the NPZ file and imported when the file is loaded.
@@ -18,6 +22,7 @@ by name in the NPZ file and imported when the file is loaded.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import importlib
 import math
 import zipfile
@@ -34,6 +39,7 @@ __all__ = ["Outcome", "Result"]
 RESULT_FILE = "result.json"
 TRAJECTORY_FILE = "trajectory.npz"
 _KIND_KEY = "__trajectory_class__"
+_DIGEST_KEY = "trajectory_sha256"
 
 
 class Outcome(MessageEnum):
@@ -234,12 +240,14 @@ class Result:
         a trajectory, an older ``trajectory.npz`` there is removed."""
         d = Path(directory)
         d.mkdir(parents=True, exist_ok=True)
-        io.write_json(d / RESULT_FILE, self.to_json())
+        arrays = None if self.trajectory is None else _trajectory_arrays(self.trajectory)
+        # the two files are replaced one after the other: the digest ties them together
+        io.write_json(d / RESULT_FILE, {**self.to_json(), _DIGEST_KEY: None if arrays is None else _digest(arrays)})
         npz = d / TRAJECTORY_FILE
-        if self.trajectory is None:
+        if arrays is None:
             npz.unlink(missing_ok=True)
         else:
-            io.write_npz(npz, **_trajectory_arrays(self.trajectory))
+            io.write_npz(npz, **arrays)
         return d
 
     @classmethod
@@ -265,7 +273,14 @@ class Result:
             raise io.FileFormatError(f"{path}: missing field {e.args[0]!r}; not a jtraj result") from None
         except ValueError as e:
             raise io.FileFormatError(f"{path}: {e}") from None
-        trajectory = _load_trajectory(d / TRAJECTORY_FILE) if (d / TRAJECTORY_FILE).exists() else None
+        npz = d / TRAJECTORY_FILE
+        trajectory = None
+        if _DIGEST_KEY in data and data[_DIGEST_KEY] is None:
+            pass  # saved without a trajectory: a trajectory file beside it is an earlier one
+        elif npz.exists():
+            trajectory, digest = _load_trajectory(npz)
+            if _DIGEST_KEY in data and data[_DIGEST_KEY] != digest:
+                raise io.FileFormatError(f"{npz}: not the trajectory of {path} (its digest differs: a save interrupted between the two files?)")
         return cls(**fields, stats=stats, trajectory=trajectory)
 
 
@@ -299,12 +314,24 @@ def _trajectory_arrays(trajectory: Any) -> dict[str, np.ndarray]:
     return arrays
 
 
-def _load_trajectory(path: Path) -> Any:
+def _digest(arrays: dict[str, np.ndarray]) -> str:
+    """SHA-256 of a trajectory file's arrays: names, dtypes, shapes and bytes."""
+    h = hashlib.sha256()
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        h.update(f"{name}\0{a.dtype.str}\0{a.shape}\0".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def _load_trajectory(path: Path) -> tuple[Any, str]:
+    """The trajectory in ``path`` and the `_digest` of its arrays."""
     try:
         with np.load(path) as z:
             arrays = {k: z[k] for k in z.files}
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
         raise io.FileFormatError(f"{path}: not a readable NPZ file ({e})") from None
+    digest = _digest(arrays)
     kind = arrays.pop(_KIND_KEY, None)
     if kind is None:
         raise io.FileFormatError(f"{path}: no {_KIND_KEY} entry; not a jtraj trajectory")
@@ -327,6 +354,6 @@ def _load_trajectory(path: Path) -> Any:
     # string arrays (contact names) come back as tuples of str
     values = {k: tuple(str(s) for s in v) if v.dtype.kind == "U" and v.ndim == 1 else v for k, v in arrays.items()}
     try:
-        return cls(**values)
+        return cls(**values), digest
     except TypeError as e:
         raise io.FileFormatError(f"{path}: does not match {name} ({e})") from None

@@ -121,6 +121,43 @@ def test_non_finite_numbers_in_the_float_tables_come_back_as_nan(tmp_path):
     assert {k: loaded[k] for k in ("iter", "inf_du", "mu", "alpha_pr")} == {"iter": 3, "inf_du": 0.5, "mu": 0.1, "alpha_pr": 0.0}
 
 
+@pytest.mark.parametrize("second", ["with_trajectory", "without_trajectory"])
+def test_a_save_interrupted_between_its_files_is_not_loaded_as_a_pair(tmp_path, monkeypatch, second):
+    """save() replaces result.json, then trajectory.npz: killed in between, the folder held the
+    new result beside the earlier solve's trajectory, and load() paired them without a word."""
+    import jtraj.io
+
+    make_result(state_trajectory(), cost=1.0).save(tmp_path)
+
+    def killed(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(jtraj.io, "write_npz", killed)
+    monkeypatch.setattr(type(tmp_path / "x"), "unlink", killed)
+    other = StateTrajectory(t=np.linspace(0, 2, 3), X=np.ones((3, 13)), U=np.ones((2, 4)))
+    with pytest.raises(KeyboardInterrupt):
+        make_result(other if second == "with_trajectory" else None, cost=2.0).save(tmp_path)
+    monkeypatch.undo()
+    if second == "with_trajectory":
+        with pytest.raises(FileFormatError, match=r"trajectory\.npz: not the trajectory of .*result\.json"):
+            Result.load(tmp_path)
+    else:  # the new result has no trajectory: the earlier file beside it is not taken for its
+        back = Result.load(tmp_path)
+        assert back.cost == 2.0 and back.trajectory is None
+
+
+def test_results_saved_without_a_trajectory_digest_still_load(tmp_path):
+    """Folders written before result.json held the digest load as they did."""
+    import json
+
+    r = make_result(state_trajectory())
+    r.save(tmp_path)
+    data = json.loads((tmp_path / "result.json").read_text())
+    del data["trajectory_sha256"]
+    (tmp_path / "result.json").write_text(json.dumps(data))
+    assert_same(r, Result.load(tmp_path))
+
+
 def test_load_takes_the_result_file_for_its_folder(tmp_path):
     make_result(state_trajectory()).save(tmp_path / "r")
     assert_same(Result.load(tmp_path / "r" / "result.json"), Result.load(tmp_path / "r"))
