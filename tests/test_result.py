@@ -56,8 +56,8 @@ def assert_same(a: Result, b: Result):
             x, y = getattr(a.trajectory, f.name), getattr(b.trajectory, f.name)
             if isinstance(x, tuple):
                 assert x == y, f.name
-            else:
-                np.testing.assert_array_equal(x, y, err_msg=f.name)
+            else:  # assert_array_equal alone takes 1.0 for True and float64 for float32
+                np.testing.assert_array_equal(x, y, err_msg=f.name, strict=True)
 
 
 def test_round_trip_of_every_field(tmp_path):
@@ -73,7 +73,7 @@ def test_round_trip_of_a_whole_body_trajectory(tmp_path):
     K, P = 4, 2
     rng = np.random.default_rng(1)
     traj = Trajectory(
-        t=np.arange(K) * 0.05,
+        t=(np.arange(K) * 0.05).astype(np.float32),  # a float32 array stays float32
         base_xyz_wxyz=rng.normal(size=(K, 7)),
         q_base=rng.normal(size=(K, 6)),
         q_joints=rng.normal(size=(K, 3)),
