@@ -78,8 +78,14 @@ class TaskError(ValueError):
         return f"{head}{self.field}: {value}: {self.expected}"
 
     def with_source(self, source: str) -> TaskError:
-        """The same error, attributed to ``source`` (a file name)."""
-        return TaskError(_TOML_NAMES.get(self.field, self.field), self.value, self.expected, source)
+        """The same error, attributed to ``source`` (a file name), its field named by its TOML
+        path (``target_joints[3]`` is ``target.joints[3]`` there)."""
+        field = self.field
+        for python, toml in _TOML_NAMES.items():
+            if field == python or field.startswith((f"{python}[", f"{python}.")):
+                field = toml + field[len(python) :]
+                break
+        return TaskError(field, self.value, self.expected, source)
 
 
 class _Raw(str):
@@ -218,7 +224,17 @@ class Task:
     # -------------------------------------------------------------- validation
     def validate(self, robot=None) -> Task:
         """Raise `TaskError` for what needs the robot model (contact and joint names, joint
-        limits); the rest was checked when the task was built. Return self."""
+        limits); the rest was checked when the task was built. Return self. The error of a
+        task loaded from a file (`from_file`, `load`) names the file."""
+        source = getattr(self, "_source", None)
+        try:
+            return self._validate(robot)
+        except TaskError as e:
+            if source is None:
+                raise
+            raise e.with_source(source) from None
+
+    def _validate(self, robot) -> Task:
         from jtraj import robot as robot_module
 
         if robot is None:
@@ -491,9 +507,12 @@ def from_dict(data: dict[str, Any], source: str = "<dict>") -> Task:
     Every key at every level must be known, and every value of the right type; a `TaskError`
     names the first one that is not, with ``source`` as its origin."""
     try:
-        return _from_dict(data)
+        task = _from_dict(data)
     except TaskError as e:
         raise e.with_source(source) from None
+    # not a field (equality, the content hash and `replace` ignore it): validate() names it
+    object.__setattr__(task, "_source", source)
+    return task
 
 
 def _from_dict(data: dict[str, Any]) -> Task:

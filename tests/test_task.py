@@ -2,6 +2,7 @@
 name the field and what was expected."""
 
 import dataclasses
+import tomllib
 
 import numpy as np
 import pytest
@@ -198,6 +199,25 @@ def test_task_file_errors_name_file_field_value_and_expectation(tmp_path, old, n
     with pytest.raises(TaskError, match=match) as e:
         tasks.load(str(path))
     assert str(e.value).startswith(f"{path}: ") and "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize(
+    "old, new, match",
+    [
+        ('contacts = []', 'contacts = ["FL_foot", "left_paw"]', r"phases\[1\].contacts: 'left_paw': expected a contact of robot 'go2'"),
+        ("[target]\n", "[target]\njoints = [0.0, 0.7, -1.5, 0.0, 0.7, -1.5, 0.0, 0.7, -1.5, 0.0, 0.7, 5.0]\n", r"target.joints\[11\] \(RR_calf_joint\): 5.0: outside the joint limits"),
+    ],
+)
+def test_robot_checks_of_a_task_file_name_the_file_and_its_keys(go2, tmp_path, old, new, match):
+    """validate() of a task loaded from a file: the error named neither the file nor the TOML
+    key (``target_joints[11]``, a Python name), as a solve from Python reported it."""
+    path = tmp_path / "mine.toml"
+    path.write_text(_GOOD.replace(old, new, 1))
+    task = tasks.load(str(path))
+    with pytest.raises(TaskError, match=f"^{path}: {match}") as e:
+        task.validate(go2)
+    assert e.value.source == str(path) and "\n" not in str(e.value)
+    assert task == tasks.from_dict(tomllib.loads(path.read_text())) and task.content_hash() == task.replace().content_hash()
 
 
 def test_phases_must_be_an_array_of_tables():
