@@ -15,11 +15,15 @@ TOML form (see ``tasks/big_jump.toml``)::
     friction = 0.9
     max_delta_force = 100.0          # optional, N per knot and component
     max_iter = 200                   # optional, Ipopt's iteration limit for this task
+    force_limit_factor = 1.5         # optional: |f| <= factor * m g per force component
+    terrain_height = 0.0             # optional: height of the flat ground (m)
+    description = "..."              # optional, free text (not part of the content hash)
     flip_axis = [0.0, 1.0, 0.0]      # optional: the task is a flip about this world axis
     flip_turns = -1                  # its expected signed turns (right-hand rule about flip_axis)
     [target]
     translation = [1.0, 0.0, 0.0]    # base displacement from the standing pose, world frame (m)
     rotation_rpy = [0.0, 0.0, 0.0]   # base rotation from the standing pose (rad)
+    joints = [0.0, ...]              # optional: the final joint angles, one per joint (rad)
     [costs]
     configuration = 0.0              # 1/2 w |q_joints - q_joints_standing|^2 per knot
     acceleration = 0.0               # 1/2 w |a_joints|^2 per knot

@@ -220,6 +220,15 @@ def test_robot_checks_of_a_task_file_name_the_file_and_its_keys(go2, tmp_path, o
     assert task == tasks.from_dict(tomllib.loads(path.read_text())) and task.content_hash() == task.replace().content_hash()
 
 
+def test_the_module_docstring_gives_every_key():
+    """The README sends users to the module docstring for "the whole format": it left out
+    force_limit_factor, terrain_height, description and target.joints, which files accept."""
+    doc = tasks.__doc__
+    keys = [k for k in tasks._TOP_KEYS if k != "warm_start"] + [k for table in ("target", "costs", "phases", "warm_start_rules", "warm_start_joints") for k in tasks._TABLE_KEYS[table]]
+    missing = [k for k in keys if f"{k} =" not in doc and f"[{k}]" not in doc]
+    assert not missing
+
+
 def test_phases_must_be_an_array_of_tables():
     with pytest.raises(TaskError, match=r"^<dict>: phases: 3: expected an array of tables \[\[phases\]\]"):
         tasks.from_dict({"name": "x", "robot": "go2", "timestep": 0.05, "phases": 3})
