@@ -596,6 +596,8 @@ def from_file(path: str | Path) -> Task:
         raise TaskError("task file", str(path), "does not exist; expected a .toml task file") from None
     except tomllib.TOMLDecodeError as e:
         raise TaskError("task file", str(path), f"not valid TOML ({e})") from None
+    except UnicodeDecodeError as e:  # TOML is UTF-8: a Latin-1 description, say
+        raise TaskError("task file", str(path), f"not UTF-8 text ({e.reason} at byte {e.start}); expected a TOML file in UTF-8") from None
     return from_dict(data, source=str(path))
 
 

@@ -281,6 +281,10 @@ def test_task_files(tmp_path):
     assert t.n_knots == 5 and t.phases[0].contacts == FEET
     with pytest.raises(TaskError, match="does not exist"):
         tasks.load(str(tmp_path / "missing.toml"))
+    # a description written in Latin-1 ended in a UnicodeDecodeError from inside tomllib
+    path.write_bytes(path.read_bytes() + 'description = "d\xe9part"\n'.encode("latin-1"))
+    with pytest.raises(TaskError, match=r"^task file: '.*mine.toml': not UTF-8 text \(invalid continuation byte at byte \d+\); expected a TOML file in UTF-8$"):
+        tasks.load(str(path))
     with pytest.raises(TaskError, match=r"^task: 'moonwalk': unknown task"):
         tasks.load("moonwalk")
 
