@@ -9,7 +9,7 @@ JSON is strict (RFC 8259): ``NaN``, ``Infinity`` and ``-Infinity`` are not JSON,
 default ``json.dump`` writes them anyway. Here a non-finite float is written as ``null``
 (a failed solve can legitimately have a NaN objective, and losing the whole result file over
 it would be worse); the encoder then runs with ``allow_nan=False`` so that nothing non-finite
-can slip through. numpy scalars and arrays, enums and dataclasses are converted on the way.
+can slip through. numpy and JAX scalars and arrays, enums and dataclasses are converted on the way.
 
 `read_json` raises `FileFormatError` (a `ValueError`) with one line naming the file when it is
 missing, empty or not valid JSON.
@@ -101,7 +101,7 @@ def write_text(path: str | Path, text: str) -> Path:
 
 
 def to_jsonable(obj: Any) -> Any:
-    """``obj`` as plain JSON types: numpy scalars/arrays to numbers/lists, enums to their value,
+    """``obj`` as plain JSON types: numpy and JAX scalars/arrays to numbers/lists, enums to their value,
     dataclasses to dicts, tuples to lists, non-finite floats to ``None``."""
     if obj is None or isinstance(obj, (str, bool)):
         return obj
@@ -124,6 +124,8 @@ def to_jsonable(obj: Any) -> Any:
         return [to_jsonable(v) for v in obj]
     if isinstance(obj, Path):
         return str(obj)
+    if hasattr(obj, "__array__") and hasattr(obj, "dtype"):  # a JAX array (jtraj's own numbers)
+        return to_jsonable(np.asarray(obj))
     raise TypeError(f"cannot write {type(obj).__name__} to JSON")
 
 

@@ -20,6 +20,15 @@ def test_write_json_is_strict_and_maps_nonfinite_to_null(tmp_path):
     assert io.read_json(path) == data
 
 
+def test_jax_arrays_are_written_as_numbers(tmp_path):
+    """jtraj computes in JAX: a JAX scalar or array (a metric, a cost from jtraj.differentiable)
+    raised 'cannot write ArrayImpl to JSON'."""
+    import jax.numpy as jnp
+
+    path = io.write_json(tmp_path / "r.json", {"cost": jnp.float64(1.5), "x": jnp.arange(3), "bad": jnp.array([jnp.nan, 2.0])})
+    assert io.read_json(path) == {"cost": 1.5, "x": [0, 1, 2], "bad": [None, 2.0]}
+
+
 def test_failed_write_keeps_the_old_file_and_leaves_no_temporary(tmp_path):
     path = tmp_path / "out.json"
     io.write_json(path, {"v": 1})
