@@ -310,6 +310,9 @@ def _trajectory_arrays(trajectory: Any) -> dict[str, np.ndarray]:
     if not dataclasses.is_dataclass(trajectory) or isinstance(trajectory, type):
         raise TypeError(f"a result's trajectory must be a dataclass of arrays, got {type(trajectory).__name__}")
     arrays = {f.name: np.asarray(getattr(trajectory, f.name)) for f in dataclasses.fields(trajectory)}
+    for name, a in arrays.items():
+        if a.dtype.kind == "O":  # None, ragged lists: NPZ pickles them, and load (no pickle) refuses the file
+            raise TypeError(f"a result's trajectory field {name!r} is {type(getattr(trajectory, name)).__name__}, not an array of numbers, bools or strings; it could be saved but not loaded")
     arrays[_KIND_KEY] = np.array(f"{type(trajectory).__module__}:{type(trajectory).__qualname__}")
     return arrays
 

@@ -158,6 +158,15 @@ def test_results_saved_without_a_trajectory_digest_still_load(tmp_path):
     assert_same(r, Result.load(tmp_path))
 
 
+def test_a_trajectory_that_could_not_be_loaded_is_not_saved(tmp_path):
+    """A trajectory field that is None became a pickled object array: the save went through
+    and every load then refused the file ('Object arrays cannot be loaded')."""
+    r = make_result(StateTrajectory(t=np.linspace(0, 1, 5), X=np.zeros((5, 13)), U=None))
+    with pytest.raises(TypeError, match=r"trajectory field 'U' is NoneType, not an array"):
+        r.save(tmp_path)
+    assert not (tmp_path / "trajectory.npz").exists()
+
+
 def test_load_takes_the_result_file_for_its_folder(tmp_path):
     make_result(state_trajectory()).save(tmp_path / "r")
     assert_same(Result.load(tmp_path / "r" / "result.json"), Result.load(tmp_path / "r"))
