@@ -513,7 +513,11 @@ def from_dict(data: dict[str, Any], source: str = "<dict>") -> Task:
     try:
         task = _from_dict(data)
     except TaskError as e:
-        raise e.with_source(source) from None
+        error = e.with_source(source)
+        if isinstance(data, dict) and "warm_start" in data and "warm_start_rules" not in data and error.field.startswith("warm_start_rules["):
+            # a file with the former name: name its key as the file writes it
+            error = TaskError("warm_start" + error.field[len("warm_start_rules") :], error.value, error.expected, source)
+        raise error from None
     # not a field (equality, the content hash and `replace` ignore it): validate() names it
     object.__setattr__(task, "_source", source)
     return task

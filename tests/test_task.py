@@ -253,6 +253,10 @@ def test_warm_start_is_the_former_name_of_warm_start_rules(tmp_path):
         from_old_file = tasks.load(str(path))
     path.write_text(_GOOD)
     assert from_old_file == tasks.load(str(path)) and from_old_file.warm_start_rules[0].angle == 0.5
+    # an error in such a file names its key as the file writes it (it said warm_start_rules[0])
+    path.write_text(_GOOD.replace("[[warm_start_rules]]", "[[warm_start]]").replace("axis = [0.0, 1.0, 0.0]", "axis = [0.0, 0.0, 0.0]"))
+    with pytest.warns(DeprecationWarning), pytest.raises(TaskError, match=r": warm_start\[0\].axis: \[0.0, 0.0, 0.0\]: expected a list of 3 numbers, not all zero$"):
+        tasks.load(str(path))
     path.write_text(_GOOD + _GOOD[_GOOD.index("[[warm_start_rules]]") :].replace("[[warm_start_rules]]", "[[warm_start]]"))
     with pytest.raises(TaskError, match=r"expected only \[\[warm_start_rules\]\]"):
         tasks.load(str(path))
