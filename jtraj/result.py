@@ -277,6 +277,8 @@ class Result:
         trajectory = None
         if _DIGEST_KEY in data and data[_DIGEST_KEY] is None:
             pass  # saved without a trajectory: a trajectory file beside it is an earlier one
+        elif isinstance(data.get(_DIGEST_KEY), str) and not npz.exists():
+            raise io.FileFormatError(f"{npz}: file does not exist; {path} was saved with a trajectory")
         elif npz.exists():
             trajectory, digest = _load_trajectory(npz)
             if _DIGEST_KEY in data and data[_DIGEST_KEY] != digest:

@@ -199,12 +199,12 @@ def test_bad_trajectory_files_are_refused_by_name(tmp_path, arrays, match):
         Result.load(tmp_path)
 
 
-@pytest.mark.parametrize("damage", ["missing", "empty", "corrupt", "not_a_result", "bad_npz"])
+@pytest.mark.parametrize("damage", ["missing", "empty", "corrupt", "not_a_result", "bad_npz", "missing_npz"])
 def test_bad_folders_name_the_file(tmp_path, damage):
     d = tmp_path / "r"
     make_result(state_trajectory()).save(d)
-    name = "trajectory.npz" if damage == "bad_npz" else "result.json"
-    if damage == "missing":
+    name = "trajectory.npz" if damage in ("bad_npz", "missing_npz") else "result.json"
+    if damage in ("missing", "missing_npz"):  # a lost trajectory file loaded as a result without one
         (d / name).unlink()
     elif damage == "empty":
         (d / name).write_text("")
