@@ -372,8 +372,8 @@ def _check_and_normalize(t: Task) -> None:
         if isinstance(contacts, (str, bytes)) or not hasattr(contacts, "__iter__") or not all(isinstance(c, str) for c in contacts):
             raise TaskError(f"phases[{i}].contacts", contacts, 'expected a list of contact names, e.g. ["FL_foot", "FR_foot"] ([] for flight)')
         duration = _real(phase.duration, f"phases[{i}].duration", "expected a positive number of seconds", positive=True)
-        if round(duration / t.timestep) < 1:
-            raise TaskError(f"phases[{i}].duration", duration, f"shorter than one knot (timestep {t.timestep:g} s); expected at least {t.timestep / 2:g} s")
+        if duration / t.timestep < 1 - 1e-6:
+            raise TaskError(f"phases[{i}].duration", duration, f"shorter than one knot (timestep {t.timestep:g} s); expected at least {t.timestep:g} s")
         # a phase is a whole number of knot intervals: rounding 0.12 s to 0.1 s at 0.05 s
         # would silently change the motion (a shorter flight) from what the file says
         knots = duration / t.timestep
