@@ -47,7 +47,7 @@ from jtraj import parameterization as params
 from jtraj import robot as robots
 from jtraj import task as tasks
 from jtraj.deprecation import renamed_argument
-from jtraj.implicit import implicit_solution
+from jtraj.implicit import check_weak_tol, implicit_solution
 from jtraj.nlp import CostGroup, Dep, KnotNLP
 from jtraj.numbers import is_real
 from jtraj.solver import transcription_options
@@ -127,12 +127,7 @@ class DifferentiableTask:
             # values, also under jax.jit): without them the optimum is not unique and the
             # derivatives came back wrong without a word (a zero acceleration weight on the
             # Go2 hop: d cost / d target x 0.025 against 0.037 by re-solving)
-            weights = {name: float(getattr(theta, name)) for name in ("configuration_weight", "acceleration_weight")}
-            if not all(w > 0 for w in weights.values()):
-                raise ValueError(
-                    f"{tr.task.name}: theta sets " + " and ".join(f"{k}={v}" for k, v in weights.items())
-                    + "; differentiable tasks need configuration_weight > 0 and acceleration_weight > 0 for a unique optimum"
-                )
+            _check_weights(tr.task.name, float(theta.configuration_weight), float(theta.acceleration_weight), "theta sets")
             x0 = tr.warm_start(theta).reshape(-1) if self._x_warm is None else self._x_warm
             sol = backend.solve(nlp, x0, theta, self.options)
             self.last_solution = sol
@@ -220,6 +215,16 @@ def motion(tr: Transcription, nlp: KnotNLP, x: jax.Array, theta: TaskParams, lam
     )
 
 
+def _check_weights(name: str, configuration_weight: float, acceleration_weight: float, source: str) -> None:
+    """Refuse cost weights without which the optimum is not unique (``source`` says who set
+    them: the task or theta)."""
+    if not (configuration_weight > 0 and acceleration_weight > 0):
+        raise ValueError(
+            f"{name}: {source} configuration_weight={configuration_weight} and acceleration_weight={acceleration_weight}; "
+            "differentiable tasks need configuration_weight > 0 and acceleration_weight > 0 for a unique optimum"
+        )
+
+
 def differentiable(
     task: tasks.Task | str,
     parameterization: str | params.AbstractParameterization = "se3",
@@ -260,17 +265,12 @@ def differentiable(
     variables = renamed_argument(variables, layout, "variables", "layout", COMPACT_VARIABLES)
     if not is_real(force_weight) or not (math.isfinite(force_weight) and force_weight > 0):
         raise ValueError(f"force_weight must be a finite number > 0 (it makes the contact forces unique), got {force_weight!r}")
-    if not is_real(weak_tol) or not (0 <= weak_tol < 1):
-        raise ValueError(f"weak_tol must be a number in [0, 1) (relative to the largest multiplier), got {weak_tol!r}")
+    check_weak_tol(weak_tol)
     backend = solvers.get(solver)  # unknown names and options fail here, before building anything
     opts = forward_options(backend, options)
     config.enable_compilation_cache()
     task = tasks.load(task)
-    if not (task.configuration_weight > 0 and task.acceleration_weight > 0):
-        raise ValueError(
-            f"task {task.name!r}: differentiable() needs configuration_weight > 0 and acceleration_weight > 0 for a unique optimum, "
-            f"got {task.configuration_weight} and {task.acceleration_weight}; set them in the task"
-        )
+    _check_weights(task.name, task.configuration_weight, task.acceleration_weight, "the task sets")
     robot = robots.load(task.robot)
     tr = Transcription(robot, task, params.get(parameterization), transcription_options(variables))
     groups = [g for stage in CONSTRAINT_STAGES for g in stage(tr)]

@@ -62,6 +62,12 @@ def _in_main_thread_device(host: Callable) -> Callable:
     return wrapped
 
 
+def check_weak_tol(weak_tol: Any) -> None:
+    """Refuse a weak-activity tolerance outside [0, 1) (`implicit_solution`'s ``weak_tol``)."""
+    if not is_real(weak_tol) or not (0 <= weak_tol < 1):
+        raise ValueError(f"weak_tol must be a number in [0, 1) (relative to the largest multiplier), got {weak_tol!r}")
+
+
 class SecondOrderError(NotImplementedError):
     """A derivative of the implicit derivatives (``jax.hessian``, ``jax.jacfwd`` of ``jax.grad``)
     was asked for: they are first order only."""
@@ -151,8 +157,7 @@ def implicit_solution(
     """
     # checked here: a negative size failed at the first solve with a bare KeyError, a
     # negative or NaN weak_tol was taken without a word
-    if not is_real(weak_tol) or not (0 <= weak_tol < 1):
-        raise ValueError(f"weak_tol must be a number in [0, 1) (relative to the largest multiplier), got {weak_tol!r}")
+    check_weak_tol(weak_tol)
     if not is_whole(cache_size) or cache_size < 0:
         raise ValueError(f"cache_size must be an integer >= 0 (factorized systems kept), got {cache_size!r}")
     n, m = nlp.n, nlp.m
