@@ -81,11 +81,12 @@ class TaskError(ValueError):
         head = f"{self.source}: " if self.source else ""
         return f"{head}{self.field}: {value}: {self.expected}"
 
-    def with_source(self, source: str) -> TaskError:
+    def with_source(self, source: str, renamed: dict[str, str] | None = None) -> TaskError:
         """The same error, attributed to ``source`` (a file name), its field named by its TOML
-        path (``target_joints[3]`` is ``target.joints[3]`` there)."""
+        path (``target_joints[3]`` is ``target.joints[3]`` there); ``renamed`` adds names the
+        file uses instead (a former name)."""
         field = self.field
-        for python, toml in _TOML_NAMES.items():
+        for python, toml in (_TOML_NAMES if renamed is None else {**_TOML_NAMES, **renamed}).items():
             if field == python or field.startswith((f"{python}[", f"{python}.")):
                 field = toml + field[len(python) :]
                 break
@@ -372,11 +373,11 @@ def _check_and_normalize(t: Task) -> None:
         if isinstance(contacts, (str, bytes)) or not hasattr(contacts, "__iter__") or not all(isinstance(c, str) for c in contacts):
             raise TaskError(f"phases[{i}].contacts", contacts, 'expected a list of contact names, e.g. ["FL_foot", "FR_foot"] ([] for flight)')
         duration = _real(phase.duration, f"phases[{i}].duration", "expected a positive number of seconds", positive=True)
-        if duration / t.timestep < 1 - 1e-6:
+        knots = duration / t.timestep
+        if knots < 1 - 1e-6:
             raise TaskError(f"phases[{i}].duration", duration, f"shorter than one knot (timestep {t.timestep:g} s); expected at least {t.timestep:g} s")
         # a phase is a whole number of knot intervals: rounding 0.12 s to 0.1 s at 0.05 s
         # would silently change the motion (a shorter flight) from what the file says
-        knots = duration / t.timestep
         if abs(knots - round(knots)) > 1e-6 * max(1.0, knots):
             below, above = math.floor(knots) * t.timestep, math.ceil(knots) * t.timestep
             raise TaskError(f"phases[{i}].duration", duration, f"not a whole number of timesteps ({t.timestep:g} s); expected a multiple such as {below:.6g} or {above:.6g} s")
@@ -513,11 +514,9 @@ def from_dict(data: dict[str, Any], source: str = "<dict>") -> Task:
     try:
         task = _from_dict(data)
     except TaskError as e:
-        error = e.with_source(source)
-        if isinstance(data, dict) and "warm_start" in data and "warm_start_rules" not in data and error.field.startswith("warm_start_rules["):
-            # a file with the former name: name its key as the file writes it
-            error = TaskError("warm_start" + error.field[len("warm_start_rules") :], error.value, error.expected, source)
-        raise error from None
+        # a file with the former name: its key as the file writes it
+        former = isinstance(data, dict) and "warm_start" in data and "warm_start_rules" not in data
+        raise e.with_source(source, {"warm_start_rules": "warm_start"} if former else None) from None
     # not a field (equality, the content hash and `replace` ignore it): validate() names it
     object.__setattr__(task, "_source", source)
     return task
