@@ -43,11 +43,12 @@ def main(bench: str, variant: str, out_dir: str | Path, n_knots: int | None = No
 
     # a knot count a benchmark refuses (too few, two quadflip waypoints on one knot, a satellite
     # step too long for RK4) is a bad input: one line and exit 2 before anything is solved
-    for name in (BENCHMARKS if bench == "all" else (bench,)) if n_knots is not None else ():
-        try:
-            benchmarks.get(name, n_knots)
-        except ValueError as e:
-            raise InputError("--knots", n_knots, str(e)) from None
+    if n_knots is not None:
+        for name in BENCHMARKS if bench == "all" else (bench,):
+            try:
+                benchmarks.get(name, n_knots)
+            except ValueError as e:
+                raise InputError("--knots", n_knots, str(e)) from None
     if bench == "all":
         rows = compare_benchmarks(out_dir, n_knots=n_knots, solver=solver)
         statuses = {r["status"] for r in rows}
