@@ -434,27 +434,20 @@ def _check_tasks(field: str, text: str, robots: dict[str, str] | None = None) ->
     Returns what the sweep is given: the names as they are without ``robots``, else the
     checked Task objects, moved to the robot models ``robots`` names (loaded once, here)."""
     from jtraj import task as tasks
+    from jtraj.experiments import _refuse_repeats
 
     names = _check_names(field, text, tasks.available(), "tasks", allow_files=True)
     checked = [_load_valid_task(name, robots) for name in names]
-    _check_once(field, [t.name for t in checked], "task")  # walk and a .toml of walk, too
+    _refuse_repeats(field, names, [t.name for t in checked], "task")  # walk and a .toml of walk, too
     return checked if robots else names
 
 
-def _check_once(field: str, values: list, what: str) -> None:
-    """A sweep's list gives each value once (a repeat would be solved and counted twice)."""
-    seen: set = set()
-    for v in values:
-        if v in seen:
-            raise InputError(field, v, f"{what} given {values.count(v)} times; expected each {what} once", verbatim=False)
-        seen.add(v)
-
-
 def _check_params(field: str, text: str) -> list[str]:
+    from jtraj.experiments import _refuse_repeats
     from jtraj.parameterization import PARAMETERIZATIONS
 
     names = _check_names(field, text, list(PARAMETERIZATIONS), "parameterizations")
-    _check_once(field, names, "parameterization")
+    _refuse_repeats(field, names, names, "parameterization")
     return names
 
 
@@ -529,8 +522,10 @@ def _check_inputs(args: argparse.Namespace) -> None:
         _check_positive_int("--workers", args.workers)
         _check_out(args.out)
     if cmd == "robustness":
-        sigmas = []
-        for text in _split(args.sigmas) or [args.sigmas]:
+        from jtraj.experiments import _refuse_repeats
+
+        sigmas, texts = [], _split(args.sigmas) or [args.sigmas]
+        for text in texts:
             try:
                 sigma = float(text)
             except ValueError:
@@ -538,7 +533,7 @@ def _check_inputs(args: argparse.Namespace) -> None:
             if not (math.isfinite(sigma) and sigma >= 0):
                 raise InputError("--sigmas", text, "expected comma-separated noise levels >= 0, e.g. 1e-6,1e-3,0.1,0.5")
             sigmas.append(sigma)
-        _check_once("--sigmas", sigmas, "noise level")
+        _refuse_repeats("--sigmas", texts, sigmas, "noise level")
         args.sigmas_checked = sigmas
         _check_positive_int("--replicates", args.replicates)
         args.ipopt_checked = _check_ipopt(args.ipopt, args.solver)
@@ -576,12 +571,12 @@ def _check_variable_changes(variables: str, items: list[str] | None):
 
 def _input_errors() -> tuple[type[BaseException], ...]:
     from jtraj.executors import ExecutorUnavailableError
-    from jtraj.experiments import NoiseChartError
+    from jtraj.experiments import NoiseChartError, RepeatedValueError
     from jtraj.io import FileFormatError
     from jtraj.solvers.ipopt_catalog import IpoptOptionError
     from jtraj.task import TaskError
 
-    return (InputError, TaskError, IpoptOptionError, FileFormatError, NoiseChartError, ExecutorUnavailableError)
+    return (InputError, TaskError, IpoptOptionError, FileFormatError, NoiseChartError, RepeatedValueError, ExecutorUnavailableError)
 
 
 def main(argv: list[str] | None = None) -> int:

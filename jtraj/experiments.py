@@ -93,8 +93,8 @@ def compare(
     # a cell's folder is named after its task (a .toml path's file name need not be), as its
     # rows are and as `jtraj.plots.plot_comparison` looks for it: OUT/{task}_{parameterization}
     names = [load_task(t).name for t in tasks]
-    _refuse_repeats("compare", "tasks", tasks, names, "task")
-    _refuse_repeats("compare", "params", params, params, "parameterization")
+    _refuse_repeats("compare: tasks", tasks, names, "task")
+    _refuse_repeats("compare: params", params, params, "parameterization")
     jobs = [(task, p, variables, exact_hessian, solver, str(out / f"{name}_{p}") if save_trajectories else None) for task, name in zip(tasks, names) for p in params]
     in_process = executor == "local" and workers <= 1
     cells = ((i, _compare_one(*job, progress=progress)) for i, job in enumerate(jobs)) if in_process else executor_for(executor, workers, ray_address).map(_compare_one, jobs)
@@ -118,9 +118,16 @@ def compare(
     return [done[k] for k in sorted(done)]
 
 
-def _refuse_repeats(function: str, argument: str, given: Sequence, keys: Sequence, what: str) -> None:
-    """A ValueError naming the items of ``given`` whose ``keys`` (a task's name, a noise level's
-    value) repeat: a sweep would solve, count and table them twice."""
+class RepeatedValueError(ValueError):
+    """A sweep's list gives one task, parameterization or noise level more than once
+    (`_refuse_repeats`)."""
+
+
+def _refuse_repeats(where: str, given: Sequence, keys: Sequence, what: str) -> None:
+    """A `RepeatedValueError` naming the items of ``given`` whose ``keys`` (a task's name, a noise
+    level's value) repeat: a sweep would solve, count and table them twice. ``where`` begins
+    the message: the function and argument (``compare: tasks``), or the command line's option
+    (``--tasks``, `jtraj.cli`, which checks before anything is written)."""
     groups: dict = {}
     for item, key in zip(given, keys):
         groups.setdefault(key, []).append(f"Task {item.name!r}" if isinstance(item, Task) else repr(item if isinstance(item, (str, float, int)) else str(item)))
@@ -130,7 +137,7 @@ def _refuse_repeats(function: str, argument: str, given: Sequence, keys: Sequenc
         if len(items) > 1:
             found.append(f"{labels[0]} given {len(items)} times" if len(labels) == 1 else f"{' and '.join(labels)} are the same {what} ({key!r})")
     if found:
-        raise ValueError(f"{function}: {argument}: {'; '.join(found)}; expected each {what} once")
+        raise RepeatedValueError(f"{where}: {'; '.join(found)}; expected each {what} once")
 
 
 def _why(row: dict) -> str:
@@ -511,10 +518,10 @@ def robustness(
         if not (math.isfinite(s) and s >= 0):
             raise ValueError(f"robustness: sigma={s!r}: expected noise levels (standard deviations) >= 0")
     loaded = [load_task(t) for t in tasks]
-    _refuse_repeats("robustness", "tasks", tasks, [t.name for t in loaded], "task")
+    _refuse_repeats("robustness: tasks", tasks, [t.name for t in loaded], "task")
     tasks = loaded
-    _refuse_repeats("robustness", "params", params, params, "parameterization")
-    _refuse_repeats("robustness", "sigmas", sigmas, sigmas, "noise level")
+    _refuse_repeats("robustness: params", params, params, "parameterization")
+    _refuse_repeats("robustness: sigmas", sigmas, sigmas, "noise level")
     progress = _progress_stream(progress)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

@@ -63,9 +63,10 @@ def _run(argv, capsys):
         (["wahba", "--seed", "-1"], "jtraj wahba: --seed: -1: expected an integer >= 0"),
         (["robustness", "--tasks", "big_jump", "--ipopt", "max_itr=3"], "jtraj robustness: --ipopt max_itr: 3: unknown Ipopt option; did you mean max_iter"),
         # a sweep's repeats would be solved and counted twice
-        (["robustness", "--tasks", "big_jump", "--sigmas", "0.1,1e-1"], "jtraj robustness: --sigmas: 0.1: noise level given 2 times; expected each noise level once"),
-        (["compare", "--params", "se3,euler,se3"], "jtraj compare: --params: 'se3': parameterization given 2 times"),
-        (["compare", "--tasks", "walk,big_jump,tasks/walk.toml"], "jtraj compare: --tasks: 'walk': task given 2 times"),
+        (["robustness", "--tasks", "big_jump", "--sigmas", "0.1,1e-1"], "jtraj robustness: --sigmas: '0.1' and '1e-1' are the same noise level (0.1); expected each noise level once\n"),
+        (["robustness", "--tasks", "big_jump", "--sigmas", "0.1,0.1"], "jtraj robustness: --sigmas: '0.1' given 2 times; expected each noise level once\n"),
+        (["compare", "--params", "se3,euler,se3"], "jtraj compare: --params: 'se3' given 2 times; expected each parameterization once\n"),
+        (["compare", "--tasks", "walk,big_jump,tasks/walk.toml"], "jtraj compare: --tasks: 'walk' and 'tasks/walk.toml' are the same task ('walk'); expected each task once\n"),
     ],
 )
 def test_bad_command_lines(argv, line, capsys, no_solve):
