@@ -84,26 +84,39 @@ def table(records: list[dict], labels: tuple[str, str]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from jtraj.cli import InputError, _check_out
+    from jtraj.experiments import RepeatedValueError, _refuse_repeats
+    from jtraj.parameterization import PARAMETERIZATIONS
+    from jtraj.solver import VARIABLES
+    from jtraj.task import task_argument
+
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("rev", help="the earlier revision (git rev, e.g. HEAD~1)")
-    ap.add_argument("tasks", nargs="*", default=["walk", "big_jump", "backflip", "sideflip"])
-    ap.add_argument("--param", default="se3")
-    ap.add_argument("--variables", default="compact")
+    ap.add_argument("tasks", nargs="*", type=task_argument, default=["walk", "big_jump", "backflip", "sideflip"])
+    ap.add_argument("--param", default="se3", choices=list(PARAMETERIZATIONS))
+    ap.add_argument("--variables", default="compact", choices=list(VARIABLES))
     ap.add_argument("--repeats", type=int, default=3, help="timed solves per task and revision (after one that compiles)")
     ap.add_argument("--out", help="write DIR/revisions.json, DIR/revisions.md, DIR/provenance.json")
     args = ap.parse_args(argv)
+    # every argument before the worktree and the first compile
     if args.repeats < 1:
-        ap.error("--repeats must be at least 1")
-    sha = subprocess.run(["git", "rev-parse", "--short", args.rev], cwd=REPO, capture_output=True, text=True)
+        ap.error(f"--repeats: {args.repeats}: expected an integer >= 1")
+    try:
+        _refuse_repeats("tasks", args.tasks, [Path(t).resolve() if t.endswith(".toml") else t for t in args.tasks], "task")
+        _check_out(args.out)
+    except (InputError, RepeatedValueError) as e:
+        ap.error(str(e))
+    # a commit (not a tree or file, e.g. HEAD:README.md), and never read as one of git's options
+    sha = subprocess.run(["git", "rev-parse", "--verify", "--quiet", "--short", f"{args.rev}^{{commit}}"], cwd=REPO, capture_output=True, text=True)
     if sha.returncode != 0:
-        ap.error(f"unknown revision {args.rev!r}: {sha.stderr.strip()}")
+        ap.error(f"rev: {args.rev!r}: not a commit of this repository; expected a git revision such as HEAD~1 or a commit hash")
     head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True, text=True).stdout.strip()
     dirty = bool(subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=REPO, capture_output=True, text=True).stdout.strip())
     labels = (sha.stdout.strip(), head + ("+changes" if dirty else ""))
     records: list[dict] = []
     with tempfile.TemporaryDirectory(prefix="jtraj-rev-") as tmp:
         tree = Path(tmp) / "tree"
-        subprocess.run(["git", "worktree", "add", "--detach", str(tree), args.rev], cwd=REPO, check=True, capture_output=True)
+        subprocess.run(["git", "worktree", "add", "--detach", str(tree), sha.stdout.strip()], cwd=REPO, check=True, capture_output=True)
         try:
             for task in args.tasks:
                 for label, where in zip(labels, (tree, REPO)):

@@ -28,3 +28,35 @@ def test_a_process_that_imports_jtraj_from_elsewhere_is_refused(revisions, tmp_p
     solving anything."""
     with pytest.raises(RuntimeError, match="not from"):
         revisions.run_child(tmp_path, "no_such_task", "se3", "compact", 1)
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["no-such-revision"], "rev: 'no-such-revision': not a commit of this repository"),
+        (["HEAD:README.md"], "rev: 'HEAD:README.md': not a commit of this repository"),  # a file, not a commit
+        (["-x"], "rev: '-x': not a commit"),  # not taken for an option of git
+        (["HEAD", "walk", "bogus"], "argument tasks: "),
+        (["HEAD", "walk", "walk"], "tasks: 'walk' given 2 times; expected each task once"),
+        (["HEAD", "--param", "bogus"], "argument --param: invalid choice: 'bogus'"),
+        (["HEAD", "--variables", "bogus"], "argument --variables: invalid choice: 'bogus'"),
+        (["HEAD", "--repeats", "0"], "--repeats: 0: expected an integer >= 1"),
+        (["HEAD", "--repeats", "x"], "argument --repeats: invalid int value: 'x'"),
+        (["HEAD", "--out", "README.md"], "--out: 'README.md': is a file; expected a folder"),
+    ],
+)
+def test_bad_arguments_are_refused_before_any_work(revisions, monkeypatch, capsys, argv, message):
+    """Unknown revisions, tasks, parameterizations and variables, and bad numbers and output
+    folders were found by the child processes after the worktree was made (or not at all: a
+    file as --out failed after every solve); they are argparse's one-line error, exit 2."""
+    from conftest import refused
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("did work after a bad input")
+
+    monkeypatch.setattr(revisions, "run_child", no_work)
+    monkeypatch.setattr(revisions.tempfile, "TemporaryDirectory", no_work)
+    monkeypatch.chdir(revisions.REPO)
+    if argv[0] == "-x":
+        argv = ["--", *argv]
+    refused(revisions.main, argv, capsys, message)
