@@ -29,10 +29,11 @@ On a GPU, jtraj's programs run on the GPU and Ipopt's NLP functions on the same 
 (``jax.default_device``), where a solver that calls them one point at a time belongs.
 
 Prints the JAX device, one line per replicate (status, iterations, violation, task success) and,
-last, ``replicates: vmapped X s, sequential Y s, speedup Z``; ``--out F.json`` writes every figure
-as JSON (atomically, strict JSON), with the run's provenance (command, date, machine, versions)
-under ``provenance``. It stays one file, not `jtraj.provenance.write_results`' folder: there is no
-table to render, and the results/replicates_* folders hold such files under their commands.
+last, ``replicates: vmapped X s, sequential Y s, speedup Z``; ``--out DIR/F.json`` writes every
+figure as JSON (atomically, strict JSON), with the run's provenance (command, date, machine,
+versions) under ``provenance``, through `jtraj.provenance.write_results` as the other
+benchmarks write theirs: beside it ``DIR/F.md`` (the batches' table and the last lines) and
+``DIR/provenance.json`` (the results/replicates_* folders hold these files).
 """
 
 from __future__ import annotations
@@ -48,15 +49,15 @@ import sys
 import jax
 import numpy as np
 
-from jtraj import io as jio
 from jtraj import solvers
 from jtraj.cli import InputError, _check_out
 from jtraj.experiments import noisy_warm_starts
 from jtraj.parameterization import PARAMETERIZATIONS
-from jtraj.provenance import provenance
+from jtraj.provenance import provenance, write_results
 from jtraj.solver import compile_callbacks, prepare, solve, solver_options
 from jtraj.success import FEASIBILITY_TOL
 from jtraj.success import evaluate as check_motion
+from jtraj.tables import markdown_table
 from jtraj.task import task_argument
 
 
@@ -71,7 +72,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--jtraj-sequential", action="store_true", help="also time jtraj's solver one replicate at a time")
     ap.add_argument("--no-ipopt", action="store_true", help="skip the sequential Ipopt solves")
-    ap.add_argument("--out", help="write the figures to this JSON file")
+    ap.add_argument("--out", help="write the figures to this JSON file, F.json (with F.md and provenance.json beside it)")
     args = ap.parse_args(argv)
     try:
         batches = [int(b) for b in args.batches.split(",") if b.strip()]
@@ -91,6 +92,8 @@ def main(argv: list[str] | None = None) -> None:
         try:
             if os.path.isdir(args.out):
                 raise InputError("--out", args.out, "is a folder; expected the path of a JSON file")
+            if not args.out.endswith(".json") or os.path.basename(args.out) == ".json":
+                raise InputError("--out", args.out, "expected the path of a JSON file, F.json (F.md and provenance.json are written beside it)")
             _check_out(os.path.dirname(os.path.abspath(args.out)), shown=args.out)
         except InputError as e:
             ap.error(str(e))
@@ -175,13 +178,23 @@ def main(argv: list[str] | None = None) -> None:
     if not args.no_ipopt:
         report["ipopt_sequential_s"] = t_ipopt
     report["speedup"] = {s: sequential / t for s, t in timed.items()}
-    if args.out:
-        report["provenance"] = provenance(["python", "bench/replicates.py", *(sys.argv[1:] if argv is None else argv)])
-        jio.write_json(args.out, report, indent=1)
     against = "jtraj one at a time" if args.no_ipopt else "Ipopt"
     # the first strategy's line last (vmap's, by default: the issue's line)
-    for s in reversed(strategies):
-        print(f"replicates: {label[s]} {timed[s]:.2f} s, sequential {sequential:.2f} s, speedup {sequential / timed[s]:.2f} (sequential: {against})")
+    last = [f"replicates: {label[s]} {timed[s]:.2f} s, sequential {sequential:.2f} s, speedup {sequential / timed[s]:.2f} (sequential: {against})" for s in reversed(strategies)]
+    if args.out:
+        command = sys.argv[1:] if argv is None else argv
+        report["provenance"] = provenance(["python", "bench/replicates.py", *command])
+        write_results(os.path.dirname(args.out) or ".", os.path.basename(args.out)[: -len(".json")], report, markdown(report, last), "bench/replicates.py", command)
+    for line in last:
+        print(line)
+
+
+def markdown(report: dict, last: list[str]) -> str:
+    """The table of F.md: every timed batch, then the printed last lines."""
+    header = ("strategy", "batch", "compile (s)", "solve (s)", "per replicate (s)", "converged", "iterations (mean / max)")
+    rows = [(b["strategy"], b["size"], f"{b['compile_s']:.1f}", f"{b['solve_s']:.2f}", f"{b['solve_s'] / b['size']:.3f}", f"{b['converged']}/{b['size']}", f"{b['iterations_mean']:.1f} / {b['iterations_max']}") for b in report["batches"]]
+    note = f"{report['task']}, {report['parameterization']}, sigma {report['sigma']:g}, {report['replicates']} replicates on {report['device']} ({report['devices']} devices, {report['cpus']} CPUs).\n\n" + "\n".join(last)
+    return markdown_table(header, rows, note)
 
 
 if __name__ == "__main__":

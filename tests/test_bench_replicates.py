@@ -23,7 +23,9 @@ def _fake_run(monkeypatch, mod, replicates: int = 2):
     monkeypatch.setattr(mod, "solve", lambda *a, **k: ipopt)
 
 
-def test_out_is_one_json_file_with_provenance(monkeypatch, capsys, tmp_path):
+def test_out_is_written_as_the_other_benchmarks_results(monkeypatch, capsys, tmp_path):
+    """``--out DIR/F.json``: F.json with the run's provenance inside (as before), and, through
+    `jtraj.provenance.write_results` as every other benchmark, DIR/F.md and DIR/provenance.json."""
     mod = bench_module("replicates")
     _fake_run(monkeypatch, mod)
     out = tmp_path / "replicates.json"
@@ -31,11 +33,17 @@ def test_out_is_one_json_file_with_provenance(monkeypatch, capsys, tmp_path):
     assert capsys.readouterr().out.splitlines()[-1] == "replicates: vmapped 1.00 s, sequential 20.00 s, speedup 20.00 (sequential: Ipopt)"
     report = json.loads(out.read_text())
     assert (report["vmapped_s"], report["ipopt_sequential_s"], report["speedup"]) == (1.0, 20.0, {"vmap": 20.0})
-    assert report["provenance"]["command"] == f"python bench/replicates.py --replicates 2 --strategies vmap --out {out}"
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["replicates.json"]  # no temporary file left, no other file
+    command = f"python bench/replicates.py --replicates 2 --strategies vmap --out {out}"
+    assert report["provenance"]["command"] == command
+    assert json.loads((tmp_path / "provenance.json").read_text())["command"] == command
+    table = (tmp_path / "replicates.md").read_text().splitlines()
+    assert table[0] == "| strategy | batch | compile (s) | solve (s) | per replicate (s) | converged | iterations (mean / max) |"
+    assert table[2] == "| vmap | 2 | 5.0 | 1.00 | 0.500 | 2/2 | 7.0 / 7 |"
+    assert table[-1] == "replicates: vmapped 1.00 s, sequential 20.00 s, speedup 20.00 (sequential: Ipopt)"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["provenance.json", "replicates.json", "replicates.md"]  # no temporary file left
 
 
-@pytest.mark.parametrize("kind", ["folder", "unwritable"])
+@pytest.mark.parametrize("kind", ["folder", "unwritable", "not json"])
 def test_an_out_that_cannot_be_written_is_refused_before_any_solve(monkeypatch, capsys, tmp_path, kind):
     mod = bench_module("replicates")
 
@@ -43,10 +51,10 @@ def test_an_out_that_cannot_be_written_is_refused_before_any_solve(monkeypatch, 
         raise AssertionError("solved before refusing --out")
 
     monkeypatch.setattr(mod, "prepare", no_work)
-    out = str(tmp_path) if kind == "folder" else "/proc/no/replicates.json"
+    out = {"folder": str(tmp_path), "unwritable": "/proc/no/replicates.json", "not json": str(tmp_path / "replicates.txt")}[kind]
     with pytest.raises(SystemExit) as exc:
         mod.main(["--out", out])
     assert exc.value.code == 2
     last = capsys.readouterr().err.strip().splitlines()[-1]
     assert f"--out: '{out}': " in last
-    assert ("is a folder; expected the path of a JSON file" if kind == "folder" else "cannot create a file in") in last
+    assert {"folder": "is a folder; expected the path of a JSON file", "unwritable": "cannot create a file in", "not json": "expected the path of a JSON file, F.json"}[kind] in last
