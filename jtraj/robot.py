@@ -177,7 +177,7 @@ class Robot:
     @property
     def contact_offsets(self) -> np.ndarray:
         """Contact point positions in their body frames (m), shape (ncontact, 3)."""
-        return _readonly(np.array([c.offset_body for c in self.contacts], dtype=np.float64))
+        return _readonly(np.array([c.offset_body for c in self.contacts], dtype=np.float64).reshape(-1, 3))
 
     @property
     def base_pose_standing(self) -> SE3:

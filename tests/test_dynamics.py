@@ -383,3 +383,23 @@ def test_wrong_shapes_raise_with_expected_shape():
         dynamics.inverse_dynamics(robot, PARAMETERIZATIONS["se3"], q, v, v, f)
     with pytest.raises(ValueError, match=r"\(4, 3\)"):
         dynamics.inverse_dynamics(robot, QUAT1, q, v, v, f[:2])
+
+
+def test_robot_without_contact_points(tmp_path):
+    """A robot file may declare no contact point: its contact arrays are (0, 3) and (0,), and
+    inverse dynamics takes forces of shape (0, 3). The offsets came back as (0,), and every
+    function of this module failed with an IndexError."""
+    import importlib.resources
+    import re
+
+    text = (importlib.resources.files("jtraj.robots") / "go2.toml").read_text()
+    path = tmp_path / "go2_no_contacts.toml"
+    path.write_text(re.sub(r"\[\[contact\]\].*", "", text, flags=re.S))  # the contacts and groups go
+    robot = robot_lib.load_file(path)
+    assert robot.ncontact == 0 and robot.contact_offsets.shape == (0, 3) and robot.contact_body_ids.shape == (0,)
+    q = jnp.concatenate([jnp.array([0.0, 0.0, 0.3, 1.0, 0.0, 0.0, 0.0]), jnp.asarray(robot.q_joints_standing)])
+    v = jnp.zeros(robot.nv)
+    tau = dynamics.inverse_dynamics(robot, QUAT1, q, v, v, jnp.zeros((0, 3)))
+    np.testing.assert_allclose(tau[:3], [0.0, 0.0, robot.total_mass * robot.gravity], rtol=1e-12)  # at rest: m g
+    assert dynamics.contact_positions(robot, QUAT1, q).shape == (0, 3)
+    assert dynamics.contact_jacobians(robot, QUAT1, q).shape == (0, 3, robot.nv)
