@@ -13,21 +13,20 @@ from jtraj.result import Result
 __all__ = ["plot_result", "plot_convergence", "plot_solution", "plot_comparison", "plot_directory", "friction_cone_ratio"]
 
 
-def _pyplot():
-    import matplotlib
+def _figure(**kwargs):
+    """A matplotlib Figure built without pyplot: it needs no display, and neither switches the
+    backend of a notebook nor closes or shows its other figures."""
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+    return Figure(**kwargs)
 
 
 def plot_result(result: Result, path: str | Path) -> Path:
     """Base position, base rotation (world-axis angles, unwrapped), contact forces and joint
     torques against time, with contact phases shaded."""
-    plt = _pyplot()
     t = _trajectory(result)
-    fig, axes = plt.subplots(2, 2, figsize=(11, 6.5), sharex=True)
+    fig = _figure(figsize=(11, 6.5))
+    axes = fig.subplots(2, 2, sharex=True)
     touching = t.in_contact.any(axis=1)
     for ax in axes.ravel():
         _flight_shading(ax, t.t, touching)
@@ -47,14 +46,14 @@ def plot_result(result: Result, path: str | Path) -> Path:
     turns = "" if result.turns is None else f", {result.turns:+.2f} turns"
     fig.suptitle(f"{result.task} on {result.robot}, {result.parameterization}: {result.status.value}, {result.iterations} iterations{turns} (grey: flight)")
     fig.tight_layout()
-    return _finish(plt, fig, path)
+    return _finish(fig, path)
 
 
 def plot_convergence(result: Result, path: str | Path) -> Path:
     """Primal and dual infeasibility against the solver's iterations."""
-    plt = _pyplot()
     h = result.history
-    fig, ax = plt.subplots(figsize=(5, 3.5))
+    fig = _figure(figsize=(5, 3.5))
+    ax = fig.subplots()
     it = [r["iter"] for r in h]
     ax.semilogy(it, [r["inf_pr"] for r in h], label="primal infeasibility")
     ax.semilogy(it, [r["inf_du"] for r in h], label="dual infeasibility")
@@ -62,7 +61,7 @@ def plot_convergence(result: Result, path: str | Path) -> Path:
     ax.legend()
     ax.set_title(f"{result.task} [{result.parameterization}]")
     fig.tight_layout()
-    return _finish(plt, fig, path)
+    return _finish(fig, path)
 
 
 def _base_pose_panels(ax_position, ax_rotation, t) -> None:
@@ -116,14 +115,14 @@ def plot_solution(result: Result, path: str | Path | None = None, *, friction: f
     """
     from jtraj import robot as robots
 
-    plt = _pyplot()
     t = _trajectory(result)
     robot = robots.load(result.robot)
     mu = friction if friction is not None else _task_friction(result.task)
     mu_note = "" if friction is not None or mu is not None else " (mu = 0.9 assumed: not a built-in task)"
     mu = 0.9 if mu is None else mu
     touching = t.in_contact.any(axis=1)
-    fig, axes = plt.subplots(3, 2, figsize=(12, 9), sharex=True)
+    fig = _figure(figsize=(12, 9))
+    axes = fig.subplots(3, 2, sharex=True)
     for ax in axes.ravel():
         _flight_shading(ax, t.t, touching)
 
@@ -169,7 +168,7 @@ def plot_solution(result: Result, path: str | Path | None = None, *, friction: f
         f"{result.iterations} iterations{turns} (grey: flight; dashed: limits)"
     )
     fig.tight_layout()
-    return _finish(plt, fig, path)
+    return _finish(fig, path)
 
 
 def _trajectory(result: Result):
@@ -178,13 +177,12 @@ def _trajectory(result: Result):
     return result.trajectory
 
 
-def _finish(plt, fig, path):
+def _finish(fig, path):
     if path is None:
         return fig
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     jio.save_figure(fig, path, dpi=110)
-    plt.close(fig)
     return path
 
 
@@ -196,7 +194,6 @@ def plot_comparison(directory: str | Path, path: str | Path | None = None):
     or iterations) are left blank, their title saying which. Returns the figure, or writes it to
     ``path`` and returns the path. A table_iv.json that is not a list of rows with ``task`` and
     ``parameterization`` raises `jtraj.io.FileFormatError` naming it."""
-    plt = _pyplot()
     directory = Path(directory)
     table = directory / "table_iv.json"
     if not table.is_file():
@@ -207,7 +204,8 @@ def plot_comparison(directory: str | Path, path: str | Path | None = None):
     by_cell = {(r["task"], r["parameterization"]): r for r in rows}
     tasks = list(dict.fromkeys(r["task"] for r in rows))
     params = list(dict.fromkeys(r["parameterization"] for r in rows))
-    fig, axes = plt.subplots(2 * len(tasks), len(params), figsize=(3.2 * len(params), 2.3 * 2 * len(tasks)), squeeze=False, sharex="row")
+    fig = _figure(figsize=(3.2 * len(params), 2.3 * 2 * len(tasks)))
+    axes = fig.subplots(2 * len(tasks), len(params), squeeze=False, sharex="row")
     for i, task in enumerate(tasks):
         for j, param in enumerate(params):
             top, bottom = axes[2 * i, j], axes[2 * i + 1, j]
@@ -243,7 +241,7 @@ def plot_comparison(directory: str | Path, path: str | Path | None = None):
                 bottom.legend(fontsize=6)
     fig.suptitle("one column per parameterization (grey: flight)")
     fig.tight_layout()
-    return _finish(plt, fig, path)
+    return _finish(fig, path)
 
 
 def plot_directory(directory: str | Path, out: str | Path | None = None) -> list[Path]:

@@ -1,0 +1,34 @@
+"""Figures of a solution (jtraj.plots), on the made-up Go2 motion of test_render (no solve, no
+OpenGL)."""
+
+import json
+
+import matplotlib
+import matplotlib.pyplot as plt
+import pytest
+from test_render import _result
+
+from jtraj.plots import plot_comparison, plot_convergence, plot_result, plot_solution
+
+
+@pytest.fixture(scope="module")
+def result():
+    return _result()
+
+
+def test_figures_leave_pyplot_alone(result, tmp_path):
+    # a notebook's backend and its open figures: jtraj's figures must not switch the one
+    # (matplotlib.use closes every figure and stops inline display) nor join the others
+    backend = matplotlib.get_backend()
+    plt.switch_backend("svg")
+    try:
+        mine = plt.figure()
+        result.save(tmp_path / "made_up_flip_se3")
+        (tmp_path / "table_iv.json").write_text(json.dumps([{"task": "made_up_flip", "parameterization": "se3", "status": "solved", "iterations": 0}]))
+        figures = [plot_solution(result), plot_result(result, tmp_path / "r.png"), plot_convergence(result, tmp_path / "c.png"), plot_comparison(tmp_path)]
+        assert matplotlib.get_backend() == "svg"
+        assert plt.get_fignums() == [mine.number]
+        assert len(figures[0].axes) == 6 and (tmp_path / "r.png").stat().st_size > 10_000
+    finally:
+        plt.close("all")
+        plt.switch_backend(backend)
