@@ -381,6 +381,11 @@ def _parse_urdf(path: pathlib.Path, source: pathlib.Path) -> _Urdf:
         raise RobotLoadError(f"{source}: {path} is not a URDF (root element <{root.tag}>, expected <robot>)")
     links = tuple(link.get("name") for link in root.findall("link"))
     joints = {j.get("name"): j for j in root.findall("joint")}
+    for name, joint in joints.items():
+        for end in ("parent", "child"):
+            element = joint.find(end)
+            if element is None or not element.get("link"):
+                raise RobotLoadError(f"{source}: joint {name!r} of {path} has no <{end} link=\"...\"/>")
     parent_joint = {j.find("child").get("link"): j for j in joints.values()}
     return _Urdf(path, root, links, joints, parent_joint)
 

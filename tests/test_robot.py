@@ -440,3 +440,49 @@ def test_robot_data_folder_from_the_environment(tmp_path, monkeypatch):
     monkeypatch.setenv(robot_lib.ROBOT_DATA_ENV, str(tmp_path / "missing"))
     with pytest.raises(robot_lib.RobotLoadError, match="JTRAJ_ROBOT_DATA"):
         robot_lib.robots_data_dir()
+
+
+# ----------------------------------------------------------------------------------------
+# URDF files that cannot make a robot
+
+
+_TINY_INERTIAL = '<inertial><mass value="1"/><inertia ixx="0.1" iyy="0.1" izz="0.1" ixy="0" ixz="0" iyz="0"/></inertial>'
+#: a base, an arm on a hinge and a foot link fused into the arm (a contact point on the foot)
+_TINY_URDF = f"""<robot name="tiny">
+  <link name="base">{_TINY_INERTIAL}</link>
+  <link name="arm">{_TINY_INERTIAL}</link>
+  <link name="foot"/>
+  <joint name="hinge" type="revolute"><parent link="base"/><child link="arm"/><axis xyz="0 1 0"/>
+    <limit lower="-1" upper="1" effort="5" velocity="2"/></joint>
+  <joint name="ankle" type="fixed"><parent link="arm"/><child link="foot"/><origin xyz="0 0 -0.1"/></joint>
+</robot>
+"""
+
+
+def _tiny_robot_file(folder, urdf_text):
+    (folder / "tiny.urdf").write_text(urdf_text)
+    return _write_toml(folder / "tiny.toml", {"urdf": str(folder / "tiny.urdf"), "contact": [{"name": "toe", "link": "foot"}]})
+
+
+def test_tiny_urdf_loads(tmp_path):
+    """The URDF the cases below break loads as written."""
+    robot = robot_lib.load_file(_tiny_robot_file(tmp_path, _TINY_URDF))
+    assert robot.joint_names == ("hinge",) and robot.contact_names == ("toe",)
+    np.testing.assert_allclose(robot.contact_offsets, [[0.0, 0.0, -0.1]])
+
+
+@pytest.mark.parametrize(
+    "old, new, fragment",
+    [
+        # jtraj reads the joint tree itself before MuJoCo does: an AttributeError on None
+        ('<child link="foot"/>', "", "joint 'ankle' of"),
+        ('<child link="arm"/>', '<child/>', "joint 'hinge' of"),
+    ],
+)
+def test_urdf_defects_raise_naming_the_files(tmp_path, old, new, fragment):
+    assert old in _TINY_URDF
+    path = _tiny_robot_file(tmp_path, _TINY_URDF.replace(old, new, 1))
+    with pytest.raises(robot_lib.RobotLoadError) as err:
+        robot_lib.load_file(path)
+    message = str(err.value)
+    assert "tiny.toml" in message and "tiny.urdf" in message and fragment in message, message
