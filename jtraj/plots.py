@@ -140,9 +140,13 @@ def plot_solution(result: Result, path: str | Path | None = None, *, friction: f
     ratio = np.abs(t.tau[:, 6:]) / robot.tau_max
     ax.plot(t.t, ratio, lw=0.7)
     ax.axhline(1.0, color="k", ls="--", lw=0.8)
-    worst = robot.joint_names[int(np.nanargmax(ratio.max(axis=0)))]
     ax.set_ylabel("|joint torque| / limit")
-    ax.set_title(f"highest: {worst} ({np.nanmax(ratio):.2f})", fontsize=8)
+    if np.isnan(ratio).all():  # a solve stopped by a numerical error
+        ax.set_title("joint torques are NaN", fontsize=8)
+    else:
+        peak = np.where(np.isnan(ratio), -np.inf, ratio).max(axis=0)  # a NaN knot leaves its joint's other knots in
+        worst = int(np.argmax(peak))
+        ax.set_title(f"highest: {robot.joint_names[worst]} ({peak[worst]:.2f})", fontsize=8)
 
     labels = t.contact_names if len(t.contact_names) <= 8 else [None] * len(t.contact_names)
     ax = axes[2, 0]

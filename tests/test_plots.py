@@ -1,13 +1,16 @@
 """Figures of a solution (jtraj.plots), on the made-up Go2 motion of test_render (no solve, no
 OpenGL)."""
 
+import dataclasses
 import json
 
 import matplotlib
 import matplotlib.pyplot as plt
+import numpy as np
 import pytest
 from test_render import _result
 
+from jtraj import robot as robots
 from jtraj.plots import plot_comparison, plot_convergence, plot_result, plot_solution
 
 
@@ -32,3 +35,17 @@ def test_figures_leave_pyplot_alone(result, tmp_path):
     finally:
         plt.close("all")
         plt.switch_backend(backend)
+
+
+def test_torque_panel_with_nan_torques(result):
+    go2 = robots.load("go2")
+    tau = np.zeros_like(result.trajectory.tau)
+    tau[:, 6 + 4] = go2.tau_max[4]  # the fifth joint at its limit ...
+    tau[5, 6 + 4] = np.nan  # ... but NaN at one knot
+    tau[:, 6 + 1] = 0.5 * go2.tau_max[1]
+    with_nan = dataclasses.replace(result, trajectory=dataclasses.replace(result.trajectory, tau=tau))
+    torque_panel = plot_solution(with_nan).axes[3]
+    assert torque_panel.get_title() == f"highest: {go2.joint_names[4]} (1.00)"
+    # a solve stopped by a numerical error: every torque NaN is drawn, not a ValueError
+    all_nan = dataclasses.replace(result, trajectory=dataclasses.replace(result.trajectory, tau=np.full_like(tau, np.nan)))
+    assert plot_solution(all_nan).axes[3].get_title() == "joint torques are NaN"
