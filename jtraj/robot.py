@@ -773,6 +773,14 @@ def _assemble(config, source, name, urdf_path, urdf, locked) -> Robot:
         q_standing[joint_names.index(jname)] = float(value)
 
     lower, upper, velocity, effort = _limits(urdf, joint_names)
+    for j, jname in enumerate(joint_names):
+        # NaN fails these comparisons too: every bound of the NLP is built from them
+        if not lower[j] <= upper[j]:
+            raise RobotLoadError(f"{source}: joint {jname!r} of {urdf_path} has limit lower={lower[j]:g} above upper={upper[j]:g}")
+        if not (velocity[j] >= 0 and effort[j] >= 0):
+            raise RobotLoadError(
+                f"{source}: joint {jname!r} of {urdf_path} has limit velocity={velocity[j]:g}, effort={effort[j]:g}; both must be >= 0"
+            )
     return Robot(
         name=name,
         source=source,

@@ -477,6 +477,11 @@ def test_tiny_urdf_loads(tmp_path):
         # jtraj reads the joint tree itself before MuJoCo does: an AttributeError on None
         ('<child link="foot"/>', "", "joint 'ankle' of"),
         ('<child link="arm"/>', '<child/>', "joint 'hinge' of"),
+        # limits the NLP's bounds are made of: lower above upper made the joint's bounds empty,
+        # a negative effort or velocity the torque and rate bounds
+        ('lower="-1" upper="1"', 'lower="1" upper="-1"', "tiny.urdf has limit lower=1 above upper=-1"),
+        ('effort="5"', 'effort="-5"', "tiny.urdf has limit velocity=2, effort=-5; both must be >= 0"),
+        ('velocity="2"', 'velocity="-2"', "velocity=-2, effort=5; both must be >= 0"),
     ],
 )
 def test_urdf_defects_raise_naming_the_files(tmp_path, old, new, fragment):
