@@ -18,6 +18,7 @@ from jtraj.deprecation import renamed_argument, warn_renamed
 from jtraj.nlp import KnotNLP
 from jtraj.registry import lookup
 from jtraj.result import Outcome, Result
+from jtraj.solvers.base import initial_guess
 from jtraj.success import FEASIBILITY_TOL
 from jtraj.success import evaluate as check_motion
 from jtraj.transcription import COMPACT_VARIABLES, LEAN_VARIABLES, PAPER_VARIABLES, TaskParams, Transcription, TranscriptionOptions
@@ -241,9 +242,9 @@ def solve(
     tr, nlp = prep.transcription, prep.nlp
     theta_given = theta is not None
     theta = tr.resolve_theta(theta)
-    compile_time = prep.time_compile
-    prep.time_compile = 0.0  # counted once per process
-    x0 = tr.warm_start(theta) if warm_start is None else np.asarray(warm_start, float)
+    # a given warm start as one of the NLP's guess shapes, named in the error: flattened first, a
+    # transposed (nz, n_knots) guess had the right size and was solved from scrambled knots
+    x0 = tr.warm_start(theta) if warm_start is None else initial_guess(nlp, warm_start, "warm_start")
     if replicate is not None:
         from jtraj.experiments import chart_noisy_warm_starts
 
@@ -254,6 +255,8 @@ def solve(
         raise ValueError("solve: noise_chart= needs replicate= (the study's draws)")
     elif noise:
         x0 = x0 + noise * np.random.default_rng(seed).standard_normal(x0.shape)
+    compile_time = prep.time_compile
+    prep.time_compile = 0.0  # counted once per process (by the first solve that gets this far)
     opts = solver_options(backend, options, ipopt_options, exact_hessian, tr.task.max_iter)
     say = callback.write if isinstance(callback, solvers.PrintProgress) else None
     if say is not None:

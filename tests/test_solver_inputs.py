@@ -98,3 +98,22 @@ def test_a_stop_request_jtraj_cannot_honour_warns():
     with pytest.warns(RuntimeWarning, match=r"cannot stop at a callback's request \(iteration 2\)"):
         solution = solvers.get("jtraj").solve(nlp, np.zeros(nlp.n), nlp.theta, callback=stop)
     assert stop.seen == [0, 1, 2] and solution.converged  # ran to its own end
+
+
+def test_a_warm_start_of_another_shape_is_refused_by_name(monkeypatch):
+    """`jtraj.solve` flattened a given warm start before the backend's check: a transposed
+    (nz, n_knots) guess had the NLP's size and was solved from scrambled knots, and one of
+    another size was refused as "x0 of shape (396,)". A refused warm start leaves the NLP's
+    compile time to the next solve's result."""
+    from test_transcription import HOP
+
+    import jtraj.solver
+
+    monkeypatch.setattr(jtraj.solver, "_CACHE", {})  # this test's own compile of the NLP
+    prep = jtraj.solver.prepare(HOP)
+    ws = prep.transcription.warm_start()
+    knots, nz = ws.shape
+    for bad in (ws.T, ws[:-1]):
+        with pytest.raises(ValueError, match=rf"warm_start of shape \({bad.shape[0]}, {bad.shape[1]}\): expected \({knots * nz},\) or \({knots}, {nz}\)"):
+            jtraj.solver.solve(HOP, warm_start=bad, progress=None, keep_trajectory=False, ipopt_options={"max_iter": 1})
+    assert prep.time_compile > 0
