@@ -241,11 +241,13 @@ def _interpolate_poses(t: np.ndarray, xyz: np.ndarray, wxyz: np.ndarray, times: 
     from jaxlie import SE3
 
     times = np.clip(np.asarray(times, float), t[0], t[-1])
-    k = np.clip(np.searchsorted(t, times, side="right") - 1, 0, len(t) - 2)
-    s = (times - t[k]) / (t[k + 1] - t[k])
+    k = np.clip(np.searchsorted(t, times, side="right") - 1, 0, max(len(t) - 2, 0))
+    k1 = np.minimum(k + 1, len(t) - 1)  # a single knot is its own next one
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.where(t[k1] > t[k], (times - t[k]) / (t[k1] - t[k]), 0.0)
     wxyz = wxyz / np.linalg.norm(wxyz, axis=1, keepdims=True)
     T = np.concatenate([wxyz, xyz], axis=1)  # jaxlie stores wxyz_xyz
-    Ta, Tb = SE3(T[k]), SE3(T[k + 1])
+    Ta, Tb = SE3(T[k]), SE3(T[k1])
     pose = np.asarray((Ta @ SE3.exp((Ta.inverse() @ Tb).log() * s[:, None])).wxyz_xyz)
     return np.concatenate([pose[:, 4:], pose[:, :4]], axis=1), k, s
 
@@ -259,13 +261,15 @@ def interpolate(trajectory: Trajectory, times: np.ndarray) -> Frames:
     base, k, s = _interpolate_poses(t, xyz_wxyz[:, :3], xyz_wxyz[:, 3:7], times)
     times = np.clip(np.asarray(times, float), t[0], t[-1])
 
+    k1 = np.minimum(k + 1, len(t) - 1)
+
     def lerp(a):
         a = np.asarray(a, float)
         w = s.reshape((-1,) + (1,) * (a.ndim - 1))
-        return (1 - w) * a[k] + w * a[k + 1]
+        return (1 - w) * a[k] + w * a[k1]
 
     qpos = np.concatenate([base, lerp(trajectory.q_joints)], axis=1)
-    nearest = np.where(s < 0.5, k, k + 1)
+    nearest = np.where(s < 0.5, k, k1)
     return Frames(
         t=times,
         qpos=qpos,

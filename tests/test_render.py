@@ -82,6 +82,25 @@ def test_interpolation_follows_the_constant_twist_and_hits_the_knots(result):
     assert near.in_contact[0].all() and not near.in_contact[1].any()
 
 
+def _first_knots(result: Result, n: int) -> Result:
+    """``result`` cut to its first ``n`` knots."""
+    traj = result.trajectory
+    per_knot = ("t", "base_xyz_wxyz", "q_base", "q_joints", "v", "a", "tau", "forces", "contact_positions", "in_contact")
+    return dataclasses.replace(result, trajectory=dataclasses.replace(traj, **{k: np.asarray(getattr(traj, k))[:n] for k in per_knot}))
+
+
+def test_a_single_knot_is_drawn_as_it_stands(result):
+    one = _first_knots(result, 1)
+    f = interpolate(one.trajectory, [0.0, 0.3])
+    # the one pose at every time (was NaN: the interval to the next knot was divided by zero)
+    np.testing.assert_allclose(f.qpos, np.tile(np.concatenate([one.trajectory.base_xyz_wxyz[0], one.trajectory.q_joints[0]]), (2, 1)), atol=1e-12)
+    np.testing.assert_allclose(f.forces, one.trajectory.forces[[0, 0]])
+    assert f.in_contact.all()
+    video = render(one, SMALL)
+    assert len(video) == 2 and all(image.std() > 10 for image in video)  # NaN poses drew black images
+    assert keyframe_strip(one, 2, options=SMALL).std() > 10
+
+
 def test_video_frames_have_the_size_are_not_blank_and_move(frames, result):
     duration = result.trajectory.t[-1]
     assert frames.shape == (round(duration * SMALL.fps) + 1, H, W, 3) and frames.dtype == np.uint8
