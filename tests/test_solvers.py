@@ -112,6 +112,21 @@ def test_bad_jtraj_options_fail_at_construction(kwargs, match):
     IpmOptions(max_iter=61356674)  # the largest the default line search allows
 
 
+def test_numpy_scalars_are_numbers_for_the_options():
+    """A setting taken from a numpy array (np.float32, np.int64) was refused as "expected a
+    positive number" or "expected a string, integer, float or boolean value" though it is one;
+    Ipopt's options get Python's int and float, which cyipopt's setters take."""
+    opts = IpoptOptions(tol=np.float32(0.5), max_wall_time=np.int64(5), extra={"acceptable_iter": np.int64(3), "mu_init": np.float32(0.5)})
+    ipopt = opts.to_ipopt()
+    for key, kind, value in (("tol", float, 0.5), ("max_wall_time", float, 5.0), ("acceptable_iter", int, 3), ("mu_init", float, 0.5)):
+        assert type(ipopt[key]) is kind and ipopt[key] == value, key
+    assert IpmOptions(tol=np.float32(0.5), mu_init=np.int64(1)).tol == 0.5
+    with pytest.raises(InvalidOptionError, match=r"tol=-1.0: expected a positive number"):
+        IpoptOptions(tol=np.float32(-1.0))
+    with pytest.raises(InvalidOptionError, match=r"mu_init=np.float32\(-1.0\): expected a positive number"):
+        IpmOptions(mu_init=np.float32(-1.0))
+
+
 def test_jtraj_option_ranges_are_ipopts():
     from jtraj.solvers import ipopt_catalog
 

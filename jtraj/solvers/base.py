@@ -204,7 +204,8 @@ def _positive(options: AbstractOptions, *names: str, allow_none: bool = False) -
         value = getattr(options, name)
         if value is None and allow_none:
             continue
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
+        # numpy's scalars too (np.float32, np.int64 from an array of settings): they are numbers
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)) or not value > 0:
             raise InvalidOptionError(f"{options.solver_name} option {name}={value!r}: expected a positive number")
 
 

@@ -101,8 +101,8 @@ class IpoptOptions(AbstractOptions):
     def __check__(self) -> None:
         for name in ("tol", "max_wall_time", "acceptable_tol", "constr_viol_tol", "acceptable_constr_viol_tol"):
             value = getattr(self, name)
-            if isinstance(value, int) and not isinstance(value, bool):
-                object.__setattr__(self, name, float(value))  # Ipopt's real options take 1 as well as 1.0
+            if isinstance(value, (int, np.integer, np.floating)) and not isinstance(value, bool):
+                object.__setattr__(self, name, float(value))  # Ipopt's real options take 1 (and numpy's scalars) as well as 1.0
         _positive(self, "tol", "max_wall_time")
         _positive(self, "acceptable_tol", "constr_viol_tol", "acceptable_constr_viol_tol", allow_none=True)
         if isinstance(self.max_iter, bool) or not isinstance(self.max_iter, (int, np.integer)) or self.max_iter < 0:
@@ -125,7 +125,7 @@ class IpoptOptions(AbstractOptions):
         if not isinstance(self.extra, dict):
             raise InvalidOptionError(f"Ipopt option extra={self.extra!r}: expected a dict of Ipopt option names to values")
         for key, value in self.extra.items():
-            if not isinstance(key, str) or not isinstance(value, (str, int, float, bool)):
+            if not isinstance(key, str) or not isinstance(value, (str, int, float, bool, np.integer, np.floating)):
                 raise InvalidOptionError(f"Ipopt option {key!r}={value!r}: expected a string, integer, float or boolean value")
             if key in _FIELDS or key == "hessian_approximation":
                 raise InvalidOptionError(f"Ipopt option {key!r} has its own field: use IpoptOptions({_field_for(key)}=...)")
