@@ -67,6 +67,7 @@ def test_ipopt_return_codes_map_to_the_enumeration():
         ({"tol": -1.0}, "tol=-1.0: expected a positive number"),
         ({"max_iter": 2.5}, "max_iter=2.5: expected an integer"),
         ({"hessian": "bfgs"}, r"hessian='bfgs': expected one of \['exact', 'lbfgs'\]"),
+        ({"hessian": ["exact"]}, r"hessian=\['exact'\]: expected one of \['exact', 'lbfgs'\]"),  # was TypeError: unhashable type
         ({"linear_solver": "umfpack"}, "linear_solver='umfpack'"),
         # a known linear solver whose library this Ipopt lacks (the solve said only "Invalid option encountered")
         ({"linear_solver": "ma27"}, "linear_solver='ma27': not available in this Ipopt build"),
@@ -181,6 +182,8 @@ def test_options_from_ipopt_names():
     assert ipopt["hessian_approximation"] == "exact" and ipopt["mu_strategy"] == "adaptive" and ipopt["warm_start_init_point"] == "yes"
     merged = opts.merge({"max_iter": 7, "hessian_approximation": "limited-memory"})
     assert (merged.max_iter, merged.hessian, merged.tol, merged.extra["mu_strategy"]) == (7, "lbfgs", 1.0, "adaptive")
+    with pytest.raises(InvalidOptionError, match=r"hessian_approximation=\['exact'\]: expected one of"):
+        IpoptOptions.from_dict({"hessian_approximation": ["exact"]})  # was TypeError: unhashable type
     with pytest.raises(TypeError, match="positional argument"):
         IpoptOptions(1e-3)  # keyword-only
 

@@ -109,7 +109,7 @@ class IpoptOptions(AbstractOptions):
             raise InvalidOptionError(f"Ipopt option max_iter={self.max_iter!r}: expected an integer >= 0")
         if self.max_iter > INT_MAX:  # Ipopt's integer options are C ints (cyipopt: OverflowError at the solve)
             raise InvalidOptionError(f"Ipopt option max_iter={self.max_iter!r}: expected an integer in [0, {INT_MAX}]")
-        if self.hessian not in HESSIANS:
+        if not isinstance(self.hessian, str) or self.hessian not in HESSIANS:  # a list: TypeError 'unhashable type'
             raise InvalidOptionError(f"Ipopt option hessian={self.hessian!r}: expected one of {sorted(HESSIANS)}")
         if self.linear_solver not in LINEAR_SOLVERS:
             raise InvalidOptionError(f"Ipopt option linear_solver={self.linear_solver!r}: expected one of {list(LINEAR_SOLVERS)}")
@@ -157,7 +157,7 @@ class IpoptOptions(AbstractOptions):
                 extra[key] = value
         if hessian_approximation is not None:
             names = {v: k for k, v in HESSIANS.items()}
-            if hessian_approximation not in names:
+            if not isinstance(hessian_approximation, str) or hessian_approximation not in names:
                 raise InvalidOptionError(f"Ipopt option hessian_approximation={hessian_approximation!r}: expected one of {sorted(names)}")
             fields["hessian"] = names[hessian_approximation]
         return cls(**fields, extra=extra)
