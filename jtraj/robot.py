@@ -348,8 +348,8 @@ def _floats(text: str | None, n: int, default: float = 0.0) -> np.ndarray:
     if text is None:
         return np.full(n, default)
     values = np.array([float(x) for x in text.split()])
-    if values.shape != (n,):
-        raise ValueError(f"expected {n} numbers, got {text!r}")
+    if values.shape != (n,) or not np.all(np.isfinite(values)):
+        raise ValueError(f"expected {n} finite numbers, got {text!r}")
     return values
 
 
@@ -575,7 +575,10 @@ def _link_in_body(
         joint = urdf.parent_joint.get(current)
         if joint is None or (joint.get("type") != "fixed" and joint.get("name") not in locked):
             raise RobotLoadError(f"{source}: link {current!r} has no MuJoCo body and no fixed parent joint")
-        R_j, p_j = _origin(joint)
+        try:
+            R_j, p_j = _origin(joint)
+        except ValueError as err:
+            raise RobotLoadError(f"{source}: <origin> of joint {joint.get('name')!r} of {urdf.path}: {err}") from err
         # T_parent_link = T_joint-origin T_current_link
         R, p = R_j @ R, R_j @ p + p_j
         current = joint.find("parent").get("link")
@@ -683,6 +686,10 @@ def _assemble(config, source, name, urdf_path, urdf, locked) -> Robot:
     model.dof_armature[:] = 0.0
     model.dof_frictionloss[:] = 0.0
     model.jnt_stiffness[:] = 0.0
+    # MuJoCo warns of a NaN in the URDF on stdout and loads it
+    for field in ("body_pos", "body_quat", "body_ipos", "body_iquat", "body_mass", "body_inertia", "jnt_pos", "jnt_axis", "qpos0"):
+        if not np.all(np.isfinite(getattr(model, field))):
+            raise RobotLoadError(f"{source}: {urdf_path} has a number that is not finite (NaN or inf) in MuJoCo's {field}")
 
     free = mujoco.mjtJoint.mjJNT_FREE
     hinge = mujoco.mjtJoint.mjJNT_HINGE

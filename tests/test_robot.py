@@ -482,6 +482,10 @@ def test_tiny_urdf_loads(tmp_path):
         ('lower="-1" upper="1"', 'lower="1" upper="-1"', "tiny.urdf has limit lower=1 above upper=-1"),
         ('effort="5"', 'effort="-5"', "tiny.urdf has limit velocity=2, effort=-5; both must be >= 0"),
         ('velocity="2"', 'velocity="-2"', "velocity=-2, effort=5; both must be >= 0"),
+        # NaN loaded (MuJoCo only prints a warning): a NaN contact offset or body position
+        ('xyz="0 0 -0.1"', 'xyz="0 0 nan"', "<origin> of joint 'ankle' of"),
+        ('<axis xyz="0 1 0"/>', '<origin xyz="0 nan 0"/><axis xyz="0 1 0"/>', "not finite (NaN or inf) in MuJoCo's body_pos"),
+        ('<inertial><mass value="1"/>', '<inertial><origin xyz="inf 0 0"/><mass value="1"/>', "not finite (NaN or inf) in MuJoCo's body_ipos"),
     ],
 )
 def test_urdf_defects_raise_naming_the_files(tmp_path, old, new, fragment):
