@@ -121,6 +121,22 @@ class RenderOptions:
 # OpenGL backend
 
 
+def _gl_setting() -> str:
+    """``MUJOCO_GL`` as the messages give it, and the backend MuJoCo loaded where that is
+    another: MuJoCo reads the variable once, when mujoco is first imported."""
+    from mujoco import gl_context
+
+    env = os.environ.get("MUJOCO_GL")
+    context = getattr(gl_context, "GLContext", None)
+    loaded = None if context is None else context.__module__.rpartition(".")[2]  # mujoco.egl, mujoco.osmesa, mujoco.glfw
+    if loaded is not None and (env or "").strip().lower() in ("egl", "osmesa", "glfw") and loaded != env.strip().lower():
+        return (
+            f"MuJoCo's {loaded} backend (mujoco was imported before MUJOCO_GL was set to {env!r}, and reads it only then: "
+            "import jtraj before mujoco, or set MUJOCO_GL before starting Python)"
+        )
+    return f"MUJOCO_GL={env!r}"
+
+
 def _mujoco():
     """MuJoCo with an OpenGL context usable here, or a RenderError that says what to do."""
     import mujoco
@@ -128,7 +144,7 @@ def _mujoco():
 
     if getattr(gl_context, "GLContext", None) is None:
         raise RenderError(
-            f"MuJoCo has no OpenGL backend (MUJOCO_GL={os.environ.get('MUJOCO_GL')!r}); on a machine without "
+            f"MuJoCo has no OpenGL backend ({_gl_setting()}); on a machine without "
             "display set MUJOCO_GL=egl (Mesa's libEGL: apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri) or "
             "MUJOCO_GL=osmesa (apt-get install libosmesa6) before importing mujoco"
         )
@@ -143,7 +159,7 @@ def _renderer(model, width: int, height: int):
         return mujoco.Renderer(model, height=height, width=width)
     except Exception as err:  # the GL backends raise their own error types
         raise RenderError(
-            f"MuJoCo could not open an offscreen OpenGL context with MUJOCO_GL={os.environ.get('MUJOCO_GL')!r}: {err}. "
+            f"MuJoCo could not open an offscreen OpenGL context with {_gl_setting()}: {err}. "
             "Without display or GPU use MUJOCO_GL=egl with Mesa (apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri) or "
             "MUJOCO_GL=osmesa (apt-get install libosmesa6)"
         ) from err

@@ -342,3 +342,23 @@ def test_attitude_bodies_along_their_paths(tmp_path):
     assert all(p.stat().st_size > 1000 for p in paths)
     with pytest.raises(ValueError, match="shape must be"):
         render_rigid_body(t, xyz, wxyz, "blimp", options=SMALL)
+
+
+def test_no_context_names_the_backend_mujoco_loaded(monkeypatch):
+    from mujoco import gl_context
+
+    from jtraj.render import RenderError, _renderer
+
+    def no_context(*args, **kwargs):
+        raise RuntimeError("no OpenGL context")
+
+    monkeypatch.setattr(mujoco, "Renderer", no_context)
+    monkeypatch.setenv("MUJOCO_GL", "egl")
+    model = mujoco.MjModel.from_xml_string("<mujoco/>")
+    # mujoco imported before jtraj set MUJOCO_GL=egl: it loaded GLFW, which the variable no longer says
+    monkeypatch.setattr(gl_context, "GLContext", type("GLContext", (), {"__module__": "mujoco.glfw"}))
+    with pytest.raises(RenderError, match=r"with MuJoCo's glfw backend \(mujoco was imported before MUJOCO_GL was set to 'egl'.*import jtraj before mujoco"):
+        _renderer(model, 32, 32)
+    monkeypatch.setattr(gl_context, "GLContext", type("GLContext", (), {"__module__": "mujoco.egl"}))
+    with pytest.raises(RenderError, match=r"with MUJOCO_GL='egl': no OpenGL context\. Without display"):
+        _renderer(model, 32, 32)
