@@ -289,7 +289,8 @@ class IpoptSolver(AbstractSolver):
             x=np.asarray(x),
             status=status,
             message=message,
-            objective=float(info["obj_val"]),
+            # Ipopt's obj_val is 0.0 when it stopped before evaluating its start (a NaN in x0)
+            objective=float(info["obj_val"]) if history else float(f.objective(jnp.asarray(x))),
             constraint_violation=max_violation(g, f.g_lower, f.g_upper, x, f.x_lower, f.x_upper),
             mult_g=np.asarray(info["mult_g"]),
             mult_x_lower=np.asarray(info["mult_x_L"]),
