@@ -67,6 +67,15 @@ class Layout:
 
     slots: tuple[tuple[str, int], ...]
 
+    def __post_init__(self):
+        names = [name for name, _ in self.slots]
+        for name in names:
+            if names.count(name) > 1:
+                raise ValueError(f"layout {names}: slot {name!r} appears twice")
+        for name, size in self.slots:
+            if not isinstance(size, (int, np.integer)) or isinstance(size, bool) or size < 0:
+                raise ValueError(f"layout {names}: slot {name!r} has size {size!r}; expected a whole number >= 0")
+
     @property
     def nz(self) -> int:
         return sum(size for _, size in self.slots)
@@ -80,7 +89,10 @@ class Layout:
         raise KeyError(f"no slot {name!r} in layout {[s for s, _ in self.slots]}")
 
     def size(self, name: str) -> int:
-        return dict(self.slots)[name]
+        sizes = dict(self.slots)
+        if name not in sizes:
+            raise KeyError(f"no slot {name!r} in layout {list(sizes)}")
+        return sizes[name]
 
     def slice(self, name: str) -> slice:
         off = self.offset(name)
