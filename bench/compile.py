@@ -24,6 +24,9 @@ import subprocess
 import sys
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
+from _args import add_out, add_param, add_tasks, add_variables  # noqa: E402
+
 CHILD = """
 import json, sys
 import jtraj
@@ -60,17 +63,13 @@ def table(records: list[dict]) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    from jtraj.parameterization import PARAMETERIZATIONS
-    from jtraj.solver import VARIABLES
-    from jtraj.task import task_argument  # the inputs are checked here; the children compile
-
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("tasks", nargs="*", type=task_argument, default=["big_jump"])
-    ap.add_argument("--param", default="se3", choices=list(PARAMETERIZATIONS))
-    ap.add_argument("--variables", default="paper", choices=list(VARIABLES))
+    add_tasks(ap, ["big_jump"])
+    add_param(ap)
+    add_variables(ap, "paper")
     ap.add_argument("--flags", default="", help="XLA_FLAGS settings separated by '|', one process each (empty: none)")
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--out", type=Path)
+    add_out(ap, "compile")
     a = ap.parse_args(argv)
     if a.repeats < 1:
         ap.error(f"--repeats: {a.repeats}: expected an integer >= 1 (the table gives the fastest of them)")

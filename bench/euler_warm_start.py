@@ -31,8 +31,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
+from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
+from _args import add_out, add_tasks  # noqa: E402
 
 VARIANTS = ("matrix", "angles", "angles-nudged", "angles-held")
 
@@ -79,12 +84,10 @@ def table(records: list[dict]) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    from jtraj.task import task_argument  # jtraj after the module's own settings
-
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("tasks", nargs="*", type=task_argument, default=["backflip", "sideflip"])
+    add_tasks(ap, ["backflip", "sideflip"])
     ap.add_argument("--variants", default=",".join(VARIANTS), help=f"comma-separated, of: {', '.join(VARIANTS)}")
-    ap.add_argument("--out")
+    add_out(ap, "euler_warm_start")
     a = ap.parse_args(argv)
     variants = [v.strip() for v in a.variants.split(",") if v.strip()]
     if not variants or any(v not in VARIANTS for v in variants):

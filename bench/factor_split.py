@@ -21,7 +21,9 @@ runs; see docs/measurements.md). The halves move part of the work into matrix pr
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -29,6 +31,9 @@ import numpy as np
 
 from jtraj.provenance import write_results
 from jtraj.solvers import kkt
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
+from _args import add_out  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 
@@ -111,7 +116,7 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--shapes", type=shapes, default="47x156x96,121x78x48", help="KxNxC,... (knots, block size, coupled columns)")
     ap.add_argument("--rounds", type=int, default=15)
-    ap.add_argument("--out")
+    add_out(ap, "factor_split")
     args = ap.parse_args(argv)
     if args.rounds < 1:
         ap.error(f"--rounds: {args.rounds}: expected an integer >= 1")

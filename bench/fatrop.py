@@ -78,8 +78,10 @@ import argparse
 import dataclasses
 import io
 import os
+import sys
 import time
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
 
 import jax
@@ -87,10 +89,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from jtraj.nlp import ConstraintGroup, Dep, KnotNLP, Layout
-from jtraj.parameterization import PARAMETERIZATIONS
 from jtraj.provenance import write_results
 from jtraj.solver import prepare, solve
-from jtraj.task import task_argument
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
+from _args import add_out, add_param, add_tasks  # noqa: E402
 
 #: The NLP's group whose rows encode ``x_{k+1} = step(x_k, u_k)`` (jtraj.transcription).
 DYNAMICS = "integration"
@@ -595,14 +598,14 @@ def markdown(records: list[dict]) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("tasks", nargs="*", type=task_argument, default=["big_jump"])
-    ap.add_argument("--param", default="se3", choices=list(PARAMETERIZATIONS))
+    add_tasks(ap, ["big_jump"])
+    add_param(ap)
     ap.add_argument("--jtraj", action="store_true", help="also solve with jtraj's own interior point")
     ap.add_argument("--no-ipopt", action="store_true", help="skip the Ipopt solve")
     ap.add_argument("--hessian", default="exact", choices=HESSIANS, help="FATROP's Hessian: exact, or its stage blocks with eigenvalues clipped at 1e-6")
     ap.add_argument("--rtol", type=float, default=1e-7, help="relative tolerance of drop_dependent's rank decision (default 1e-7)")
     ap.add_argument("--print-level", type=int, default=0, help="FATROP's print_level (0 quiet, 10 a line per iteration)")
-    ap.add_argument("--out", help="write DIR/fatrop.json, DIR/fatrop.md, DIR/provenance.json")
+    add_out(ap, "fatrop")
     args = ap.parse_args(argv)
     records = []
     for task in args.tasks:

@@ -17,15 +17,17 @@ of the study.
 from __future__ import annotations
 
 import argparse
+import sys
+from pathlib import Path
 
 import jtraj
 from jtraj.experiments import ALL_TASKS
-from jtraj.parameterization import PARAMETERIZATIONS
 from jtraj.provenance import write_results
-from jtraj.solver import VARIABLES
 from jtraj.solvers.ipm import IpmOptions
 from jtraj.tables import markdown_table
-from jtraj.task import task_argument
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
+from _args import add_out, add_param, add_tasks, add_variables  # noqa: E402
 
 HESSIANS = ("lbfgs", "bfgs", "exact")
 
@@ -56,11 +58,11 @@ def table(rows: list[dict]) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("tasks", nargs="*", type=task_argument, default=list(ALL_TASKS))
-    ap.add_argument("--param", default="se3", choices=list(PARAMETERIZATIONS))
+    add_tasks(ap, ALL_TASKS)
+    add_param(ap)
     ap.add_argument("--hessians", default=",".join(HESSIANS), help=f"comma-separated, some of {','.join(HESSIANS)}")
-    ap.add_argument("--variables", default="compact", choices=list(VARIABLES))
-    ap.add_argument("--out")
+    add_variables(ap, "compact")
+    add_out(ap, "hessians")
     args = ap.parse_args(argv)
     hessians = [h for h in args.hessians.split(",") if h]
     if not hessians:

@@ -12,6 +12,11 @@ repeats; compile is excluded (one program per rule, compiled before the first so
 from __future__ import annotations
 
 import argparse
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
+from _args import add_param  # noqa: E402
 
 RULES = {
     "quality-function + obj-constr-filter (default)": {},
@@ -20,12 +25,11 @@ RULES = {
 
 
 def main(argv: list[str] | None = None) -> None:
-    from jtraj.parameterization import PARAMETERIZATIONS
     from jtraj.task import task_argument  # jtraj after the module's own settings
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("task", nargs="?", type=task_argument, default="big_jump")
-    ap.add_argument("--param", default="se3", choices=list(PARAMETERIZATIONS))
+    add_param(ap)
     ap.add_argument("--repeat", type=int, default=2)
     args = ap.parse_args(argv)
     if args.repeat < 1:

@@ -25,17 +25,19 @@ from __future__ import annotations
 
 import argparse
 import statistics
+import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import jtraj
 from jtraj.cli import InputError, _check_ipopt  # the command line's NAME=VALUE parsing and checks
 from jtraj.experiments import ALL_TASKS
-from jtraj.parameterization import PARAMETERIZATIONS
 from jtraj.provenance import write_results
-from jtraj.solver import VARIABLES
 from jtraj.tables import markdown_table
-from jtraj.task import task_argument
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
+from _args import add_out, add_param, add_tasks, add_variables  # noqa: E402
 
 
 def parse_variant(text: str) -> tuple[str, dict[str, Any]]:
@@ -96,12 +98,12 @@ def table(records: list[dict]) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("tasks", nargs="*", type=task_argument, default=list(ALL_TASKS))
+    add_tasks(ap, ALL_TASKS)
     ap.add_argument("--variant", action="append", required=True, help="NAME=OPTION:VALUE[,OPTION:VALUE...] (repeatable; the first is the baseline)")
     ap.add_argument("--rounds", type=int, default=3)
-    ap.add_argument("--param", default="se3", choices=list(PARAMETERIZATIONS))
-    ap.add_argument("--variables", default="compact", choices=list(VARIABLES))
-    ap.add_argument("--out")
+    add_param(ap)
+    add_variables(ap, "compact")
+    add_out(ap, "options")
     args = ap.parse_args(argv)
     if args.rounds < 1:
         ap.error("--rounds must be at least 1")

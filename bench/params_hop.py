@@ -18,11 +18,16 @@ are measured only here. Prints one row per
 from __future__ import annotations
 
 import argparse
+import sys
+from pathlib import Path
 
 import jtraj
 from jtraj.cli import InputError, _check_params
 from jtraj.provenance import write_results
 from jtraj.task import Phase, Task
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
+from _args import add_out  # noqa: E402
 
 FEET = ("FL_foot", "FR_foot", "RL_foot", "RR_foot")
 HOP = Task(name="hop", robot="go2", timestep=0.05, phases=(Phase(FEET, 0.15), Phase((), 0.1), Phase(FEET, 0.15)), target_translation=(0.1, 0.0, 0.0))
@@ -49,7 +54,7 @@ def render(rows: list[dict]) -> str:
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--params", default="se3,quat1,quat2,quat3,euler")
-    ap.add_argument("--out")
+    add_out(ap, "params_hop")
     args = ap.parse_args(argv)
     try:
         params = _check_params("--params", args.params)

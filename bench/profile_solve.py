@@ -34,8 +34,13 @@ import collections
 import glob
 import os
 import re
+import sys
 import tempfile
 import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
+from _args import add_out, add_param, add_tasks, add_variables  # noqa: E402
 
 os.environ["JTRAJ_NO_CACHE"] = "1"  # before jtraj is imported (see the docstring)
 
@@ -135,15 +140,11 @@ def table(records: list[dict]) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    from jtraj.parameterization import PARAMETERIZATIONS
-    from jtraj.solver import VARIABLES
-    from jtraj.task import task_argument  # jtraj after the module's own settings
-
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("tasks", nargs="*", type=task_argument, default=["walk", "big_jump", "backflip", "sideflip"])
-    ap.add_argument("--param", default="se3", choices=list(PARAMETERIZATIONS))
-    ap.add_argument("--variables", default="paper", choices=list(VARIABLES), help="the variables per knot (default: the study's, as the robustness study solves)")
-    ap.add_argument("--out")
+    add_tasks(ap, ["walk", "big_jump", "backflip", "sideflip"])
+    add_param(ap)
+    add_variables(ap, "paper", help="the variables per knot (default: the study's, as the robustness study solves)")
+    add_out(ap, "profile_solve")
     a = ap.parse_args(argv)
     records = []
     for task in a.tasks:

@@ -29,9 +29,13 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
+from _args import add_out, add_variables  # noqa: E402
 
 #: raw: the chart's own draws; unit: a quaternion chart's draws with each rho normalized; any
 #: other parameterization's name: that chart's draws (same seed), its noisy poses written in
@@ -169,7 +173,6 @@ def table(records: list[dict]) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     from jtraj.cli import InputError, _check_params
-    from jtraj.solver import VARIABLES
     from jtraj.task import task_argument
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -180,9 +183,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--first", type=int, default=0, help="first draw (replicate number)")
     ap.add_argument("--modes", default="raw,unit,se3", help=f"warm starts to solve, of {','.join(MODES)}")
     ap.add_argument("--max-iter", type=int, default=200)
-    ap.add_argument("--variables", default="paper", choices=list(VARIABLES))
+    add_variables(ap, "paper")
     ap.add_argument("--solver", default="jtraj", choices=("jtraj", "ipopt"), help="jtraj's (batched) or Ipopt (one by one, as Table III)")
-    ap.add_argument("--out", type=Path)
+    add_out(ap, "quaternion_noise")
     a = ap.parse_args(argv)
     try:
         params = _check_params("--params", a.params)

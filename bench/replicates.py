@@ -45,6 +45,7 @@ import math
 import os
 import platform
 import sys
+from pathlib import Path
 
 import jax
 import numpy as np
@@ -52,7 +53,6 @@ import numpy as np
 from jtraj import solvers
 from jtraj.cli import InputError, _check_out
 from jtraj.experiments import noisy_warm_starts
-from jtraj.parameterization import PARAMETERIZATIONS
 from jtraj.provenance import provenance, write_results
 from jtraj.solver import compile_callbacks, prepare, solve, solver_options
 from jtraj.success import FEASIBILITY_TOL
@@ -60,11 +60,14 @@ from jtraj.success import evaluate as check_motion
 from jtraj.tables import markdown_table
 from jtraj.task import task_argument
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
+from _args import add_param  # noqa: E402
+
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--task", default="big_jump", type=task_argument)
-    ap.add_argument("--param", default="se3", choices=list(PARAMETERIZATIONS))
+    add_param(ap)
     ap.add_argument("--sigma", type=float, default=0.1)
     ap.add_argument("--replicates", type=int, default=10)
     ap.add_argument("--strategies", default="vmap,threads", help="comma-separated ways to time: vmap, threads (solve_batch's strategies), vectorized (vmap with cpu_batch='vectorized')")

@@ -32,6 +32,9 @@ import sys
 import tempfile
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
+from _args import add_param, add_tasks, add_variables  # noqa: E402
+
 REPO = Path(__file__).resolve().parents[1]
 
 CHILD = """
@@ -86,15 +89,12 @@ def table(records: list[dict], labels: tuple[str, str]) -> str:
 def main(argv: list[str] | None = None) -> int:
     from jtraj.cli import InputError, _check_out
     from jtraj.experiments import RepeatedValueError, _refuse_repeats
-    from jtraj.parameterization import PARAMETERIZATIONS
-    from jtraj.solver import VARIABLES
-    from jtraj.task import task_argument
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("rev", help="the earlier revision (git rev, e.g. HEAD~1)")
-    ap.add_argument("tasks", nargs="*", type=task_argument, default=["walk", "big_jump", "backflip", "sideflip"])
-    ap.add_argument("--param", default="se3", choices=list(PARAMETERIZATIONS))
-    ap.add_argument("--variables", default="compact", choices=list(VARIABLES))
+    add_tasks(ap, ["walk", "big_jump", "backflip", "sideflip"])
+    add_param(ap)
+    add_variables(ap, "compact")
     ap.add_argument("--repeats", type=int, default=3, help="timed solves per task and revision (after one that compiles)")
     ap.add_argument("--out", help="write DIR/revisions.json, DIR/revisions.md, DIR/provenance.json")
     args = ap.parse_args(argv)

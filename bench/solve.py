@@ -55,10 +55,11 @@ from pathlib import Path
 
 from jtraj import io as jio
 from jtraj.cli import _check_ipopt  # the command line's NAME=VALUE parsing and checks
-from jtraj.parameterization import PARAMETERIZATIONS
 from jtraj.provenance import write_results
 from jtraj.solver import prepare, solve
-from jtraj.task import task_argument
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
+from _args import add_param, add_tasks  # noqa: E402
 
 VARIANTS = {
     "paper": dict(variables="paper", exact_hessian=False),
@@ -214,8 +215,8 @@ def markdown(records: list[dict]) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("tasks", nargs="*", type=task_argument)
-    ap.add_argument("--param", default="se3", choices=list(PARAMETERIZATIONS))
+    add_tasks(ap)
+    add_param(ap)
     ap.add_argument("--variants", default="paper,compact,lean")
     ap.add_argument("--ipopt", action="append", default=[], metavar="NAME=VALUE", help="extra Ipopt option for every Ipopt variant")
     ap.add_argument("--jtraj", action="append", default=[], metavar="NAME=VALUE", help="option of jtraj's solver for the jtraj variant (e.g. constr_viol_tol=1e-6)")

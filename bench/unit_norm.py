@@ -25,9 +25,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
+from pathlib import Path
 
 from jtraj.experiments import ALL_TASKS
-from jtraj.task import task_argument
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
+from _args import add_out, add_tasks  # noqa: E402
 
 
 def run(task: str, param: str, unit_norm: bool, solver: str) -> dict:
@@ -57,10 +61,10 @@ def table(records: list[dict]) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("tasks", nargs="*", type=task_argument, default=list(ALL_TASKS))
+    add_tasks(ap, ALL_TASKS)
     ap.add_argument("--params", default="quat3", help="comma-separated quaternion charts (quat1, quat2, quat3)")
     ap.add_argument("--solver", default="ipopt", choices=("ipopt", "jtraj"))
-    ap.add_argument("--out")
+    add_out(ap, "unit_norm")
     a = ap.parse_args(argv)
     params = [p for p in a.params.split(",") if p]
     if not params or any(p not in ("quat1", "quat2", "quat3") for p in params):

@@ -1,0 +1,43 @@
+"""Command-line arguments that several benchmarks define the same way, defined once here.
+
+bench/ is not a package: a script imports this module after putting its own folder on
+``sys.path`` (as ``bench/trace_iterates.py`` imports ``side_by_side``), which also works when
+the tests load the script from its file. jtraj is imported inside the functions: some scripts
+set XLA's flags before their first import of jtraj.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+
+
+def add_tasks(ap: argparse.ArgumentParser, default: Sequence[str] | None = None) -> None:
+    """Positional ``tasks``: built-in tasks or task files, each checked as it is parsed
+    (`jtraj.task.task_argument`); ``default`` when none is given (None: an empty list)."""
+    from jtraj.task import task_argument
+
+    if default is None:
+        ap.add_argument("tasks", nargs="*", type=task_argument)
+    else:
+        ap.add_argument("tasks", nargs="*", type=task_argument, default=list(default))
+
+
+def add_param(ap: argparse.ArgumentParser, default: str = "se3") -> None:
+    """``--param``: one of jtraj's floating-base parameterizations."""
+    from jtraj.parameterization import PARAMETERIZATIONS
+
+    ap.add_argument("--param", default=default, choices=list(PARAMETERIZATIONS))
+
+
+def add_variables(ap: argparse.ArgumentParser, default: str, help: str | None = None) -> None:
+    """``--variables``: one of `jtraj.solver.VARIABLES`."""
+    from jtraj.solver import VARIABLES
+
+    ap.add_argument("--variables", default=default, choices=list(VARIABLES), help=help)
+
+
+def add_out(ap: argparse.ArgumentParser, name: str) -> None:
+    """``--out DIR``: where `jtraj.provenance.write_results` writes ``NAME.json``, ``NAME.md``
+    and ``provenance.json``."""
+    ap.add_argument("--out", help=f"write DIR/{name}.json, DIR/{name}.md, DIR/provenance.json")
