@@ -137,3 +137,20 @@ def test_a_nan_in_the_start_is_a_numerical_error_of_that_solve_alone():
     for s in (batch[0], batch[2]):
         assert s.stats.iterations == alone.stats.iterations
         np.testing.assert_allclose(s.x, alone.x, atol=1e-9)
+
+
+@pytest.mark.parametrize("solver", ["jtraj", "ipopt"])
+def test_a_batch_of_parameters_is_refused_by_name(solver):
+    """The solvers solve at one theta (`JtrajSolver.solve_batch`'s members share it): a theta
+    with a leading batch axis failed inside the NLP's bound functions with JAX's "Incompatible
+    types for broadcasting"; it is refused naming the parameter and the NLP's shape."""
+    nlp = speed_limited()
+    batched = {"vmin": jnp.asarray([-1.0, -1.0]), "vmax": jnp.asarray([0.35, 0.3])}
+    match = r"theta\['vmax'\] has shape \(2,\), the NLP's own theta \(\): a solve is at one theta"
+    backend = solvers.get(solver)
+    with pytest.raises(ValueError, match=match):
+        backend.solve(nlp, np.zeros(nlp.n), batched)
+    if solver == "jtraj":
+        with pytest.raises(ValueError, match=match):
+            backend.solve_batch(nlp, np.zeros((2, nlp.n)), batched)
+    assert no_program(nlp)

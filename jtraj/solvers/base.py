@@ -469,14 +469,37 @@ def invalid_problem(f: BoundNLP, x0: np.ndarray, message: str, m: int, nlp: Any 
     return solution
 
 
+def _check_theta_shapes(nlp: Any, theta: Any) -> None:
+    """ValueError naming the first parameter of ``theta`` whose shape differs from that of the
+    NLP's own ``nlp.theta`` (same structure); a batch of parameters, one per member of a
+    `solve_batch`, failed inside the NLP's bound functions with JAX's broadcasting error."""
+    import jax
+
+    own = getattr(nlp, "theta", None)
+    if own is None or theta is own:
+        return
+    given, tree = jax.tree_util.tree_flatten_with_path(theta)
+    ref, ref_tree = jax.tree_util.tree_flatten_with_path(own)
+    if tree != ref_tree:
+        return
+    for (path, a), (_, b) in zip(given, ref):
+        if np.shape(a) != np.shape(b):
+            raise ValueError(
+                f"theta{jax.tree_util.keystr(path)} has shape {np.shape(a)}, the NLP's own theta {np.shape(b)}: a solve is at one theta "
+                "(solve_batch's members share it); solve each theta by its own call"
+            )
+
+
 def bind(nlp: Any, theta: Any = None) -> BoundNLP:
     """Fix ``theta`` in ``nlp``'s functions. An NLP with parameters has ``bounds(theta)`` and
     functions of ``(x, theta)``; one without takes x alone (``theta`` must then be None).
-    ``theta=None`` means the NLP's own default parameters ``nlp.theta`` where it has them.
+    ``theta=None`` means the NLP's own default parameters ``nlp.theta`` where it has them; a
+    parameter of another shape than in ``nlp.theta`` (a batch of them) raises ValueError.
     A NaN bound raises ValueError (bounds where lower > upper are `BoundNLP.inconsistent`)."""
     if callable(getattr(nlp, "bounds", None)):
         if theta is None:
             theta = getattr(nlp, "theta", None)
+        _check_theta_shapes(nlp, theta)
         x_lower, x_upper, g_lower, g_upper = (np.asarray(b, float) for b in nlp.bounds(theta))
         return _checked(BoundNLP(
             objective=lambda x: nlp.objective(x, theta),

@@ -1397,7 +1397,8 @@ class JtrajSolver(AbstractSolver):
 
         ``x0s``: (B, nlp.n) or (B, K, n) initial guesses, clipped to the variable bounds as in
         `solve`, so member i equals ``solve(nlp, x0s[i], ...)`` (same iterations and status;
-        the iterates agree to rounding).
+        the iterates agree to rounding). ``theta`` is one set of parameters, shared by every
+        member (None: ``nlp.theta``); a theta with a batch axis is refused (`bind`).
 
         ``strategy``:
         - ``"vmap"``: one call of the vmapped `IPM` program. On an accelerator its members
