@@ -64,7 +64,8 @@ class RenderError(RuntimeError):
 
 class NotDrawable(ValueError):
     """The result (or the folder it was loaded from) holds no legged robot's motion that can be
-    drawn: no trajectory, a rigid-body benchmark's, or NaN base poses; the message says which."""
+    drawn: no trajectory, a rigid-body benchmark's, or NaN base poses or joint angles; the
+    message says which."""
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -433,6 +434,10 @@ def _as_result(result) -> Result:
     bad = ~np.all(np.isfinite(np.asarray(result.trajectory.base_xyz_wxyz)), axis=-1)
     if bad.any():
         raise NotDrawable(f"the base pose is NaN or infinite at {int(bad.sum())} knot(s), the first at knot {int(np.argmax(bad))} (the solver's status: {result.solver_status.value}); nothing to draw there")
+    # MuJoCo draws NaN joint angles as missing limbs, without a word
+    bad = ~np.all(np.isfinite(np.asarray(result.trajectory.q_joints)), axis=-1)
+    if bad.any():
+        raise NotDrawable(f"the joint angles are NaN or infinite at {int(bad.sum())} knot(s), the first at knot {int(np.argmax(bad))} (the solver's status: {result.solver_status.value}); nothing to draw there")
     return result
 
 

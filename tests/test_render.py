@@ -230,6 +230,12 @@ def test_render_names_what_it_was_given_instead_of_a_result(result):
     broken = dataclasses.replace(result, trajectory=dataclasses.replace(result.trajectory, base_xyz_wxyz=poses))
     with pytest.raises(NotDrawable, match=r"the base pose is NaN or infinite at 4 knot\(s\), the first at knot 7 \(the solver's status: solved\)"):
         render(broken)
+    # NaN joint angles were drawn as a robot without those limbs
+    joints = np.array(result.trajectory.q_joints)
+    joints[4, 2] = np.nan
+    broken = dataclasses.replace(result, trajectory=dataclasses.replace(result.trajectory, q_joints=joints))
+    with pytest.raises(NotDrawable, match=r"the joint angles are NaN or infinite at 1 knot\(s\), the first at knot 4"):
+        keyframe_strip(broken, options=SMALL)
 
 
 def test_collada_visuals_are_converted_for_every_go2_body():
