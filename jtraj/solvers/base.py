@@ -478,9 +478,9 @@ def _check_theta_shapes(nlp: Any, theta: Any) -> None:
     own = getattr(nlp, "theta", None)
     if own is None or theta is own:
         return
-    given, tree = jax.tree_util.tree_flatten_with_path(theta)
-    ref, ref_tree = jax.tree_util.tree_flatten_with_path(own)
-    if tree != ref_tree:
+    given = jax.tree_util.tree_flatten_with_path(theta)[0]
+    ref = jax.tree_util.tree_flatten_with_path(own)[0]
+    if [path for path, _ in given] != [path for path, _ in ref]:
         return
     for (path, a), (_, b) in zip(given, ref):
         if np.shape(a) != np.shape(b):
