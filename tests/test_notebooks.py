@@ -58,3 +58,31 @@ def test_notebook_runs(path, tmp_path, monkeypatch):
         runs = [json.loads(line) for line in (tmp_path / "robustness_small/runs.jsonl").read_text().splitlines() if line.strip()]
         assert len(runs) == 2 * 2 * 2  # two parameterizations, two sigmas, two replicates
         assert {(r["parameterization"], r["sigma"]) for r in runs} == {(p, s) for p in ("se3", "euler") for s in (1e-3, 0.1)}
+
+
+def test_comparison_notebook_draws_the_runs_that_have_a_trajectory(tmp_path, monkeypatch):
+    # a `jtraj compare` folder where the table's first run, and every run of one task, saved no
+    # trajectory (--no-trajectories): the notebook draws the others instead of failing
+    import dataclasses
+
+    from test_render import _result
+
+    result = _result()
+    folder = tmp_path / "table"
+    result.save(folder / "made_up_flip_se3")
+    dataclasses.replace(result, trajectory=None).save(folder / "made_up_flip_euler")
+    dataclasses.replace(result, trajectory=None).save(folder / "made_up_hop_se3")
+    rows = [{"task": task, "parameterization": p, "status": "solved", "iterations": 0} for task, p in (("made_up_flip", "euler"), ("made_up_flip", "se3"), ("made_up_hop", "se3"))]
+    (folder / "table_iv.json").write_text(json.dumps(rows))
+    (folder / "table_iv.md").write_text("| task | parameterization |\n")
+    monkeypatch.delenv("JTRAJ_SMALL", raising=False)
+    monkeypatch.setenv("JTRAJ_COMPARE", str(folder))
+    monkeypatch.chdir(tmp_path)
+    path = next(p for p in NOTEBOOKS if p.stem == "comparison")
+    nb = nbformat.read(path, as_version=4)
+    NotebookClient(nb, timeout=900, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}).execute()
+    text = "".join(_text(o) for o in _outputs(nb))
+    for line in ("made_up_flip_euler: no trajectory saved", "made_up_flip ['made_up_flip_se3']", "made_up_hop []"):
+        assert line in text, text
+    outputs = nb.cells[-1].outputs  # the video of the first run that has a trajectory
+    assert outputs and "text/html" in outputs[0].get("data", {}), outputs
