@@ -39,5 +39,18 @@ def add_variables(ap: argparse.ArgumentParser, default: str, help: str | None = 
 
 def add_out(ap: argparse.ArgumentParser, name: str) -> None:
     """``--out DIR``: where `jtraj.provenance.write_results` writes ``NAME.json``, ``NAME.md``
-    and ``provenance.json``."""
-    ap.add_argument("--out", help=f"write DIR/{name}.json, DIR/{name}.md, DIR/provenance.json")
+    and ``provenance.json``; a folder that cannot be written (a file, no permission) is
+    argparse's one-line error as the command line is parsed, not a traceback after the work."""
+    ap.add_argument("--out", type=out_folder, help=f"write DIR/{name}.json, DIR/{name}.md, DIR/provenance.json")
+
+
+def out_folder(text: str) -> str:
+    """argparse ``type=`` of an output folder: ``text`` itself where `jtraj.cli._check_out`
+    accepts it (a folder, existing or to be created, that this user can write in)."""
+    from jtraj.cli import InputError, _check_out
+
+    try:
+        _check_out(text)
+    except InputError as e:
+        raise argparse.ArgumentTypeError(f"{e.value!r}: {e.expected}") from None
+    return text

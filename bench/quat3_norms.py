@@ -21,10 +21,15 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
+from pathlib import Path
 
 import numpy as np
 
 from jtraj.experiments import ALL_TASKS
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
+from _args import add_out  # noqa: E402
 
 
 def norms_of(tr, x: np.ndarray) -> np.ndarray:
@@ -83,7 +88,7 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("tasks", nargs="*", default=list(ALL_TASKS))
     ap.add_argument("--no-norm-row-only", action="store_true", help="solve only without the unit-norm row (the study's Quaternion #3)")
-    ap.add_argument("--out")
+    add_out(ap, "quat3_norms")
     a = ap.parse_args(argv)
     bad = [t for t in a.tasks if t not in ALL_TASKS]
     if bad:

@@ -33,7 +33,7 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
-from _args import add_param, add_tasks, add_variables  # noqa: E402
+from _args import add_out, add_param, add_tasks, add_variables  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -87,7 +87,6 @@ def table(records: list[dict], labels: tuple[str, str]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from jtraj.cli import InputError, _check_out
     from jtraj.experiments import RepeatedValueError, _refuse_repeats
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -96,15 +95,14 @@ def main(argv: list[str] | None = None) -> int:
     add_param(ap)
     add_variables(ap, "compact")
     ap.add_argument("--repeats", type=int, default=3, help="timed solves per task and revision (after one that compiles)")
-    ap.add_argument("--out", help="write DIR/revisions.json, DIR/revisions.md, DIR/provenance.json")
+    add_out(ap, "revisions")
     args = ap.parse_args(argv)
     # every argument before the worktree and the first compile
     if args.repeats < 1:
         ap.error(f"--repeats: {args.repeats}: expected an integer >= 1")
     try:
         _refuse_repeats("tasks", args.tasks, [Path(t).resolve() if t.endswith(".toml") else t for t in args.tasks], "task")
-        _check_out(args.out)
-    except (InputError, RepeatedValueError) as e:
+    except RepeatedValueError as e:
         ap.error(str(e))
     # a commit (not a tree or file, e.g. HEAD:README.md), and never read as one of git's options
     sha = subprocess.run(["git", "rev-parse", "--verify", "--quiet", "--short", f"{args.rev}^{{commit}}"], cwd=REPO, capture_output=True, text=True)

@@ -34,6 +34,7 @@ from jtraj.task import TaskError
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
+from _args import add_out  # noqa: E402
 from side_by_side import (  # noqa: E402  (the same task variants and the same driver of the public code)
     CODE_COSTS,
     DEFAULT_PEER_PYTHON,
@@ -122,7 +123,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--peer-src", type=Path, default=DEFAULT_PEER_SRC)
     ap.add_argument("--peer-python", type=Path, default=DEFAULT_PEER_PYTHON)
     ap.add_argument("--no-peer", action="store_true")
-    ap.add_argument("--out", type=Path)
+    add_out(ap, "iterates")
     args = ap.parse_args(argv)
     # every input is checked before the public code or jtraj solves
     try:

@@ -41,6 +41,10 @@ WORK = {
     "vmap_cpu": ["timed", "sweeps"],
     "dynamics": ["timed", "batched", "jtraj.robot.load"],
     "differentiate": ["differentiable"],
+    "euler_warm_start": ["run"],
+    "unit_norm": ["run"],
+    "quat3_norms": ["run"],
+    "trace_iterates": ["run_peer", "run_jtraj", "peer_iterates"],
 }
 
 
@@ -131,3 +135,28 @@ def test_lists_and_counts_are_checked(monkeypatch, capsys, script, argv, message
 def test_quaternion_noise_checks_every_parameterization_and_mode_first(monkeypatch, capsys, argv, message):
     """The pairs were checked in `run`, after the first parameterization's compile and solves."""
     refused(_without_work(monkeypatch, "quaternion_noise").main, argv, capsys, message)
+
+
+@pytest.mark.parametrize(
+    ("script", "argv"),
+    [
+        ("compile", ["big_jump"]),
+        ("euler_warm_start", ["backflip"]),
+        ("factor_split", []),
+        ("fatrop", ["big_jump"]),
+        ("hessians", ["big_jump"]),
+        ("options", ["big_jump", "--variant", "default"]),
+        ("params_hop", []),
+        ("profile_solve", ["big_jump"]),
+        ("quat3_norms", ["walk"]),
+        ("quaternion_noise", ["--modes", "raw"]),
+        ("unit_norm", ["walk"]),
+        ("trace_iterates", ["backflip", "--no-peer"]),
+    ],
+)
+def test_an_out_folder_that_is_a_file_is_refused_before_any_work(monkeypatch, capsys, tmp_path, script, argv):
+    """``--out DIR`` is where write_results puts the tables after the work: a file there failed
+    with a traceback once every solve was done (bench/_args.add_out checks it as it is parsed)."""
+    path = tmp_path / "results"
+    path.write_text("")
+    refused(_without_work(monkeypatch, script).main, [*argv, "--out", str(path)], capsys, f"argument --out: '{path}': is a file; expected a folder")
