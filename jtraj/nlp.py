@@ -358,12 +358,21 @@ class KnotNLP:
         #: it would keep every NLP and its compiled programs alive
         self.solver_programs: dict[Any, Any] = {}
         self._lower, self._upper = lower, upper
-        for g in self.groups:
+        every: list[CostGroup | ConstraintGroup] = [*self.costs, *self.groups]
+        for g in every:
             for d in g.deps:
                 if d.offset not in (0, 1):
                     raise ValueError(f"group {g.name}: dependency offsets must be 0 or 1, got {d.offset}")
-            if g.knots.size and (g.knots.max() + max(d.offset for d in g.deps) >= n_knots):
+            # an index outside the knots is not an error in JAX: a gather clamps it (or wraps
+            # a negative one), and the group silently reads other knots
+            if g.knots.size and (g.knots.max() + max((d.offset for d in g.deps), default=0) >= n_knots):
                 raise ValueError(f"group {g.name}: knots reach past the last knot {n_knots - 1}")
+            if g.knots.size and g.knots.min() < 0:
+                raise ValueError(f"group {g.name}: knots must be >= 0, got {g.knots.min()}")
+            if isinstance(g, CostGroup):
+                continue
+            if np.ndim(g.active) != 2 or np.shape(g.active)[0] != g.knots.size:
+                raise ValueError(f"group {g.name}: active has shape {np.shape(g.active)}; expected (K, rows) with K = {g.knots.size} knots")
             for name in ("lower", "upper"):
                 b = getattr(g, name)
                 if not callable(b) and np.shape(b) != g.active.shape:

@@ -1,9 +1,11 @@
 """Input checks of `jtraj.nlp`: layouts, groups and bounds that cannot make an NLP are refused
 with a message naming what is wrong (tiny problems: three knots, three variables each)."""
 
+import jax.numpy as jnp
+import numpy as np
 import pytest
 
-from jtraj.nlp import Layout
+from jtraj.nlp import ConstraintGroup, CostGroup, Dep, KnotNLP, Layout
 
 LAYOUT = Layout((("x", 2), ("u", 1)))
 
@@ -27,3 +29,46 @@ def test_unknown_slot_names_the_layout():
 def test_layout_refuses_repeated_names_and_bad_sizes(slots, message):
     with pytest.raises(ValueError, match=message):
         Layout(slots)
+
+
+N = 3  # knots
+
+
+def _nlp(cost_knots=None, step_knots=None, active=None, lower=None, upper=None, row_lower=None):
+    """x_{k+1} = x_k at the knots ``step_knots`` (default 0 to N - 2), cost |u_k|^2 at
+    ``cost_knots`` (default all), variables within [lower, upper] (default [-1, 1])."""
+    cost_knots = np.arange(N) if cost_knots is None else cost_knots
+    step_knots = np.arange(N - 1) if step_knots is None else step_knots
+    lower = np.full((N, 3), -1.0) if lower is None else lower
+    upper = np.full((N, 3), 1.0) if upper is None else upper
+    K = step_knots.size
+    step = ConstraintGroup(
+        "step", (Dep("x"), Dep("x", 1)), lambda theta, data, x, x1: x1 - x, step_knots,
+        np.zeros((K, 2)) if row_lower is None else row_lower, lambda theta: 0.0, np.ones((K, 2), bool) if active is None else active,
+    )
+    effort = CostGroup("effort", (Dep("u"),), lambda theta, data, u: jnp.sum(u**2), cost_knots)
+    return KnotNLP(LAYOUT, N, [effort], [step], lower, upper)
+
+
+def test_small_nlp_builds():
+    nlp = _nlp()
+    assert (nlp.n, nlp.m) == (9, 4)
+    assert float(nlp.objective(jnp.ones(nlp.n), None)) == 3.0
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        # a cost's knots were not checked: knots 3 and 4 read knot 2 again (objective 5, not 3)
+        (dict(cost_knots=np.arange(N + 2)), r"group effort: knots reach past the last knot 2"),
+        # a negative knot read knot N - 1 (numpy's and JAX's wrap-around)
+        (dict(cost_knots=np.array([-1, 0])), r"group effort: knots must be >= 0, got -1"),
+        (dict(step_knots=np.array([-1, 0])), r"group step: knots must be >= 0, got -1"),
+        # more rows of active than knots, bounds as functions of theta: the NLP was built with
+        # rows for a knot the group does not have
+        (dict(active=np.ones((N, 2), bool), row_lower=lambda theta: 0.0), r"group step: active has shape \(3, 2\); expected \(K, rows\) with K = 2 knots"),
+    ],
+)
+def test_groups_must_stay_within_the_knots(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        _nlp(**kwargs)
