@@ -65,7 +65,7 @@ class RenderError(RuntimeError):
 class NotDrawable(ValueError):
     """The result (or the folder it was loaded from) holds no legged robot's motion that can be
     drawn: no trajectory, a rigid-body benchmark's, or NaN base poses or joint angles; the
-    message says which."""
+    message says which. `render_rigid_body` raises it for a NaN path."""
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -629,6 +629,9 @@ def render_rigid_body(
     """
     options = _render_options(options, kwargs)
     t, xyz, wxyz = (np.asarray(a, float) for a in (t, xyz, wxyz))
+    bad = ~(np.all(np.isfinite(xyz), axis=-1) & np.all(np.isfinite(wxyz), axis=-1))
+    if bad.any():  # MuJoCo would refuse the body's NaN size ("nan size in geom")
+        raise NotDrawable(f"the body's position or attitude is NaN or infinite at {int(bad.sum())} knot(s), the first at knot {int(np.argmax(bad))}; nothing to draw there")
     extent = float(np.max(np.ptp(xyz, axis=0)))
     size = 1.0 if extent < 1e-6 else float(np.clip(0.2 * extent, 0.3, 2.0))
     travel = xyz[-1, :2] - xyz[0, :2]

@@ -348,6 +348,10 @@ def test_attitude_bodies_along_their_paths(tmp_path):
     assert all(p.stat().st_size > 1000 for p in paths)
     with pytest.raises(ValueError, match="shape must be"):
         render_rigid_body(t, xyz, wxyz, "blimp", options=SMALL)
+    # a solve that diverged: NaN states (MuJoCo refused the body's NaN size: "nan size in geom")
+    xyz[6:, 2] = np.nan
+    with pytest.raises(NotDrawable, match=r"the body's position or attitude is NaN or infinite at 3 knot\(s\), the first at knot 6"):
+        render_rigid_body(t, xyz, wxyz, "quadrotor", options=SMALL)
 
 
 def test_no_context_names_the_backend_mujoco_loaded(monkeypatch):
