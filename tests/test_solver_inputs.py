@@ -154,3 +154,14 @@ def test_a_batch_of_parameters_is_refused_by_name(solver):
         with pytest.raises(ValueError, match=match):
             backend.solve_batch(nlp, np.zeros((2, nlp.n)), batched)
     assert no_program(nlp)
+
+
+@pytest.mark.parametrize("kwargs", [{"threads": 1.5}, {"threads": True}, {"batch_size": 2.5, "strategy": "vmap"}, {"batch_size": 0, "strategy": "vmap"}])
+def test_solve_batch_counts_are_whole_numbers(kwargs):
+    """threads=1.5 ran (as 1), batch_size=2.5 failed inside numpy after the checks, and
+    batch_size=0 was refused as "1 initial guesses for a batch of 0; expected 1 to 0"."""
+    nlp = double_integrator()
+    name, value = next(iter(kwargs.items()))
+    with pytest.raises(ValueError, match=rf"solve_batch: {name}={value!r}; expected a positive count"):
+        solvers.get("jtraj").solve_batch(nlp, np.zeros((1, nlp.n)), **{"strategy": "threads", **kwargs})
+    assert no_program(nlp)

@@ -1424,8 +1424,13 @@ class JtrajSolver(AbstractSolver):
         strategy = strategy or self.default_strategy()
         if strategy not in self.STRATEGIES:
             raise ValueError(f"solve_batch: unknown strategy {strategy!r}; expected one of {', '.join(self.STRATEGIES)}")
-        if threads is not None and threads < 1:
-            raise ValueError(f"solve_batch: threads={threads}; expected a positive count or None (the CPU count)")
+        # whole counts (threads=1.5 ran, batch_size=2.5 failed in numpy, batch_size=0 read "1
+        # initial guesses for a batch of 0; expected 1 to 0")
+        whole = lambda v: not isinstance(v, (bool, np.bool_)) and isinstance(v, (int, np.integer)) and v >= 1  # noqa: E731
+        if threads is not None and not whole(threads):
+            raise ValueError(f"solve_batch: threads={threads!r}; expected a positive count or None (the CPU count)")
+        if batch_size is not None and not whole(batch_size):
+            raise ValueError(f"solve_batch: batch_size={batch_size!r}; expected a positive count (the batch the program is compiled for) or None (the number of guesses)")
         opts = self.options(options)
         x0s = np.asarray(x0s, float)
         n = int(nlp.n)
