@@ -128,6 +128,13 @@ def test_numpy_scalars_are_numbers_for_the_options():
         IpmOptions(mu_init=np.float32(-1.0))
 
 
+def test_unknown_jtraj_option_names_the_nearest():
+    with pytest.raises(InvalidOptionError, match=r"unknown jtraj option\(s\) \['max_itr', 'zzz'\] \(did you mean 'max_itr' for 'max_iter'\?\); expected one of"):
+        IpmOptions.from_dict({"max_itr": 10, "zzz": 1})
+    with pytest.raises(InvalidOptionError, match=r"unknown jtraj option\(s\) \['zzz'\]; expected one of"):
+        IpmOptions.from_dict({"zzz": 1})
+
+
 def test_jtraj_option_ranges_are_ipopts():
     from jtraj.solvers import ipopt_catalog
 

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import abc
 import dataclasses
+import difflib
 import enum
 import sys
 import time
@@ -189,7 +190,10 @@ class AbstractOptions:
         names = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(values) - names)
         if unknown:
-            raise InvalidOptionError(f"unknown {cls.solver_name} option(s) {unknown}; expected one of {sorted(names)}")
+            # the nearest names first: the list of every option (about 50 of jtraj's) hid the typo
+            close = [f"{name!r} for {near[0]!r}" for name in unknown if isinstance(name, str) and (near := difflib.get_close_matches(name, names, n=1))]
+            hint = f" (did you mean {', '.join(close)}?)" if close else ""
+            raise InvalidOptionError(f"unknown {cls.solver_name} option(s) {unknown}{hint}; expected one of {sorted(names)}")
         return cls(**values)
 
     def replace(self, **changes: Any) -> AbstractOptions:
