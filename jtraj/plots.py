@@ -210,9 +210,13 @@ def plot_comparison(directory: str | Path, path: str | Path | None = None):
     params = list(dict.fromkeys(r["parameterization"] for r in rows))
     fig = _figure(figsize=(3.2 * len(params), 2.3 * 2 * len(tasks)))
     axes = fig.subplots(2 * len(tasks), len(params), squeeze=False, sharex="row")
+    legend = True  # on the first cell drawn, which a blank first column does not hold
     for i, task in enumerate(tasks):
         for j, param in enumerate(params):
             top, bottom = axes[2 * i, j], axes[2 * i + 1, j]
+            if j == 0:
+                top.set_ylabel("base position (m)", fontsize=8)
+                bottom.set_ylabel("rotation (deg)", fontsize=8)
             run = directory / f"{task}_{param}"
             row = by_cell.get((task, param))
             if row is None or not (run / "trajectory.npz").is_file():
@@ -237,12 +241,10 @@ def plot_comparison(directory: str | Path, path: str | Path | None = None):
                 bottom.plot(t.t, angles[:, k], lw=0.9, label=f"about {name}")
             top.set_title(f"{task} [{param}]: {result.status.value}, {result.iterations} it", fontsize=8)
             bottom.set_xlabel("time (s)", fontsize=8)
-            if j == 0:
-                top.set_ylabel("base position (m)", fontsize=8)
-                bottom.set_ylabel("rotation (deg)", fontsize=8)
-            if i == 0 and j == 0:
+            if legend:
                 top.legend(fontsize=6)
                 bottom.legend(fontsize=6)
+                legend = False
     fig.suptitle("one column per parameterization (grey: flight)")
     fig.tight_layout()
     return _finish(fig, path)

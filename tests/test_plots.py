@@ -49,3 +49,16 @@ def test_torque_panel_with_nan_torques(result):
     # a solve stopped by a numerical error: every torque NaN is drawn, not a ValueError
     all_nan = dataclasses.replace(result, trajectory=dataclasses.replace(result.trajectory, tau=np.full_like(tau, np.nan)))
     assert plot_solution(all_nan).axes[3].get_title() == "joint torques are NaN"
+
+
+def test_comparison_keeps_its_legend_and_labels_when_the_first_column_is_blank(result, tmp_path):
+    # the table's first parameterization saved no trajectory: its column is blank, the next is drawn
+    result.save(tmp_path / "made_up_flip_euler")
+    rows = [{"task": "made_up_flip", "parameterization": p, "status": "solved", "iterations": 0} for p in ("se3", "euler")]
+    (tmp_path / "table_iv.json").write_text(json.dumps(rows))
+    fig = plot_comparison(tmp_path)
+    (blank_top, drawn_top), (blank_bottom, drawn_bottom) = np.reshape(fig.axes, (2, 2))
+    assert blank_top.get_title() == "made_up_flip [se3]: no trajectory"
+    assert [t.get_text() for t in drawn_top.get_legend().get_texts()] == ["x", "y", "z"]
+    assert drawn_bottom.get_legend() is not None
+    assert (blank_top.get_ylabel(), blank_bottom.get_ylabel()) == ("base position (m)", "rotation (deg)")
