@@ -50,6 +50,10 @@ def test_every_status_has_a_message_and_acceptable_is_not_solved():
     from jtraj.solvers.ipm import _STATUS, IpmStatus
 
     assert _STATUS[IpmStatus.LINE_SEARCH_FAILED] is Status.RESTORATION_FAILED and "line search" in Status.RESTORATION_FAILED.message
+    # and every IpmStatus has jtraj's own wording (RUNNING's was its bare name)
+    from jtraj.solvers.ipm import _MESSAGES
+
+    assert set(_MESSAGES) == set(IpmStatus) and all(len(text) > 10 for text in _MESSAGES.values())
 
 
 def test_ipopt_return_codes_map_to_the_enumeration():

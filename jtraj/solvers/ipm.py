@@ -1317,6 +1317,9 @@ _STATUS = {
     IpmStatus.NUMERICAL_ERROR: Status.NUMERICAL_ERROR,
 }
 _MESSAGES = {
+    # the loop also ends, still RUNNING, at its bound on evaluations (`IPM._max_passes`), which
+    # every iteration's full line search stays within: the message was the bare name 'RUNNING'
+    IpmStatus.RUNNING: "the solver's loop ended at its bound on evaluations, (max_iter + 1) (max_line_search + 1 + max_soc), before any termination test (an internal error)",
     IpmStatus.CONVERGED: "converged (Ipopt's optimality test)",
     IpmStatus.MAX_ITER: "iteration limit reached",
     IpmStatus.LINE_SEARCH_FAILED: "the filter line search failed several times in a row (this solver has no restoration phase)",
