@@ -381,6 +381,7 @@ class KnotNLP:
         self._build_rows()
         self.bounds = jax.jit(self._bounds)
         self.x_lower, self.x_upper, self.g_lower, self.g_upper = (np.asarray(b) for b in self.bounds(theta))
+        self._check_bounds()
         self._build_jacobian_structure(probe_seed, n_probes)
         self._hessian_built = False
         self._compile()
@@ -400,6 +401,30 @@ class KnotNLP:
         self.m = m
         self.group_row_offset = offsets
         self.row_group = np.array(names)
+
+    def _check_bounds(self) -> None:
+        """Raise ValueError where a lower bound is above its upper bound (or either is NaN) at
+        the default theta, naming the variable or the group's row: a solver reports such a
+        problem only as infeasible or invalid."""
+        bad = np.flatnonzero(~(self.x_lower <= self.x_upper))
+        if bad.size:
+            i = int(bad[0])
+            knot, column = divmod(i, self.nz)
+            slot = next(name for name, _ in self.layout.slots if self.layout.slice(name).start <= column < self.layout.slice(name).stop)
+            raise ValueError(
+                f"variable bounds: {bad.size} with lower > upper (or NaN), the first at knot {knot}, "
+                f"slot {slot!r} entry {column - self.layout.offset(slot)}: lower {self.x_lower[i]:g}, upper {self.x_upper[i]:g}"
+            )
+        bad = np.flatnonzero(~(self.g_lower <= self.g_upper))
+        if bad.size:
+            i = int(bad[0])
+            gi = int(np.searchsorted(self.group_row_offset, i, side="right")) - 1
+            g = self.groups[gi]
+            knot, row = divmod(int(self.row_index[gi][i - self.group_row_offset[gi]]), g.n_rows)
+            raise ValueError(
+                f"constraint bounds: {bad.size} rows with lower > upper (or NaN), the first in group {g.name} "
+                f"at knot {g.knots[knot]}, row {row}: lower {self.g_lower[i]:g}, upper {self.g_upper[i]:g}"
+            )
 
     def _bounds(self, theta: Any) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
         def variable(b):

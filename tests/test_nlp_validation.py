@@ -72,3 +72,24 @@ def test_small_nlp_builds():
 def test_groups_must_stay_within_the_knots(kwargs, message):
     with pytest.raises(ValueError, match=message):
         _nlp(**kwargs)
+
+
+def test_bounds_with_lower_above_upper_are_refused():
+    """An empty interval among the bounds is refused when the NLP is built, naming where it is;
+    it was built, and a solver reports such a problem only as infeasible or invalid."""
+    lower = np.full((N, 3), -1.0)
+    lower[1, 2] = 2.0  # knot 1, slot u, entry 0
+    with pytest.raises(ValueError, match=r"variable bounds: 1 with lower > upper \(or NaN\), the first at knot 1, slot 'u' entry 0: lower 2, upper 1"):
+        _nlp(lower=lower)
+    upper = np.full((N, 3), 1.0)
+    upper[2, 1] = np.nan
+    with pytest.raises(ValueError, match=r"the first at knot 2, slot 'x' entry 1: lower -1, upper nan"):
+        _nlp(upper=upper)
+    row_lower = np.zeros((N - 1, 2))
+    row_lower[1, 1] = 0.5  # the rows' upper bound is 0
+    with pytest.raises(ValueError, match=r"constraint bounds: 1 rows with lower > upper \(or NaN\), the first in group step at knot 1, row 1: lower 0.5, upper 0"):
+        _nlp(row_lower=row_lower)
+    # a dropped row's bounds are not looked at
+    active = np.ones((N - 1, 2), bool)
+    active[1, 1] = False
+    assert _nlp(row_lower=row_lower, active=active).m == 3
