@@ -7,7 +7,9 @@ jump instead of a flip) and 4 when it did not return a feasible solution (the ou
 ``not_converged``, which includes a convergence to a point over the task check's violation
 tolerance). 1: the work itself failed after the inputs were accepted (``jtraj render`` or a
 successful solve's ``--render`` without a working OpenGL, the solution still saved; ``jtraj
-compare`` with no rows; a failed ``jtraj params`` check).
+compare`` with no rows; a worker process of ``jtraj compare``/``jtraj robustness`` lost, e.g.
+killed when memory ran out; a failed ``jtraj params`` check). 130: interrupted (Ctrl-C); ``jtraj
+robustness`` resumes from the runs finished, ``jtraj compare``'s tables hold the cells finished.
 """
 
 from __future__ import annotations
@@ -26,6 +28,8 @@ EXIT_BAD_INPUT = 2
 EXIT_TASK_FAILED = 3
 #: exit status of `jtraj solve` (and `jtraj attitude`) when the solver returned no feasible solution (outcome not_converged)
 EXIT_NOT_CONVERGED = 4
+#: exit status of a command interrupted by Ctrl-C (SIGINT), as the shell gives it
+EXIT_INTERRUPTED = 130
 
 
 def _cmd_params(args: argparse.Namespace) -> int:
@@ -584,12 +588,29 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     args.argv = sys.argv[1:] if argv is None else list(argv)  # provenance.json's command
     # one handler for every input error, wherever it is found: one line, exit status 2
+    from jtraj.executors import WorkerLostError
+
     try:
         _check_inputs(args)
         return int(args.func(args) or 0)
     except _input_errors() as e:
         print(f"jtraj {args.command}: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except WorkerLostError as e:  # its message says what was kept and how to go on
+        print(f"jtraj {args.command}: {e}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"jtraj {args.command}: interrupted{_kept(args)}", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+def _kept(args: argparse.Namespace) -> str:
+    """What an interrupted command leaves, for its message."""
+    if args.command == "robustness":
+        return f"; the runs finished are kept in {Path(args.out) / 'runs.jsonl'}, and the same command again resumes from them"
+    if args.command == "compare":
+        return f"; {Path(args.out) / 'table_iv.json'} holds the cells finished before it (the same command again solves every cell)"
+    return ""
 
 
 if __name__ == "__main__":

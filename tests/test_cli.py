@@ -220,7 +220,7 @@ def test_solve_exit_status_says_what_happened(converged, status, code, monkeypat
 
 
 def test_exit_statuses_are_distinct():
-    assert len({0, cli.EXIT_BAD_INPUT, cli.EXIT_TASK_FAILED, cli.EXIT_NOT_CONVERGED}) == 4
+    assert len({0, 1, cli.EXIT_BAD_INPUT, cli.EXIT_TASK_FAILED, cli.EXIT_NOT_CONVERGED, cli.EXIT_INTERRUPTED}) == 6
 
 
 @pytest.mark.parametrize("command, default", [(["solve", "big_jump"], "compact"), (["compare"], "paper"), (["robustness"], "paper")])
@@ -412,3 +412,42 @@ def test_every_option_says_what_it_does():
     sub = next(a for a in cli.build_parser()._actions if isinstance(a, argparse._SubParsersAction))
     silent = [(name, b.dest) for name, parser in sub.choices.items() for b in parser._actions if not b.help]
     assert len(sub.choices) == 8 and silent == []
+
+
+@pytest.mark.parametrize("command", ["compare", "robustness"])
+def test_a_lost_worker_is_one_line_and_exit_1(command, monkeypatch, tmp_path, capsys):
+    """`WorkerLostError` (a worker process killed, e.g. out of memory) says what was kept and
+    how to go on; it ended in a traceback around that message."""
+    import jtraj.experiments
+    from jtraj.executors import WorkerLostError
+
+    def lost(*args, **kwargs):
+        raise WorkerLostError("a worker process ended without finishing its group; the runs finished before it are kept")
+
+    monkeypatch.setattr(jtraj.experiments, command, lost)
+    code, err = _run([command, "--tasks", "big_jump", "--params", "se3", "--out", str(tmp_path / "out")], capsys)
+    assert code == 1
+    assert err == f"jtraj {command}: a worker process ended without finishing its group; the runs finished before it are kept\n"
+
+
+@pytest.mark.parametrize(
+    "command, kept",
+    [("robustness", "; the runs finished are kept in {out}/runs.jsonl, and the same command again resumes from them"), ("compare", "; {out}/table_iv.json holds the cells finished before it"), ("solve", "")],
+)
+def test_ctrl_c_is_one_line_saying_what_was_kept(command, kept, monkeypatch, tmp_path, capsys):
+    """Ctrl-C in a sweep: exit 130 and one line saying where the finished work is; it was a
+    traceback from wherever the solve was."""
+    import jtraj.experiments
+    import jtraj.solver
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(jtraj.experiments, "robustness", interrupted)
+    monkeypatch.setattr(jtraj.experiments, "compare", interrupted)
+    monkeypatch.setattr(jtraj.solver, "solve", interrupted)
+    out = tmp_path / "out"
+    argv = ["solve", "big_jump", "--out", str(out)] if command == "solve" else [command, "--tasks", "big_jump", "--params", "se3", "--out", str(out)]
+    code, err = _run(argv, capsys)
+    assert code == cli.EXIT_INTERRUPTED == 130
+    assert err.startswith(f"jtraj {command}: interrupted{kept.format(out=out)}") and err.count("\n") == 1, err
