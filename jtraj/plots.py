@@ -182,6 +182,10 @@ def _trajectory(result: Result):
 
 
 def _finish(fig, path):
+    for ax in fig.axes:
+        for line in ax.get_lines():
+            if len(line.get_xdata()) == 1 and line.get_marker() in ("None", "", None):
+                line.set_marker("o")  # a trajectory of one knot: a line through one point draws nothing
     if path is None:
         return fig
     path = Path(path)

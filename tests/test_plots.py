@@ -62,3 +62,12 @@ def test_comparison_keeps_its_legend_and_labels_when_the_first_column_is_blank(r
     assert [t.get_text() for t in drawn_top.get_legend().get_texts()] == ["x", "y", "z"]
     assert drawn_bottom.get_legend() is not None
     assert (blank_top.get_ylabel(), blank_bottom.get_ylabel()) == ("base position (m)", "rotation (deg)")
+
+
+def test_a_single_knot_is_marked(result):
+    from test_render import _first_knots
+
+    one = _first_knots(result, 1)
+    for fig in (plot_solution(one), plot_result(one, None)):
+        curves = [line for ax in fig.axes for line in ax.get_lines() if len(line.get_xdata()) == 1]
+        assert curves and all(line.get_marker() == "o" for line in curves)  # a line of one point is invisible
