@@ -1,0 +1,30 @@
+"""What `jtraj.solve` prints for a solve (progress=a stream), on the transcription tests' Go2
+hop; a backend object stands in for a solver where the test needs a given outcome."""
+
+import io
+
+import numpy as np
+from test_transcription import HOP
+
+from jtraj import solve, solvers
+from jtraj.solvers.base import bind, invalid_problem
+
+WHY = "inconsistent bounds: g_lower[3]=1.0 > g_upper[3]=0.0 (1 such g bound(s))"
+
+
+class Refusing(solvers.IpoptSolver):
+    """Refuses every problem as `invalid_problem` does for inconsistent bounds."""
+
+    def solve(self, nlp, x0, theta=None, options=None, callback=None):
+        return invalid_problem(bind(nlp, theta), np.asarray(x0, float), WHY, nlp.m, nlp, callback)
+
+
+def test_an_invalid_problem_prints_the_bound_at_fault():
+    """The lines after the summary gave the status's general message ("inconsistent bounds or
+    too few degrees of freedom") and not the solver's own, which names the bound."""
+    stream = io.StringIO()
+    result = solve(HOP, solver=Refusing(), progress=stream, keep_trajectory=False)
+    assert result.solver_status is solvers.Status.INVALID_PROBLEM and result.status_msg == WHY
+    lines = stream.getvalue().splitlines()
+    stopped = lines.index(f"  ipopt stopped: invalid_problem ({solvers.Status.INVALID_PROBLEM.message})")
+    assert lines[stopped + 1] == f"  {WHY}"
