@@ -51,6 +51,8 @@ def plot_result(result: Result, path: str | Path) -> Path:
 
 def plot_convergence(result: Result, path: str | Path) -> Path:
     """Primal and dual infeasibility against the solver's iterations."""
+    from matplotlib.ticker import MaxNLocator
+
     h = result.history
     fig = _figure(figsize=(5, 3.5))
     ax = fig.subplots()
@@ -58,6 +60,7 @@ def plot_convergence(result: Result, path: str | Path) -> Path:
     ax.semilogy(it, [r["inf_pr"] for r in h], label="primal infeasibility")
     ax.semilogy(it, [r["inf_du"] for r in h], label="dual infeasibility")
     ax.set_xlabel(f"{result.solver} iteration")
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))  # no iteration 0.5 on a short solve
     ax.legend()
     ax.set_title(f"{result.task} [{result.parameterization}]")
     fig.tight_layout()

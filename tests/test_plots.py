@@ -71,3 +71,10 @@ def test_a_single_knot_is_marked(result):
     for fig in (plot_solution(one), plot_result(one, None)):
         curves = [line for ax in fig.axes for line in ax.get_lines() if len(line.get_xdata()) == 1]
         assert curves and all(line.get_marker() == "o" for line in curves)  # a line of one point is invisible
+
+
+def test_convergence_ticks_whole_iterations(result):
+    # two iterations (0 and 1): matplotlib's default ticks were 0, 0.2, ..., 1
+    ax = plot_convergence(result, None).axes[0]
+    ticks = [t for t in ax.get_xticks() if ax.get_xlim()[0] <= t <= ax.get_xlim()[1]]
+    assert ticks and all(float(t).is_integer() for t in ticks), ticks
