@@ -329,7 +329,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="seed of the noise (default 0)")
     _variables_argument(p, "paper", "variables per knot; default: the study's, for comparison with its tables")
     p.add_argument("--out", default="runs/robustness", help="output folder (default runs/robustness)")
-    p.add_argument("--workers", type=int, default=1, help="solve (task, parameterization) groups in this many processes (default 1)")
+    p.add_argument("--workers", type=int, default=1, help="with --executor local: solve (task, parameterization) groups in this many processes (default 1)")
     p.add_argument("--no-resume", action="store_true", help="solve again the runs already in OUT/runs.jsonl (the old file is moved to runs.jsonl.previous, replacing an earlier one)")
     p.add_argument("--solver", default="ipopt", choices=_solver_names(), help="NLP solver backend (default ipopt); jtraj solves each (task, parameterization, sigma) group's replicates in one batched call (vmapped on a GPU, one per core on a CPU)")
     p.add_argument(
@@ -524,6 +524,11 @@ def _check_inputs(args: argparse.Namespace) -> None:
         args.tasks_checked = _check_tasks("--tasks", args.tasks, args.robots_checked)
         _check_params("--params", args.params)
         _check_positive_int("--workers", args.workers)
+        # options of the other executor would be ignored without a word
+        if args.ray_address is not None and args.executor != "ray":
+            raise InputError("--ray-address", args.ray_address, "needs --executor ray (the local executor does not use a cluster)")
+        if args.workers > 1 and args.executor != "local":
+            raise InputError("--workers", args.workers, "is for --executor local; with --executor ray each group is a Ray task and the cluster runs as many at once as it has CPUs")
         _check_out(args.out)
     if cmd == "robustness":
         from jtraj.experiments import _refuse_repeats

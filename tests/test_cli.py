@@ -62,6 +62,11 @@ def _run(argv, capsys):
         (["attitude", "all", "--render"], "jtraj attitude: --render: all: draws one benchmark; give its name"),
         (["wahba", "--seed", "-1"], "jtraj wahba: --seed: -1: expected an integer >= 0"),
         (["robustness", "--tasks", "big_jump", "--ipopt", "max_itr=3"], "jtraj robustness: --ipopt max_itr: 3: unknown Ipopt option; did you mean max_iter"),
+        # an option of the other executor was ignored without a word
+        (["compare", "--tasks", "big_jump", "--ray-address", "auto"], "jtraj compare: --ray-address: 'auto': needs --executor ray (the local executor does not use a cluster)\n"),
+        (["robustness", "--tasks", "big_jump", "--executor", "local", "--ray-address", "auto"], "jtraj robustness: --ray-address: 'auto': needs --executor ray (the local executor does not use a cluster)\n"),
+        (["compare", "--tasks", "big_jump", "--executor", "ray", "--workers", "4"], "jtraj compare: --workers: 4: is for --executor local; with --executor ray each group is a Ray task"),
+        (["robustness", "--tasks", "big_jump", "--executor", "ray", "--workers", "2"], "jtraj robustness: --workers: 2: is for --executor local"),
         # a sweep's repeats would be solved and counted twice
         (["robustness", "--tasks", "big_jump", "--sigmas", "0.1,1e-1"], "jtraj robustness: --sigmas: '0.1' and '1e-1' are the same noise level (0.1); expected each noise level once\n"),
         (["robustness", "--tasks", "big_jump", "--sigmas", "0.1,0.1"], "jtraj robustness: --sigmas: '0.1' given 2 times; expected each noise level once\n"),
