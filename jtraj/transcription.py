@@ -249,7 +249,7 @@ class TaskParams:
     def check(self) -> "TaskParams":
         """Raise ValueError for values no task can have (the task file's rules: a positive
         timestep, friction, force factor and force-rate bound, weights >= 0, masses >= 0, all
-        finite but an absent force-rate bound, inf). Values being traced (under ``jit``,
+        finite but an absent force-rate bound, inf; and a unit standing quaternion). Values being traced (under ``jit``,
         ``grad`` or ``vmap``) are not looked at. Returns self."""
         def positive(v):
             return np.isfinite(v) & (v > 0)
@@ -265,6 +265,12 @@ class TaskParams:
             "configuration_weight": ("a weight >= 0", nonnegative),
             "acceleration_weight": ("a weight >= 0", nonnegative),
             "body_masses": ("masses >= 0 (kg)", nonnegative),
+            # a quaternion of another norm is written into the boundary knots' coordinates as
+            # it is (a chart of unit quaternions, or NaN from a zero quaternion)
+            "base_xyz_wxyz_standing": (
+                "finite numbers: a position (m) then a unit quaternion (w, x, y, z); normalize it",
+                lambda v: np.isfinite(v).all() and abs(np.linalg.norm(v[3:]) - 1.0) <= 1e-9,
+            ),
         }
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)

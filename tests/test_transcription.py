@@ -260,6 +260,10 @@ def test_theta_values_no_task_can_have_are_refused():
         ({"timestep": 0.0}, "theta.timestep=0.0: expected a positive number of seconds"),
         ({"acceleration_weight": float("nan")}, "theta.acceleration_weight=nan: expected a weight >= 0"),
         ({"target_translation": [0.0, 0.0, float("inf")]}, "theta.target_translation=.*: expected finite values"),
+        # written into the first and last knots' coordinates as they are: NaN from a zero
+        # quaternion, a quaternion of norm 2 for the quaternion charts
+        ({"base_xyz_wxyz_standing": [0.0, 0.0, 0.3, 0.0, 0.0, 0.0, 0.0]}, r"theta.base_xyz_wxyz_standing=.*: expected .* a unit quaternion"),
+        ({"base_xyz_wxyz_standing": [0.0, 0.0, 0.3, 2.0, 0.0, 0.0, 0.0]}, r"theta.base_xyz_wxyz_standing=.*: expected .* a unit quaternion"),
     ):
         with pytest.raises(ValueError, match=message):
             tr.resolve_theta(bad)
@@ -267,6 +271,8 @@ def test_theta_values_no_task_can_have_are_refused():
             tr.resolve_theta(tr.default_theta().replace(**bad))
     theta = tr.resolve_theta({"friction": 0.5, "max_delta_force": float("inf")})
     assert float(theta.friction) == 0.5
+    half_turn = tr.resolve_theta({"base_xyz_wxyz_standing": [0.0, 0.0, 0.3, 0.0, 0.0, 0.0, 1.0]})
+    assert float(half_turn.base_xyz_wxyz_standing[6]) == 1.0
     # under jit the values are tracers: the check lets them through, and the program runs
     assert float(jax.jit(lambda t: tr.resolve_theta(t).friction)(theta)) == 0.5
 
