@@ -530,6 +530,10 @@ def _check_inputs(args: argparse.Namespace) -> None:
         if args.workers > 1 and args.executor != "local":
             raise InputError("--workers", args.workers, "is for --executor local; with --executor ray each group is a Ray task and the cluster runs as many at once as it has CPUs")
         _check_out(args.out)
+        if args.executor == "ray":  # Ray installed and its cluster reached, before OUT is written
+            from jtraj.executors import RayExecutor
+
+            RayExecutor(args.ray_address).connect()
     if cmd == "robustness":
         from jtraj.experiments import _refuse_repeats
 

@@ -105,7 +105,10 @@ class RayExecutor(AbstractExecutor):
     address: str | None = None
     num_cpus: float = 1.0
 
-    def map(self, fn, arg_list):
+    def connect(self):
+        """Import Ray and connect to (or start) the cluster, once per process; returns the ``ray``
+        module. `ExecutorUnavailableError` where Ray is missing or the cluster cannot be
+        reached: the command line calls it while checking its inputs, before writing anything."""
         ray = _import_ray()
         if not ray.is_initialized():
             # the workers import jtraj from their own environment: the cluster's nodes must have
@@ -124,6 +127,10 @@ class RayExecutor(AbstractExecutor):
                     f"Ray could not connect to a cluster at {self.address!r}: {e} (give the address of a running cluster, "
                     "e.g. --ray-address auto on one of its nodes or ray://HOST:10001, or leave it out to start a local instance)"
                 ) from None
+        return ray
+
+    def map(self, fn, arg_list):
+        ray = self.connect()
         remote = ray.remote(num_cpus=self.num_cpus, max_retries=0)(fn)
         pending = {remote.remote(*args): i for i, args in enumerate(arg_list)}
         try:

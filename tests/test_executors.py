@@ -222,3 +222,23 @@ def test_robustness_table_on_a_local_ray_instance_equals_local(tmp_path):
         ray.shutdown()
     assert [(r["replicate"], r["status"], r["iterations"]) for r in ray_runs] == [(r["replicate"], r["status"], r["iterations"]) for r in local]
     assert (tmp_path / "ray" / "table_iii.md").read_text() == (tmp_path / "local" / "table_iii.md").read_text()
+
+
+@pytest.mark.parametrize("ray", ["missing", "unreachable"])
+def test_cli_ray_unavailable_is_refused_before_the_output_folder_is_touched(monkeypatch, tmp_path, capsys, ray):
+    """Ray missing or its cluster unreachable was found when the first group was submitted:
+    after provenance.json was written (a run 'not complete') and, with --no-resume, after the
+    study's runs.jsonl was moved to runs.jsonl.previous. It is an input error found first."""
+    from jtraj import cli
+
+    module = None if ray == "missing" else _refusing_ray({}, ConnectionError("Failed to connect to Ray cluster at head:1"))
+    monkeypatch.setitem(sys.modules, "ray", module)
+    out = tmp_path / "study"
+    out.mkdir()
+    (out / "runs.jsonl").write_text("{}\n")
+    argv = ["robustness", "--tasks", "big_jump", "--params", "se3", "--executor", "ray", "--no-resume", "--out", str(out)]
+    rc = cli.main(argv + ([] if ray == "missing" else ["--ray-address", "head:1"]))
+    err = capsys.readouterr().err
+    assert rc == cli.EXIT_BAD_INPUT and err.count("\n") == 1, err
+    assert ('pip install "jtraj[ray]"' if ray == "missing" else "Ray could not connect to a cluster at 'head:1'") in err
+    assert sorted(p.name for p in out.iterdir()) == ["runs.jsonl"]
