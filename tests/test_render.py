@@ -372,3 +372,16 @@ def test_no_context_names_the_backend_mujoco_loaded(monkeypatch):
     monkeypatch.setattr(gl_context, "GLContext", type("GLContext", (), {"__module__": "mujoco.egl"}))
     with pytest.raises(RenderError, match=r"with MUJOCO_GL='egl': no OpenGL context\. Without display"):
         _renderer(model, 32, 32)
+
+
+def test_gif_keeps_real_time(tmp_path):
+    from PIL import Image
+
+    # one second at 30 fps: GIF delays are whole hundredths, 33 ms was stored as 30 ms (0.9 s in all)
+    frames = np.random.default_rng(0).integers(0, 256, (30, 16, 16, 3), dtype=np.uint8)
+    gif = Image.open(write_video(frames, tmp_path / "m.gif", fps=30))
+    durations = []
+    for i in range(gif.n_frames):
+        gif.seek(i)
+        durations.append(gif.info["duration"])
+    assert len(durations) == 30 and sum(durations) == 1000 and set(durations) <= {30, 40}
