@@ -7,8 +7,8 @@ motion, side by side or overlaid (the paper's Fig. 1); `write_video` / `write_im
 
 Between knots the base pose is interpolated on SE(3) (``T_k Exp(s Log(T_k^-1 T_k+1))``) and
 the joints linearly. The scene has a checker ground, contact forces drawn as arrows (a force
-equal to the robot's weight twice as long as the robot stands tall), a label that marks the flight
-phases, and a camera that follows the base.
+equal to the robot's weight twice as long as the base's standing height), a label that marks the
+flight phases, and a camera that follows the base.
 
 Headless machines: MuJoCo picks its OpenGL backend when it is imported, from ``MUJOCO_GL``.
 ``import jtraj`` sets ``MUJOCO_GL=egl`` when the variable is unset and there is no display, so
@@ -467,7 +467,8 @@ def render(result: Result | str | Path, options: RenderOptions | Mapping[str, An
     ``result`` is a `jtraj.result.Result` with a trajectory or a folder written by
     ``jtraj solve``; ``options`` a `RenderOptions` or a mapping of its fields (keyword
     arguments override them, e.g. ``render(r, width=320, height=240, speed=0.5)``). Frames are
-    spaced ``speed / fps`` seconds of motion apart, from the first knot to the last.
+    spread evenly from the first knot to the last, about ``speed / fps`` seconds of motion apart
+    (the whole number of intervals nearest to the duration at that spacing).
     """
     options = _render_options(options, kwargs)
     result = _as_result(result)
@@ -803,7 +804,9 @@ def render_directory(
     options: RenderOptions | None = None,
 ) -> list[Path]:
     """``jtraj render``: the video (``out``) and/or the keyframe strip (``strip``) of the
-    solution in ``directory`` (its ``result.json`` and ``trajectory.npz``); returns the paths."""
+    solution in ``directory`` (its ``result.json`` and ``trajectory.npz``); returns the paths.
+    The strip's panels are ``options``' size capped at 480 x 480 pixels each (a 640 x 480
+    video gets 480 x 480 panels)."""
     directory = Path(directory)
     if not (directory / "trajectory.npz").is_file():
         raise FileNotFoundError(f"{directory}: no trajectory.npz (expected a folder written by `jtraj solve`)")
