@@ -73,7 +73,7 @@ class LocalExecutor(AbstractExecutor):
         from concurrent.futures.process import BrokenProcessPool
 
         # JAX is not fork-safe: workers start fresh interpreters
-        pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"))
+        pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"), initializer=_ignore_interrupt)
         try:
             futures = {pool.submit(fn, *args): i for i, args in enumerate(arg_list)}
             for f in as_completed(futures):
@@ -143,6 +143,15 @@ class RayExecutor(AbstractExecutor):
                 with contextlib.suppress(Exception):
                     ray.cancel(ref, force=True)
             raise
+
+
+def _ignore_interrupt() -> None:
+    """A worker process's start: Ctrl-C reaches every process of the terminal's process group,
+    and each worker printed its own KeyboardInterrupt traceback; the caller alone handles it,
+    and stops the workers (`_stop`)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _stop(pool) -> None:

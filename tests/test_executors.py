@@ -242,3 +242,11 @@ def test_cli_ray_unavailable_is_refused_before_the_output_folder_is_touched(monk
     assert rc == cli.EXIT_BAD_INPUT and err.count("\n") == 1, err
     assert ('pip install "jtraj[ray]"' if ray == "missing" else "Ray could not connect to a cluster at 'head:1'") in err
     assert sorted(p.name for p in out.iterdir()) == ["runs.jsonl"]
+
+
+def test_local_workers_leave_ctrl_c_to_the_caller():
+    """Ctrl-C in a terminal reaches the workers too (one process group): each printed a
+    KeyboardInterrupt traceback of its own over the caller's message. They ignore it, and the
+    caller, which gets it, stops them (test_local_workers_stop_when_the_caller_is_interrupted)."""
+    handlers = dict(LocalExecutor(workers=2).map(signal.getsignal, [(signal.SIGINT,), (signal.SIGINT,)]))
+    assert handlers == {0: signal.SIG_IGN, 1: signal.SIG_IGN}
