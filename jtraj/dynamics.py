@@ -435,15 +435,19 @@ class _Rnea(NamedTuple):
     tau: jax.Array  # (nv,)
 
 
-def _rnea(robot, param, q, v, a, forces, masses=None) -> _Rnea:
-    tree = _tree(robot)
-    nv, nc = tree.nv, robot.ncontact
+def _check_rates(robot: Robot, v: jax.Array, a: jax.Array, forces: jax.Array | None = None) -> None:
+    nv, nc = robot.nv, robot.ncontact
     if v.shape != (nv,) or a.shape != (nv,):
         raise ValueError(f"v and a must have shape ({nv},), got {v.shape} and {a.shape}")
-    if forces.shape != (nc, 3):
+    if forces is not None and forces.shape != (nc, 3):
         raise ValueError(
             f"forces must have shape ({nc}, 3) (all contact points of {robot.name!r}), got {forces.shape}"
         )
+
+
+def _rnea(robot, param, q, v, a, forces, masses=None) -> _Rnea:
+    tree = _tree(robot)
+    _check_rates(robot, v, a, forces)
     kin = _kinematics(robot, param, q)
     anc = jnp.asarray(tree.ancestor_dofs)
     Jt = kin.J.T  # (nv, 6)
@@ -694,6 +698,7 @@ def to_mujoco(
     ``qacc = (R (a_lin + omega x v_body), a_ang)``.
     """
     q_base, q_joints = _split(robot, param, q)
+    _check_rates(robot, v, a)
     T = param.to_pose(q_base)
     R = T.rotation().as_matrix()
     qpos = jnp.concatenate([param.to_qpos(q_base), q_joints])
@@ -725,6 +730,7 @@ def inverse_dynamics_mjx(
     accelerations, point Jacobians), with the conventions converted. A reference and the
     benchmark's baseline; slower to differentiate."""
     m = robot.mjx_model
+    _check_rates(robot, v, a, forces)
     qpos, qvel, qacc = to_mujoco(robot, param, q, v, a)
     d = mjx.make_data(m).replace(qpos=qpos, qvel=qvel, qacc=qacc)
     d = mjx.kinematics(m, d)

@@ -385,6 +385,24 @@ def test_wrong_shapes_raise_with_expected_shape():
         dynamics.inverse_dynamics(robot, QUAT1, q, v, v, f[:2])
 
 
+def test_mujoco_conversions_check_shapes():
+    """to_mujoco and the MJX reference check v, a and the forces as inverse_dynamics does;
+    to_mujoco returned a qvel of 6 entries for a v of 6, and the MJX reference ended in
+    errors from inside MuJoCo and einsum."""
+    robot = robot_lib.load("go2")
+    q = jnp.zeros(7 + robot.nj).at[3].set(1.0)
+    v = jnp.zeros(robot.nv)
+    f = jnp.zeros((robot.ncontact, 3))
+    with pytest.raises(ValueError, match=r"v and a must have shape \(18,\), got \(6,\) and \(18,\)"):
+        dynamics.to_mujoco(robot, QUAT1, q, v[:6], v)
+    with pytest.raises(ValueError, match=r"v and a must have shape \(18,\), got \(18,\) and \(17,\)"):
+        dynamics.inverse_dynamics_mjx(robot, QUAT1, q, v, v[:17], f)
+    with pytest.raises(ValueError, match=r"forces must have shape \(4, 3\) .*, got \(2, 3\)"):
+        dynamics.inverse_dynamics_mjx(robot, QUAT1, q, v, v, f[:2])
+    qpos, qvel, qacc = dynamics.to_mujoco(robot, QUAT1, q, v, v)
+    assert qpos.shape == (7 + robot.nj,) and qvel.shape == qacc.shape == (robot.nv,)
+
+
 def test_robot_without_contact_points(tmp_path):
     """A robot file may declare no contact point: its contact arrays are (0, 3) and (0,), and
     inverse dynamics takes forces of shape (0, 3). The offsets came back as (0,), and every
