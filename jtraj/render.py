@@ -527,8 +527,8 @@ def keyframe_strip(
     """
     if layout not in ("side", "overlay"):
         raise ValueError(f"layout must be 'side' or 'overlay', got {layout!r}")
-    if n < 2:
-        raise ValueError(f"a strip needs at least 2 keyframes, got n={n}")
+    if not is_whole(n) or n < 2:
+        raise ValueError(f"a strip needs a whole number of at least 2 keyframes, got n={n!r}")
     options = _render_options(options, kwargs)
     result = _as_result(result)
     traj = result.trajectory
@@ -628,6 +628,8 @@ def render_rigid_body(
 
     ``t`` (N,) knot times (s), ``xyz`` (N, 3) positions (m), ``wxyz`` (N, 4) attitudes.
     """
+    if strip is not None and (not is_whole(strip) or strip < 1):
+        raise ValueError(f"strip must be a whole number of keyframes >= 1, got {strip!r}")
     options = _render_options(options, kwargs)
     t, xyz, wxyz = (np.asarray(a, float) for a in (t, xyz, wxyz))
     bad = ~(np.all(np.isfinite(xyz), axis=-1) & np.all(np.isfinite(wxyz), axis=-1))

@@ -142,6 +142,10 @@ def test_keyframe_strips(result):
     assert overlay.shape == (H, W, 3) and overlay.std() > 10
     with pytest.raises(ValueError, match="layout"):
         keyframe_strip(result, n, layout="grid", options=SMALL)
+    # numpy's own TypeError about linspace's num, and a bool taken for 1 keyframe, before
+    for bad in (2.5, True, 1):
+        with pytest.raises(ValueError, match=rf"a strip needs a whole number of at least 2 keyframes, got n={bad!r}"):
+            keyframe_strip(result, bad, options=SMALL)
 
 
 def test_keyframes_spread_along_the_motion_not_the_clock():
@@ -348,6 +352,9 @@ def test_attitude_bodies_along_their_paths(tmp_path):
     assert all(p.stat().st_size > 1000 for p in paths)
     with pytest.raises(ValueError, match="shape must be"):
         render_rigid_body(t, xyz, wxyz, "blimp", options=SMALL)
+    for bad in (0, 2.0):  # an IndexError on no keyframes, numpy's TypeError on a float count
+        with pytest.raises(ValueError, match=rf"strip must be a whole number of keyframes >= 1, got {bad!r}"):
+            render_rigid_body(t, xyz, wxyz, "quadrotor", strip=bad, options=SMALL)
     # a solve that diverged: NaN states (MuJoCo refused the body's NaN size: "nan size in geom")
     xyz[6:, 2] = np.nan
     with pytest.raises(NotDrawable, match=r"the body's position or attitude is NaN or infinite at 3 knot\(s\), the first at knot 6"):
