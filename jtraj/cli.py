@@ -496,6 +496,13 @@ def _check_positive_int(field: str, value: int, minimum: int = 1) -> None:
         raise InputError(field, value, f"expected an integer >= {minimum}")
 
 
+def _check_seed(value: int) -> None:
+    """A seed that JAX's PRNGKey takes (a 64-bit integer); a larger one raised OverflowError
+    where the noise is drawn, after the compile."""
+    if not -(2**63) <= value < 2**63:
+        raise InputError("--seed", value, "expected a 64-bit integer (below 2**63 in magnitude)")
+
+
 def _check_inputs(args: argparse.Namespace) -> None:
     """Every value of the command line that can be checked without compiling anything."""
     cmd = args.command
@@ -507,6 +514,7 @@ def _check_inputs(args: argparse.Namespace) -> None:
         _check_out(_solve_out(args))
         if not (math.isfinite(args.noise) and args.noise >= 0):
             raise InputError("--noise", args.noise, "expected a standard deviation >= 0")
+        _check_seed(args.seed)
         _check_positive_int("--every", args.every)
         if args.replicate is not None:
             _check_positive_int("--replicate", args.replicate, 0)
@@ -549,6 +557,7 @@ def _check_inputs(args: argparse.Namespace) -> None:
         _refuse_repeats("--sigmas", texts, sigmas, "noise level")
         args.sigmas_checked = sigmas
         _check_positive_int("--replicates", args.replicates)
+        _check_seed(args.seed)
         args.ipopt_checked = _check_ipopt(args.ipopt, args.solver)
     elif cmd == "wahba":
         _check_positive_int("--trials", args.trials)

@@ -62,6 +62,9 @@ def _run(argv, capsys):
         (["attitude", "all", "--render"], "jtraj attitude: --render: all: draws one benchmark; give its name"),
         (["wahba", "--seed", "-1"], "jtraj wahba: --seed: -1: expected an integer >= 0"),
         (["robustness", "--tasks", "big_jump", "--ipopt", "max_itr=3"], "jtraj robustness: --ipopt max_itr: 3: unknown Ipopt option; did you mean max_iter"),
+        # JAX's PRNGKey raised OverflowError where the noise was drawn, after the compile
+        (["robustness", "--tasks", "big_jump", "--seed", str(2**63)], f"jtraj robustness: --seed: {2**63}: expected a 64-bit integer"),
+        (["solve", "big_jump", "--noise", "0.1", "--seed", str(-(2**63) - 1)], f"jtraj solve: --seed: {-(2**63) - 1}: expected a 64-bit integer"),
         # an option of the other executor was ignored without a word
         (["compare", "--tasks", "big_jump", "--ray-address", "auto"], "jtraj compare: --ray-address: 'auto': needs --executor ray (the local executor does not use a cluster)\n"),
         (["robustness", "--tasks", "big_jump", "--executor", "local", "--ray-address", "auto"], "jtraj robustness: --ray-address: 'auto': needs --executor ray (the local executor does not use a cluster)\n"),
