@@ -772,7 +772,10 @@ def show(frames: np.ndarray, fps: float = 30.0, **kwargs) -> None:
     import shutil
 
     if shutil.which("ffmpeg") is None:
-        import imageio_ffmpeg
+        try:
+            import imageio_ffmpeg
+        except ImportError:
+            raise RenderError("showing a video inline needs ffmpeg, which is not on the PATH: pip install 'jtraj[render]' (imageio-ffmpeg ships one)") from None
 
         mediapy.set_ffmpeg(imageio_ffmpeg.get_ffmpeg_exe())
     with warnings.catch_warnings():

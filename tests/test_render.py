@@ -392,3 +392,15 @@ def test_gif_keeps_real_time(tmp_path):
         gif.seek(i)
         durations.append(gif.info["duration"])
     assert len(durations) == 30 and sum(durations) == 1000 and set(durations) <= {30, 40}
+
+
+def test_show_without_ffmpeg_says_what_to_install(monkeypatch):
+    import shutil
+    import sys
+
+    from jtraj.render import RenderError, show
+
+    monkeypatch.setattr(shutil, "which", lambda name: None)
+    monkeypatch.setitem(sys.modules, "imageio_ffmpeg", None)  # not installed
+    with pytest.raises(RenderError, match=r"needs ffmpeg, which is not on the PATH: pip install 'jtraj\[render\]'"):
+        show(np.zeros((2, 16, 16, 3), np.uint8))
