@@ -308,6 +308,10 @@ class Transcription:
     """The transcription of ``task`` for ``robot`` in parameterization ``param``."""
 
     def __init__(self, robot, task: Task, param: AbstractParameterization, options: TranscriptionOptions = COMPACT_VARIABLES):
+        if not isinstance(param, AbstractParameterization):
+            raise TypeError(f"param must be a parameterization (jtraj.parameterization.get({param!r}) for a name), got {type(param).__name__}")
+        if not isinstance(options, TranscriptionOptions):
+            raise TypeError(f"options must be a TranscriptionOptions (jtraj.solver.VARIABLES[{options!r}] for a name), got {type(options).__name__}")
         task.validate(robot)
         self.options = options
         self.robot = robot

@@ -343,6 +343,20 @@ def test_theta_changes_values_without_recompiling_and_vmaps():
         np.testing.assert_allclose(batched, np.stack([v[i] for v in values]), rtol=1e-11, atol=1e-9)
 
 
+def test_transcription_refuses_names_for_the_chart_and_the_variables():
+    """Transcription takes objects; a name (what `jtraj.solve` takes) ended in an
+    AttributeError ('str' object has no attribute 'nq')."""
+    from jtraj import robot as robots
+    from jtraj.parameterization import get
+    from jtraj.transcription import Transcription
+
+    go2 = robots.load("go2")
+    with pytest.raises(TypeError, match=r"param must be a parameterization \(jtraj.parameterization.get\('se3'\) for a name\), got str"):
+        Transcription(go2, HOP, "se3")
+    with pytest.raises(TypeError, match=r"options must be a TranscriptionOptions \(jtraj.solver.VARIABLES\['paper'\] for a name\), got str"):
+        Transcription(go2, HOP, get("se3"), "paper")
+
+
 def test_theta_overrides_are_checked():
     tr = prepare(HOP, "se3", "compact").transcription
     assert float(tr.resolve_theta({"friction": 0.3}).friction) == 0.3
