@@ -309,7 +309,14 @@ def build_parser() -> argparse.ArgumentParser:
     _robot_argument(p)
     p.set_defaults(func=_cmd_solve)
 
-    p = sub.add_parser("compare", help="Table IV: every task with every parameterization (writes OUT/table_iv.{json,md})")
+    p = sub.add_parser(
+        "compare", help="Table IV: every task with every parameterization (writes OUT/table_iv.{json,md})",
+        description=(
+            "Table IV: solve every task of --tasks with every parameterization of --params; writes OUT/table_iv.json and OUT/table_iv.md "
+            "(again as each cell finishes, so an interrupted run keeps the cells finished), OUT/provenance.json and, without "
+            "--no-trajectories, each cell's solution in OUT/TASK_PARAM. A run solves every cell again: compare does not resume."
+        ),
+    )
     p.add_argument("--tasks", default="walk,hopscotch,big_jump,handstand,backflip,sideflip", help="comma-separated tasks or .toml files (default: the six of Table IV)")
     p.add_argument("--params", default="se3,quat1,quat2,quat3,euler", help="comma-separated parameterizations (default: all five)")
     _variables_argument(p, "paper", "variables per knot; default: the study's, for comparison with its tables")
@@ -321,7 +328,16 @@ def build_parser() -> argparse.ArgumentParser:
     _executor_arguments(p)
     p.set_defaults(func=_cmd_compare)
 
-    p = sub.add_parser("robustness", help="Table III and Fig. 2: success and iterations under warm-start noise")
+    p = sub.add_parser(
+        "robustness", help="Table III and Fig. 2: success and iterations under warm-start noise",
+        description=(
+            "Table III and Fig. 2: solve every task of --tasks with every parameterization of --params from --replicates noisy warm "
+            "starts per noise level of --sigmas. Each finished solve is appended at once to OUT/runs.jsonl, keyed by its settings: "
+            "the same command again resumes where a stopped run ended, and a run with other settings (--seed, --ipopt, --variables, "
+            "--solver, ...) solves only its own runs, keeping the others in the file and out of its tables. Writes "
+            "OUT/table_iii.json, OUT/table_iii.md, OUT/fig2.png and OUT/provenance.json."
+        ),
+    )
     p.add_argument("--tasks", default="walk,big_jump,backflip,sideflip", help="comma-separated tasks or .toml files (default: the four of Table III)")
     p.add_argument("--params", default="euler,quat1,quat2,se3", help="comma-separated parameterizations (default: the four of Table III)")
     p.add_argument("--sigmas", default="1e-6,1e-3,0.1,0.5", help="comma-separated noise levels (default: Table III's 1e-6,1e-3,0.1,0.5)")

@@ -459,3 +459,16 @@ def test_ctrl_c_is_one_line_saying_what_was_kept(command, kept, monkeypatch, tmp
     code, err = _run(argv, capsys)
     assert code == cli.EXIT_INTERRUPTED == 130
     assert err.startswith(f"jtraj {command}: interrupted{kept.format(out=out)}") and err.count("\n") == 1, err
+
+
+@pytest.mark.parametrize(
+    "command, words",
+    [("compare", ["table_iv.json", "does not resume", "OUT/TASK_PARAM"]), ("robustness", ["OUT/runs.jsonl", "resumes", "table_iii.md", "fig2.png"])],
+)
+def test_sweep_help_says_what_it_writes_and_how_it_resumes(command, words, capsys):
+    """`jtraj compare --help` and `jtraj robustness --help` had no description: nothing said
+    what they write, that robustness resumes from OUT/runs.jsonl, or that compare does not."""
+    with pytest.raises(SystemExit):
+        cli.main([command, "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert all(w in text for w in words), text
