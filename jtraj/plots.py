@@ -81,10 +81,11 @@ def _base_pose_panels(ax_position, ax_rotation, t) -> None:
 
 
 def _flight_shading(ax, t, touching) -> None:
-    """Grey bands over the knots where no contact point touches the ground."""
+    """Grey bands over the knots where no contact point touches the ground (half a step either
+    side, within the motion's span: a flight at the end does not stretch the time axis)."""
     dt = t[1] - t[0] if len(t) > 1 else 0.0
     for k in np.flatnonzero(~touching):
-        ax.axvspan(t[k] - 0.5 * dt, t[k] + 0.5 * dt, color="0.9", lw=0)
+        ax.axvspan(max(t[k] - 0.5 * dt, t[0]), min(t[k] + 0.5 * dt, t[-1]), color="0.9", lw=0)
 
 
 def _task_friction(task_name: str) -> float | None:

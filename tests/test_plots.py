@@ -78,3 +78,11 @@ def test_convergence_ticks_whole_iterations(result):
     ax = plot_convergence(result, None).axes[0]
     ticks = [t for t in ax.get_xticks() if ax.get_xlim()[0] <= t <= ax.get_xlim()[1]]
     assert ticks and all(float(t).is_integer() for t in ticks), ticks
+
+
+def test_flight_shading_stays_within_the_motion(result):
+    # the made-up motion ends in flight: the last band stretched the time axis half a step past 0.5 s
+    t = result.trajectory.t
+    for fig in (plot_result(result, None), plot_solution(result)):
+        for ax in fig.axes:
+            assert (ax.dataLim.x0, ax.dataLim.x1) == pytest.approx((t[0], t[-1]), abs=1e-12)
