@@ -231,6 +231,14 @@ def solve(
     # the arguments that need no model, checked before anything compiles
     if not (math.isfinite(noise) and noise >= 0):
         raise ValueError(f"solve: noise={noise!r}: expected a standard deviation >= 0")
+    # replicate=1.5 drew replicate 1 and replicate=-1 one no study has (numbers are cast to
+    # uint32); a negative seed of numpy's noise failed in default_rng after the NLP was built
+    if replicate is not None and (isinstance(replicate, bool) or not isinstance(replicate, (int, np.integer)) or replicate < 0):
+        raise ValueError(f"solve: replicate={replicate!r}: expected a replicate number >= 0 (jtraj.experiments.robustness numbers them from 0)")
+    if (noise or replicate is not None) and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))):
+        raise ValueError(f"solve: seed={seed!r}: expected an integer")
+    if noise and replicate is None and seed < 0:
+        raise ValueError(f"solve: seed={seed!r}: expected a seed >= 0 for numpy's default_rng, which draws this noise (replicate= draws with JAX, which takes any)")
     backend = solvers.get(solver)
     solver_options(backend, options, ipopt_options, exact_hessian, 0)  # the task's limit comes below
     if isinstance(progress_every, bool) or not isinstance(progress_every, int) or progress_every < 1:

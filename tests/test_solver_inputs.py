@@ -165,3 +165,25 @@ def test_solve_batch_counts_are_whole_numbers(kwargs):
     with pytest.raises(ValueError, match=rf"solve_batch: {name}={value!r}; expected a positive count"):
         solvers.get("jtraj").solve_batch(nlp, np.zeros((1, nlp.n)), **{"strategy": "threads", **kwargs})
     assert no_program(nlp)
+
+
+def test_solve_refuses_bad_seeds_and_replicates_before_building_anything(monkeypatch):
+    """A negative seed of the warm start's noise (numpy's default_rng) failed only after the NLP
+    was built; replicate=1.5 silently drew replicate 1 and replicate=-1 a draw of no study."""
+    import jtraj.solver
+
+    def boom(*args, **kwargs):
+        raise AssertionError("the NLP was built despite a bad argument")
+
+    monkeypatch.setattr(jtraj.solver, "prepare", boom)
+    for kwargs, match in (
+        ({"noise": 0.1, "seed": -1}, r"seed=-1: expected a seed >= 0 for numpy's default_rng"),
+        ({"noise": 0.1, "seed": 1.5}, r"seed=1.5: expected an integer"),
+        ({"noise": 0.1, "replicate": 1.5}, r"replicate=1.5: expected a replicate number >= 0"),
+        ({"noise": 0.1, "replicate": -1}, r"replicate=-1: expected a replicate number >= 0"),
+    ):
+        with pytest.raises(ValueError, match=match):
+            jtraj.solver.solve("big_jump", **kwargs)
+    # JAX's draws of a replicate take a negative seed (as `jtraj robustness --seed` does)
+    with pytest.raises(AssertionError, match="the NLP was built"):
+        jtraj.solver.solve("big_jump", noise=0.1, seed=-1, replicate=0)
