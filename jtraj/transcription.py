@@ -642,10 +642,10 @@ class Transcription:
 
         return arrays
 
-    def decode(self, x: np.ndarray, theta: TaskParams | None = None) -> Trajectory:
+    def decode(self, x: np.ndarray, theta: TaskParams | Mapping[str, Any] | None = None) -> Trajectory:
         """The trajectory of the solution ``x`` (n,) of the NLP at parameters ``theta``
-        (default the task's)."""
-        theta = self.default_theta() if theta is None else theta
+        (`resolve_theta`: None is the task's, a mapping overrides some of them)."""
+        theta = self.resolve_theta(theta)
         h = float(theta.timestep)
         L, param = self.layout, self.param
         Z = jnp.asarray(np.asarray(x).reshape(self.N + 1, L.nz))

@@ -357,6 +357,18 @@ def test_transcription_refuses_names_for_the_chart_and_the_variables():
         Transcription(go2, HOP, get("se3"), "paper")
 
 
+def test_decode_takes_theta_as_a_mapping():
+    """decode resolves theta as warm_start does: a mapping of overrides (it ended in an
+    AttributeError: 'dict' object has no attribute 'timestep'), and refuses unknown names."""
+    tr = prepare(HOP, "se3", "compact").transcription
+    x = tr.warm_start().reshape(-1)
+    traj = tr.decode(x, {"timestep": 0.04})
+    np.testing.assert_allclose(traj.t, 0.04 * np.arange(tr.N + 1))
+    np.testing.assert_array_equal(tr.decode(x).t, tr.decode(x, tr.default_theta()).t)
+    with pytest.raises(ValueError, match="unknown task parameter 'h'"):
+        tr.decode(x, {"h": 0.04})
+
+
 def test_theta_overrides_are_checked():
     tr = prepare(HOP, "se3", "compact").transcription
     assert float(tr.resolve_theta({"friction": 0.3}).friction) == 0.3
