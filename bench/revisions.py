@@ -118,8 +118,9 @@ def main(argv: list[str] | None = None) -> int:
         try:
             for task in args.tasks:
                 for label, where in zip(labels, (tree, REPO)):
-                    rec = run_child(where, task, args.param, args.variables, args.repeats)
-                    rec["label"] = label
+                    # a task file by its absolute path: each child runs in its own tree
+                    rec = run_child(where, str(Path(task).resolve()) if task.endswith(".toml") else task, args.param, args.variables, args.repeats)
+                    rec["task"], rec["label"] = task, label
                     records.append(rec)
                     print(f"{task:10s} {label:14s} {rec['iterations']:4d} it  {rec['status']:26s} cost {rec['cost']:.4g}  fastest {min(rec['times']):.2f} s  (all: {', '.join(f'{t:.2f}' for t in rec['times'])})", flush=True)
         finally:

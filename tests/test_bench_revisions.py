@@ -60,3 +60,27 @@ def test_bad_arguments_are_refused_before_any_work(revisions, monkeypatch, capsy
     if argv[0] == "-x":
         argv = ["--", *argv]
     refused(revisions.main, argv, capsys, message)
+
+
+def test_a_task_file_is_given_to_both_trees_by_its_absolute_path(revisions, monkeypatch, tmp_path, capsys):
+    """Each child runs in its tree (the earlier revision's is a temporary worktree): a task file
+    named relative to where the benchmark was started was looked for inside that tree."""
+    from importlib.resources import files
+
+    (tmp_path / "mine.toml").write_text(files("jtraj.tasks").joinpath("walk.toml").read_text())
+    monkeypatch.chdir(tmp_path)
+    real_run = revisions.subprocess.run
+    seen = []
+
+    def run(cmd, *args, **kwargs):  # no worktree: the children are faked
+        return revisions.subprocess.CompletedProcess(cmd, 0, "", "") if "worktree" in cmd else real_run(cmd, *args, **kwargs)
+
+    def child(tree, task, param, variables, repeats):
+        seen.append(task)
+        return dict(task=task, iterations=10, status="solved", cost=1.0, times=[1.0])
+
+    monkeypatch.setattr(revisions.subprocess, "run", run)
+    monkeypatch.setattr(revisions, "run_child", child)
+    assert revisions.main(["HEAD", "mine.toml", "--repeats", "1"]) == 0
+    assert seen == [str(tmp_path / "mine.toml")] * 2
+    assert "| mine.toml | 10 / 10 |" in capsys.readouterr().out
