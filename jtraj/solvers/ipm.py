@@ -400,7 +400,10 @@ class IpmResult(NamedTuple):
         (evaluations of the gradient and Jacobian, and of the Hessian with ``hessian="exact"``:
         one at the initial point and one at each accepted point).
         history: (max_iter + 1, 5) per iteration: objective, constr_viol, dual_inf, log10 mu,
-            primal step size (NaN after the last iteration).
+            primal step size (NaN after the last iteration). The mu of row k is the barrier
+            parameter chosen at iterate k for the step that leaves it; Ipopt's iteration k
+            reports the one of the step that led to iterate k, so the same barrier path shows
+            one row later in Ipopt's history (row 0: Ipopt's initial mu, here the first step's).
     """
 
     x: jax.Array
