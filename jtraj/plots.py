@@ -1,4 +1,5 @@
-"""Figures of a solved trajectory (matplotlib, written to files; no screen needed)."""
+"""Figures of a solved trajectory: matplotlib Figures built without pyplot (no screen needed,
+a notebook's own figures and backend left alone), written to files or returned."""
 
 from __future__ import annotations
 
@@ -22,8 +23,9 @@ def _figure(**kwargs):
 
 
 def plot_result(result: Result, path: str | Path) -> Path:
-    """Base position, base rotation (world-axis angles, unwrapped), contact forces and joint
-    torques against time, with contact phases shaded."""
+    """Base position, base rotation (about the world axes, accumulated from the first knot),
+    vertical contact forces and joint torques against time, flight phases shaded grey. Returns
+    the path (the figure when ``path`` is None)."""
     t = _trajectory(result)
     fig = _figure(figsize=(11, 6.5))
     axes = fig.subplots(2, 2, sharex=True)
@@ -111,11 +113,14 @@ def friction_cone_ratio(forces: np.ndarray, friction: float) -> np.ndarray:
 def plot_solution(result: Result, path: str | Path | None = None, *, friction: float | None = None):
     """Six panels against time, contact phases shaded (grey: flight): base position; base
     rotation (world-axis angles, accumulated, deg); joint angles and joint torques as fractions
-    of their limits (0..1 is the range for angles, |tau| / tau_max <= 1 for torques); vertical
-    contact forces (N); and the friction-cone use ``|f_t| / (mu f_z)`` (<= 1 inside the cone).
+    of their limits (0..1 is the range for angles, joints without limits left out;
+    |tau| / tau_max <= 1 for torques); vertical contact forces (N); and the friction-cone use
+    ``|f_t| / (mu f_z)`` (<= 1 inside the cone).
 
-    ``friction`` (mu) defaults to the built-in task's. Returns the figure, or writes it to
-    ``path`` and returns the path.
+    ``friction`` (mu) defaults to the built-in task's of the result's task name (0.9, said in
+    the panel's title, for another task); a solve with another friction in ``theta`` is not
+    recorded in the result: pass it. Returns the figure, or writes it to ``path`` and returns
+    the path.
     """
     from jtraj import robot as robots
 
