@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Sequence
+from pathlib import Path
 
 
 def add_tasks(ap: argparse.ArgumentParser, default: Sequence[str] | None = None) -> None:
@@ -54,3 +55,20 @@ def out_folder(text: str) -> str:
     except InputError as e:
         raise argparse.ArgumentTypeError(f"{e.value!r}: {e.expected}") from None
     return text
+
+
+def add_peer_options(ap: argparse.ArgumentParser, peer_src, peer_python) -> None:
+    """The options of the scripts that run the paper's public code beside jtraj (side_by_side,
+    trace_iterates): ``--robot ROBOT=OTHER`` and ``--set FIELD=VALUE`` (repeatable), and where
+    the public code's sources and its environment's Python are (defaults ``peer_src`` and
+    ``peer_python``, side_by_side's)."""
+    ap.add_argument("--peer-src", type=Path, default=peer_src, help="the public code's sources (noisy flips run them through a driver that reads the last iterate)")
+    ap.add_argument("--peer-python", type=Path, default=peer_python, help="the Python of the environment the runner creates")
+    ap.add_argument("--robot", action="append", default=[], metavar="ROBOT=OTHER", help="jtraj solves tasks on ROBOT with the model OTHER (e.g. talos=talos_full: the study's Talos)")
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="FIELD=VALUE",
+        help="replace a string field of the variables' TranscriptionOptions, e.g. force_limits=rows (repeatable)",
+    )

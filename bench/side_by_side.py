@@ -50,6 +50,9 @@ from jtraj.solver import VARIABLES, with_changes
 from jtraj.task import Task, TaskError, available, retarget
 from jtraj.task import load as load_task
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
+from _args import add_peer_options  # noqa: E402
+
 #: The public code's runner: ../shared/peers/run-se3-trajopt beside the repository (pass
 #: --peer from a worktree elsewhere).
 DEFAULT_PEER = Path(__file__).resolve().parents[1].parent / "shared" / "peers" / "run-se3-trajopt"
@@ -317,17 +320,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--sigma", type=noise_level, default=0.0)
     ap.add_argument("--seeds", type=seed_list, default="0", help="comma-separated seeds of the noise draws (with --sigma > 0)")
     ap.add_argument("--peer", default=str(DEFAULT_PEER), help="path of the paper code's runner script, run as PEER TASK [--sigma S --seed N] ('' to skip it)")
-    ap.add_argument("--peer-src", type=Path, default=DEFAULT_PEER_SRC, help="the public code's sources (noisy flips run them through a driver that reads the last iterate)")
-    ap.add_argument("--peer-python", type=Path, default=DEFAULT_PEER_PYTHON, help="the Python of the environment the runner creates")
-    ap.add_argument("--robot", action="append", default=[], metavar="ROBOT=OTHER", help="jtraj solves tasks on ROBOT with the model OTHER (e.g. talos=talos_full: the study's Talos)")
+    add_peer_options(ap, DEFAULT_PEER_SRC, DEFAULT_PEER_PYTHON)
     ap.add_argument("--code-costs", action="store_true", help="jtraj uses the cost weights of the code's task scripts (CODE_COSTS) where they differ from Table II")
-    ap.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="FIELD=VALUE",
-        help="replace a string field of the variables' TranscriptionOptions, e.g. force_limits=rows (repeatable)",
-    )
     ap.add_argument("--out", default="results/side_by_side")
     args = ap.parse_args(argv)
     # every input is checked before anything is solved

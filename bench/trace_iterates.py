@@ -34,7 +34,7 @@ from jtraj.task import TaskError
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-from _args import add_out  # noqa: E402
+from _args import add_out, add_peer_options  # noqa: E402
 from side_by_side import (  # noqa: E402  (the same task variants and the same driver of the public code)
     CODE_COSTS,
     DEFAULT_PEER_PYTHON,
@@ -112,16 +112,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("task", choices=sorted(PEER_SCRIPTS))
     ap.add_argument("--variables", default="paper", choices=sorted(VARIABLES))
     ap.add_argument("--code-costs", action="store_true", help=f"jtraj with the cost weights of the code's scripts ({CODE_COSTS})")
-    ap.add_argument("--robot", action="append", default=[], metavar="ROBOT=OTHER")
-    ap.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="FIELD=VALUE",
-        help="replace a field of the variables' TranscriptionOptions, e.g. force_limits=rows (string fields)",
-    )
-    ap.add_argument("--peer-src", type=Path, default=DEFAULT_PEER_SRC)
-    ap.add_argument("--peer-python", type=Path, default=DEFAULT_PEER_PYTHON)
+    add_peer_options(ap, DEFAULT_PEER_SRC, DEFAULT_PEER_PYTHON)
     ap.add_argument("--no-peer", action="store_true")
     add_out(ap, "iterates")
     args = ap.parse_args(argv)
