@@ -240,7 +240,10 @@ class TaskParams:
             if name not in names:
                 raise ValueError(f"unknown task parameter {name!r}; expected one of {names}")
             old = getattr(self, name)
-            new = jnp.asarray(value, dtype=jnp.float64)
+            try:
+                new = jnp.asarray(value, dtype=jnp.float64)
+            except (TypeError, ValueError) as err:
+                raise ValueError(f"task parameter {name!r} must be numbers of shape {old.shape}, got {value!r} ({err})") from None
             if new.shape != old.shape:
                 raise ValueError(f"task parameter {name!r} must have shape {old.shape}, got {new.shape}")
             values[name] = new

@@ -376,6 +376,12 @@ def test_theta_overrides_are_checked():
         tr.resolve_theta({"mu": 0.3})
     with pytest.raises(ValueError, match=r"shape \(3,\)"):
         tr.resolve_theta({"target_translation": [1.0, 0.0]})
+    # values that are not numbers name the parameter (the message was JAX's or numpy's alone:
+    # "could not convert string to float: 'high'", "None is not a valid value for jnp.array")
+    with pytest.raises(ValueError, match=r"task parameter 'friction' must be numbers of shape \(\), got 'high'"):
+        tr.resolve_theta({"friction": "high"})
+    with pytest.raises(ValueError, match=r"task parameter 'timestep' must be numbers of shape \(\), got None"):
+        tr.resolve_theta({"timestep": None})
 
 
 @pytest.mark.parametrize("variables", ["compact", "paper"])
