@@ -224,6 +224,7 @@ def test_solve_refuses_bad_arguments_before_building_anything(monkeypatch):
 
 def test_registry_names_the_choices():
     assert isinstance(solvers.get("ipopt"), IpoptSolver)
+    assert isinstance(solvers.get(IpoptSolver), IpoptSolver)  # the class for an object: was "unknown solver <class ...>"
     with pytest.raises(ValueError, match=r"unknown solver 'snopt'; expected one of \['ipopt'"):
         solvers.get("snopt")
 

@@ -51,8 +51,10 @@ __all__ = [
 SOLVERS: dict[str, type[AbstractSolver]] = {"ipopt": IpoptSolver, "jtraj": JtrajSolver}
 
 
-def get(solver: str | AbstractSolver) -> AbstractSolver:
-    """A solver backend from its registry name (or the solver itself)."""
+def get(solver: str | AbstractSolver | type[AbstractSolver]) -> AbstractSolver:
+    """A solver backend from its registry name (or the solver itself, or its class)."""
     if isinstance(solver, AbstractSolver):
         return solver
+    if isinstance(solver, type) and issubclass(solver, AbstractSolver):  # solver=IpoptSolver: was "unknown solver <class ...>"
+        return solver()
     return lookup(SOLVERS, solver, "solver")()
