@@ -671,7 +671,7 @@ def batched_inverse_dynamics_derivatives(
 
     Args: Q (K, param.nq + nj), V (K, nv), A (K, nv), F (K, ncontact, 3); masses (nbody,)
     shared by the knots (default the model's).
-    Returns: tau (K, nv), dq (K, nv, nq), dv (K, nv, nv), da = M (K, nv, nv),
+    Returns: tau (K, nv), dq (K, nv, param.nq + nj), dv (K, nv, nv), da = M (K, nv, nv),
     df (K, nv, ncontact * 3).
     """
     per_knot = jax.vmap(inverse_dynamics_derivatives, in_axes=(None, None, 0, 0, 0, 0, None))

@@ -19,7 +19,8 @@ each made by one stage builder (`dynamics_stage`, ...; `CONSTRAINT_STAGES` in ro
     contact       FK_j(q) = c_j for touching points; c_z is the terrain height (a bound)
     stationary    (c_j')_xy = (c_j)_xy while a point keeps touching
     clearance     FK_j(q)_z >= terrain height for points in the air
-    friction      4-facet pyramid |f_x|, |f_y| <= mu f_z (f_z >= 0 and |f_i| <= 1.5 m g are bounds)
+    friction      4-facet pyramid |f_x|, |f_y| <= mu f_z (f_z >= 0 and |f_i| <= F are bounds, F =
+                  force_limit_factor m g, 1.5 m g by default; `TranscriptionOptions.force_limits`)
     force_rate    |f_j' - f_j| <= max_delta_force per component (tasks that set it; with
                   `liftoff_force_rate` also where a point lifts off, f_j' = 0)
     chart         the parameterization's own constraint (e.g. unit quaternion norm), if any
