@@ -86,3 +86,25 @@ def test_comparison_notebook_draws_the_runs_that_have_a_trajectory(tmp_path, mon
         assert line in text, text
     outputs = nb.cells[-1].outputs  # the video of the first run that has a trajectory
     assert outputs and "text/html" in outputs[0].get("data", {}), outputs
+
+
+def test_robustness_notebook_marks_cells_without_a_converged_run(tmp_path, monkeypatch):
+    # a runs file (no solve): at sigma 0.5 no run converged, which the table printed as "0 it"
+    def run(sigma, replicate, converged, iterations):
+        return {
+            "task_hash": "h", "parameterization": "se3", "layout": "paper", "variables_hash": "v", "hessian": "limited-memory", "options_hash": "o",
+            "seed": 0, "sigma": sigma, "replicate": replicate, "solver": "ipopt", "noise_chart": None, "task": "hop",
+            "converged": converged, "constraint_violation": 0.0 if converged else 1.0, "success": converged, "iterations": iterations,
+        }
+
+    folder = tmp_path / "study"
+    folder.mkdir()
+    runs = [run(1e-3, 0, True, 12), run(1e-3, 1, True, 14), run(0.5, 0, False, 3000), run(0.5, 1, False, 3000)]
+    (folder / "runs.jsonl").write_text("".join(json.dumps(r) + "\n" for r in runs))
+    monkeypatch.delenv("JTRAJ_SMALL", raising=False)
+    monkeypatch.setenv("JTRAJ_ROBUSTNESS", str(folder))
+    monkeypatch.chdir(tmp_path)
+    nb = nbformat.read(next(p for p in NOTEBOOKS if p.stem == "robustness"), as_version=4)
+    NotebookClient(nb, timeout=900, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}).execute()
+    table = [line for o in _outputs(nb) for line in _text(o).splitlines() if line.startswith("hop ")]
+    assert len(table) == 1 and table[0].split()[2:] == ["100/100%", "(13", "it)", "0/0%", "(-", "it)"], table
