@@ -28,7 +28,7 @@ import numpy as np
 from jtraj import io as jio
 from jtraj import solvers
 from jtraj.deprecation import renamed_argument
-from jtraj.executors import WorkerLostError, executor_for
+from jtraj.executors import EXECUTORS, WorkerLostError, executor_for
 from jtraj.parameterization import PARAMETERIZATIONS
 from jtraj.result import Outcome
 from jtraj.solver import evaluate, prepare, solve, solver_options, transcription_options, variables_label
@@ -90,6 +90,7 @@ def compare(
     progress = _progress_stream(progress)
     out = Path(out)
     solvers.get(solver)  # an unknown name fails here, before the first solve
+    _check_executor("compare", executor, workers)
     # a cell's folder is named after its task (a .toml path's file name need not be), as its
     # rows are and as `jtraj.plots.plot_comparison` looks for it: OUT/{task}_{parameterization}
     names = [load_task(t).name for t in tasks]
@@ -138,6 +139,15 @@ def _refuse_repeats(where: str, given: Sequence, keys: Sequence, what: str) -> N
             found.append(f"{labels[0]} given {len(items)} times" if len(labels) == 1 else f"{' and '.join(labels)} are the same {what} ({key!r})")
     if found:
         raise RepeatedValueError(f"{where}: {'; '.join(found)}; expected each {what} once")
+
+
+def _check_executor(function: str, executor: str, workers: int) -> None:
+    """A ValueError for an unknown executor or a worker count below 1, before anything is
+    written (the executor itself is made once the runs file is set up)."""
+    if executor not in EXECUTORS:
+        raise ValueError(f"{function}: executor={executor!r}: expected one of {', '.join(EXECUTORS)}")
+    if workers < 1:
+        raise ValueError(f"{function}: workers={workers!r}: expected an integer >= 1")
 
 
 def _why(row: dict) -> str:
@@ -522,6 +532,7 @@ def robustness(
     tasks = loaded
     _refuse_repeats("robustness: params", params, params, "parameterization")
     _refuse_repeats("robustness: sigmas", sigmas, sigmas, "noise level")
+    _check_executor("robustness", executor, workers)
     progress = _progress_stream(progress)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

@@ -736,3 +736,17 @@ def test_rows_that_are_not_runs_are_set_aside_with_the_torn_lines(tmp_path, fake
     assert [r["replicate"] for r in runs] == [0, 1, 2] and [p for _, p, _ in fake_solves] == ["se3"]  # replicate 1 solved again
     assert (tmp_path / f"{RUNS_FILE}.corrupt-1").read_text() == "\n".join(text)
     assert len(path.read_text().splitlines()) == 4 and len(read_runs(path)) == 4
+
+
+@pytest.mark.parametrize("kwargs, message", [(dict(executor="dask"), "executor='dask': expected one of local, ray"), (dict(workers=0), "workers=0: expected an integer >= 1")])
+def test_an_unknown_executor_is_refused_before_the_runs_file_is_touched(tmp_path, fake_solves, kwargs, message):
+    """robustness(resume=False) moved runs.jsonl aside, then found the executor unknown; and
+    workers=0 solved in this process as if 1 had been given."""
+    study = tmp_path / "study"
+    study.mkdir()
+    (study / "runs.jsonl").write_text("{}\n")
+    with pytest.raises(ValueError, match=f"^robustness: {message}$"):
+        robustness(["walk"], ["se3"], [0.1], replicates=1, out=study, progress=None, resume=False, **kwargs)
+    with pytest.raises(ValueError, match=f"^compare: {message}$"):
+        compare(["walk"], ["se3"], out=tmp_path / "table", progress=None, **kwargs)
+    assert sorted(p.name for p in study.iterdir()) == ["runs.jsonl"] and not fake_solves and not (tmp_path / "table").exists()
