@@ -187,3 +187,16 @@ def test_solve_refuses_bad_seeds_and_replicates_before_building_anything(monkeyp
     # JAX's draws of a replicate take a negative seed (as `jtraj robustness --seed` does)
     with pytest.raises(AssertionError, match="the NLP was built"):
         jtraj.solver.solve("big_jump", noise=0.1, seed=-1, replicate=0)
+
+
+def test_a_nan_in_the_point_is_a_nan_violation():
+    """`max_violation` took Python's max of the rows' and the bounds' violations, and max(0.0,
+    nan) is 0.0: a solution whose x had a NaN was reported within the bounds when its rows
+    were satisfied (or had none)."""
+    from jtraj.solvers.base import max_violation
+
+    lo, hi, none = np.array([-1.0]), np.array([1.0]), np.zeros(0)
+    assert np.isnan(max_violation(none, none, none, np.array([np.nan]), lo, hi))
+    assert np.isnan(max_violation(np.array([0.5]), np.zeros(1), np.zeros(1), np.array([np.nan]), lo, hi))
+    assert np.isnan(max_violation(np.array([np.nan]), np.zeros(1), np.zeros(1), np.array([0.0]), lo, hi))
+    assert max_violation(np.array([0.5]), np.zeros(1), np.zeros(1), np.array([2.0]), lo, hi) == 1.0

@@ -332,7 +332,8 @@ def max_violation(g: np.ndarray, g_lower: np.ndarray, g_upper: np.ndarray, x: np
     """Max violation of ``g_lower <= g <= g_upper`` and ``x_lower <= x <= x_upper``."""
     viol = np.maximum(np.maximum(g_lower - g, g - g_upper), 0.0)
     bviol = np.maximum(np.maximum(x_lower - x, x - x_upper), 0.0)
-    return float(max(viol.max(initial=0.0), bviol.max(initial=0.0)))
+    # np.max, not Python's max: max(0.0, nan) is 0.0, which reported a NaN x within its bounds
+    return float(np.max([viol.max(initial=0.0), bviol.max(initial=0.0)]))
 
 
 class EvaluationTimer:
