@@ -78,8 +78,13 @@ class StageView:
         self._theta = callable(getattr(nlp, "bounds", None))
 
     # ------------------------------------------------------------------ helpers
+    def _theta_or_default(self, theta: Any) -> Any:
+        """``theta``, or the NLP's own default parameters ``nlp.theta`` for None (as the NLP's
+        `dense_jacobian` and `violation` take it)."""
+        return getattr(self.nlp, "theta", None) if theta is None else theta
+
     def _call(self, fn, *args, theta):
-        return fn(*args, theta) if self._theta else fn(*args)
+        return fn(*args, self._theta_or_default(theta)) if self._theta else fn(*args)
 
     def to_stage_rows(self, values: jax.Array, fill: float = 0.0) -> jax.Array:
         """(nlp.m,) row values -> (K, m), ``fill`` on inactive slots."""
@@ -93,10 +98,11 @@ class StageView:
     # ------------------------------------------------------------------ problem data
     def bounds(self, theta: Any = None) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
         """(x_lower, x_upper) (K, n) and row bounds (c_lower, c_upper) (K, m); +-inf where absent
-        and on inactive slots (those are masked by ``active``)."""
+        and on inactive slots (those are masked by ``active``). ``theta`` None here and in the
+        methods below: the NLP's own ``nlp.theta``."""
         nlp = self.nlp
         if self._theta:
-            xl, xu, gl, gu = nlp.bounds(theta)
+            xl, xu, gl, gu = nlp.bounds(self._theta_or_default(theta))
         else:
             xl, xu, gl, gu = nlp.x_lower, nlp.x_upper, nlp.g_lower, nlp.g_upper
         xl, xu, gl, gu = (jnp.asarray(b, jnp.float64) for b in (xl, xu, gl, gu))
