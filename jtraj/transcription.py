@@ -162,6 +162,10 @@ class TranscriptionOptions:
     warm_start_euler: str = "matrix"
 
     def __post_init__(self):
+        for name in ("contact_variables", "acceleration_variables", "liftoff_force_rate"):
+            value = getattr(self, name)
+            if not isinstance(value, (bool, np.bool_)):  # the string "false" is true
+                raise ValueError(f"{name}={value!r}: expected True or False")
         if self.warm_start_euler not in ("matrix", "angles"):
             raise ValueError(f"warm_start_euler={self.warm_start_euler!r}: expected 'matrix' or 'angles'")
         if self.warm_start_quaternions not in ("continuous", "matrix"):

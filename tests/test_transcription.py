@@ -94,6 +94,12 @@ def test_variables_options_are_checked():
         TranscriptionOptions(contact_height="rows")
     with pytest.raises(ValueError, match="needs contact_variables"):
         TranscriptionOptions(contact_variables=False, contact_height="row")
+    # the switches are booleans: a string "false" (from a command line or a file) was true
+    with pytest.raises(ValueError, match=r"contact_variables='false': expected True or False"):
+        TranscriptionOptions(contact_variables="false")
+    with pytest.raises(ValueError, match=r"liftoff_force_rate=1: expected True or False"):
+        TranscriptionOptions(liftoff_force_rate=1)
+    assert not TranscriptionOptions(acceleration_variables=np.bool_(False)).acceleration_variables  # numpy bools are fine
 
 
 def test_force_limit_and_contact_height_rows_of_the_code():
