@@ -108,3 +108,23 @@ def test_robustness_notebook_marks_cells_without_a_converged_run(tmp_path, monke
     NotebookClient(nb, timeout=900, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}).execute()
     table = [line for o in _outputs(nb) for line in _text(o).splitlines() if line.startswith("hop ")]
     assert len(table) == 1 and table[0].split()[2:] == ["100/100%", "(13", "it)", "0/0%", "(-", "it)"], table
+
+
+def test_design_notebook_reports_a_first_solution_that_is_not_differentiable():
+    # the optimization cell run alone, its solve replaced by one that is singular at once: the
+    # stop at "the last differentiable timestep" read history[-1] of an empty history (IndexError)
+    import types
+
+    import jax.numpy as jnp
+    import optax
+
+    nb = nbformat.read(next(p for p in NOTEBOOKS if p.stem == "design"), as_version=4)
+    cell = next(c.source for c in nb.cells if c.cell_type == "code" and "value_and_grad" in c.source)
+
+    def singular(log_h):
+        raise RuntimeError("the solution is not differentiable here: the sensitivity system is singular")
+
+    fake_jax = types.SimpleNamespace(jit=lambda f: singular, value_and_grad=lambda f: f)
+    theta0 = types.SimpleNamespace(timestep=0.05, replace=lambda **changes: theta0)
+    with pytest.raises(RuntimeError, match="not differentiable here"):
+        exec(cell, {"jax": fake_jax, "jnp": jnp, "optax": optax, "hop": None, "theta0": theta0, "SMALL": True})
