@@ -2,6 +2,8 @@
 anything compiles, with errors that name them; a problem Ipopt calls invalid is invalid for
 jtraj's solver too. Tiny knot problems (tests/test_ipm.py's double integrator)."""
 
+from types import SimpleNamespace
+
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -69,10 +71,13 @@ def test_nan_bounds_are_refused(solver):
     with pytest.raises(ValueError, match=r"bound g_upper\[\d+\] is NaN"):
         solvers.get(solver).solve(nlp, np.zeros(nlp.n), theta)
     assert no_program(nlp)
+    # a KnotNLP refuses NaN variable bounds when it is built (jtraj.nlp): bind's own check, for
+    # any NLP object, on one with fixed bounds and no parameters
     f = bind(nlp)
-    lower = np.where(np.arange(nlp.n) == 3, np.nan, f.x_lower).reshape(K, 3)
+    lower = np.where(np.arange(nlp.n) == 3, np.nan, f.x_lower)
+    fixed = SimpleNamespace(n=nlp.n, x_lower=lower, x_upper=f.x_upper, g_lower=f.g_lower, g_upper=f.g_upper)
     with pytest.raises(ValueError, match=r"bound x_lower\[3\] is NaN"):
-        bind(KnotNLP(nlp.layout, K, nlp.costs, nlp.groups, lower, f.x_upper.reshape(K, 3), theta=nlp.theta))
+        bind(fixed)
 
 
 def test_inconsistent_bounds_are_an_invalid_problem_for_both_solvers():
