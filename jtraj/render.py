@@ -507,6 +507,16 @@ def keyframe_times(trajectory: Trajectory, n: int, length: float = 1.0) -> np.nd
     return times
 
 
+def _check_strip(n: Any, layout: str, spacing: str) -> None:
+    """`keyframe_strip`'s own arguments, checked before anything is drawn."""
+    if layout not in ("side", "overlay"):
+        raise ValueError(f"layout must be 'side' or 'overlay', got {layout!r}")
+    if spacing not in ("motion", "time"):
+        raise ValueError(f"spacing must be 'motion' or 'time', got {spacing!r}")
+    if not is_whole(n) or n < 2:
+        raise ValueError(f"a strip needs a whole number of at least 2 keyframes, got n={n!r}")
+
+
 def keyframe_strip(
     result: Result | str | Path,
     n: int = 6,
@@ -525,10 +535,7 @@ def keyframe_strip(
     the camera following the base, side by side. ``layout="overlay"``: every keyframe drawn in
     one scene from a fixed camera that frames the whole path (the paper's Fig. 1).
     """
-    if layout not in ("side", "overlay"):
-        raise ValueError(f"layout must be 'side' or 'overlay', got {layout!r}")
-    if not is_whole(n) or n < 2:
-        raise ValueError(f"a strip needs a whole number of at least 2 keyframes, got n={n!r}")
+    _check_strip(n, layout, spacing)
     options = _render_options(options, kwargs)
     result = _as_result(result)
     traj = result.trajectory
@@ -536,10 +543,8 @@ def keyframe_strip(
         from jtraj import robot as robots
 
         times = keyframe_times(traj, n, length=float(robots.load(result.robot).base_xyz_wxyz_standing[2]))
-    elif spacing == "time":
-        times = np.linspace(traj.t[0], traj.t[-1], n)
     else:
-        raise ValueError(f"spacing must be 'motion' or 'time', got {spacing!r}")
+        times = np.linspace(traj.t[0], traj.t[-1], n)
     frames = interpolate(traj, times)
     painter = _Painter.for_robot(result.robot, options)
     try:
@@ -812,6 +817,15 @@ def render_directory(
     solution in ``directory`` (its ``result.json`` and ``trajectory.npz``); returns the paths.
     The strip's panels are ``options``' size capped at 480 x 480 pixels each (a 640 x 480
     video gets 480 x 480 panels)."""
+    # what would fail after minutes of drawing, checked first
+    if out is None and strip is None:
+        raise ValueError("nothing to write: give out (a .mp4 or .gif file) and/or strip (a .png or .jpg file)")
+    if out is not None and Path(out).suffix.lower() not in (".mp4", ".gif"):
+        raise ValueError(f"{out}: expected a .mp4 or .gif file name")
+    if strip is not None:
+        if Path(strip).suffix.lower() not in (".png", ".jpg", ".jpeg"):
+            raise ValueError(f"{strip}: expected a .png, .jpg or .jpeg file name")
+        _check_strip(keyframes, layout, spacing)
     directory = Path(directory)
     if not (directory / "trajectory.npz").is_file():
         raise FileNotFoundError(f"{directory}: no trajectory.npz (expected a folder written by `jtraj solve`)")

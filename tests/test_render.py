@@ -404,3 +404,24 @@ def test_show_without_ffmpeg_says_what_to_install(monkeypatch):
     monkeypatch.setitem(sys.modules, "imageio_ffmpeg", None)  # not installed
     with pytest.raises(RenderError, match=r"needs ffmpeg, which is not on the PATH: pip install 'jtraj\[render\]'"):
         show(np.zeros((2, 16, 16, 3), np.uint8))
+
+
+def test_render_directory_checks_its_arguments_before_drawing(result, tmp_path, monkeypatch):
+    import jtraj.render as jrender
+
+    result.save(tmp_path)
+    # a bad file name or strip argument was found after the video was drawn (minutes), and
+    # neither file asked for was no error at all
+    monkeypatch.setattr(jrender, "render", lambda *a, **k: pytest.fail("drew the video before checking the arguments"))
+    monkeypatch.setattr(jrender, "keyframe_strip", lambda *a, **k: pytest.fail("drew the strip before checking the arguments"))
+    for kwargs, match in (
+        ({}, r"nothing to write: give out"),
+        ({"out": tmp_path / "m.avi"}, r"m\.avi: expected a \.mp4 or \.gif file name"),
+        ({"out": tmp_path / "m.gif", "strip": tmp_path / "k.bmp"}, r"k\.bmp: expected a \.png, \.jpg or \.jpeg file name"),
+        ({"out": tmp_path / "m.gif", "strip": tmp_path / "k.png", "layout": "grid"}, "layout must be 'side' or 'overlay'"),
+        ({"out": tmp_path / "m.gif", "strip": tmp_path / "k.png", "spacing": "even"}, "spacing must be 'motion' or 'time'"),
+        ({"out": tmp_path / "m.gif", "strip": tmp_path / "k.png", "keyframes": 1}, "at least 2 keyframes"),
+    ):
+        with pytest.raises(ValueError, match=match):
+            jrender.render_directory(tmp_path, **kwargs)
+    assert not (tmp_path / "m.gif").exists()
