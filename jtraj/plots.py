@@ -265,7 +265,8 @@ def plot_comparison(directory: str | Path, path: str | Path | None = None):
 
 def plot_directory(directory: str | Path, out: str | Path | None = None) -> list[Path]:
     """``jtraj plot DIR``: for a solution folder (``result.json`` + ``trajectory.npz``),
-    ``solution.png`` (`plot_solution`) and ``convergence.png``; for a ``jtraj compare`` folder
+    ``solution.png`` (`jtraj.result.Result.plot`: `plot_solution`, or an attitude benchmark's
+    own figure) and ``convergence.png``; for a ``jtraj compare`` folder
     (``table_iv.json``), ``comparison.png`` (`plot_comparison`). Written into ``out``
     (default ``directory``); returns the paths."""
     directory = Path(directory)
