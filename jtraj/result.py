@@ -172,7 +172,8 @@ class Result:
 
     @property
     def time_derivatives(self) -> float:
-        """Seconds in the NLP's JAX functions and derivatives during the solve."""
+        """Seconds in the NLP's JAX functions and derivatives during the solve (0 where the
+        solver does not measure them apart: jtraj's, whose solve is one compiled program)."""
         return self.stats.time_evaluations
 
     @property
@@ -200,11 +201,16 @@ class Result:
 
     def summary(self) -> str:
         turns = "" if self.turns is None else f", turns {self.turns:+.2f}"
+        if self.time_derivatives == 0.0 and self.time_s > 0.0:
+            # a solver that does not split its time (jtraj's: one compiled program) reported
+            # "derivatives 0.00 s" beside all of the time as its own
+            split = f"not split between the NLP's functions and {self.solver}"
+        else:
+            split = f"derivatives {self.time_derivatives:.2f} s, {self.solver} {self.time_solver:.2f} s"
         return (
             f"{self.problem} [{self.variant}] {self.status.value}: {self.iterations} iterations, "
             f"cost {self.cost:.6g}, violation {self.constraint_violation:.2e}{turns}, "
-            f"{self.time_s:.2f} s (compile {self.time_compile:.1f} s; derivatives {self.time_derivatives:.2f} s, "
-            f"{self.solver} {self.time_solver:.2f} s)"
+            f"{self.time_s:.2f} s (compile {self.time_compile:.1f} s; {split})"
         )
 
     def plot(self, path: str | Path | None = None, **kwargs: Any) -> Any:

@@ -216,3 +216,12 @@ def test_bad_folders_name_the_file(tmp_path, damage):
         (d / name).write_bytes(b"PK\x03\x04 not a zip")
     with pytest.raises(FileFormatError, match=name):
         Result.load(d)
+
+
+def test_summary_does_not_split_a_time_the_solver_did_not_split():
+    """jtraj's solver runs as one compiled program and reports time_evaluations 0: the summary
+    read "derivatives 0.00 s, jtraj 0.29 s", a split that was never measured."""
+    split = make_result(None).summary()
+    assert split.endswith("0.75 s (compile 3.5 s; derivatives 0.25 s, ipopt 0.50 s)")
+    whole = make_result(None, solver="jtraj", stats=Stats(iterations=12, time_total=0.29, time_evaluations=0.0)).summary()
+    assert whole.endswith("0.29 s (compile 3.5 s; not split between the NLP's functions and jtraj)") and "derivatives" not in whole
