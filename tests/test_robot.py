@@ -488,7 +488,10 @@ def test_tiny_urdf_loads(tmp_path):
         ('<inertial><mass value="1"/>', '<inertial><origin xyz="inf 0 0"/><mass value="1"/>', "not finite (NaN or inf) in MuJoCo's body_ipos"),
     ],
 )
-def test_urdf_defects_raise_naming_the_files(tmp_path, old, new, fragment):
+def test_urdf_defects_raise_naming_the_files(tmp_path, monkeypatch, old, new, fragment):
+    # MuJoCo's parser writes its warning about a NaN in the XML to MUJOCO_LOG.TXT in the
+    # working directory; keep it out of the checkout
+    monkeypatch.chdir(tmp_path)
     assert old in _TINY_URDF
     path = _tiny_robot_file(tmp_path, _TINY_URDF.replace(old, new, 1))
     with pytest.raises(robot_lib.RobotLoadError) as err:
