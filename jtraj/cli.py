@@ -175,13 +175,14 @@ def _render_options(args: argparse.Namespace):
 
 def _render_after_solve(command: str, draw, out: str) -> bool:
     """``--render`` after a solve whose files are written: prints the paths ``draw()``
-    writes; where nothing can be drawn here (no OpenGL, `jtraj.render.RenderError`), one line on
-    stderr, and False (the command exits 1 unless the solve's own status is already a failure)."""
-    from jtraj.render import RenderError
+    writes; where nothing can be drawn (no OpenGL here, `jtraj.render.RenderError`; NaN poses
+    from a solve stopped by a numerical error, `jtraj.render.NotDrawable`), one line on stderr,
+    and False (the command exits 1 unless the solve's own status is already a failure)."""
+    from jtraj.render import NotDrawable, RenderError
 
     try:
         paths = draw()
-    except RenderError as e:
+    except (RenderError, NotDrawable) as e:
         print(f"jtraj {command}: --render: {e} (the solution is saved in {out})", file=sys.stderr)
         return False
     for path in paths:

@@ -226,6 +226,14 @@ def test_solve_exit_status_says_what_happened(converged, status, code, monkeypat
     assert cli.main(["solve", "big_jump", "--out", str(tmp_path / "r"), "--render"]) == (code or 1)
     assert capsys.readouterr().err == f"jtraj solve: --render: no OpenGL here (test) (the solution is saved in {tmp_path / 'r'})\n"
 
+    # a solve stopped by a numerical error leaves NaN poses, which render refuses (NotDrawable)
+    def nan_poses(*args, **kwargs):
+        raise jtraj.render.NotDrawable("NaN base poses at knots [3] (test)")
+
+    monkeypatch.setattr(jtraj.render, "render_directory", nan_poses)
+    assert cli.main(["solve", "big_jump", "--out", str(tmp_path / "r"), "--render"]) == (code or 1)
+    assert capsys.readouterr().err == f"jtraj solve: --render: NaN base poses at knots [3] (test) (the solution is saved in {tmp_path / 'r'})\n"
+
 
 def test_exit_statuses_are_distinct():
     assert len({0, 1, cli.EXIT_BAD_INPUT, cli.EXIT_TASK_FAILED, cli.EXIT_NOT_CONVERGED, cli.EXIT_INTERRUPTED}) == 6
