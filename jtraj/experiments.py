@@ -684,19 +684,19 @@ def plot_iterations(runs: list[dict], path: str | Path) -> None:
     """Fig. 2: iterations to convergence against noise (median, 25-75th percentiles)."""
     import matplotlib
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from jtraj.plots import _figure  # built without pyplot: a notebook's backend and figures are left alone
 
     summary = summarize_robustness(runs)
     tasks = list(dict.fromkeys(r["task"] for r in summary))
     # one colour and marker per setting in every panel (a setting with no converged run in one
     # panel must not shift the others' colours there), and one legend for the figure
     settings = list(dict.fromkeys((r["parameterization"], _setting(r)) for r in summary))
-    cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    cycle = matplotlib.rcParams["axes.prop_cycle"].by_key()["color"]
     markers = "osD^vP*X"
     style = {key: dict(color=cycle[i % len(cycle)], marker=markers[i % len(markers)]) for i, key in enumerate(settings)}
     positive = [r["sigma"] for r in summary if r["sigma"] > 0]
-    fig, axes = plt.subplots(1, len(tasks), figsize=(4 * len(tasks), 3.4), squeeze=False)
+    fig = _figure(figsize=(4 * len(tasks), 3.4))
+    axes = fig.subplots(1, len(tasks), squeeze=False)
     legend: dict[str, Any] = {}
     for ax, task in zip(axes[0], tasks):
         for p, setting in settings:
@@ -722,4 +722,3 @@ def plot_iterations(runs: list[dict], path: str | Path) -> None:
         axes[0][0].legend(list(legend.values()), list(legend), fontsize=8)
     fig.tight_layout()
     jio.save_figure(fig, path, dpi=120)
-    plt.close(fig)

@@ -750,3 +750,26 @@ def test_an_unknown_executor_is_refused_before_the_runs_file_is_touched(tmp_path
     with pytest.raises(ValueError, match=f"^compare: {message}$"):
         compare(["walk"], ["se3"], out=tmp_path / "table", progress=None, **kwargs)
     assert sorted(p.name for p in study.iterdir()) == ["runs.jsonl"] and not fake_solves and not (tmp_path / "table").exists()
+
+
+def test_fig2_leaves_pyplot_alone(tmp_path):
+    """plot_iterations (called by the robustness notebook) must not switch a notebook's backend
+    (matplotlib.use closes every open figure and stops inline display) nor leave a figure in
+    pyplot's list."""
+    import matplotlib
+    import matplotlib.pyplot as plt
+
+    from jtraj.experiments import plot_iterations
+
+    runs = [dict(task="walk", parameterization="se3", sigma=s, converged=True, constraint_violation=1e-9, success=True, iterations=20) for s in (0.1, 0.5)]
+    backend = matplotlib.get_backend()
+    plt.switch_backend("svg")
+    try:
+        mine = plt.figure()
+        plot_iterations(runs, tmp_path / "fig2.png")
+        assert matplotlib.get_backend() == "svg"
+        assert plt.get_fignums() == [mine.number]
+        assert (tmp_path / "fig2.png").stat().st_size > 1_000
+    finally:
+        plt.close("all")
+        plt.switch_backend(backend)
