@@ -533,6 +533,9 @@ def _check_inputs(args: argparse.Namespace) -> None:
             raise InputError("--noise", args.noise, "expected a standard deviation >= 0")
         _check_seed(args.seed)
         _check_positive_int("--every", args.every)
+        if args.noise and args.replicate is None and args.seed < 0:
+            # without --replicate the noise is numpy's default_rng(seed), which takes seeds >= 0
+            raise InputError("--seed", args.seed, "expected a seed >= 0 for --noise without --replicate (numpy draws that noise; --replicate R draws with JAX, which takes any)")
         if args.replicate is not None:
             _check_positive_int("--replicate", args.replicate, 0)
             if not args.noise:
@@ -579,7 +582,7 @@ def _check_inputs(args: argparse.Namespace) -> None:
     elif cmd == "wahba":
         _check_positive_int("--trials", args.trials)
         _check_positive_int("--iterations", args.iterations)
-        _check_positive_int("--seed", args.seed, 0)  # JAX's PRNGKey refuses a negative seed
+        _check_positive_int("--seed", args.seed, 0)  # as run_wahba, which refuses a negative seed
         _check_out(args.out)
     elif cmd == "attitude":
         if args.render and args.bench == "all":
