@@ -109,6 +109,9 @@ def test_bad_options_fail_at_construction(kwargs, match):
         ({"sigma_min": 10.0, "sigma_max": 1.0}, "sigma_min=10.0: expected at most sigma_max=1.0"),
         ({"lbfgs_init_min": 2.0, "lbfgs_init_max": 1.0}, "lbfgs_init_min=2.0: expected at most lbfgs_init_max=1.0"),
         ({"max_line_search_failures": 0}, "max_line_search_failures=0: expected an integer >= 1"),
+        # accepted before, though Ipopt's range starts at 1 (0 reset the L-BFGS memory every iteration)
+        ({"lbfgs_max_skipping": 0}, "lbfgs_max_skipping=0: expected an integer >= 1"),
+        ({"min_refine_steps": 4, "refine_steps": 3}, "min_refine_steps=4: expected at most refine_steps=3"),
     ],
 )
 def test_bad_jtraj_options_fail_at_construction(kwargs, match):

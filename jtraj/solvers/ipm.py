@@ -365,6 +365,10 @@ class IpmOptions(AbstractOptions):
                 raise InvalidOptionError(f"jtraj option {low}={getattr(self, low)!r}: expected at most {high}={getattr(self, high)!r}")
         if self.max_line_search_failures < 1:
             raise InvalidOptionError(f"jtraj option max_line_search_failures={self.max_line_search_failures!r}: expected an integer >= 1")
+        if self.lbfgs_max_skipping < 1:  # Ipopt's limited_memory_max_skipping is >= 1; 0 reset the memory every iteration
+            raise InvalidOptionError(f"jtraj option lbfgs_max_skipping={self.lbfgs_max_skipping!r}: expected an integer >= 1 (Ipopt's limited_memory_max_skipping)")
+        if self.min_refine_steps > self.refine_steps:
+            raise InvalidOptionError(f"jtraj option min_refine_steps={self.min_refine_steps!r}: expected at most refine_steps={self.refine_steps!r}")
         per_iteration = self.max_line_search + 1 + self.max_soc
         if (self.max_iter + 1) * per_iteration > _INT32_MAX:  # IPM._max_passes, an int32 loop bound
             raise InvalidOptionError(
