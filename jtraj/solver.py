@@ -219,7 +219,7 @@ def solve(
             a `jtraj.solvers.AbstractCallback` receives the iterations instead.
         progress_every: print every this many iterations (default 1: each).
         out: directory to write ``result.json`` and ``trajectory.npz`` into.
-        keep_trajectory: attach the solution's `WholeBodyTrajectory` to the result (default
+        keep_trajectory: attach the solution's `jtraj.transcription.Trajectory` to the result (default
             True); False keeps only the figures of the solve (the sweeps' setting), and
             ``out`` then writes no ``trajectory.npz``.
         theta: the task's parameters (`jtraj.transcription.TaskParams`), or a dict
