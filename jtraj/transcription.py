@@ -372,12 +372,30 @@ class Transcription:
         if theta is None:
             return default
         if isinstance(theta, TaskParams):
-            return default.replace(**{f.name: getattr(theta, f.name) for f in dataclasses.fields(theta)}).check()
+            return self._within_joint_limits(default.replace(**{f.name: getattr(theta, f.name) for f in dataclasses.fields(theta)}).check())
         if isinstance(theta, Mapping):
             if "max_delta_force" in theta and self.task.max_delta_force is None:
                 raise ValueError(f"task {self.task.name!r} sets no max_delta_force, so it has no force-rate rows to bound; set it in the task")
-            return default.replace(**theta).check()
+            return self._within_joint_limits(default.replace(**theta).check())
         raise TypeError(f"theta must be None, a mapping of parameter overrides or a TaskParams, got {type(theta).__name__}")
+
+    def _within_joint_limits(self, theta: TaskParams) -> TaskParams:
+        """Refuse standing joint positions outside the robot's limits (values being traced are
+        not looked at): the first knot is fixed at them while every other knot keeps within the
+        limits, so the solver could only report an infeasible problem. Task files' target
+        joints are checked against the same limits."""
+        q = theta.q_joints_standing
+        if isinstance(q, jax.core.Tracer):
+            return theta
+        q = np.asarray(q, float)
+        lo, hi = self.robot.q_lower, self.robot.q_upper
+        outside = np.flatnonzero((q < lo) | (q > hi))
+        if outside.size:
+            j = int(outside[0])
+            raise ValueError(
+                f"theta.q_joints_standing[{j}] ({self.robot.joint_names[j]})={q[j]!r}: outside the joint limits [{lo[j]:g}, {hi[j]:g}] rad of {self.robot.name!r}"
+            )
+        return theta
 
     # -------------------------------------------------------------------- host-side helpers
     # Poses on the host are numpy xyz_wxyz arrays and every JAX computation here is jitted

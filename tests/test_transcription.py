@@ -275,6 +275,15 @@ def test_theta_values_no_task_can_have_are_refused():
             tr.resolve_theta(bad)
         with pytest.raises(ValueError, match=message):
             tr.resolve_theta(tr.default_theta().replace(**bad))
+    # the first knot is fixed at the standing joints, the others kept within the limits: an
+    # infeasible problem that the solver could only report as such
+    outside = np.array(tr.default_theta().q_joints_standing)
+    outside[2] = tr.robot.q_upper[2] + 0.1
+    message = rf"theta.q_joints_standing\[2\] \({tr.robot.joint_names[2]}\)=.*: outside the joint limits"
+    with pytest.raises(ValueError, match=message):
+        tr.resolve_theta({"q_joints_standing": outside})
+    with pytest.raises(ValueError, match=message):
+        tr.resolve_theta(tr.default_theta().replace(q_joints_standing=outside))
     theta = tr.resolve_theta({"friction": 0.5, "max_delta_force": float("inf")})
     assert float(theta.friction) == 0.5
     half_turn = tr.resolve_theta({"base_xyz_wxyz_standing": [0.0, 0.0, 0.3, 0.0, 0.0, 0.0, 1.0]})
