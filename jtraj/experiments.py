@@ -527,6 +527,9 @@ def robustness(
     for s in sigmas:
         if not (math.isfinite(s) and s >= 0):
             raise ValueError(f"robustness: sigma={s!r}: expected noise levels (standard deviations) >= 0")
+    # JAX's PRNGKey takes a 64-bit integer; a larger seed raised OverflowError after the first compile
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not -(2**63) <= seed < 2**63:
+        raise ValueError(f"robustness: seed={seed!r}: expected a 64-bit integer (below 2**63 in magnitude)")
     loaded = [load_task(t) for t in tasks]
     _refuse_repeats("robustness: tasks", tasks, [t.name for t in loaded], "task")
     tasks = loaded

@@ -773,3 +773,11 @@ def test_fig2_leaves_pyplot_alone(tmp_path):
     finally:
         plt.close("all")
         plt.switch_backend(backend)
+
+
+@pytest.mark.parametrize("seed", [2**63, -(2**63) - 1, 1.5, True])
+def test_a_seed_jax_cannot_take_is_refused_before_any_solve(tmp_path, fake_solves, seed):
+    """robustness(seed=2**63) raised OverflowError from JAX's PRNGKey after the first compile."""
+    with pytest.raises(ValueError, match=r"^robustness: seed=.*: expected a 64-bit integer"):
+        robustness(["walk"], ["se3"], [0.1], replicates=1, out=tmp_path / "study", seed=seed, progress=None)
+    assert not fake_solves and not (tmp_path / "study").exists()
