@@ -309,14 +309,17 @@ def check_noise_chart(tasks: Sequence[str | Task], params: Sequence[str], variab
 #: the fields of a run's key, beside its task's name (kept for the tables); "layout" holds the
 #: ``variables`` name under its former key, and "variables_hash" the content of the options
 #: that name stood for when the run was solved (a name such as "paper" can change meaning
-#: between versions: its Euler warm start did)
-RUN_KEY = ("task_hash", "parameterization", "layout", "variables_hash", "hessian", "options_hash", "seed", "sigma", "replicate", "solver", "noise_chart")
+#: between versions: its Euler warm start did); "robot_hash" the content of the task's robot
+#: (`jtraj.robot.Robot.content_hash`: a robot file can change while its name stays)
+RUN_KEY = ("task_hash", "parameterization", "layout", "variables_hash", "hessian", "options_hash", "seed", "sigma", "replicate", "solver", "noise_chart", "robot_hash")
 RUNS_FILE = "runs.jsonl"
 #: key fields that rows of earlier runs.jsonl files lack, and their value there: before the
 #: solver was recorded every run was an Ipopt solve; before the noise's chart was, every run's
-#: noise was drawn in its own chart (None); before the variables' content was, it is
-#: unknown (None), so such rows are kept in the file but never taken for a run of this version
-_KEY_DEFAULTS: dict[str, str | None] = {"solver": "ipopt", "variables_hash": None, "noise_chart": None}
+#: noise was drawn in its own chart (None); before the variables' or the robot's content was,
+#: it is unknown (None), so such rows are kept in the file but never taken for a run of this version
+_KEY_DEFAULTS: dict[str, str | None] = {"solver": "ipopt", "variables_hash": None, "noise_chart": None, "robot_hash": None}
+#: the key fields that earlier files lack and whose value there is unknown
+_UNKNOWN_KEYS = ("variables_hash", "robot_hash")
 
 
 def _options_hash(options: dict | None) -> str:
@@ -329,10 +332,17 @@ def variables_hash(variables: str | TranscriptionOptions) -> str:
     return _options_hash(dataclasses.asdict(transcription_options(variables)))
 
 
+def _robot_hash(name: str) -> str:
+    from jtraj.robot import load as load_robot
+
+    return load_robot(name).content_hash()
+
+
 def _group_key(task: Task, p: str, variables: str | TranscriptionOptions, exact_hessian: bool, options, seed: int, solver: str, noise_chart: str | None = None) -> dict:
     """The `RUN_KEY` fields that every run of one (task, parameterization) group shares; a
     group's noise drawn in its own chart has ``noise_chart`` None, as before it was recorded."""
     return dict(
+        robot_hash=_robot_hash(task.robot),
         task_hash=task.content_hash(), parameterization=p, layout=variables_label(variables), variables_hash=variables_hash(variables),
         hessian="exact" if exact_hessian else "limited-memory", options_hash=_options_hash(options), seed=seed, solver=solver,
         noise_chart=None if noise_chart == p else noise_chart,
@@ -553,10 +563,10 @@ def robustness(
     args = [(t, p, tuple(sigmas), replicates, seed, variables, exact_hessian, ipopt_options, solver, noise_chart, done, runs_path) for t in tasks for p in params]
     if progress is not None and before:
         wanted = {run_key(_group_key(*a[:2], variables, exact_hessian, ipopt_options, seed, solver, noise_chart) | {"sigma": s, "replicate": r}) for a in args for s in sigmas for r in range(replicates)}
-        unknown = sum(1 for r in before if "variables_hash" not in r)
-        others = sum(1 for r in before if "variables_hash" in r and run_key(r) not in wanted)
+        unknown = sum(1 for r in before if any(k not in r for k in _UNKNOWN_KEYS))
+        others = sum(1 for r in before if all(k in r for k in _UNKNOWN_KEYS) and run_key(r) not in wanted)
         if unknown:
-            print(f"note: {unknown} runs in {runs_path} were written without the content of their variables (before jtraj recorded it) and are not resumed", file=progress, flush=True)
+            print(f"note: {unknown} runs in {runs_path} were written without the content of their variables or robot (before jtraj recorded it) and are not resumed", file=progress, flush=True)
         if len(before) > unknown:
             kept = f"; its {others} runs of other settings are kept" if others else ""
             print(f"resuming: {len(wanted & done)} of this call's {len(wanted)} runs already in {runs_path}{kept}", file=progress, flush=True)

@@ -205,6 +205,27 @@ class Robot:
             raise KeyError(f"robot {self.name!r} has no contact group {name!r}; expected one of: {choices}")
         return self.contact_groups[name]
 
+    def content_hash(self) -> str:
+        """A hex digest of everything of this robot that a problem reads: the compiled MuJoCo
+        model (MuJoCo's binary MJB: bodies, masses, inertias, joints), the contact points and
+        groups, the standing pose and the limits. Equal for equal robots, whatever file or
+        example-robot-data folder they came from; a sweep's runs record it, so an edited robot
+        file is not taken for the one they were solved on."""
+        mjb = np.zeros(mujoco.mj_sizeModel(self.mj_model), np.uint8)
+        mujoco.mj_saveModel(self.mj_model, None, mjb)
+        data = dict(
+            joint_names=self.joint_names,
+            locked_joints=self.locked_joints,
+            contacts=[(c.name, c.body_id, list(c.offset_body)) for c in self.contacts],
+            contact_groups={k: list(v) for k, v in self.contact_groups.items()},
+            standing=[*self.base_xyz_wxyz_standing.tolist(), *self.q_joints_standing.tolist()],
+            limits=[a.tolist() for a in (self.q_lower, self.q_upper, self.v_max, self.tau_max)],
+            gravity=self.gravity,
+        )
+        digest = hashlib.sha256(mjb.tobytes())
+        digest.update(json.dumps(data, sort_keys=True).encode())
+        return digest.hexdigest()[:16]
+
     def __repr__(self) -> str:
         return (
             f"Robot({self.name!r}, nj={self.nj}, nv={self.nv}, ncontact={self.ncontact}, "

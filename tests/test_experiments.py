@@ -1,6 +1,7 @@
 """Experiments on a small Go2 task: vmapped noisy warm starts, the robustness study's files,
 the Table IV writer, and the plots."""
 
+import dataclasses
 import io
 import json
 import os
@@ -781,3 +782,31 @@ def test_a_seed_jax_cannot_take_is_refused_before_any_solve(tmp_path, fake_solve
     with pytest.raises(ValueError, match=r"^robustness: seed=.*: expected a 64-bit integer"):
         robustness(["walk"], ["se3"], [0.1], replicates=1, out=tmp_path / "study", seed=seed, progress=None)
     assert not fake_solves and not (tmp_path / "study").exists()
+
+
+
+def test_robustness_does_not_resume_runs_of_a_robot_that_changed(tmp_path, fake_solves, monkeypatch, capsys):
+    """A run is keyed by its robot's content, not only the task's robot name: after a robot
+    file changes (its masses, contacts, limits), the runs solved on the old one are kept in the
+    file but solved again; a row that does not say (an earlier version's) is not resumed."""
+    from jtraj import robot as robot_lib
+    from jtraj import task as task_lib
+
+    robot = robot_lib.load(task_lib.load("big_jump").robot)
+    assert robot.content_hash() == robot_lib.load_file(robot.source).content_hash()  # loaded again, the same robot
+    wider = dataclasses.replace(robot, q_upper=np.asarray(robot.q_upper) + 0.1)
+    assert wider.content_hash() != robot.content_hash()
+    kw = dict(sigmas=[1e-3], replicates=1, seed=3, out=tmp_path, progress=None)
+    first = robustness(["big_jump"], ["se3"], **kw)
+    assert first[0]["robot_hash"] == robot.content_hash() and len(fake_solves) == 1
+    assert robustness(["big_jump"], ["se3"], **kw) == first and len(fake_solves) == 1  # resumed
+    original = experiments._robot_hash
+    monkeypatch.setattr(experiments, "_robot_hash", lambda name: wider.content_hash())
+    again = robustness(["big_jump"], ["se3"], **kw)
+    assert len(fake_solves) == 2 and again[0]["robot_hash"] == wider.content_hash()
+    assert len(read_runs(tmp_path / RUNS_FILE)) == 2
+    monkeypatch.setattr(experiments, "_robot_hash", original)
+    old = {k: v for k, v in first[0].items() if k != "robot_hash"}
+    (tmp_path / RUNS_FILE).write_text(json.dumps(old) + "\n")
+    redone = robustness(["big_jump"], ["se3"], **(kw | {"progress": sys.stdout}))
+    assert "1 runs in" in capsys.readouterr().out and len(fake_solves) == 3 and redone[0]["robot_hash"] == robot.content_hash()
