@@ -347,7 +347,7 @@ def build_parser() -> argparse.ArgumentParser:
     _variables_argument(p, "paper", "variables per knot; default: the study's, for comparison with its tables")
     p.add_argument("--out", default="runs/robustness", help="output folder (default runs/robustness)")
     p.add_argument("--workers", type=int, default=1, help="with --executor local: solve (task, parameterization) groups in this many processes (default 1)")
-    p.add_argument("--no-resume", action="store_true", help="solve again the runs already in OUT/runs.jsonl (the old file is moved to runs.jsonl.previous, replacing an earlier one)")
+    p.add_argument("--no-resume", action="store_true", help="solve again the runs already in OUT/runs.jsonl (the old file is moved to runs.jsonl.previous-N, the first N not taken)")
     p.add_argument("--solver", default="ipopt", choices=_solver_names(), help="NLP solver backend (default ipopt); jtraj solves each (task, parameterization, sigma) group's replicates in one batched call (vmapped on a GPU, one per core on a CPU)")
     p.add_argument(
         "--noise-chart", default=None, choices=["se3", "quat1", "quat2", "quat3", "euler"],

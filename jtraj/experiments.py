@@ -373,6 +373,16 @@ def _lines(numbers: list[int]) -> str:
     return f"{numbers[:5]}" + (f" and {len(numbers) - 5} more" if len(numbers) > 5 else "")
 
 
+def _move_aside(path: Path, why: str) -> Path:
+    """Rename ``path`` to ``path.why-N`` with the first N not taken; returns the new name."""
+    n = 1
+    while path.with_name(f"{path.name}.{why}-{n}").exists():
+        n += 1
+    aside = path.with_name(f"{path.name}.{why}-{n}")
+    os.replace(path, aside)
+    return aside
+
+
 def read_runs(path: str | Path, progress: TextIO | None = None) -> list[dict]:
     """Runs of a runs.jsonl file, first of each key kept. A file with lines that do not parse
     (a kill during a write, damage) or are not runs (not a JSON object, or without a field of a
@@ -385,11 +395,7 @@ def read_runs(path: str | Path, progress: TextIO | None = None) -> list[dict]:
     records = [r for _, r, why in checked if why is None]
     odd = [(line, why) for line, _, why in checked if why is not None]
     if bad or odd:
-        n = 1
-        while path.with_name(f"{path.name}.corrupt-{n}").exists():
-            n += 1
-        aside = path.with_name(f"{path.name}.corrupt-{n}")
-        os.replace(path, aside)
+        aside = _move_aside(path, "corrupt")
         jio.write_text(path, "".join(jio.dumps(r, indent=None) + "\n" for r in records))
         found = [f"line(s) {_lines(bad)} did not parse"] if bad else []
         if odd:
@@ -504,11 +510,11 @@ def robustness(
     """Table III and Fig. 2: converged and task-success rates and iterations under warm-start noise.
 
     Every finished solve is appended at once to ``out/runs.jsonl``, one JSON line keyed by
-    `run_key` (task content, parameterization, variables per knot by name and by content
+    `run_key` (task content, robot content (`robot_hash`), parameterization, variables per knot by name and by content
     (`variables_hash`), Hessian mode, solver options, seed, sigma, replicate, solver). With ``resume`` (default) runs already there are not solved again, so a study
     stopped or killed at any point goes on where it ended; runs of other settings in the file
     are kept and left out of this call's tables. Without ``resume`` the file is moved to
-    ``runs.jsonl.previous`` (replacing an earlier one) and this call's runs start a new one. The noise of replicate r at
+    ``runs.jsonl.previous-N`` (the first N not taken, so earlier ones are kept) and this call's runs start a new one. The noise of replicate r at
     level sigma depends only on (seed, sigma, r) (`noise_key`).
 
     ``workers > 1`` solves (task, parameterization) groups in that many processes, each
@@ -558,7 +564,7 @@ def robustness(
     check_noise_chart(tasks, params, variables, noise_chart)
     before = read_runs(runs_path, progress) if resume else []
     if not resume and runs_path.exists():
-        os.replace(runs_path, runs_path.with_name(runs_path.name + ".previous"))
+        _move_aside(runs_path, "previous")
     done = {run_key(r) for r in before}
     args = [(t, p, tuple(sigmas), replicates, seed, variables, exact_hessian, ipopt_options, solver, noise_chart, done, runs_path) for t in tasks for p in params]
     if progress is not None and before:

@@ -810,3 +810,17 @@ def test_robustness_does_not_resume_runs_of_a_robot_that_changed(tmp_path, fake_
     (tmp_path / RUNS_FILE).write_text(json.dumps(old) + "\n")
     redone = robustness(["big_jump"], ["se3"], **(kw | {"progress": sys.stdout}))
     assert "1 runs in" in capsys.readouterr().out and len(fake_solves) == 3 and redone[0]["robot_hash"] == robot.content_hash()
+
+
+def test_no_resume_keeps_every_earlier_runs_file(tmp_path, fake_solves):
+    """resume=False moved runs.jsonl to runs.jsonl.previous, replacing the one an earlier
+    resume=False had moved there: the second call lost the first study's runs."""
+    kw = dict(sigmas=[1e-3], replicates=1, out=tmp_path, progress=None, resume=False)
+    robustness(["big_jump"], ["se3"], seed=1, **kw)
+    first = (tmp_path / RUNS_FILE).read_text()
+    robustness(["big_jump"], ["se3"], seed=2, **kw)
+    second = (tmp_path / RUNS_FILE).read_text()
+    robustness(["big_jump"], ["se3"], seed=3, **kw)
+    assert (tmp_path / f"{RUNS_FILE}.previous-1").read_text() == first
+    assert (tmp_path / f"{RUNS_FILE}.previous-2").read_text() == second
+    assert [json.loads(line)["seed"] for line in (tmp_path / RUNS_FILE).read_text().splitlines()] == [3]
