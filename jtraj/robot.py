@@ -69,8 +69,6 @@ __all__ = [
     "GRAVITY",
 ]
 
-#: Magnitude of gravity (m/s^2); MuJoCo's default gravity vector is (0, 0, -GRAVITY).
-
 _FREE_JOINT_NAME = "floating_base"
 # Mesh formats MuJoCo can read; Collada (.dae) is converted for rendering, others are skipped.
 _MUJOCO_MESH_SUFFIXES = (".stl", ".obj", ".msh")
@@ -276,14 +274,21 @@ def available() -> tuple[str, ...]:
     return tuple(sorted(p.name[: -len(".toml")] for p in folder.iterdir() if p.name.endswith(".toml")))
 
 
-@functools.lru_cache(maxsize=None)
 def load(name: str) -> Robot:
     """The robot ``name`` (`available()`: ``talos``, ``talos_full``, ``g1``, ``go2``), from ``robots/<name>.toml``.
 
     Cached: a second call returns the same object (so jitted functions do not recompile).
     """
-    if not isinstance(name, str) or name.endswith(".toml") or "/" in name:
+    # checked before the cache, which cannot hash a list
+    if isinstance(name, os.PathLike) or (isinstance(name, str) and (name.endswith(".toml") or "/" in name)):
         raise RobotLoadError(f"unknown robot {name!r}; expected one of: {', '.join(available())} (for a robot file use jtraj.robot.load_file)")
+    if not isinstance(name, str):
+        raise RobotLoadError(f"unknown robot {name!r}; expected one of: {', '.join(available())} (a robot's name, a string)")
+    return _load_named(name)
+
+
+@functools.lru_cache(maxsize=None)
+def _load_named(name: str) -> Robot:
     resource = importlib.resources.files("jtraj.robots") / f"{name}.toml"
     if not resource.is_file():
         raise RobotLoadError(f"unknown robot {name!r}; expected one of: {', '.join(available())}")

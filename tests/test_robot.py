@@ -291,6 +291,9 @@ def test_unknown_robot_lists_choices():
     for path in (Path("robots/go2.toml"), "robots/go2.toml", "go2.toml"):
         with pytest.raises(robot_lib.RobotLoadError, match=r"for a robot file use jtraj\.robot\.load_file"):
             robot_lib.load(path)
+    # a list (a name in a list by mistake) reached the cache, which raised TypeError: unhashable
+    with pytest.raises(robot_lib.RobotLoadError, match=r"unknown robot \['go2'\]; .*a robot's name, a string"):
+        robot_lib.load(["go2"])
 
 
 @pytest.mark.parametrize(
