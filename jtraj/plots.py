@@ -117,15 +117,17 @@ def plot_solution(result: Result, path: str | Path | None = None, *, friction: f
     |tau| / tau_max <= 1 for torques); vertical contact forces (N); and the friction-cone use
     ``|f_t| / (mu f_z)`` (<= 1 inside the cone).
 
-    ``friction`` (mu) defaults to the built-in task's of the result's task name (0.9, said in
-    the panel's title, for another task); a solve with another friction in ``theta`` is not
-    recorded in the result: pass it. Returns the figure, or writes it to ``path`` and returns
-    the path.
+    ``friction`` (mu) defaults to the friction the result was solved at (its
+    ``options["theta"]``, recorded by `jtraj.solve`), else the built-in task's of the result's
+    task name (0.9, said in the panel's title, for another task). Returns the figure, or writes
+    it to ``path`` and returns the path.
     """
     from jtraj import robot as robots
 
     t = _trajectory(result)
     robot = robots.load(result.robot)
+    if friction is None:
+        friction = (result.options.get("theta") or {}).get("friction")
     mu = friction if friction is not None else _task_friction(result.task)
     mu_note = "" if friction is not None or mu is not None else " (mu = 0.9 assumed: not a built-in task)"
     mu = 0.9 if mu is None else mu

@@ -86,3 +86,12 @@ def test_flight_shading_stays_within_the_motion(result):
     for fig in (plot_result(result, None), plot_solution(result)):
         for ax in fig.axes:
             assert (ax.dataLim.x0, ax.dataLim.x1) == pytest.approx((t[0], t[-1]), abs=1e-12)
+
+
+def test_friction_cone_panel_uses_the_friction_solved_at(result):
+    """A solve at another friction (theta) records it in options["theta"]; the cone panel used
+    the built-in task's (or 0.9) whatever the solve's friction was."""
+    assert plot_solution(result).axes[5].get_ylabel() == "|f_t| / (mu f_z), mu = 0.9"
+    at_half = dataclasses.replace(result, options={**result.options, "theta": {"friction": 0.5}})
+    assert plot_solution(at_half).axes[5].get_ylabel() == "|f_t| / (mu f_z), mu = 0.5"
+    assert plot_solution(at_half, friction=0.3).axes[5].get_ylabel() == "|f_t| / (mu f_z), mu = 0.3"

@@ -419,7 +419,7 @@ def test_step_is_the_integration_rows(variables):
     assert prepare(HOP, "se3", "lean").nlp.structure is None
 
 
-def test_solve_with_theta_override():
+def test_solve_with_theta_override(tmp_path):
     """A solve at other parameters reuses the compiled NLP and honours them."""
     solve(HOP, "se3", progress=None)
     nlp = prepare(HOP, "se3").nlp
@@ -431,6 +431,10 @@ def test_solve_with_theta_override():
     f = traj.forces[traj.in_contact]
     assert np.all(np.abs(f[:, :2]) <= 0.7 * f[:, 2:3] + 1e-6)
     assert {name: getattr(nlp, name)._cache_size() for name in sizes} == sizes
+    # the result records the parameters it was solved at, in its files too
+    assert r.options["theta"]["friction"] == 0.7 and r.options["theta"]["target_translation"] == [0.06, 0.0, 0.0]
+    r.save(tmp_path / "r")
+    assert Result.load(tmp_path / "r").options["theta"] == r.options["theta"]
 
 
 def test_layout_is_the_deprecated_name_of_variables():
