@@ -38,7 +38,7 @@ from jtraj.task import Task
 from jtraj.task import load as load_task
 from jtraj.transcription import TranscriptionOptions
 
-__all__ = ["compare", "robustness", "noisy_warm_starts", "chart_noisy_warm_starts", "check_noise_chart", "poses_in_chart", "NoiseChartError", "noise_key", "run_key", "variables_hash", "read_runs", "summarize_robustness", "setting_label", "TABLE_IV_PAPER_SE3"]
+__all__ = ["compare", "robustness", "table_iii", "noisy_warm_starts", "chart_noisy_warm_starts", "check_noise_chart", "poses_in_chart", "NoiseChartError", "noise_key", "run_key", "variables_hash", "read_runs", "summarize_robustness", "setting_label", "TABLE_IV_PAPER_SE3"]
 
 #: Iterations of the SE(3) tangent parameterization in the paper's Table IV.
 TABLE_IV_PAPER_SE3 = {"walk": 14, "hopscotch": 10, "big_jump": 11, "handstand": 88, "backflip": 28, "sideflip": 29}
@@ -680,7 +680,19 @@ def summarize_robustness(runs: list[dict]) -> list[dict]:
     return rows
 
 
-def _table_iii_markdown(summary: list[dict], sigmas: Sequence[float], solver_names: Sequence[str] = ("ipopt",), noise_charts: Sequence[str] = ()) -> str:
+def table_iii(runs: list[dict], iterations: bool = False) -> str:
+    """Table III of ``runs`` (a runs.jsonl's rows, `read_runs`) in Markdown, as ``jtraj
+    robustness`` writes it to ``table_iii.md``: a row per task and setting (parameterization,
+    and solver or noise chart where the runs hold several), a column per noise level, each cell
+    converged / task done in % of the runs. ``iterations`` adds to each cell the median
+    iterations of its converged runs ("-": none converged)."""
+    summary = summarize_robustness(runs)
+    charts = sorted({r["noise_chart"] for r in runs if r.get("noise_chart")})
+    solver_names = sorted({r.get("solver", "ipopt") for r in runs})
+    return _table_iii_markdown(summary, sorted({r["sigma"] for r in summary}), solver_names, charts, iterations)
+
+
+def _table_iii_markdown(summary: list[dict], sigmas: Sequence[float], solver_names: Sequence[str] = ("ipopt",), noise_charts: Sequence[str] = (), iterations: bool = False) -> str:
     noise = ""
     if noise_charts:
         labels = " and ".join(PARAMETERIZATIONS[c].label for c in noise_charts)
@@ -689,12 +701,20 @@ def _table_iii_markdown(summary: list[dict], sigmas: Sequence[float], solver_nam
         f"Each cell: converged / task done, in % of the runs (converged: success of the solver ({', '.join(solver_names)}) with the largest "
         f"constraint violation below {FEASIBILITY_TOL:g}, the paper's success; task done: converged and "
         "the motion does the task, e.g. a flip with the expected sign, count and axis; where the two "
-        "differ the paper marks the cell with *)." + noise,
+        "differ the paper marks the cell with *)." + noise
+        + (" In parentheses: the median iterations of the converged runs (-: none converged)." if iterations else ""),
     ]
+
+    def cell(r: dict) -> str:
+        rates = f"{100 * r['converged_rate']:.0f}% / {100 * r['task_success_rate']:.0f}%"
+        if not iterations:
+            return rates
+        return rates + (" (-)" if r["iterations_median"] is None else f" ({r['iterations_median']:.0f})")
+
     rows = []
     for group in dict.fromkeys((r["task"], r["parameterization"], _setting(r)) for r in summary):
         by_sigma = {r["sigma"]: r for r in summary if (r["task"], r["parameterization"], _setting(r)) == group}
-        cells = [f"{100 * r['converged_rate']:.0f}% / {100 * r['task_success_rate']:.0f}%" if (r := by_sigma.get(s)) else "" for s in sigmas]
+        cells = [cell(r) if (r := by_sigma.get(s)) else "" for s in sigmas]
         rows.append((group[0], setting_label(next(iter(by_sigma.values())), summary), *cells))
     return "\n".join(lines) + "\n\n" + markdown_table(("task", "parameterization", *(f"sigma={s:g}" for s in sigmas)), rows)
 

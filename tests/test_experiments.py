@@ -824,3 +824,19 @@ def test_no_resume_keeps_every_earlier_runs_file(tmp_path, fake_solves):
     assert (tmp_path / f"{RUNS_FILE}.previous-1").read_text() == first
     assert (tmp_path / f"{RUNS_FILE}.previous-2").read_text() == second
     assert [json.loads(line)["seed"] for line in (tmp_path / RUNS_FILE).read_text().splitlines()] == [3]
+
+
+def test_table_iii_of_runs_with_and_without_iterations():
+    """The public Table III of a runs file: the table robustness writes, and with iterations
+    each cell's median of the converged runs ('-' where none converged)."""
+    from jtraj.experiments import table_iii
+
+    def run(sigma, replicate, converged, iterations, p="se3"):
+        return dict(task="walk", parameterization=p, sigma=sigma, replicate=replicate, converged=converged, constraint_violation=1e-9, success=converged, iterations=iterations)
+
+    runs = [run(0.5, 0, False, 50), run(0.1, 0, True, 12), run(0.1, 1, True, 16), run(0.5, 1, False, 50), run(0.1, 0, True, 20, "euler")]
+    plain = [line for line in table_iii(runs).splitlines() if line.startswith("|")]
+    assert plain == ["| task | parameterization | sigma=0.1 | sigma=0.5 |", "|---|---|---|---|", "| walk | se3 | 100% / 100% | 0% / 0% |", "| walk | euler | 100% / 100% |  |"]
+    counted = table_iii(runs, iterations=True)
+    assert "| walk | se3 | 100% / 100% (14) | 0% / 0% (-) |" in counted and "| walk | euler | 100% / 100% (20) |  |" in counted
+    assert "median iterations of the converged runs" in counted and "median iterations" not in table_iii(runs)

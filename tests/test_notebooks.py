@@ -18,7 +18,7 @@ PRODUCES = {
     "comparison": dict(files=("compare_small/table_iv.json", "compare_small/table_iv.md", "comparison.png"), images=1, text=("| hop | se3 | solved |", "| hop | euler | solved |", "hop ['hop_se3', 'hop_euler']")),
     "design": dict(files=(), images=2, text=("degenerate:",)),
     "quickstart": dict(files=("trajectory.png",), images=1, text=("hop [", "] solved: ", "se3    solved ", "euler  solved ")),
-    "robustness": dict(files=("robustness_small/runs.jsonl", "fig2.png"), images=1, text=("runs", "sigma=0.001", "sigma=0.1")),
+    "robustness": dict(files=("robustness_small/runs.jsonl", "fig2.png"), images=1, text=("runs", "| task | parameterization | sigma=0.001 | sigma=0.1 |", "| hop | se3 | ")),
 }
 
 
@@ -106,8 +106,8 @@ def test_robustness_notebook_marks_cells_without_a_converged_run(tmp_path, monke
     monkeypatch.chdir(tmp_path)
     nb = nbformat.read(next(p for p in NOTEBOOKS if p.stem == "robustness"), as_version=4)
     NotebookClient(nb, timeout=900, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}).execute()
-    table = [line for o in _outputs(nb) for line in _text(o).splitlines() if line.startswith("hop ")]
-    assert len(table) == 1 and table[0].split()[2:] == ["100/100%", "(13", "it)", "0/0%", "(-", "it)"], table
+    table = [line for o in _outputs(nb) for line in _text(o).splitlines() if line.startswith("| hop |")]
+    assert table == ["| hop | se3 | 100% / 100% (13) | 0% / 0% (-) |"], table
 
 
 def test_design_notebook_reports_a_first_solution_that_is_not_differentiable():
