@@ -621,10 +621,25 @@ def _input_errors() -> tuple[type[BaseException], ...]:
     return (InputError, TaskError, IpoptOptionError, FileFormatError, NoiseChartError, RepeatedValueError, ExecutorUnavailableError)
 
 
+def _mujoco_gl_refused() -> str | None:
+    """MuJoCo's refusal of the ``MUJOCO_GL`` variable, which it raises when it is imported (so
+    every command ended in a traceback); None when MuJoCo imports."""
+    try:
+        import mujoco  # noqa: F401
+    except RuntimeError as e:
+        if "MUJOCO_GL" not in str(e):
+            raise
+        return str(e)
+    return None
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     args.argv = sys.argv[1:] if argv is None else list(argv)  # provenance.json's command
+    if refused := _mujoco_gl_refused():
+        print(f"jtraj {args.command}: {refused}; expected egl, osmesa or glfw, or leave it unset (jtraj then takes egl where there is no display)", file=sys.stderr)
+        return EXIT_BAD_INPUT
     # one handler for every input error, wherever it is found: one line, exit status 2
     from jtraj.executors import WorkerLostError
 

@@ -3,6 +3,7 @@ naming the field, the value and what was expected, before anything compiles or s
 
 import dataclasses
 import json
+import sys
 import types
 
 import pytest
@@ -481,3 +482,15 @@ def test_sweep_help_says_what_it_writes_and_how_it_resumes(command, words, capsy
         cli.main([command, "--help"])
     text = " ".join(capsys.readouterr().out.split())
     assert all(w in text for w in words), text
+
+
+def test_a_mujoco_gl_that_mujoco_refuses_is_one_line():
+    """MuJoCo refuses an unknown MUJOCO_GL when it is imported: every command ended in a
+    traceback from that import. A fresh process, since this one has imported MuJoCo."""
+    import os
+    import subprocess
+
+    env = {**os.environ, "MUJOCO_GL": "foo"}
+    done = subprocess.run([sys.executable, "-m", "jtraj.cli", "solve", "big_jump"], env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == cli.EXIT_BAD_INPUT, done.stderr
+    assert done.stderr == "jtraj solve: invalid value for environment variable MUJOCO_GL: foo; expected egl, osmesa or glfw, or leave it unset (jtraj then takes egl where there is no display)\n"
