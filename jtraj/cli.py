@@ -652,17 +652,19 @@ def main(argv: list[str] | None = None) -> int:
     except WorkerLostError as e:  # its message says what was kept and how to go on
         print(f"jtraj {args.command}: {e}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print(f"jtraj {args.command}: interrupted{_kept(args)}", file=sys.stderr)
+    except KeyboardInterrupt as e:
+        print(f"jtraj {args.command}: interrupted{_kept(args, e)}", file=sys.stderr)
         return EXIT_INTERRUPTED
 
 
-def _kept(args: argparse.Namespace) -> str:
-    """What an interrupted command leaves, for its message."""
+def _kept(args: argparse.Namespace, interrupt: KeyboardInterrupt) -> str:
+    """What an interrupted command leaves, for its message (compare says it in ``interrupt``:
+    how many cells its table holds, or none, where an earlier run's table may still lie)."""
     if args.command == "robustness":
         return f"; the runs finished are kept in {Path(args.out) / 'runs.jsonl'}, and the same command again resumes from them"
     if args.command == "compare":
-        return f"; {Path(args.out) / 'table_iv.json'} holds the cells finished before it (the same command again solves every cell)"
+        said = f"{interrupt}" if interrupt.args else f"{Path(args.out) / 'table_iv.json'} holds the cells finished before it"
+        return f"; {said} (the same command again solves every cell)"
     return ""
 
 

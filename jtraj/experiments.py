@@ -112,9 +112,11 @@ def compare(
         if done:
             with contextlib.suppress(Exception):  # the first error is the one to report
                 _write_table_iv([done[k] for k in sorted(done)], out)
+        kept = f"{out / 'table_iv.json'} holds the {len(done)} of {len(jobs)} cells finished before it" if done else f"none of the {len(jobs)} cells had finished"
         if isinstance(e, WorkerLostError):
-            kept = f"{out / 'table_iv.json'} holds the {len(done)} of {len(jobs)} cells finished before it" if done else f"none of the {len(jobs)} cells had finished"
             raise WorkerLostError(f"{e}; {kept}") from e.__cause__  # one message, after the pool's own error
+        if isinstance(e, KeyboardInterrupt):  # the command line says what was kept (an earlier table_iv.json is not this call's)
+            raise KeyboardInterrupt(kept) from None
         raise
     return [done[k] for k in sorted(done)]
 

@@ -494,3 +494,17 @@ def test_a_mujoco_gl_that_mujoco_refuses_is_one_line():
     done = subprocess.run([sys.executable, "-m", "jtraj.cli", "solve", "big_jump"], env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == cli.EXIT_BAD_INPUT, done.stderr
     assert done.stderr == "jtraj solve: invalid value for environment variable MUJOCO_GL: foo; expected egl, osmesa or glfw, or leave it unset (jtraj then takes egl where there is no display)\n"
+
+
+def test_ctrl_c_in_compare_before_any_cell_says_none_finished(monkeypatch, tmp_path, capsys):
+    """compare's interrupt says how many cells its table holds; with none, the line must not
+    send the user to a table_iv.json that an earlier run left."""
+    import jtraj.experiments
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt("none of the 2 cells had finished")
+
+    monkeypatch.setattr(jtraj.experiments, "compare", interrupted)
+    code, err = _run(["compare", "--tasks", "big_jump", "--params", "se3,euler", "--out", str(tmp_path / "out")], capsys)
+    assert code == cli.EXIT_INTERRUPTED
+    assert err == "jtraj compare: interrupted; none of the 2 cells had finished (the same command again solves every cell)\n"

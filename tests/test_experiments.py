@@ -840,3 +840,22 @@ def test_table_iii_of_runs_with_and_without_iterations():
     counted = table_iii(runs, iterations=True)
     assert "| walk | se3 | 100% / 100% (14) | 0% / 0% (-) |" in counted and "| walk | euler | 100% / 100% (20) |  |" in counted
     assert "median iterations of the converged runs" in counted and "median iterations" not in table_iii(runs)
+
+
+@pytest.mark.parametrize("finished", [0, 1])
+def test_compare_interrupted_says_how_many_cells_its_table_holds(tmp_path, fake_solves, monkeypatch, finished):
+    """Ctrl-C in compare: the command line said table_iv.json holds the cells finished before
+    it, even when none had and the file was an earlier run's table."""
+    (tmp_path / "table_iv.json").write_text("[]")  # an earlier run's
+    solve = experiments.solve
+
+    def interrupted_after(task, p, **kwargs):
+        if len(fake_solves) == finished:
+            raise KeyboardInterrupt
+        return solve(task, p, **kwargs)
+
+    monkeypatch.setattr(experiments, "solve", interrupted_after)
+    with pytest.raises(KeyboardInterrupt) as e:
+        compare(["big_jump"], ["se3", "euler"], out=tmp_path, progress=None)
+    said = f"{tmp_path / 'table_iv.json'} holds the 1 of 2 cells finished before it" if finished else "none of the 2 cells had finished"
+    assert str(e.value) == said
