@@ -56,6 +56,11 @@ def __getattr__(name: str):
         return getattr(importlib.import_module(module), attr)
     raise AttributeError(f"module 'jtraj' has no attribute {name!r}")
 
+
+def __dir__() -> list[str]:
+    # the lazily imported names too, so that dir(jtraj), completion and help(jtraj) show them
+    return sorted(set(globals()) | set(__all__))
+
 __all__ = [
     "euler",
     "lie",

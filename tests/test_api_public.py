@@ -1,0 +1,75 @@
+"""The public API as a user meets it: every module's ``__all__`` names something that exists
+and is documented, ``dir(jtraj)`` and ``help(jtraj)`` show the lazily imported names, and the
+former names still work with a warning that gives the new one."""
+
+import importlib
+import inspect
+import pkgutil
+import pydoc
+import warnings
+
+import pytest
+
+import jtraj
+
+
+def _modules() -> list[str]:
+    names = ["jtraj"]
+    for info in pkgutil.walk_packages(jtraj.__path__, "jtraj."):
+        names.append(info.name)
+    return sorted(names)
+
+
+MODULES = _modules()
+
+
+def test_the_walk_finds_the_subpackages():
+    assert {"jtraj.solver", "jtraj.solvers.ipm", "jtraj.attitude.wahba", "jtraj.provenance"} <= set(MODULES)
+
+
+@pytest.mark.parametrize("name", MODULES)
+def test_all_names_exist_and_are_documented(name):
+    module = importlib.import_module(name)
+    assert inspect.getdoc(module), f"{name} has no module docstring"
+    exported = getattr(module, "__all__", None)
+    if exported is None:
+        return
+    assert len(set(exported)) == len(exported), f"{name}.__all__ repeats a name"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a name in __all__ is not a deprecated one
+        for entry in exported:
+            assert isinstance(entry, str)
+            assert hasattr(module, entry), f"{name}.__all__ names {entry!r}, which {name} does not have"
+            obj = getattr(module, entry)
+            if inspect.isfunction(obj) or inspect.isclass(obj) or inspect.ismodule(obj):
+                assert inspect.getdoc(obj), f"{name}.{entry} has no docstring"
+
+
+def test_star_import_gives_every_name_of_jtraj_all():
+    namespace: dict = {}
+    exec("from jtraj import *", namespace)
+    assert set(jtraj.__all__) <= set(namespace)
+
+
+def test_dir_and_help_show_the_lazily_imported_names():
+    # solve, Result, load_task... are imported on first use (module __getattr__); dir() did not
+    # list them, and so help(jtraj) documented none of them
+    assert set(jtraj.__all__) <= set(dir(jtraj))
+    text = pydoc.render_doc(jtraj, renderer=pydoc.plaintext)
+    for name in ("solve", "load_task", "load_robot", "differentiable", "OptimalMotion", "TaskParams"):
+        assert f"\n    {name}" in text or f"class {name}" in text, name
+
+
+@pytest.mark.parametrize(
+    "module, old, new",
+    [
+        ("jtraj.solver", "LAYOUTS", "jtraj.solver.VARIABLES"),
+        ("jtraj.transcription", "PAPER_LAYOUT", "jtraj.transcription.PAPER_VARIABLES"),
+        ("jtraj.dynamics", "inverse_dynamics_jacobians", "jtraj.dynamics.batched_inverse_dynamics_derivatives"),
+    ],
+)
+def test_former_names_warn_with_the_new_name(module, old, new):
+    m = importlib.import_module(module)
+    with pytest.warns(DeprecationWarning, match=new.replace(".", r"\.")):
+        value = getattr(m, old)
+    assert value is getattr(m, new.rsplit(".", 1)[1])
