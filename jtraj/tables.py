@@ -12,12 +12,19 @@ from jtraj import io
 __all__ = ["markdown_table", "write_table"]
 
 
+def _cell(value: Any) -> str:
+    # a '|' would end the cell and a line break the row: escaped, and written as a space
+    return " ".join(str(value).splitlines()).replace("|", "\\|")
+
+
 def markdown_table(header: Sequence[str], rows: Iterable[Sequence[Any]], note: str = "") -> str:
     """A GitHub Markdown table of already formatted cells (``str(cell)``), one line per row,
-    followed by ``note`` (a footnote paragraph) when given; ends with a newline."""
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    followed by ``note`` (a footnote paragraph) when given; ends with a newline. A ``|`` in a
+    cell or a header is escaped (``\\|``) and a line break becomes a space, so that text such
+    as ``|q|`` stays in its cell."""
+    lines = ["| " + " | ".join(_cell(h) for h in header) + " |", "|" + "---|" * len(header)]
     for row in rows:
-        cells = [str(c) for c in row]
+        cells = [_cell(c) for c in row]
         if len(cells) != len(header):
             raise ValueError(f"table row has {len(cells)} cells, the header {len(header)}: {cells}")
         lines.append("| " + " | ".join(cells) + " |")
