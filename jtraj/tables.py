@@ -22,6 +22,8 @@ def markdown_table(header: Sequence[str], rows: Iterable[Sequence[Any]], note: s
     followed by ``note`` (a footnote paragraph) when given; ends with a newline. A ``|`` in a
     cell or a header is escaped (``\\|``) and a line break becomes a space, so that text such
     as ``|q|`` stays in its cell."""
+    if isinstance(header, str) or not len(header):
+        raise ValueError(f"table header {header!r}: expected a sequence of one or more column names")
     lines = ["| " + " | ".join(_cell(h) for h in header) + " |", "|" + "---|" * len(header)]
     for row in rows:
         cells = [_cell(c) for c in row]

@@ -40,3 +40,10 @@ def test_plain_cells_are_written_as_given():
 def test_a_row_of_the_wrong_length_is_refused():
     with pytest.raises(ValueError, match="table row has 1 cells, the header 2"):
         markdown_table(("a", "b"), [("x",)])
+
+
+@pytest.mark.parametrize("header", [(), "task"])
+def test_a_header_that_is_not_a_list_of_columns_is_refused(header):
+    # () wrote '|  |' over a bare '|', no table; a string was split into one column per letter
+    with pytest.raises(ValueError, match="expected a sequence of one or more column names"):
+        markdown_table(header, [])
