@@ -33,14 +33,17 @@ def split_cpu(count: int | None = None) -> int | None:
     chosen = jax.config.jax_num_cpu_devices  # type: ignore[attr-defined]  # (-1: not chosen)
     if chosen != -1 or "xla_force_host_platform_device_count" in os.environ.get("XLA_FLAGS", ""):
         return None
+    origin = "jtraj"
     if count is None:
         given = os.environ.get("JTRAJ_CPU_DEVICES")
         try:
             count = int(given) if given else cpu_count()
         except ValueError:
             raise ValueError(f"JTRAJ_CPU_DEVICES={given!r}: expected a positive whole number of CPU devices") from None
+        if given:
+            origin = f"JTRAJ_CPU_DEVICES={given!r}"
     if count < 1:
-        raise ValueError(f"jtraj: {count} CPU devices; expected a positive count")
+        raise ValueError(f"{origin}: {count} CPU devices; expected a positive count (unset JTRAJ_CPU_DEVICES for one device per core)")
     try:
         jax.config.update("jax_num_cpu_devices", count)
     except RuntimeError:  # JAX computed before jtraj was imported: its devices are fixed

@@ -47,8 +47,10 @@ def test_cpu_devices_follow_the_environment(env, before, expected):
 def test_a_bad_device_count_says_what_is_expected():
     out = _devices_after_import({"JTRAJ_CPU_DEVICES": "two"})
     assert out.returncode != 0 and "JTRAJ_CPU_DEVICES='two': expected a positive whole number" in out.stderr
-    out = _devices_after_import({"JTRAJ_CPU_DEVICES": "0"})
-    assert out.returncode != 0 and "0 CPU devices; expected a positive count" in out.stderr
+    # the message names the variable that gave the count, not only the count
+    for value in ("0", "-2"):
+        out = _devices_after_import({"JTRAJ_CPU_DEVICES": value})
+        assert out.returncode != 0 and f"JTRAJ_CPU_DEVICES='{value}': {value} CPU devices; expected a positive count" in out.stderr
 
 
 def test_split_cpu_leaves_a_started_jax_alone():
