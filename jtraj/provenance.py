@@ -94,7 +94,7 @@ def provenance(argv: list[str] | None = None) -> dict:
     if os.environ.get("XLA_FLAGS"):
         machine["xla_flags"] = os.environ["XLA_FLAGS"]
     record = {
-        "command": shlex.join(["jtraj", *argv[1:]] if Path(argv[0]).name in ("jtraj", "cli.py") else argv),
+        "command": shlex.join(["jtraj", *argv[1:]] if argv and Path(argv[0]).name in ("jtraj", "cli.py") else argv),
         "date_utc": _now(),
         "machine": machine,
         "jax": _jax_devices(),

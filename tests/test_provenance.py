@@ -57,3 +57,8 @@ def test_source_is_none_outside_a_checkout(monkeypatch, tmp_path):
 @pytest.mark.parametrize("argv", [["jtraj", "compare"], ["python", "bench/solve.py", "walk"]])
 def test_command_keeps_its_program(argv):
     assert prov.provenance(argv)["command"] == " ".join(argv)
+
+
+def test_an_empty_command_line_is_recorded_as_empty():
+    # argv=[] (no program name, as an embedding host may give) raised IndexError
+    assert prov.provenance([])["command"] == ""
