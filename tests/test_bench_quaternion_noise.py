@@ -34,6 +34,16 @@ def test_table_counts_each_mode(qn):
     assert lines[3] == "| quat1 | unit | 1 / 3 | 0 / 3 | 70 |"
 
 
+
+def test_table_median_of_an_even_count_is_not_rounded(qn):
+    """Two converged runs of 12 and 13 iterations: their median is 12.5, which ``:.0f`` showed
+    as 12 (and 13.5 as 14: Python rounds half to even), a figure no run took."""
+    records = [dict(parameterization="quat1", mode="raw", converged=True, success=True, iterations=it) for it in (12, 13)]
+    records += [dict(parameterization="quat1", mode="unit", converged=True, success=True, iterations=it) for it in (13, 14)]
+    lines = qn.table(records).splitlines()
+    assert lines[2] == "| quat1 | raw | 2 / 2 | 2 / 2 | 12.5 |"
+    assert lines[3] == "| quat1 | unit | 2 / 2 | 2 / 2 | 13.5 |"
+
 def _charts():
     import types
 
