@@ -7,6 +7,8 @@ from pathlib import Path
 
 import jax
 
+__all__ = ["CACHE_MAX_BYTES", "cpu_count", "split_cpu", "default_cache_dir", "enable_compilation_cache"]
+
 _enabled: Path | None = None
 
 #: Size limit of the persistent compilation cache (least recently used entries go first).
@@ -52,6 +54,8 @@ def split_cpu(count: int | None = None) -> int | None:
 
 
 def default_cache_dir() -> Path:
+    """The compilation cache's folder when ``JTRAJ_CACHE_DIR`` is not set:
+    ``$XDG_CACHE_HOME/jtraj/jax``, else ``~/.cache/jtraj/jax``."""
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     return Path(base) / "jtraj" / "jax"
 
