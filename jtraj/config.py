@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import warnings
 from pathlib import Path
 
 import jax
@@ -64,14 +65,20 @@ def enable_compilation_cache(path: str | Path | None = None) -> Path | None:
     """Turn on JAX's persistent compilation cache (default ``~/.cache/jtraj/jax``), so a second
     process reuses the compiled NLP functions. ``JTRAJ_NO_CACHE=1`` turns it off (``0``,
     ``false``, ``no``, ``off`` or an empty value leave it on); an empty ``JTRAJ_CACHE_DIR`` is
-    the default folder, not the working directory."""
+    the default folder, not the working directory. Returns the folder, or None where the cache
+    is turned off or its folder cannot be made (a `RuntimeWarning` says which and what to set:
+    the solve goes on without the cache)."""
     global _enabled
     if os.environ.get("JTRAJ_NO_CACHE", "").strip().lower() not in ("", "0", "false", "no", "off"):
         return None
     target = Path(path) if path is not None else Path(os.environ.get("JTRAJ_CACHE_DIR") or default_cache_dir())
     if _enabled == target:
         return target
-    target.mkdir(parents=True, exist_ok=True)
+    try:
+        target.mkdir(parents=True, exist_ok=True)
+    except OSError as e:  # a read-only home, a file in the way: compile without the cache
+        warnings.warn(f"jtraj: no compilation cache, the folder {str(target)!r} cannot be made ({e.strerror or e}); set JTRAJ_CACHE_DIR to a writable folder, or JTRAJ_NO_CACHE=1", RuntimeWarning, stacklevel=2)
+        return None
     jax.config.update("jax_compilation_cache_dir", str(target))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)

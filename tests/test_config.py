@@ -88,3 +88,16 @@ def test_cache_switches_read_as_documented(monkeypatch, tmp_path, env, expected)
     else:
         want = tmp_path / "xdg" / "jtraj" / "jax" if expected == "default" else tmp_path / expected
         assert target is not None and target.absolute() == want and updates["jax_compilation_cache_dir"] == str(target)
+
+
+def test_a_cache_folder_that_cannot_be_made_warns_and_leaves_the_cache_off(monkeypatch, tmp_path):
+    # mkdir's error (here a file where the folder should be; a read-only home the same) failed every solve
+    (tmp_path / "file").write_text("")
+    monkeypatch.delenv("JTRAJ_NO_CACHE", raising=False)
+    monkeypatch.setenv("JTRAJ_CACHE_DIR", str(tmp_path / "file" / "cache"))
+    updates: dict = {}
+    monkeypatch.setattr(jax.config, "update", lambda name, value: updates.__setitem__(name, value))
+    monkeypatch.setattr(config, "_enabled", None)
+    with pytest.warns(RuntimeWarning, match="cannot be made .*set JTRAJ_CACHE_DIR to a writable folder, or JTRAJ_NO_CACHE=1"):
+        assert config.enable_compilation_cache() is None
+    assert not updates and config._enabled is None
