@@ -26,8 +26,9 @@ read from the timing table Ipopt prints.
 and prints one JSON line with at least ``iterations`` and ``time_s`` (its wall time around
 Ipopt's solve, model building excluded); the default is ``../shared/peers/run-se3-trajopt``
 beside the repository when it exists. It runs before jtraj's variants, one after the other (never concurrently), and the
-ratio column is its time over each variant's time to solution (compile excluded). Without a
-peer the table has no ratio column.
+ratio column is its time over each variant's time to solution (compile excluded; none where
+the variant did not solve the task, its status instead). Without a peer the table has no ratio
+column.
 
 ``--repeat N`` measures each side N times, alternating (the public code, then jtraj's variants,
 N rounds), and reports the median of each with its range (N odd: the median is one of the runs,
@@ -212,7 +213,9 @@ def markdown(records: list[dict]) -> str:
                 note = "" if done else f" (stopped, Ipopt status {peer.get('status')})"
                 cost = f"{peer['obj']:.4g}" if peer.get("obj") is not None else ""
                 viol = f"{peer['cons']:.1e}" if peer.get("cons") is not None else ""
-                row += f" {_iterations_cell(peer)}{note} | {cost} | {viol} | {bound}{_time_cell(peer)} | {bound}{peer['time_s'] / v['time_s']:.1f}x |"
+                # a variant that did not solve the task has no time to solution to compare
+                ratio = f"{bound}{peer['time_s'] / v['time_s']:.1f}x" if v.get("success", True) else f"none (jtraj {v['status']})"
+                row += f" {_iterations_cell(peer)}{note} | {cost} | {viol} | {bound}{_time_cell(peer)} | {ratio} |"
             elif with_peer:
                 row += " | | | | |"
             lines.append(row)

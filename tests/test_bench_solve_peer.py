@@ -169,3 +169,15 @@ def test_a_peer_that_cannot_run_is_refused_before_any_work(monkeypatch, capsys, 
         monkeypatch.setattr(solve, name, _no_solve)
     peer = {"missing": tmp_path / "nothing", "not executable": fake_peer(tmp_path, "exit 0", executable=False), "folder": tmp_path}[kind]
     refused(solve.main, ["big_jump", "--peer", str(peer)], capsys, f"--peer: '{peer}': expected the path of an executable runner (run as PEER TASK)")
+
+
+def test_no_ratio_where_the_variant_did_not_solve():
+    """A variant that stopped (here at its iteration limit in 5 s) has no time to solution: its
+    row gave 'peer / jtraj 2.0x' beside the peer's 10 s solve, as if jtraj were twice as fast."""
+    solve = bench_module("solve")
+    stopped = dict(_run("paper", 5.0, iterations=200), status="not_converged", success=False)
+    peer = dict(iterations=11, time_s=10.0, status=0, obj=1.0, cons=1e-6)
+    table = solve.markdown([dict(task="big_jump", peer=peer, variants=[stopped, _run("compact", 2.0)])])
+    rows = [line for line in table.splitlines() if line.startswith("| big_jump |")]
+    assert rows[0].endswith("| 10.00 | none (jtraj not_converged) |") and "2.0x" not in rows[0]
+    assert rows[1].endswith("| 10.00 | 5.0x |")
