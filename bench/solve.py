@@ -208,9 +208,10 @@ def markdown(records: list[dict]) -> str:
             if with_peer and peer:
                 # the public code stops at its own 600 s wall-time limit (Ipopt status -5): its
                 # time is then a lower bound, and so is the ratio
+                # (a runner owes only iterations and time_s: without a status, nothing is claimed)
                 done = peer.get("status") in (0, 1)
-                bound = "" if done else ">= "
-                note = "" if done else f" (stopped, Ipopt status {peer.get('status')})"
+                bound = "" if done or peer.get("status") is None else ">= "
+                note = " (no status)" if peer.get("status") is None else "" if done else f" (stopped, Ipopt status {peer['status']})"
                 cost = f"{peer['obj']:.4g}" if peer.get("obj") is not None else ""
                 viol = f"{peer['cons']:.1e}" if peer.get("cons") is not None else ""
                 # a variant that did not solve the task has no time to solution to compare

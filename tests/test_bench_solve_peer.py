@@ -181,3 +181,21 @@ def test_no_ratio_where_the_variant_did_not_solve():
     rows = [line for line in table.splitlines() if line.startswith("| big_jump |")]
     assert rows[0].endswith("| 10.00 | none (jtraj not_converged) |") and "2.0x" not in rows[0]
     assert rows[1].endswith("| 10.00 | 5.0x |")
+
+
+@pytest.mark.parametrize(
+    ("status", "cells"),
+    [
+        (0, "| 11 | 1 | 1.0e-06 | 10.00 | 5.0x |"),
+        (-5, "| 11 (stopped, Ipopt status -5) | 1 | 1.0e-06 | >= 10.00 | >= 5.0x |"),
+        (None, "| 11 (no status) | 1 | 1.0e-06 | 10.00 | 5.0x |"),
+    ],
+)
+def test_a_peer_without_a_status_is_not_called_stopped(status, cells):
+    """The runner's record needs only iterations and time_s; one without a status was shown as
+    '(stopped, Ipopt status None)' with its time and the ratio as lower bounds."""
+    solve = bench_module("solve")
+    peer = dict(iterations=11, time_s=10.0, obj=1.0, cons=1e-6) | ({} if status is None else {"status": status})
+    table = solve.markdown([dict(task="big_jump", peer=peer, variants=[_run("compact", 2.0)])])
+    row = next(line for line in table.splitlines() if line.startswith("| big_jump |"))
+    assert row.endswith(cells), row
