@@ -29,8 +29,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jtraj.numbers import is_real, is_whole
-from jtraj.sensitivity import ActiveArrays, KKTSystem, ParametricNLP, kkt_system, residual
+from jtraj.numbers import is_whole
+from jtraj.sensitivity import ActiveArrays, KKTSystem, ParametricNLP, check_weak_tol, kkt_system, residual
 
 __all__ = ["ImplicitSolution", "implicit_solution", "SecondOrderError"]
 
@@ -60,12 +60,6 @@ def _in_main_thread_device(host: Callable) -> Callable:
             return host(*args)
 
     return wrapped
-
-
-def check_weak_tol(weak_tol: Any) -> None:
-    """Refuse a weak-activity tolerance outside [0, 1) (`implicit_solution`'s ``weak_tol``)."""
-    if not is_real(weak_tol) or not (0 <= weak_tol < 1):
-        raise ValueError(f"weak_tol must be a number in [0, 1) (relative to the largest multiplier), got {weak_tol!r}")
 
 
 class SecondOrderError(NotImplementedError):

@@ -57,6 +57,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from jtraj.numbers import is_real
+
 __all__ = ["ParametricNLP", "DenseNLP", "ActiveSet", "KKTSystem", "kkt_system", "residual", "SingularKKTError"]
 
 
@@ -166,6 +168,26 @@ class ActiveSet:
         )
 
 
+def check_weak_tol(weak_tol: Any) -> None:
+    """Refuse a weak-activity tolerance outside [0, 1) (`active_set`'s ``weak_tol``)."""
+    if not is_real(weak_tol) or not (0 <= weak_tol < 1):
+        raise ValueError(f"weak_tol must be a number in [0, 1) (relative to the largest multiplier), got {weak_tol!r}")
+
+
+def _solution_point(nlp: ParametricNLP, x: Any, lam: Any, weak_tol: Any) -> tuple[np.ndarray, np.ndarray]:
+    """``x`` and ``lam`` as float arrays, checked: the NLP's sizes, finite; ``weak_tol`` too."""
+    # a wrong shape failed inside the NLP's JAX functions (dot_general ... same shape), and a NaN
+    # point or a negative weak_tol gave an active set and a system without a word
+    check_weak_tol(weak_tol)
+    x = np.asarray(x, float)
+    lam = np.asarray(lam, float)
+    if x.shape != (nlp.n,) or lam.shape != (nlp.m,):
+        raise ValueError(f"x of shape {x.shape} and lam of shape {lam.shape}; expected ({nlp.n},) and ({nlp.m},), the NLP's sizes")
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(lam))):
+        raise ValueError("x or lam has NaN or infinite entries: not a solution of the NLP")
+    return x, lam
+
+
 def _side_and_slack(value, lower, upper):
     """Nearer bound (True: upper) and the slack to it, elementwise."""
     s_lo = np.where(np.isfinite(lower), value - lower, np.inf)
@@ -182,8 +204,7 @@ def active_set(
     ``weak_tol``: a constraint or bound is weakly active when both its slack and its
     multiplier are below ``weak_tol * max(1, largest multiplier)``.
     """
-    x = np.asarray(x, float)
-    lam = np.asarray(lam, float)
+    x, lam = _solution_point(nlp, x, lam, weak_tol)
     xl, xu, gl, gu = (np.asarray(b, float) for b in nlp.bounds(theta))
     g = np.asarray(nlp.constraints(jnp.asarray(x), theta))
     J = np.asarray(nlp.jacobian(jnp.asarray(x), theta)) if jac_values is None else jac_values
@@ -312,6 +333,7 @@ def kkt_system(nlp: ParametricNLP, x: np.ndarray, lam: np.ndarray, theta: Any, *
     Jacobian of. The LU factorization happens on the first `KKTSystem.solve`.
     """
     n, m = nlp.n, nlp.m
+    x, lam = _solution_point(nlp, x, lam, weak_tol)
     xj = jnp.asarray(x)
     J = np.asarray(nlp.jacobian(xj, theta))
     act = active_set(nlp, x, lam, theta, weak_tol=weak_tol, jac_values=J)

@@ -8,7 +8,7 @@ import pytest
 
 import jtraj  # noqa: F401  (float64)
 from jtraj.implicit import implicit_solution
-from jtraj.sensitivity import DenseNLP, kkt_system
+from jtraj.sensitivity import DenseNLP, active_set, kkt_system
 
 
 def ipopt_forward(nlp: DenseNLP, x0):
@@ -228,3 +228,22 @@ def test_a_forward_returning_garbage_is_refused_in_words():
         solve = implicit_solution(nlp, lambda th, x=x, lam=lam: (x, lam))
         with pytest.raises(ValueError, match=match):
             solve(jnp.asarray(theta))
+
+
+def test_kkt_system_and_active_set_check_their_point():
+    """kkt_system and active_set, public, name a bad point or weak_tol (regression: a wrong
+    shape failed inside JAX with "dot_general requires contracting dimensions to have the same
+    shape", a NaN x or a weak_tol of -1 or NaN gave a system without a word)."""
+    nlp, theta, x0 = equality_qp()
+    x, lam = ipopt_forward(nlp, x0)(theta)
+    for build in (kkt_system, active_set):
+        for args, kwargs, match in [
+            ((x[:2], lam), {}, r"x of shape \(2,\) and lam of shape \(1,\); expected \(3,\) and \(1,\)"),
+            ((x, np.zeros(3)), {}, r"lam of shape \(3,\); expected \(3,\) and \(1,\)"),
+            ((np.array([np.nan, 0.0, 0.0]), lam), {}, "NaN or infinite entries"),
+            ((x, lam), {"weak_tol": -1.0}, r"weak_tol must be a number in \[0, 1\)"),
+            ((x, lam), {"weak_tol": float("nan")}, r"weak_tol must be a number in \[0, 1\)"),
+        ]:
+            with pytest.raises(ValueError, match=match):
+                build(nlp, *args, theta, **kwargs)
+    assert kkt_system(nlp, x, lam, theta).active.row_active.tolist() == [True]
