@@ -297,6 +297,9 @@ class KKTSystem:
         K with ``-delta`` on the active rows' diagonal (``delta = 1e-10 max|K|``), and
         iterative refinement against K itself removes the regularization's error from dx.
         """
+        size = self.matrix.shape[0]
+        if np.ndim(rhs) not in (1, 2) or np.shape(rhs)[-1] != size:  # scipy said only "b is of incompatible size"
+            raise ValueError(f"rhs of shape {np.shape(rhs)}; expected ({size},) or (batch, {size}): n + m, the system's size")
         if self._lu is None:
             n = self.active.at_bound.size
             delta = 1e-10 * max(1.0, float(np.abs(self.matrix.data).max(initial=0.0)))

@@ -247,3 +247,14 @@ def test_kkt_system_and_active_set_check_their_point():
             with pytest.raises(ValueError, match=match):
                 build(nlp, *args, theta, **kwargs)
     assert kkt_system(nlp, x, lam, theta).active.row_active.tolist() == [True]
+
+
+def test_a_right_hand_side_of_the_wrong_size_is_named():
+    # scipy's "b is of incompatible size" did not say which size the system has
+    nlp, theta, x0 = equality_qp()
+    x, lam = ipopt_forward(nlp, x0)(theta)
+    system = kkt_system(nlp, x, lam, theta)
+    for rhs in (np.ones(3), np.ones((2, 5)), np.ones((1, 2, 4))):
+        with pytest.raises(ValueError, match=r"expected \(4,\) or \(batch, 4\)"):
+            system.solve(rhs)
+    assert system.solve(np.ones((2, 4))).shape == (2, 4)
