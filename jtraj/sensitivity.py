@@ -59,7 +59,7 @@ import scipy.sparse.linalg as spla
 
 from jtraj.numbers import is_real
 
-__all__ = ["ParametricNLP", "DenseNLP", "ActiveSet", "KKTSystem", "kkt_system", "residual", "SingularKKTError"]
+__all__ = ["ParametricNLP", "DenseNLP", "ActiveSet", "ActiveArrays", "active_set", "active_arrays", "KKTSystem", "kkt_system", "residual", "check_weak_tol", "SingularKKTError"]
 
 
 class SingularKKTError(RuntimeError):
@@ -136,9 +136,11 @@ class ActiveSet:
     """The active set at a solution (numpy bool arrays).
 
     Attributes:
-        at_bound: (n,) variable held at a bound (fixed, or bound multiplier > slack).
+        at_bound: (n,) variable held at a bound (fixed, or bound multiplier > slack and not
+            weakly active).
         at_upper: (n,) which bound (True: upper) for ``at_bound`` variables.
-        row_active: (m,) constraint rows held at a bound (equalities always).
+        row_active: (m,) constraint rows held at a bound (equalities always, except the
+            ``dropped_rows``; inequalities not weakly active).
         row_upper: (m,) which bound (True: upper) for active rows.
         weak_rows: (m,) inequality rows at a bound with a multiplier of about zero.
         weak_bounds: (n,) variables at a bound with a bound multiplier of about zero.
@@ -159,6 +161,7 @@ class ActiveSet:
         return bool(self.weak_rows.any() or self.weak_bounds.any())
 
     def summary(self) -> dict[str, int]:
+        """Counts of variables at bounds and of active, weakly active and dropped rows."""
         return dict(
             variables_at_bounds=int(self.at_bound.sum()),
             active_rows=int(self.row_active.sum()),
@@ -243,7 +246,8 @@ def active_set(
 def residual(nlp: ParametricNLP, x, lam, theta, act: "ActiveArrays"):
     """The residual r(x, lam, theta) of the module docstring, (n + m,), in JAX.
 
-    ``act`` holds the active set as arrays (`ActiveSet.arrays`) so that this traces once.
+    ``act`` holds the active set as arrays (`active_arrays` of an `ActiveSet`) so that this
+    traces once.
     """
     xl, xu, gl, gu = nlp.bounds(theta)
     lam_a = jnp.where(act.row_active, lam, 0.0)
@@ -268,6 +272,7 @@ class ActiveArrays:
 
 
 def active_arrays(act: ActiveSet) -> ActiveArrays:
+    """The arrays of ``act`` that `residual` needs, as an `ActiveArrays` pytree."""
     return ActiveArrays(act.at_bound, act.at_upper, act.row_active, act.row_upper)
 
 
