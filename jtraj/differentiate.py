@@ -268,11 +268,14 @@ def differentiable(
     check_weak_tol(weak_tol)
     backend = solvers.get(solver)  # unknown names and options fail here, before building anything
     opts = forward_options(backend, options)
+    # a bad parameterization or variables name was refused only after the task and the robot
+    # were loaded
+    param, transcription = params.get(parameterization), transcription_options(variables)
     config.enable_compilation_cache()
     task = tasks.load(task)
     _check_weights(task.name, task.configuration_weight, task.acceleration_weight, "the task sets")
     robot = robots.load(task.robot)
-    tr = Transcription(robot, task, params.get(parameterization), transcription_options(variables))
+    tr = Transcription(robot, task, param, transcription)
     groups = [g for stage in CONSTRAINT_STAGES for g in stage(tr)]
     weight = force_weight / (robot.total_mass * GRAVITY) ** 2
     costs = cost_terms(tr) + [CostGroup("force", (Dep("f"),), lambda theta, data, f: 0.5 * weight * jnp.sum(f**2), np.arange(tr.N + 1))]

@@ -145,6 +145,11 @@ def test_bad_arguments_are_refused_before_building(monkeypatch):
             differentiable("hop", **kwargs)
     with pytest.raises(ValueError, match="bogus"):
         differentiable("hop", solver="bogus")
+    # and its parameterization and variables (they were looked up after the task and the robot were loaded)
+    with pytest.raises(ValueError, match="unknown parameterization 'bogus'"):
+        differentiable("hop", "bogus")
+    with pytest.raises(ValueError, match="unknown variables 'bogus'"):
+        differentiable("hop", variables="bogus")
 
 
 def test_forward_options_keep_the_tight_defaults_a_dict_does_not_change():
