@@ -45,7 +45,7 @@ import numpy as np
 import jtraj
 from jtraj import io, success
 from jtraj.cli import InputError, _check_names, _check_robots, _load_valid_task
-from jtraj.provenance import write_provenance
+from jtraj.provenance import begin_run, end_run
 from jtraj.solver import VARIABLES, with_changes
 from jtraj.task import Task, TaskError, available, retarget
 from jtraj.task import load as load_task
@@ -348,6 +348,9 @@ def main(argv: list[str] | None = None) -> None:
         rows = io.read_json(path) if path.exists() else []
     except io.FileFormatError as e:
         ap.error(f"--out: {e}")
+    # provenance.json says from the start that a run is writing this folder: a run stopped
+    # half-way (Ctrl-C, a crash) left its rows beside the provenance of the run before it
+    record = begin_run(out, ["python", "bench/side_by_side.py", *(sys.argv[1:] if argv is None else argv)])
     # a failed solve (an error row) is not done: it runs again, and its new row replaces the old
     done = {(r["code"], r["task"], r["sigma"], r["seed"]) for r in rows if r.get("status") != "error"}
     failed: list[str] = []
@@ -382,7 +385,7 @@ def main(argv: list[str] | None = None) -> None:
                 io.write_json(path, rows)
                 io.write_text(out / "side_by_side.md", render(rows))
     io.write_text(out / "side_by_side.md", render(rows))
-    write_provenance(out, ["python", "bench/side_by_side.py", *(sys.argv[1:] if argv is None else argv)])
+    end_run(out, record)
     if failed:
         raise SystemExit(f"bench/side_by_side.py: {len(failed)} solve(s) failed, their rows say error in {path}; run again to retry them: {'; '.join(failed)}")
 

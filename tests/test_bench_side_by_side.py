@@ -81,3 +81,28 @@ def test_a_peer_that_cannot_run_is_refused(sbs, monkeypatch, tmp_path, capsys, k
     peer = tmp_path / "nothing" if kind == "missing" else fake_peer(tmp_path, "exit 0", executable=False)
     refused(sbs.main, ["--peer", str(peer), "--out", str(tmp_path / "out")], capsys, f"--peer: '{peer}': expected the path of the paper code's executable runner")
 
+
+
+class _Interrupt(KeyboardInterrupt):
+    pass
+
+
+def test_a_stopped_run_leaves_its_own_unfinished_provenance(sbs, monkeypatch, tmp_path):
+    """Rows are written after each solve, the provenance only at the end: a run stopped after
+    its first solve left its new row beside the provenance (command, date) of the run before."""
+    out = tmp_path / "out"
+    peer = fake_peer(tmp_path, 'echo \'{"status": 0, "iterations": 11, "time_s": 2.0}\'')
+    sbs.main(["--tasks", "walk", "--variables", "", "--peer", str(peer), "--out", str(out)])
+    first = json.loads((out / "provenance.json").read_text())
+    assert first["complete"] is True and first["command"].endswith("--tasks walk --variables '' --peer " + f"{peer} --out {out}")
+
+    def interrupted(*args, **kwargs):
+        raise _Interrupt
+
+    monkeypatch.setattr(sbs, "run_jtraj", interrupted)
+    with pytest.raises(_Interrupt):  # big_jump's peer row is written, then its jtraj solve is stopped
+        sbs.main(["--tasks", "big_jump,walk", "--variables", "paper", "--peer", str(peer), "--out", str(out)])
+    assert [(r["code"], r["task"]) for r in _rows(out)] == [("paper", "walk"), ("paper", "big_jump")]
+    prov = json.loads((out / "provenance.json").read_text())
+    assert prov["complete"] is False and "--tasks big_jump,walk" in prov["command"]
+    assert prov["earlier"] == [first]
