@@ -26,6 +26,7 @@ _jax.config.update("jax_enable_x64", True)
 from jtraj import config as _config  # noqa: E402
 
 _config.split_cpu()
+del _config  # jtraj.config stays; help(jtraj) listed the alias as a submodule of its own
 
 from jtraj import euler, lie, parameterization, quaternion  # noqa: E402
 from jtraj.parameterization import (  # noqa: E402
@@ -44,7 +45,8 @@ _LAZY = {"solve": ("jtraj.solver", "solve"), "Result": ("jtraj.result", "Result"
 
 
 def __getattr__(name: str):
-    # solve() pulls in MuJoCo and the robots; keep `import jtraj` light until it is used.
+    """The names imported on first use (solve, Result, load_task, load_robot, TaskParams,
+    differentiable, OptimalMotion, render): they pull in MuJoCo and the robots."""
     if name == "render":  # the module jtraj.render, callable as its render() function
         import importlib
 
@@ -58,7 +60,7 @@ def __getattr__(name: str):
 
 
 def __dir__() -> list[str]:
-    # the lazily imported names too, so that dir(jtraj), completion and help(jtraj) show them
+    """The module's names and the lazily imported ones, for dir(jtraj), completion and help."""
     return sorted(set(globals()) | set(__all__))
 
 __all__ = [

@@ -59,6 +59,8 @@ def test_dir_and_help_show_the_lazily_imported_names():
     text = pydoc.render_doc(jtraj, renderer=pydoc.plaintext)
     for name in ("solve", "load_task", "load_robot", "differentiable", "OptimalMotion", "TaskParams"):
         assert f"\n    {name}" in text or f"class {name}" in text, name
+    # the private alias of jtraj.config that `import jtraj` uses was listed as a submodule
+    assert "_config" not in dir(jtraj) and "SUBMODULES" not in text
 
 
 @pytest.mark.parametrize(
