@@ -4,9 +4,9 @@ Run: ``python bench/dynamics.py [--knots 66] [--repeats 30] [--robot talos]``
 
 For K knots with random states (q, v, a, contact forces) it times, median over repeats:
   - tau at all knots: jtraj (jit + vmap) vs Pinocchio (rnea with external forces, Python loop);
-  - the full Jacobian of tau w.r.t. every knot variable (q, v, a, forces): jtraj's batched
-    analytical derivatives vs Pinocchio's rnea + computeRNEADerivatives + contact frame
-    Jacobians (Python loop over knots, same states);
+  - the full Jacobian of tau w.r.t. every knot variable (q, v, a, forces), with tau: jtraj's
+    batched analytical derivatives vs Pinocchio's computeRNEADerivatives (which computes tau
+    too) + contact frame Jacobians (Python loop over knots, same states);
   - for comparison, jax.jacfwd through MJX's pipeline and through jtraj's own RNEA.
 Compile times are the first call's wall time. Pinocchio's external forces are built in the
 joint frames before timing (which only favours Pinocchio).
@@ -57,6 +57,21 @@ def row(label, ours, theirs=None, note=""):
 
 def pinocchio_model(robot):
     return robot_lib.to_pinocchio(robot)
+
+
+def pinocchio_jacobians(model, data, frames, qs, vs, as_, fexts) -> list:
+    """Per knot, what jtraj's batched derivatives return: tau, dtau/dq, dtau/dv, dtau/da and the
+    contact frames' Jacobians (their 3 translation rows). computeRNEADerivatives computes tau
+    (``data.tau``) and the joint placements and Jacobians that getFrameJacobian reads: an rnea
+    before it (as this benchmark once timed) did the same pass twice and slowed Pinocchio's side.
+    The derivative matrices are ``data``'s own, which the next knot overwrites (not copied:
+    the timed work is the computation)."""
+    out = []
+    for q, v, a, fext in zip(qs, vs, as_, fexts):
+        dq, dv, da = pin.computeRNEADerivatives(model, data, q, v, a, fext)
+        Jc = [pin.getFrameJacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)[:3] for fid in frames]
+        out.append((data.tau.copy(), dq, dv, da, Jc))
+    return out
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -124,13 +139,7 @@ def main(argv: list[str] | None = None) -> None:
         return [pin.rnea(model, data, qs[k], vs[k], as_[k], fexts[k]).copy() for k in range(K)]
 
     def pin_jac():
-        out = []
-        for k in range(K):
-            pin.rnea(model, data, qs[k], vs[k], as_[k], fexts[k])
-            dq, dv, da = pin.computeRNEADerivatives(model, data, qs[k], vs[k], as_[k], fexts[k])
-            Jc = [pin.getFrameJacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)[:3] for fid in frames]
-            out.append((dq, dv, da, Jc))
-        return out
+        return pinocchio_jacobians(model, data, frames, qs, vs, as_, fexts)
 
     _, p_tau = timed(pin_tau, args.repeats)
     _, p_jac = timed(pin_jac, args.repeats)
@@ -138,7 +147,7 @@ def main(argv: list[str] | None = None) -> None:
     # Cross-check on the last knot: tau, dv, da, df agree with Pinocchio, each difference
     # relative to the largest entry of Pinocchio's (df = -J_c^T)
     taus = pin_tau()
-    _, dv_p, da_p, Jc_p = pin_jac()[-1]
+    _, _, dv_p, da_p, Jc_p = pin_jac()[-1]
     da_p = np.triu(da_p) + np.triu(da_p, 1).T
     err = max(
         np.abs(np.asarray(ours.tau[-1]) - taus[-1][perm]).max() / np.abs(taus[-1]).max(),

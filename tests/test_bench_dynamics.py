@@ -1,0 +1,50 @@
+"""bench/dynamics.py: Pinocchio's side of the Jacobian benchmark does the work once."""
+
+import numpy as np
+import pinocchio as pin
+from conftest import bench_module
+
+from jtraj import robot as robot_lib
+
+
+def _states(model, K: int):
+    rng = np.random.default_rng(0)
+    qs, vs, as_, fexts = [], [], [], []
+    for _ in range(K):
+        q = pin.neutral(model)
+        q[:3] = rng.normal(size=3)
+        quat = rng.normal(size=4)
+        q[3:7] = quat / np.linalg.norm(quat)
+        q[7:] += rng.uniform(-0.3, 0.3, model.nq - 7)
+        qs.append(q)
+        vs.append(rng.normal(size=model.nv))
+        as_.append(rng.normal(size=model.nv))
+        fexts.append([pin.Force(rng.normal(size=6)) for _ in range(model.njoints)])
+    return qs, vs, as_, fexts
+
+
+def test_pinocchio_jacobians_run_no_separate_rnea(monkeypatch):
+    """The timed Pinocchio Jacobians called rnea before computeRNEADerivatives, which computes
+    tau and the Jacobians getFrameJacobian reads itself: one inverse dynamics pass per knot too
+    many on Pinocchio's side of the ratio. Same figures without it, tau included."""
+    bench = bench_module("dynamics")
+    model, frames, _, _ = robot_lib.to_pinocchio(robot_lib.load("go2"))
+    qs, vs, as_, fexts = _states(model, 2)
+    ref, data = [], model.createData()
+    for q, v, a, fext in zip(qs, vs, as_, fexts):
+        tau = pin.rnea(model, data, q, v, a, fext).copy()
+        d = [np.array(m) for m in pin.computeRNEADerivatives(model, data, q, v, a, fext)]
+        ref.append((tau, *d, [pin.getFrameJacobian(model, data, f, pin.LOCAL_WORLD_ALIGNED)[:3].copy() for f in frames]))
+
+    def no_rnea(*args, **kwargs):
+        raise AssertionError("rnea timed beside computeRNEADerivatives")
+
+    monkeypatch.setattr(bench.pin, "rnea", no_rnea)
+    out = bench.pinocchio_jacobians(model, model.createData(), frames, qs, vs, as_, fexts)
+    assert len(out) == 2
+    for (tau, *_), (rtau, *_) in zip(out, ref):
+        np.testing.assert_allclose(tau, rtau, rtol=0, atol=1e-12)
+    # the derivatives are Pinocchio's own matrices, which the next knot overwrites: the last's
+    (_, dq, dv, da, Jc), (_, rdq, rdv, rda, rJc) = out[-1], ref[-1]
+    for x, y in ((dq, rdq), (dv, rdv), (da, rda), *zip(Jc, rJc)):
+        np.testing.assert_allclose(np.asarray(x), y, rtol=0, atol=1e-12)
