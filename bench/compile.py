@@ -54,11 +54,13 @@ def run_child(task: str, param: str, variables: str, flags: str, repeats: int) -
 
 
 def table(records: list[dict]) -> str:
-    """Markdown: one row per record, times in seconds."""
+    """Markdown: one row per record, times in seconds; a solve that did not succeed has its
+    status beside its iterations."""
     lines = ["| task | XLA_FLAGS | build the NLP (s) | compile the solver (s) | solve (s, fastest) | iterations |", "|---|---|---|---|---|---|"]
     for r in records:
         flags = f"`{r['flags']}`" if r["flags"] else "(none)"
-        lines.append(f"| {r['task']} | {flags} | {r['build']:.1f} | {r['program']:.1f} | {min(r['times']):.2f} | {r['iterations']} |")
+        status = "" if r.get("status", "solved") == "solved" else f" ({r['status']})"
+        lines.append(f"| {r['task']} | {flags} | {r['build']:.1f} | {r['program']:.1f} | {min(r['times']):.2f} | {r['iterations']}{status} |")
     return "\n".join(lines) + "\n"
 
 
