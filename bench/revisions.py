@@ -68,7 +68,13 @@ def run_child(tree: Path, task: str, param: str, variables: str, repeats: int) -
 
 
 def table(records: list[dict], labels: tuple[str, str]) -> str:
-    """The Markdown table: per task, both revisions' iterations, cost and fastest time."""
+    """The Markdown table: per task, both revisions' iterations, cost and fastest time; a solve
+    that did not succeed has its status beside its iterations, and no ratio (its time is not a
+    time to solution)."""
+
+    def status(r: dict) -> str:
+        return "" if r.get("status", "solved") == "solved" else f" ({r['status']})"
+
     a, b = labels
     rows = [
         f"| task | iterations ({a} / {b}) | cost ({a} / {b}) | fastest solve {a} (s) | fastest solve {b} (s) | s/iter {a} | s/iter {b} | {a} / {b} |",
@@ -79,9 +85,10 @@ def table(records: list[dict], labels: tuple[str, str]) -> str:
         ra = next(r for r in records if r["task"] == t and r["label"] == a)
         rb = next(r for r in records if r["task"] == t and r["label"] == b)
         ta, tb = min(ra["times"]), min(rb["times"])
+        ratio = f"{ta / tb:.2f}x" if not status(ra) + status(rb) else "none"
         rows.append(
-            f"| {t} | {ra['iterations']} / {rb['iterations']} | {ra['cost']:.4g} / {rb['cost']:.4g} | {ta:.2f} | {tb:.2f} | "
-            f"{ta / max(ra['iterations'], 1):.3f} | {tb / max(rb['iterations'], 1):.3f} | {ta / tb:.2f}x |"
+            f"| {t} | {ra['iterations']}{status(ra)} / {rb['iterations']}{status(rb)} | {ra['cost']:.4g} / {rb['cost']:.4g} | {ta:.2f} | {tb:.2f} | "
+            f"{ta / max(ra['iterations'], 1):.3f} | {tb / max(rb['iterations'], 1):.3f} | {ratio} |"
         )
     return "\n".join(rows) + "\n"
 

@@ -23,6 +23,16 @@ def test_table_gives_each_revision_its_fastest_solve_and_the_ratio(revisions):
     assert lines[3] == "| sideflip | 33 / 32 | 0.5 / 0.25 | 3.30 | 3.00 | 0.100 | 0.094 | 1.10x |"
 
 
+def test_table_shows_a_failed_solve_and_gives_it_no_ratio(revisions):
+    """The records hold each solve's status, the table left it out: a revision whose solve
+    stopped at its iteration limit sooner got a ratio, read as a speed-up of the solver."""
+    records = [
+        dict(task="walk", label="aaa", iterations=16, cost=0.0, times=[8.0], status="solved"),
+        dict(task="walk", label="bbb", iterations=50, cost=0.0, times=[4.0], status="not_converged"),
+    ]
+    lines = revisions.table(records, ("aaa", "bbb")).splitlines()
+    assert lines[2] == "| walk | 16 / 50 (not_converged) | 0 / 0 | 8.00 | 4.00 | 0.500 | 0.080 | none |"
+
 def test_a_process_that_imports_jtraj_from_elsewhere_is_refused(revisions, tmp_path):
     """A tree without jtraj: the child imports the installed one, says so and stops before
     solving anything."""
