@@ -8,6 +8,8 @@ from pathlib import Path
 
 import jax
 
+from jtraj.numbers import is_whole
+
 __all__ = ["CACHE_MAX_BYTES", "cpu_count", "split_cpu", "default_cache_dir", "enable_compilation_cache"]
 
 _enabled: Path | None = None
@@ -36,22 +38,22 @@ def split_cpu(count: int | None = None) -> int | None:
     chosen = jax.config.jax_num_cpu_devices  # type: ignore[attr-defined]  # (-1: not chosen)
     if chosen != -1 or "xla_force_host_platform_device_count" in os.environ.get("XLA_FLAGS", ""):
         return None
-    origin = "jtraj"
     if count is None:
         given = os.environ.get("JTRAJ_CPU_DEVICES")
         try:
             count = int(given) if given else cpu_count()
         except ValueError:
             raise ValueError(f"JTRAJ_CPU_DEVICES={given!r}: expected a positive whole number of CPU devices") from None
-        if given:
-            origin = f"JTRAJ_CPU_DEVICES={given!r}"
-    if count < 1:
-        raise ValueError(f"{origin}: {count} CPU devices; expected a positive count (unset JTRAJ_CPU_DEVICES for one device per core)")
+        if count < 1:
+            raise ValueError(f"JTRAJ_CPU_DEVICES={given!r}: {count} CPU devices; expected a positive count (unset JTRAJ_CPU_DEVICES for one device per core)")
+    # (JAX refused a numpy integer, took True as 1 and said of 2.5 only that it wants an int)
+    if not is_whole(count) or count < 1:
+        raise ValueError(f"split_cpu(count={count!r}): expected a positive whole number of CPU devices")
     try:
-        jax.config.update("jax_num_cpu_devices", count)
+        jax.config.update("jax_num_cpu_devices", int(count))
     except RuntimeError:  # JAX computed before jtraj was imported: its devices are fixed
         return None
-    return count
+    return int(count)
 
 
 def default_cache_dir() -> Path:

@@ -5,6 +5,7 @@ import subprocess
 import sys
 
 import jax
+import numpy as np
 import pytest
 
 from jtraj import config
@@ -101,3 +102,18 @@ def test_a_cache_folder_that_cannot_be_made_warns_and_leaves_the_cache_off(monke
     with pytest.warns(RuntimeWarning, match="cannot be made .*set JTRAJ_CACHE_DIR to a writable folder, or JTRAJ_NO_CACHE=1"):
         assert config.enable_compilation_cache() is None
     assert not updates and config._enabled is None
+
+
+def test_split_cpu_takes_whole_counts_only(monkeypatch):
+    # JAX itself refused numpy's integers, took True as one device and said of 2.5 only that it wants an int
+    from types import SimpleNamespace
+
+    updates: dict = {}
+    fake = SimpleNamespace(config=SimpleNamespace(jax_num_cpu_devices=-1, update=lambda name, value: updates.__setitem__(name, value)))
+    monkeypatch.setattr(config, "jax", fake)  # a JAX that has not chosen its devices yet
+    monkeypatch.setenv("XLA_FLAGS", "")
+    for count in (2.5, True, "2", 0, -1):
+        with pytest.raises(ValueError, match=r"split_cpu\(count=.*\): expected a positive whole number of CPU devices"):
+            config.split_cpu(count)
+    assert not updates
+    assert config.split_cpu(np.int64(3)) == 3 and updates == {"jax_num_cpu_devices": 3} and type(updates["jax_num_cpu_devices"]) is int
