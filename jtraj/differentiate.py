@@ -53,7 +53,7 @@ from jtraj.numbers import is_real
 from jtraj.solver import transcription_options
 from jtraj.transcription import COMPACT_VARIABLES, CONSTRAINT_STAGES, GRAVITY, TaskParams, Transcription, TranscriptionOptions, cost_terms
 
-__all__ = ["OptimalMotion", "DifferentiableTask", "differentiable", "SolveError", "IPOPT_OPTIONS"]
+__all__ = ["OptimalMotion", "DifferentiableTask", "differentiable", "SolveError", "IPOPT_OPTIONS", "forward_options", "motion"]
 
 #: Ipopt settings of the forward solve: tight (the derivatives are those of the exact
 #: solution) with the exact Hessian, which the sensitivity system needs anyway.

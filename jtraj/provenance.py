@@ -18,7 +18,7 @@ import sys
 from importlib import metadata
 from pathlib import Path
 
-__all__ = ["begin_run", "end_run", "provenance", "write_provenance", "write_results"]
+__all__ = ["begin_run", "end_run", "provenance", "write_provenance", "write_results", "source", "vector_extension", "VECTOR_EXTENSIONS"]
 
 
 def _version(dist: str) -> str | None:
