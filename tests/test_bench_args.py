@@ -45,6 +45,7 @@ WORK = {
     "unit_norm": ["run"],
     "quat3_norms": ["run"],
     "trace_iterates": ["run_peer", "run_jtraj", "peer_iterates"],
+    "solve": ["prepare", "run_variant", "run_peer"],
 }
 
 
@@ -152,6 +153,7 @@ def test_quaternion_noise_checks_every_parameterization_and_mode_first(monkeypat
         ("quaternion_noise", ["--modes", "raw"]),
         ("unit_norm", ["walk"]),
         ("trace_iterates", ["backflip", "--no-peer"]),
+        ("solve", ["big_jump", "--no-peer"]),
     ],
 )
 def test_an_out_folder_that_is_a_file_is_refused_before_any_work(monkeypatch, capsys, tmp_path, script, argv):
