@@ -38,7 +38,7 @@ from jtraj.task import Task
 from jtraj.task import load as load_task
 from jtraj.transcription import TranscriptionOptions
 
-__all__ = ["compare", "robustness", "table_iii", "noisy_warm_starts", "chart_noisy_warm_starts", "check_noise_chart", "poses_in_chart", "NoiseChartError", "noise_key", "run_key", "variables_hash", "read_runs", "summarize_robustness", "setting_label", "TABLE_IV_PAPER_SE3"]
+__all__ = ["compare", "robustness", "table_iii", "noisy_warm_starts", "chart_noisy_warm_starts", "check_noise_chart", "poses_in_chart", "NoiseChartError", "noise_key", "run_key", "variables_hash", "read_runs", "summarize_robustness", "setting_label", "TABLE_IV_PAPER_SE3", "RepeatedValueError", "plot_iterations"]
 
 #: Iterations of the SE(3) tangent parameterization in the paper's Table IV.
 TABLE_IV_PAPER_SE3 = {"walk": 14, "hopscotch": 10, "big_jump": 11, "handstand": 88, "backflip": 28, "sideflip": 29}

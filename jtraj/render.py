@@ -55,6 +55,9 @@ __all__ = [
     "render_rigid_body",
     "render_benchmark",
     "rigid_body_model",
+    "NotDrawable",
+    "add_scenery",
+    "Frames",
 ]
 
 

@@ -67,6 +67,7 @@ __all__ = [
     "mesh_cache_dir",
     "robots_data_dir",
     "GRAVITY",
+    "to_pinocchio",
 ]
 
 _FREE_JOINT_NAME = "floating_base"

@@ -73,7 +73,7 @@ def __getattr__(name: str) -> Any:
     raise AttributeError(f"module 'jtraj.solver' has no attribute {name!r}")
 
 
-__all__ = ["solve", "prepare", "Prepared", "release_compiled", "release_compiled_if_crowded", "VARIABLES", "transcription_options", "variables_label", "with_changes", "solver_options", "evaluate"]
+__all__ = ["solve", "prepare", "Prepared", "release_compiled", "release_compiled_if_crowded", "VARIABLES", "transcription_options", "variables_label", "with_changes", "solver_options", "evaluate", "memory_maps", "compile_callbacks"]
 
 
 class Prepared:

@@ -308,6 +308,9 @@ def solve_trial(
 
 
 def _solve_trials(keys, iterations, n_vectors, noise_std, init_offset):
+    """`solve_trial` for each PRNG key of ``keys`` (trials,): a `WahbaErrors` whose arrays
+    have the trials axis first. Jit-compiled as `solve_trials`, with ``iterations`` and
+    ``n_vectors`` static (the noise level and offset are traced: no recompilation)."""
     return jax.vmap(solve_trial, in_axes=(0, None, None, None, None))(keys, iterations, n_vectors, noise_std, init_offset)
 
 

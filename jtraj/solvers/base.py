@@ -51,6 +51,7 @@ __all__ = [
     "guess_shapes",
     "initial_guess",
     "invalid_problem",
+    "RecordIterates",
 ]
 
 
