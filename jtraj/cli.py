@@ -579,6 +579,10 @@ def _check_inputs(args: argparse.Namespace) -> None:
         _check_positive_int("--replicates", args.replicates)
         _check_seed(args.seed)
         args.ipopt_checked = _check_ipopt(args.ipopt, args.solver)
+        if args.noise_chart is not None:  # before OUT/provenance.json is written, as jtraj solve checks it
+            from jtraj.experiments import check_noise_chart
+
+            check_noise_chart(args.tasks_checked, _split(args.params), args.variables, args.noise_chart)
     elif cmd == "wahba":
         _check_positive_int("--trials", args.trials)
         _check_positive_int("--iterations", args.iterations)

@@ -326,13 +326,12 @@ def test_robustness_passes_the_solver_and_noise_chart(monkeypatch, tmp_path, cap
     assert cli.main(["robustness", "--tasks", "big_jump", "--noise-chart", "se3", "--out", str(tmp_path)]) == 0
     assert seen["noise_chart"] == "se3"
 
-    def refused(tasks, params, sigmas, **kwargs):  # as robustness() refuses a winding chart, before compiling
-        raise jtraj.experiments.NoiseChartError("backflip: the se3 warm start written in the euler chart is not the euler warm start")
-
-    monkeypatch.setattr(jtraj.experiments, "robustness", refused)
+    # a winding chart is refused by the command line's checks (check_noise_chart), before robustness()
+    seen.clear()
     assert cli.main(["robustness", "--tasks", "backflip", "--params", "euler", "--noise-chart", "se3", "--out", str(tmp_path)]) == cli.EXIT_BAD_INPUT
     err = capsys.readouterr().err
-    assert err == "jtraj robustness: backflip: the se3 warm start written in the euler chart is not the euler warm start\n"
+    assert err.startswith("jtraj robustness: backflip: the se3 warm start written in the euler chart is not the euler warm start") and err.count("\n") == 1, err
+    assert not seen
 
 
 def test_set_changes_the_variables_options(monkeypatch, tmp_path, capsys):
@@ -508,3 +507,13 @@ def test_ctrl_c_in_compare_before_any_cell_says_none_finished(monkeypatch, tmp_p
     code, err = _run(["compare", "--tasks", "big_jump", "--params", "se3,euler", "--out", str(tmp_path / "out")], capsys)
     assert code == cli.EXIT_INTERRUPTED
     assert err == "jtraj compare: interrupted; none of the 2 cells had finished (the same command again solves every cell)\n"
+
+
+def test_robustness_refuses_a_winding_noise_chart_before_writing_out(tmp_path, capsys, no_solve):
+    """A noise chart whose poses cannot be given to a parameterization (the back-flip's Euler
+    warm start winds) was found inside robustness(), after OUT/provenance.json had been written
+    as an unfinished run."""
+    out = tmp_path / "study"
+    code, err = _run(["robustness", "--tasks", "backflip", "--params", "euler", "--noise-chart", "se3", "--replicates", "1", "--sigmas", "0.1", "--out", str(out)], capsys)
+    assert code == cli.EXIT_BAD_INPUT and err.startswith("jtraj robustness: ") and err.count("\n") == 1, err
+    assert not (out / "provenance.json").exists()
