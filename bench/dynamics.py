@@ -20,7 +20,11 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
-import pinocchio as pin
+
+try:  # the peer: main() says so when it is missing (--help works without it)
+    import pinocchio as pin
+except ImportError:
+    pin = None
 
 import jtraj  # noqa: F401  (float64)
 from jtraj import dynamics
@@ -85,6 +89,8 @@ def main(argv: list[str] | None = None) -> None:
     for name in ("knots", "repeats"):
         if getattr(args, name) < 1:
             parser.error(f"--{name}: {getattr(args, name)}: expected an integer >= 1")
+    if pin is None:  # a traceback at import, before: jtraj's columns alone would be no comparison
+        parser.error("Pinocchio, the peer of this benchmark, is not installed: pip install pin==4.1.0 (in jtraj's [test] extra)")
 
     robot = robot_lib.load(args.robot)
     param = PARAMETERIZATIONS[args.param]

@@ -1,0 +1,19 @@
+"""A benchmark whose peer is not installed says so in one line before any work: Pinocchio for
+bench/dynamics.py, casadi (FATROP's plugin) for bench/fatrop.py."""
+
+import sys
+
+from conftest import bench_module, refused
+
+
+def _no_work(*args, **kwargs):
+    raise AssertionError("did work without the peer")
+
+
+def test_dynamics_without_pinocchio(monkeypatch, capsys):
+    """``import pinocchio`` at the top failed with a traceback, --help included."""
+    monkeypatch.setitem(sys.modules, "pinocchio", None)  # import pinocchio: ImportError
+    mod = bench_module("dynamics")
+    monkeypatch.setattr("jtraj.robot.load", _no_work)
+    refused(mod.main, ["--robot", "go2"], capsys, "Pinocchio, the peer of this benchmark, is not installed: pip install pin==4.1.0")
+
