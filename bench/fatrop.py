@@ -607,6 +607,10 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--print-level", type=int, default=0, help="FATROP's print_level (0 quiet, 10 a line per iteration)")
     add_out(ap, "fatrop")
     args = ap.parse_args(argv)
+    try:  # imported where FATROP is first called, after the NLP's compile and the presolve
+        import casadi  # noqa: F401
+    except ImportError:
+        ap.error('casadi (whose wheel has the fatrop plugin) is not installed: pip install -e ".[bench]"')
     records = []
     for task in args.tasks:
         rec = dict(task=task, param=args.param, machine=dict(cpus=os.cpu_count(), load_1min=os.getloadavg()[0]), solvers=[])

@@ -17,3 +17,12 @@ def test_dynamics_without_pinocchio(monkeypatch, capsys):
     monkeypatch.setattr("jtraj.robot.load", _no_work)
     refused(mod.main, ["--robot", "go2"], capsys, "Pinocchio, the peer of this benchmark, is not installed: pip install pin==4.1.0")
 
+
+def test_fatrop_without_casadi(monkeypatch, capsys):
+    """casadi was imported where FATROP is first called: after the NLP's compile and the
+    presolve of its rows (minutes on Talos), then a traceback."""
+    monkeypatch.setitem(sys.modules, "casadi", None)
+    mod = bench_module("fatrop")
+    for name in ("prepare", "stage_form", "drop_dependent", "solve_fatrop"):
+        monkeypatch.setattr(mod, name, _no_work)
+    refused(mod.main, ["big_jump"], capsys, "casadi (whose wheel has the fatrop plugin) is not installed")
