@@ -94,8 +94,16 @@ def _cmd_solve(args: argparse.Namespace) -> int:
 
 
 def _solve_out(args: argparse.Namespace) -> str:
-    """``jtraj solve``'s output folder: ``--out``, else ``runs/TASK_PARAM``."""
-    return args.out or f"runs/{args.task_checked.name}_{args.param}"
+    """``jtraj solve``'s output folder: ``--out``, else ``runs/TASK_PARAM``, and
+    ``runs/TASK_PARAM_ROBOT`` when ``--robot`` put the task on another robot (the solve on the
+    task's own robot keeps its folder)."""
+    if args.out:
+        return args.out
+    from jtraj import task as tasks
+
+    task = args.task_checked
+    retargeted = task.robot != tasks.load(args.task).robot
+    return f"runs/{task.name}_{args.param}" + (f"_{task.robot}" if retargeted else "")
 
 
 def _executor_arguments(p: argparse.ArgumentParser, workers: bool = True) -> None:
@@ -300,7 +308,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("task", help="a built-in task (walk, hopscotch, big_jump, handstand, backflip, sideflip) or a .toml file")
     p.add_argument("--param", default="se3", choices=["se3", "quat1", "quat2", "quat3", "euler"], help="floating-base parameterization (default se3)")
     p.add_argument("--solver", default="ipopt", choices=_solver_names(), help="NLP solver backend (default ipopt)")
-    p.add_argument("--out", help="output directory (default runs/TASK_PARAM)")
+    p.add_argument("--out", help="output directory (default runs/TASK_PARAM, runs/TASK_PARAM_ROBOT with --robot)")
     _variables_argument(p, "compact", "variables per knot: compact (q, v, a, f; default), the study's (q, v, a, f, c) or lean (q, v, f)")
     p.add_argument("--exact-hessian", action="store_true", help="exact Hessian of the Lagrangian instead of L-BFGS")
     p.add_argument("--ipopt", action="append", metavar="NAME=VALUE", help="any solver option (Ipopt's names for ipopt), repeatable (e.g. --ipopt max_iter=50)")

@@ -517,3 +517,20 @@ def test_robustness_refuses_a_winding_noise_chart_before_writing_out(tmp_path, c
     code, err = _run(["robustness", "--tasks", "backflip", "--params", "euler", "--noise-chart", "se3", "--replicates", "1", "--sigmas", "0.1", "--out", str(out)], capsys)
     assert code == cli.EXIT_BAD_INPUT and err.startswith("jtraj robustness: ") and err.count("\n") == 1, err
     assert not (out / "provenance.json").exists()
+
+
+def test_solve_on_another_robot_has_its_own_default_folder(monkeypatch, tmp_path):
+    """`jtraj solve big_jump --robot talos=talos_full` wrote to runs/big_jump_se3, over the
+    solve on the task's own robot."""
+    import jtraj.plots
+    import jtraj.solver
+
+    outs = []
+    monkeypatch.setattr(jtraj.solver, "solve", lambda task, p, **kwargs: (outs.append(kwargs["out"]), types.SimpleNamespace(converged=True, success=True))[1])
+    monkeypatch.setattr(jtraj.plots, "plot_result", lambda *a, **k: None)
+    monkeypatch.setattr(jtraj.plots, "plot_convergence", lambda *a, **k: None)
+    monkeypatch.chdir(tmp_path)
+    assert cli.main(["solve", "big_jump"]) == 0
+    assert cli.main(["solve", "big_jump", "--robot", "talos=talos_full"]) == 0
+    assert cli.main(["solve", "sideflip", "--robot", "talos=talos_full"]) == 0  # a Go2 task: not retargeted
+    assert outs == ["runs/big_jump_se3", "runs/big_jump_se3_talos_full", "runs/sideflip_se3"]
