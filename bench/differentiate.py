@@ -1,6 +1,6 @@
 """Cost of one backward pass through the solver against one solve (`jtraj.differentiable`).
 
-    python bench/differentiate.py [--knots-scale 1] [--repeat 3]
+    python bench/differentiate.py [--knots-scale 1] [--repeat 3] [--out DIR]
 
 On a Go2 hop (the task of tests/test_differentiable.py), after compiling everything once:
 - solve, cold: Ipopt from the task's warm start;
@@ -13,15 +13,18 @@ On a Go2 hop (the task of tests/test_differentiable.py), after compiling everyth
   the transposed triangular solve and the JAX vector-Jacobian products of the residual and the
   motion).
 
-Measured on the 2-core machine (load average about 1, --repeat 3), 9 knots, n = 594, m = 638:
-cold solve 815 ms (15 Ipopt iterations), warm re-solve 624 ms (12), sensitivity system 61 ms,
-backward pass 318 ms, grad through the solver 942 ms (one forward solve per grad).
+Each figure is the fastest of ``--repeat`` runs. ``--out DIR`` writes them with the run's
+provenance (command, date, machine, versions): ``DIR/differentiate.json``,
+``DIR/differentiate.md`` and ``DIR/provenance.json`` (the figures depend on the machine and its
+load: none are kept here).
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -31,6 +34,9 @@ import jtraj  # noqa: F401  (float64)
 from jtraj.differentiate import differentiable
 from jtraj.sensitivity import kkt_system
 from jtraj.task import Phase, Task
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
+from _args import add_out  # noqa: E402
 
 FEET = ("FL_foot", "FR_foot", "RL_foot", "RR_foot")
 
@@ -52,10 +58,26 @@ def best_of(fn, repeat):
     return min(times)
 
 
+def table(rec: dict) -> str:
+    """Markdown: one row per figure of the record `main` measures, in milliseconds."""
+    from jtraj.tables import markdown_table
+
+    rows = [
+        ("solve, cold (Ipopt from the task's warm start)", f"{rec['cold_ms']:.1f}", rec["cold_iterations"]),
+        ("solve, warm (re-solve from the solution)", f"{rec['warm_ms']:.1f}", rec["warm_iterations"]),
+        ("sensitivity system (active set, K, sparse LU)", f"{rec['system_ms']:.1f}", ""),
+        ("backward pass (grad minus its warm solve)", f"{rec['grad_ms'] - rec['warm_ms']:.1f}", ""),
+        ("grad of a loss through the solver, total", f"{rec['grad_ms']:.1f}", ""),
+    ]
+    note = f"Go2 hop, {rec['knots']} knots: n = {rec['n']} variables, m = {rec['m']} constraints; the fastest of {rec['repeat']} runs, compile excluded."
+    return markdown_table(("", "ms", "Ipopt iterations"), rows, note)
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--knots-scale", type=int, default=1, help="divide the timestep by this (more knots)")
     ap.add_argument("--repeat", type=int, default=3)
+    add_out(ap, "differentiate")
     args = ap.parse_args(argv)
     if args.knots_scale < 1:
         ap.error(f"--knots-scale: {args.knots_scale}: expected an integer >= 1 (the timestep is divided by it)")
@@ -79,10 +101,12 @@ def main(argv: list[str] | None = None) -> None:
 
     print(f"Go2 hop, {f.transcription.N + 1} knots: n = {f.nlp.n} variables, m = {f.nlp.m} constraints", flush=True)
     t_cold = best_of(cold, args.repeat)
-    print(f"solve, cold (Ipopt from the task's warm start): {t_cold * 1e3:8.1f} ms ({f.last_solution.stats.iterations} iterations)", flush=True)
+    cold_iterations = f.last_solution.stats.iterations
+    print(f"solve, cold (Ipopt from the task's warm start): {t_cold * 1e3:8.1f} ms ({cold_iterations} iterations)", flush=True)
     jax.block_until_ready(solve(theta))
     t_warm = best_of(lambda: solve(theta), args.repeat)
-    print(f"solve, warm (re-solve from the solution):       {t_warm * 1e3:8.1f} ms ({f.last_solution.stats.iterations} iterations)", flush=True)
+    warm_iterations = f.last_solution.stats.iterations
+    print(f"solve, warm (re-solve from the solution):       {t_warm * 1e3:8.1f} ms ({warm_iterations} iterations)", flush=True)
     x, lam = f.last_solution.x, f.last_solution.mult_g
 
     def system():
@@ -96,6 +120,16 @@ def main(argv: list[str] | None = None) -> None:
     t_grad = best_of(lambda: grad(theta), args.repeat)
     print(f"backward pass (grad minus its warm solve):      {(t_grad - t_warm) * 1e3:8.1f} ms")
     print(f"grad of a loss through the solver, total:       {t_grad * 1e3:8.1f} ms")
+    if args.out:
+        from jtraj.provenance import write_results
+
+        rec = dict(
+            task="go2 hop", knots=f.transcription.N + 1, n=f.nlp.n, m=f.nlp.m, repeat=args.repeat, knots_scale=args.knots_scale,
+            cold_ms=t_cold * 1e3, cold_iterations=cold_iterations, warm_ms=t_warm * 1e3, warm_iterations=warm_iterations,
+            system_ms=t_system * 1e3, grad_ms=t_grad * 1e3,
+        )
+        write_results(args.out, "differentiate", rec, table(rec), "bench/differentiate.py", argv)
+        print(f"wrote {args.out}/differentiate.json, differentiate.md, provenance.json")
 
 
 if __name__ == "__main__":
