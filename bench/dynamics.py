@@ -1,6 +1,6 @@
 """Inverse dynamics and its Jacobians over one Talos trajectory: jtraj versus Pinocchio.
 
-Run: ``python bench/dynamics.py [--knots 66] [--repeats 30] [--robot talos]``
+Run: ``python bench/dynamics.py [--knots 66] [--repeats 30] [--robot talos] [--out DIR]``
 
 For K knots with random states (q, v, a, contact forces) it times, median over repeats:
   - tau at all knots: jtraj (jit + vmap) vs Pinocchio (rnea with external forces, Python loop);
@@ -9,13 +9,18 @@ For K knots with random states (q, v, a, contact forces) it times, median over r
     too) + contact frame Jacobians (Python loop over knots, same states);
   - for comparison, jax.jacfwd through MJX's pipeline and through jtraj's own RNEA.
 Compile times are the first call's wall time. Pinocchio's external forces are built in the
-joint frames before timing (which only favours Pinocchio).
+joint frames before timing (which only favours Pinocchio). The autodiff baselines are the
+median of fewer calls (a third of ``--repeats``, at least 3; jacfwd through MJX: 3), which the
+table says. ``--out DIR`` writes ``DIR/dynamics.json``, ``DIR/dynamics.md`` and
+``DIR/provenance.json``.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -30,6 +35,9 @@ import jtraj  # noqa: F401  (float64)
 from jtraj import dynamics
 from jtraj import robot as robot_lib
 from jtraj.parameterization import PARAMETERIZATIONS
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
+from _args import add_out  # noqa: E402
 
 
 def timed(fn, repeats):
@@ -50,13 +58,32 @@ def batched(fn):
     return jax.jit(jax.vmap(fn, in_axes=(None, None, 0, 0, 0, 0)), static_argnums=(0, 1))
 
 
-def row(label, ours, theirs=None, note=""):
-    """One line of the table: jtraj's time, Pinocchio's and jtraj's over Pinocchio's (below 1:
-    jtraj is faster)."""
+def row(label, ours, theirs=None, note="", compile_s=None, repeats=None) -> dict:
+    """Print one line of the table: jtraj's time, Pinocchio's and jtraj's over Pinocchio's
+    (below 1: jtraj is faster); return it as a record (seconds) for `table`."""
     line = f"{label:44s}{ours * 1e3:10.3f}ms"
     if theirs is not None:
         line += f"{theirs * 1e3:10.3f}ms{ours / theirs:19.2f}"
     print(line + note)
+    return dict(label=label, jtraj_s=ours, pinocchio_s=theirs, compile_s=compile_s, repeats=repeats)
+
+
+def table(rows: list[dict], note: str) -> str:
+    """Markdown: one line per `row` record, times in milliseconds, and ``note``."""
+    from jtraj.tables import markdown_table
+
+    def ms(t):
+        return "" if t is None else f"{t * 1e3:.3f}"
+
+    return markdown_table(
+        ("", "jtraj (ms)", "Pinocchio (ms)", "jtraj / Pinocchio", "jtraj compile (s)", "median of"),
+        [
+            (r["label"], ms(r["jtraj_s"]), ms(r["pinocchio_s"]), "" if r["pinocchio_s"] is None else f"{r['jtraj_s'] / r['pinocchio_s']:.2f}",
+             "" if r["compile_s"] is None else f"{r['compile_s']:.2f}", r["repeats"])
+            for r in rows
+        ],
+        note,
+    )
 
 
 def pinocchio_model(robot):
@@ -85,6 +112,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--repeats", type=int, default=30)
     parser.add_argument("--param", default="quat1", choices=list(PARAMETERIZATIONS))
     parser.add_argument("--skip-mjx", action="store_true", help="skip the slow jacfwd-through-MJX baseline")
+    add_out(parser, "dynamics")
     args = parser.parse_args(argv)
     for name in ("knots", "repeats"):
         if getattr(args, name) < 1:
@@ -165,22 +193,33 @@ def main(argv: list[str] | None = None) -> None:
 
     print()
     print(f"{'':44s}{'jtraj':>12s}{'Pinocchio':>12s}{'jtraj / Pinocchio':>19s}")
-    row("tau at all knots", t_tau, p_tau)
-    row("Jacobian of tau w.r.t. (q, v, a, f)", t_jac, p_jac)
+    rows = [
+        row("tau at all knots", t_tau, p_tau, compile_s=c_tau, repeats=args.repeats),
+        row("Jacobian of tau w.r.t. (q, v, a, f)", t_jac, p_jac, compile_s=c_jac, repeats=args.repeats),
+    ]
     print(f"jtraj compile: tau {c_tau:.2f} s, Jacobians {c_jac:.2f} s")
 
     # --- autodiff baselines
     print()
+    fewer = max(3, args.repeats // 3)
     own_fwd = batched(jax.jacfwd(dynamics.inverse_dynamics, argnums=(2, 3, 4, 5)))
-    c_own, t_own = timed(lambda: own_fwd(robot, param, Q, V, A, F), max(3, args.repeats // 3))
-    row("jax.jacfwd through jtraj RNEA", t_own, note=f"  (compile {c_own:.2f} s)")
+    c_own, t_own = timed(lambda: own_fwd(robot, param, Q, V, A, F), fewer)
+    rows.append(row("jax.jacfwd through jtraj RNEA", t_own, note=f"  (compile {c_own:.2f} s)", compile_s=c_own, repeats=fewer))
     if not args.skip_mjx:
         mjx_tau = batched(dynamics.inverse_dynamics_mjx)
-        c_mt, t_mt = timed(lambda: mjx_tau(robot, param, Q, V, A, F), max(3, args.repeats // 3))
+        c_mt, t_mt = timed(lambda: mjx_tau(robot, param, Q, V, A, F), fewer)
         mjx_fwd = batched(jax.jacfwd(dynamics.inverse_dynamics_mjx, argnums=(2, 3, 4, 5)))
         c_mj, t_mj = timed(lambda: mjx_fwd(robot, param, Q, V, A, F), 3)
-        row("tau through MJX (vmap)", t_mt, note=f"  (compile {c_mt:.2f} s)")
-        row("jax.jacfwd through MJX (vmap)", t_mj, note=f"  (compile {c_mj:.2f} s)")
+        rows.append(row("tau through MJX (vmap)", t_mt, note=f"  (compile {c_mt:.2f} s)", compile_s=c_mt, repeats=fewer))
+        rows.append(row("jax.jacfwd through MJX (vmap)", t_mj, note=f"  (compile {c_mj:.2f} s)", compile_s=c_mj, repeats=3))
+    if args.out:
+        from jtraj.provenance import write_results
+
+        note = (f"{robot.name}, {K} knots, parameterization {param.name}, jax {jax.__version__} on {jax.devices()[0].platform}, "
+                f"pinocchio {pin.__version__}; agreement with Pinocchio (tau, dtau/dv, M, J_c), max relative error {err:.1e}.")
+        rec = dict(robot=robot.name, knots=K, parameterization=param.name, agreement=err, rows=rows)
+        write_results(args.out, "dynamics", rec, table(rows, note), "bench/dynamics.py", argv)
+        print(f"wrote {args.out}/dynamics.json, dynamics.md, provenance.json")
 
 
 if __name__ == "__main__":

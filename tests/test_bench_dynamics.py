@@ -50,3 +50,18 @@ def test_pinocchio_jacobians_run_no_separate_rnea(monkeypatch):
     for x, y in ((dq, rdq), (dv, rdv), (da, rda), *zip(Jc, rJc)):
         np.testing.assert_allclose(np.asarray(x), y, rtol=0, atol=1e-12)
 
+
+def test_table_says_each_row_median_count(capsys):
+    """The printed header said 'median of --repeats' for every row, the autodiff baselines are
+    medians of fewer calls; ``--out``'s table gives each row's count, and no ratio without a peer."""
+    bench = bench_module("dynamics")
+    rows = [
+        bench.row("tau at all knots", 0.002, 0.001, compile_s=0.5, repeats=30),
+        bench.row("jax.jacfwd through jtraj RNEA", 0.004, compile_s=2.0, repeats=10),
+    ]
+    assert "tau at all knots" in capsys.readouterr().out
+    lines = bench.table(rows, "note").splitlines()
+    assert lines[0] == "|  | jtraj (ms) | Pinocchio (ms) | jtraj / Pinocchio | jtraj compile (s) | median of |"
+    assert lines[2] == "| tau at all knots | 2.000 | 1.000 | 2.00 | 0.50 | 30 |"
+    assert lines[3] == "| jax.jacfwd through jtraj RNEA | 4.000 |  |  | 2.00 | 10 |"
+    assert lines[-1] == "note"
