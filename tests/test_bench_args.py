@@ -157,6 +157,7 @@ def test_quaternion_noise_checks_every_parameterization_and_mode_first(monkeypat
         ("differentiate", []),
         ("dynamics", ["--robot", "go2"]),
         ("mu_oracle", ["big_jump"]),
+        ("vmap_cpu", []),
     ],
 )
 def test_an_out_folder_that_is_a_file_is_refused_before_any_work(monkeypatch, capsys, tmp_path, script, argv):
