@@ -65,3 +65,26 @@ def test_the_exact_hessian_is_compiled_before_the_timed_solve(monkeypatch, varia
         assert events == ["build_hessian", ("hessian", (4,), (3,), 1.0, "resolved theta"), "solve"]
     else:
         assert events == ["solve"]
+
+
+@pytest.mark.parametrize(("variants", "variables"), [("paper", "paper"), ("lean,paper", "lean"), ("jtraj", "compact"), ("exact", "paper")])
+def test_the_nlp_compiled_first_is_the_first_variants(monkeypatch, tmp_path, variants, variables):
+    """main() compiled the default (compact) variables' NLP before the variants, whichever they
+    were: with --variants paper, a compile for nothing, recorded as the task's compile_s."""
+    import json
+
+    bench = bench_module("solve")
+    prepared: list = []
+
+    def fake_prepare(task, param, variables="compact"):
+        prepared.append(variables)
+        return type("Prep", (), {"nlp": type("NLP", (), {"n": 10, "m": 5})})()
+
+    def fake_variant(task, param, name, extra, extra_jtraj):
+        return dict(variant=name, status="solved", success=True, iterations=3, time_s=1.0, time_derivatives=0.0, time_ipopt=1.0, time_linear_solver=None, cost=0.0, constraint_violation=0.0)
+
+    monkeypatch.setattr(bench, "prepare", fake_prepare)
+    monkeypatch.setattr(bench, "run_variant", fake_variant)
+    bench.main(["big_jump", "--variants", variants, "--no-peer", "--out", str(tmp_path)])
+    assert prepared == [variables]
+    assert json.loads((tmp_path / "speed.json").read_text())[0]["compile_variables"] == variables
