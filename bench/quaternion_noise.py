@@ -163,7 +163,8 @@ def table(records: list[dict]) -> str:
             if not rows:
                 continue
             its = [r["iterations"] for r in rows if r["converged"]]
-            median = f"{np.median(its):.0f}" if its else "-"
+            # an even count's median is a half-integer: "12.5", not "12" (f"{12.5:.0f}" rounds half to even)
+            median = f"{np.median(its):g}" if its else "-"
             line = f"| {param} | {mode} | {sum(r['converged'] for r in rows)} / {len(rows)} | {sum(r['success'] for r in rows)} / {len(rows)} | {median} |"
             if angles:
                 line += f" {np.mean([r['rotation_noise_mean'] for r in rows]):.2f} | {100 * np.mean([r['rotation_noise_over_half_pi'] for r in rows]):.1f} % |"

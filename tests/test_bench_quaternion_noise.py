@@ -34,11 +34,6 @@ def test_table_counts_each_mode(qn):
     assert lines[3] == "| quat1 | unit | 1 / 3 | 0 / 3 | 70 |"
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="the fix (:g for the median, commit 8d98fa5) changes five committed tables in results/quaternion_noise_*/"
-    " (50 -> 50.5, 86 -> 85.5, ...), which tests/test_results.py re-renders: reverted until results/ is re-rendered with it",
-)
 def test_table_median_of_an_even_count_is_not_rounded(qn):
     """Two converged runs of 12 and 13 iterations: their median is 12.5, which ``:.0f`` showed
     as 12 (and 13.5 as 14: Python rounds half to even), a figure no run took."""
