@@ -20,6 +20,10 @@ N = 6
 
 @pytest.fixture(scope="module")
 def walk_nlp():
+    return _walk_nlp()
+
+
+def _walk_nlp():
     """x_{k+1} = x_k + u_k from x_0 = 0; cost sum (x_k - 1)^2 + u_k^2; u_k <= 0.3 (active)."""
     layout = Layout((("x", 1), ("u", 1)))
     step = ConstraintGroup(
@@ -312,3 +316,31 @@ def test_wall_time_limit_is_reported_with_a_message(walk_nlp):
 def test_unknown_ipopt_option_names_it(walk_nlp):
     with pytest.raises(InvalidOptionError, match="not_an_option"):
         IpoptSolver().solve(walk_nlp, np.zeros(walk_nlp.n), None, {"not_an_option": 1})
+
+
+def test_exact_hessian_is_compiled_before_the_timed_solve(monkeypatch):
+    """With hessian="exact" the Hessian was built and its scatter compiled by Ipopt's first
+    call, inside the timed solve: time_s held a compile that time_compile did not. It is now
+    called once before the clock starts, once per NLP, and reported as time_compile."""
+    import jtraj.solvers.ipopt as ipopt_backend
+
+    nlp = _walk_nlp()
+    calls_before_ipopt = []
+    make_problem = ipopt_backend._Problem
+
+    def counting_problem(nlp_, f, exact, callback):
+        calls_before_ipopt.append(nlp_._hessian_built and calls[0])
+        return make_problem(nlp_, f, exact, callback)
+
+    calls = [0]
+    monkeypatch.setattr(ipopt_backend, "_Problem", counting_problem)
+    nlp.build_hessian()
+    built = nlp.hessian
+    monkeypatch.setattr(nlp, "hessian", lambda *a: (calls.__setitem__(0, calls[0] + 1), built(*a))[1])
+    first = IpoptSolver().solve(nlp, np.zeros(nlp.n), None, IpoptOptions(tol=1e-10, hessian="exact"))
+    second = IpoptSolver().solve(nlp, np.zeros(nlp.n), None, IpoptOptions(tol=1e-10, hessian="exact"))
+    assert first.converged and second.converged
+    assert calls_before_ipopt == [1, first.stats.hess_evals + 1]  # one warm-up call, before the first solve only
+    assert first.time_compile > 0.0 and second.time_compile == 0.0
+    lbfgs = IpoptSolver().solve(_walk_nlp(), np.zeros(nlp.n), None, IpoptOptions(tol=1e-10))
+    assert lbfgs.time_compile == 0.0
