@@ -88,12 +88,19 @@ def table(records: list[dict]) -> str:
     def iterations(r: dict) -> str:
         return "/".join(str(i) for i in r["iterations"]) if len(set(r["iterations"])) > 1 else str(r["iterations"][0])
 
+    def ratio(r: dict) -> str:
+        # a solve that did not do the task has no time to solution to compare (a stop at the
+        # iteration limit read as the variant being so much slower)
+        baseline = next(b for b in records if b["task"] == r["task"])
+        failed = [x for x in (r, baseline) if x["status"] != "solved"]
+        return f"{r['speedup']:.2f}x" if not failed else f"none ({'baseline ' if failed[0] is baseline and r is not baseline else ''}{failed[0]['status']})"
+
     header = ("task", "variant", "options", "status", "iterations", "cost", "max violation", "median time (s)", "range (s)", "baseline / variant")
     return markdown_table(header, (
         (r["task"], r["variant"], options(r), r["status"], iterations(r), f"{r['cost']:.6g}", f"{r['constraint_violation']:.1e}", f"{r['median_s']:.3f}",
-         f"{min(r['times_s']):.3f}-{max(r['times_s']):.3f}", f"{r['speedup']:.2f}x")
+         f"{min(r['times_s']):.3f}-{max(r['times_s']):.3f}", ratio(r))
         for r in records
-    ), note="Each variant's solves alternate with the others' in one process (ABBA); the ratio is of the medians, the first variant the baseline.")
+    ), note="Each variant's solves alternate with the others' in one process (ABBA); the ratio is of the medians, the first variant the baseline; none where either did not solve the task.")
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -53,3 +53,16 @@ def test_parse_variant_values_and_errors(capsys):
     with pytest.raises(SystemExit):
         bench.main(["big_jump", "--variant", "a", "--variant", "a"])
     assert "--variant names must differ" in capsys.readouterr().err
+
+
+def test_no_ratio_where_either_solve_did_not_do_the_task():
+    """A variant stopped at the iteration limit got a ratio (0.11x in results/delta_c_variants/
+    fixed/), read as that variant being so much slower to a solution it never reached."""
+    bench = bench_module("options")
+
+    def row(task, variant, status, speedup):
+        return dict(task=task, variant=variant, options={}, status=status, iterations=[200], cost=0.0, constraint_violation=1e-9, median_s=1.0, times_s=[1.0], speedup=speedup)
+
+    recs = [row("a", "default", "solved", 1.0), row("a", "v", "not_converged", 0.11), row("b", "default", "converged_but_task_failed", 1.0), row("b", "v", "solved", 2.0)]
+    ratios = [line.rsplit("|", 2)[1].strip() for line in bench.table(recs).splitlines()[2:6]]
+    assert ratios == ["1.00x", "none (not_converged)", "none (converged_but_task_failed)", "none (baseline converged_but_task_failed)"]
