@@ -12,6 +12,10 @@ import argparse
 from collections.abc import Sequence
 from pathlib import Path
 
+#: the runner of the paper's public code, which runs one task and prints one JSON line (outside
+#: this repository: a checkout has it beside its own folder, under shared/peers/)
+DEFAULT_PEER = Path(__file__).resolve().parents[1].parent / "shared" / "peers" / "run-se3-trajopt"
+
 
 def add_tasks(ap: argparse.ArgumentParser, default: Sequence[str] | None = None) -> None:
     """Positional ``tasks``: built-in tasks or task files, each checked as it is parsed

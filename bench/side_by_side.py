@@ -51,11 +51,8 @@ from jtraj.task import Task, TaskError, available, retarget
 from jtraj.task import load as load_task
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
-from _args import add_peer_options, out_folder  # noqa: E402
+from _args import DEFAULT_PEER, add_peer_options, out_folder  # noqa: E402
 
-#: The public code's runner: ../shared/peers/run-se3-trajopt beside the repository (pass
-#: --peer from a worktree elsewhere).
-DEFAULT_PEER = Path(__file__).resolve().parents[1].parent / "shared" / "peers" / "run-se3-trajopt"
 #: Iterations of the SE(3) tangent parameterization in the paper's Table IV.
 PAPER_TABLE_IV = {"walk": 14, "hopscotch": 10, "big_jump": 11, "handstand": 88, "backflip": 28, "sideflip": 29}
 TASKS = ("walk", "hopscotch", "big_jump", "handstand", "backflip", "sideflip")

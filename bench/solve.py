@@ -60,7 +60,7 @@ from jtraj.provenance import write_results
 from jtraj.solver import prepare, solve
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
-from _args import add_param, add_tasks, out_folder  # noqa: E402
+from _args import DEFAULT_PEER, add_param, add_tasks, out_folder  # noqa: E402
 
 VARIANTS = {
     "paper": dict(variables="paper", exact_hessian=False),
@@ -69,7 +69,6 @@ VARIANTS = {
     "compact": dict(variables="compact", exact_hessian=False),
     "jtraj": dict(variables="compact", exact_hessian=False, solver="jtraj"),
 }
-DEFAULT_PEER = Path(__file__).resolve().parents[1].parent / "shared" / "peers" / "run-se3-trajopt"
 
 
 def ipopt_timing(text: str) -> dict[str, float]:
