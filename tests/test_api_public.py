@@ -60,7 +60,9 @@ def test_dir_and_help_show_the_lazily_imported_names():
     for name in ("solve", "load_task", "load_robot", "differentiable", "OptimalMotion", "TaskParams"):
         assert f"\n    {name}" in text or f"class {name}" in text, name
     # the private alias of jtraj.config that `import jtraj` uses was listed as a submodule
-    assert "_config" not in dir(jtraj) and "SUBMODULES" not in text
+    # (pydoc's SUBMODULES section itself depends on what else this process imported: the
+    # package-data folders jtraj.robots and jtraj.tasks appear there once read)
+    assert "_config" not in dir(jtraj) and "\n    _config\n" not in text
 
 
 @pytest.mark.parametrize(
