@@ -101,8 +101,6 @@ def run_variant(task: str, param: str, variant: str, extra: dict, extra_jtraj: d
     v = VARIANTS[variant]
     if v.get("solver") == "jtraj":
         return run_jtraj(task, param, variant, v, extra_jtraj)
-    if v["exact_hessian"]:
-        compile_hessian(task, param, v["variables"])
     opts = {"print_timing_statistics": "yes", "print_level": 3} | extra  # main() refused values that hide the timing table
     # Ipopt prints its timing table on the C side: capture it from file descriptor 1
     with tempfile.TemporaryFile(mode="w+") as tmp:
@@ -118,21 +116,6 @@ def run_variant(task: str, param: str, variant: str, extra: dict, extra_jtraj: d
         tmp.seek(0)
         timing = ipopt_timing(tmp.read())
     return _record(variant, r, timing.get("StdAugSystemSolverMultiSolve"))
-
-
-def compile_hessian(task: str, param: str, variables: str) -> None:
-    """Build the NLP's exact Hessian and evaluate it once at the warm start, as `prepare`
-    does for the other functions Ipopt calls: `prepare` leaves the Hessian out, and its first
-    call (which compiles its jitted scatter) ran inside Ipopt's timed solve, so the exact
-    variant's time to solution included a compile (0.3 s on a small Go2 hop)."""
-    import jax.numpy as jnp
-    import numpy as np
-
-    prep = prepare(task, param, variables)
-    tr, nlp = prep.transcription, prep.nlp
-    nlp.build_hessian()
-    theta = tr.resolve_theta(None)  # the theta `solve` gives Ipopt's callbacks
-    np.asarray(nlp.hessian(jnp.asarray(tr.warm_start(theta).reshape(-1)), jnp.asarray(np.zeros(nlp.m)), 1.0, theta))
 
 
 def _record(variant: str, r, time_linear_solver: float | None) -> dict:

@@ -1,70 +1,7 @@
-"""bench/solve.py's timed region: what is compiled before the clock of a variant starts."""
+"""bench/solve.py: what is compiled before the variants (the exact Hessian is compiled before the clock by the Ipopt backend itself: tests/test_solvers.py)."""
 
-from types import SimpleNamespace
-
-import numpy as np
 import pytest
 from conftest import bench_module
-
-
-def _outcome():
-    from jtraj.result import Outcome
-
-    return SimpleNamespace(status=Outcome.SOLVED, success=True, iterations=3, time_s=1.0, time_derivatives=0.1, time_solver=0.9, cost=0.0, constraint_violation=0.0)
-
-
-class _FakeNLP:
-    m = 3
-    theta = "nlp theta"
-
-    def __init__(self, events: list):
-        self.events = events
-
-    def build_hessian(self):
-        self.events.append("build_hessian")
-
-    def hessian(self, x, lam, obj_factor, theta):
-        self.events.append(("hessian", np.asarray(x).shape, np.asarray(lam).shape, obj_factor, theta))
-        return np.zeros(2)
-
-
-class _FakeTranscription:
-    def resolve_theta(self, theta):
-        assert theta is None
-        return "resolved theta"
-
-    def warm_start(self, theta=None):
-        assert theta == "resolved theta"
-        return np.zeros((2, 2))
-
-
-@pytest.mark.parametrize(("variant", "compiled"), [("exact", True), ("paper", False), ("lean", False)])
-def test_the_exact_hessian_is_compiled_before_the_timed_solve(monkeypatch, variant, compiled):
-    """The exact variant's Hessian was first called inside Ipopt's timed solve: `prepare`
-    compiles the objective, gradient, constraints and Jacobian, not the Hessian, so its compile
-    counted as solve time. It is now built and evaluated once, at the warm start and the theta
-    the solve uses, before `solve` runs (and only for the variant that uses it)."""
-    bench = bench_module("solve")
-    events: list = []
-    prepared: list = []
-
-    def fake_prepare(task, param, variables="compact"):
-        prepared.append((task, param, variables))
-        return type("Prep", (), {"nlp": _FakeNLP(events), "transcription": _FakeTranscription()})()
-
-    def fake_solve(task, param, **kwargs):
-        events.append("solve")
-        assert kwargs["exact_hessian"] == (variant == "exact")
-        return _outcome()
-
-    monkeypatch.setattr(bench, "prepare", fake_prepare)
-    monkeypatch.setattr(bench, "solve", fake_solve)
-    bench.run_variant("big_jump", "se3", variant, {}, {})
-    if compiled:
-        assert prepared == [("big_jump", "se3", "paper")]
-        assert events == ["build_hessian", ("hessian", (4,), (3,), 1.0, "resolved theta"), "solve"]
-    else:
-        assert events == ["solve"]
 
 
 @pytest.mark.parametrize(("variants", "variables"), [("paper", "paper"), ("lean,paper", "lean"), ("jtraj", "compact"), ("exact", "paper")])
