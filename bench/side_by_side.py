@@ -168,9 +168,10 @@ def run_peer_checked(task: str, sigma: float, seed: int, peer_src: Path = DEFAUL
     )
 
 
-def _error_row(task: str, sigma: float, seed: int, error: str) -> dict:
-    """The row of a failed solve of the paper's code (not done: a later run solves it again)."""
-    return dict(code="paper", task=task, sigma=sigma, seed=seed, status="error", converged=False, iterations=None, error=error)
+def _error_row(task: str, sigma: float, seed: int, error: str, code: str = "paper") -> dict:
+    """The row of a failed solve of the paper's code, or of a jtraj solve that raised (``code``
+    its column); not done: a later run solves it again."""
+    return dict(code=code, task=task, sigma=sigma, seed=seed, status="error", converged=False, iterations=None, error=error)
 
 
 def run_peer(peer: Path, task: str, sigma: float, seed: int) -> dict:
@@ -369,7 +370,10 @@ def main(argv: list[str] | None = None) -> None:
                 key = (code, task, args.sigma, seed)
                 if key in done:
                     continue
-                row = job()
+                try:
+                    row = job()
+                except Exception as e:  # a jtraj solve that raised: an error row, as a failed peer gets; the other solves still run
+                    row = _error_row(task, args.sigma, seed, f"{type(e).__name__}: {e}"[-500:], code)
                 print(json.dumps(row), flush=True)
                 old = [i for i, r in enumerate(rows) if (r["code"], r["task"], r["sigma"], r["seed"]) == key]  # a failed one
                 if old:

@@ -42,6 +42,27 @@ def test_a_failed_peer_solve_is_retried_and_exits_nonzero(sbs, monkeypatch, tmp_
     assert "| walk | 0 | 14 | 14 |" in (out / "side_by_side.md").read_text()
 
 
+def test_a_jtraj_solve_that_raises_is_an_error_row_and_the_others_run(sbs, monkeypatch, tmp_path, capsys):
+    """A jtraj solve that raised ended the whole run in a traceback, where a failed solve of
+    the paper's code is an error row that the next run retries."""
+    solved = []
+
+    def run_jtraj(task, variables, sigma, seed, *args):
+        solved.append(task)
+        if task == "walk":
+            raise FloatingPointError("NaN in the warm start")
+        return dict(code=f"jtraj {variables}", task=task, sigma=sigma, seed=seed, status="solved", converged=True, iterations=12)
+
+    monkeypatch.setattr(sbs, "run_jtraj", run_jtraj)
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as exc:
+        sbs.main(["--tasks", "walk,big_jump", "--variables", "paper", "--peer", "", "--out", str(out)])
+    assert "1 solve(s) failed" in str(exc.value.code) and "jtraj paper on walk (sigma 0, seed 0)" in str(exc.value.code)
+    assert "failed: FloatingPointError: NaN in the warm start" in capsys.readouterr().err
+    assert solved == ["walk", "big_jump"]
+    assert [(r["code"], r["task"], r["status"]) for r in _rows(out)] == [("jtraj paper", "walk", "error"), ("jtraj paper", "big_jump", "solved")]
+
+
 @pytest.mark.parametrize(("body", "printed"), [("echo '{not json'", "'{not json'"), ("echo hello", "'hello'"), ("echo '{\"foo\": 1}'", "'{\"foo\": 1}'"), ("true", "''")])
 def test_unparsable_peer_output_stops_with_one_line(sbs, tmp_path, body, printed):
     peer = fake_peer(tmp_path, body)
