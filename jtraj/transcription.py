@@ -670,8 +670,10 @@ class Transcription:
 
     def decode(self, x: np.ndarray, theta: TaskParams | Mapping[str, Any] | None = None) -> Trajectory:
         """The trajectory of the solution ``x`` (n,) of the NLP at parameters ``theta``
-        (`resolve_theta`: None is the task's, a mapping overrides some of them)."""
-        theta = self.resolve_theta(theta)
+        (`resolve_theta`: None is the task's, a mapping overrides some of them; a `TaskParams`,
+        which solves have resolved already, is taken as it is)."""
+        if not isinstance(theta, TaskParams):
+            theta = self.resolve_theta(theta)
         h = float(theta.timestep)
         L, param = self.layout, self.param
         Z = jnp.asarray(np.asarray(x).reshape(self.N + 1, L.nz))
