@@ -55,6 +55,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jtraj.numbers import is_whole
+
 __all__ = ["Layout", "Dep", "ConstraintGroup", "CostGroup", "KnotStructure", "KnotNLP"]
 
 #: Bounds given as an array or as a function of the parameters theta.
@@ -73,7 +75,7 @@ class Layout:
             if names.count(name) > 1:
                 raise ValueError(f"layout {names}: slot {name!r} appears twice")
         for name, size in self.slots:
-            if not isinstance(size, (int, np.integer)) or isinstance(size, bool) or size < 0:
+            if not is_whole(size) or size < 0:
                 raise ValueError(f"layout {names}: slot {name!r} has size {size!r}; expected a whole number >= 0")
 
     @property
