@@ -47,9 +47,10 @@ from jtraj import parameterization as params
 from jtraj import robot as robots
 from jtraj import task as tasks
 from jtraj.deprecation import renamed_argument
-from jtraj.implicit import check_weak_tol, implicit_solution
+from jtraj.implicit import implicit_solution
 from jtraj.nlp import CostGroup, Dep, KnotNLP
 from jtraj.numbers import is_real
+from jtraj.sensitivity import check_weak_tol
 from jtraj.solver import transcription_options
 from jtraj.transcription import COMPACT_VARIABLES, CONSTRAINT_STAGES, GRAVITY, TaskParams, Transcription, TranscriptionOptions, cost_terms
 
