@@ -204,6 +204,12 @@ class Robot:
             raise KeyError(f"robot {self.name!r} has no contact group {name!r}; expected one of: {choices}")
         return self.contact_groups[name]
 
+    def joints_outside_limits(self, q_joints: Any) -> np.ndarray:
+        """Indices of the joints whose positions in ``q_joints`` (nj,) (rad) lie outside
+        [`q_lower`, `q_upper`], in joint order (empty when all are within)."""
+        q = np.asarray(q_joints, float)
+        return np.flatnonzero((q < self.q_lower) | (q > self.q_upper))
+
     def content_hash(self) -> str:
         """A hex digest of everything of this robot that a problem reads: the compiled MuJoCo
         model (MuJoCo's binary MJB: bodies, masses, inertias, joints), the contact points and

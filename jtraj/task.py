@@ -263,7 +263,7 @@ class Task:
             if tj.shape != (robot.nj,):
                 raise TaskError("target_joints", _Raw(f"{tj.size} values"), f"expected {robot.nj} (one per joint of {robot.name!r})")
             lo, hi = robot.q_lower, robot.q_upper
-            outside = np.flatnonzero((tj < lo) | (tj > hi))
+            outside = robot.joints_outside_limits(tj)
             if outside.size:
                 j = outside[0]
                 raise TaskError(f"target_joints[{j}] ({robot.joint_names[j]})", float(tj[j]), f"outside the joint limits [{lo[j]:g}, {hi[j]:g}] rad")

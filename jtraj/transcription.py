@@ -372,12 +372,14 @@ class Transcription:
         if theta is None:
             return default
         if isinstance(theta, TaskParams):
-            return self._within_joint_limits(default.replace(**{f.name: getattr(theta, f.name) for f in dataclasses.fields(theta)}).check())
-        if isinstance(theta, Mapping):
+            overrides = {f.name: getattr(theta, f.name) for f in dataclasses.fields(theta)}
+        elif isinstance(theta, Mapping):
             if "max_delta_force" in theta and self.task.max_delta_force is None:
                 raise ValueError(f"task {self.task.name!r} sets no max_delta_force, so it has no force-rate rows to bound; set it in the task")
-            return self._within_joint_limits(default.replace(**theta).check())
-        raise TypeError(f"theta must be None, a mapping of parameter overrides or a TaskParams, got {type(theta).__name__}")
+            overrides = dict(theta)
+        else:
+            raise TypeError(f"theta must be None, a mapping of parameter overrides or a TaskParams, got {type(theta).__name__}")
+        return self._within_joint_limits(default.replace(**overrides).check())
 
     def _within_joint_limits(self, theta: TaskParams) -> TaskParams:
         """Refuse standing joint positions outside the robot's limits (values being traced are
@@ -389,7 +391,7 @@ class Transcription:
             return theta
         q = np.asarray(q, float)
         lo, hi = self.robot.q_lower, self.robot.q_upper
-        outside = np.flatnonzero((q < lo) | (q > hi))
+        outside = self.robot.joints_outside_limits(q)
         if outside.size:
             j = int(outside[0])
             raise ValueError(
