@@ -118,7 +118,7 @@ def main(argv: list[str] | None = None) -> None:
         if getattr(args, name) < 1:
             parser.error(f"--{name}: {getattr(args, name)}: expected an integer >= 1")
     if pin is None:  # a traceback at import, before: jtraj's columns alone would be no comparison
-        parser.error("Pinocchio, the peer of this benchmark, is not installed: pip install pin==4.1.0 (in jtraj's [test] extra)")
+        parser.error("Pinocchio, the peer of this benchmark, is not installed: pip install pin==4.1.0 (in jtraj's [bench] extra)")
 
     robot = robot_lib.load(args.robot)
     param = PARAMETERIZATIONS[args.param]
