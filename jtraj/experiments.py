@@ -290,7 +290,8 @@ def check_noise_chart(tasks: Sequence[str | Task], params: Sequence[str], variab
     """Raise `NoiseChartError` before any NLP compiles where ``noise_chart``'s noisy poses cannot
     be given to one of ``params`` on one of ``tasks`` (`chart_noisy_warm_starts`; it builds
     each parameterization's warm start and the noise chart's once per task, about 3 s each on
-    two cores)."""
+    two cores). A (task, parameterization) pair that passed is not built again in this process:
+    the command line checks before it writes OUT, and `robustness` checks again."""
     if noise_chart is None:
         return
     if noise_chart not in PARAMETERIZATIONS:
@@ -299,13 +300,21 @@ def check_noise_chart(tasks: Sequence[str | Task], params: Sequence[str], variab
     from jtraj.transcription import Transcription
 
     options = transcription_options(variables)
+    options_hash = variables_hash(options)
     for task in tasks:
         task = load_task(task)
+        todo = [p for p in params if p != noise_chart and (task.content_hash(), p, options_hash, noise_chart) not in _NOISE_CHARTS_PASSED]
+        if not todo:
+            continue
         robot = load_robot(task.robot)
         source = Transcription(robot, task, PARAMETERIZATIONS[noise_chart], options)
-        for p in params:
-            if p != noise_chart:
-                chart_noisy_warm_starts(Transcription(robot, task, PARAMETERIZATIONS[p], options), noise_chart, [0.0], [0], source=source)
+        for p in todo:
+            chart_noisy_warm_starts(Transcription(robot, task, PARAMETERIZATIONS[p], options), noise_chart, [0.0], [0], source=source)
+            _NOISE_CHARTS_PASSED.add((task.content_hash(), p, options_hash, noise_chart))
+
+
+#: (task content hash, parameterization, variables hash, noise chart) of the checks passed
+_NOISE_CHARTS_PASSED: set[tuple[str, str, str, str]] = set()
 
 
 #: the fields of a run's key, beside its task's name (kept for the tables); "layout" holds the
@@ -570,7 +579,8 @@ def robustness(
     done = {run_key(r) for r in before}
     args = [(t, p, tuple(sigmas), replicates, seed, variables, exact_hessian, ipopt_options, solver, noise_chart, done, runs_path) for t in tasks for p in params]
     if progress is not None and before:
-        wanted = {run_key(_group_key(*a[:2], variables, exact_hessian, ipopt_options, seed, solver, noise_chart) | {"sigma": s, "replicate": r}) for a in args for s in sigmas for r in range(replicates)}
+        bases = [_group_key(*a[:2], variables, exact_hessian, ipopt_options, seed, solver, noise_chart) for a in args]
+        wanted = {run_key(base | {"sigma": s, "replicate": r}) for base in bases for s in sigmas for r in range(replicates)}
         unknown = sum(1 for r in before if any(k not in r for k in _UNKNOWN_KEYS))
         others = sum(1 for r in before if all(k in r for k in _UNKNOWN_KEYS) and run_key(r) not in wanted)
         if unknown:

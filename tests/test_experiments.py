@@ -859,3 +859,19 @@ def test_compare_interrupted_says_how_many_cells_its_table_holds(tmp_path, fake_
         compare(["big_jump"], ["se3", "euler"], out=tmp_path, progress=None)
     said = f"{tmp_path / 'table_iv.json'} holds the 1 of 2 cells finished before it" if finished else "none of the 2 cells had finished"
     assert str(e.value) == said
+
+
+def test_a_noise_chart_check_that_passed_is_not_built_again(monkeypatch):
+    """jtraj robustness --noise-chart checks the chart before it writes OUT, and robustness()
+    checks it again: the second check built every transcription again (seconds per pair)."""
+    from jtraj.experiments import check_noise_chart
+
+    calls = []
+    monkeypatch.setattr(experiments, "chart_noisy_warm_starts", lambda tr, chart, *a, **k: calls.append(tr.param.name))
+    monkeypatch.setattr(experiments, "_NOISE_CHARTS_PASSED", set())
+    check_noise_chart([HOP], ["se3", "quat1", "euler"], "paper", "se3")
+    assert calls == ["quat1", "euler"]
+    check_noise_chart([HOP], ["se3", "quat1", "euler", "quat2"], "paper", "se3")
+    assert calls == ["quat1", "euler", "quat2"]  # only the pair not checked before
+    check_noise_chart([HOP], ["quat1"], "compact", "se3")  # other variables: another check
+    assert calls[-1] == "quat1" and len(calls) == 4
