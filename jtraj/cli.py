@@ -63,7 +63,7 @@ def _cmd_solve(args: argparse.Namespace) -> int:
 
     # loaded, retargeted and checked by _check_inputs
     options, task = args.ipopt_checked, args.task_checked
-    out = _solve_out(args)
+    out = args.out_checked
     result = solve(
         task,
         args.param,
@@ -539,7 +539,8 @@ def _check_inputs(args: argparse.Namespace) -> None:
         args.variables = _check_variable_changes(args.variables, args.variable_changes)
     if cmd == "solve":
         args.task_checked = _load_valid_task(args.task, args.robots_checked)
-        _check_out(_solve_out(args))
+        args.out_checked = _solve_out(args)
+        _check_out(args.out_checked)
         if not (math.isfinite(args.noise) and args.noise >= 0):
             raise InputError("--noise", args.noise, "expected a standard deviation >= 0")
         _check_seed(args.seed)
