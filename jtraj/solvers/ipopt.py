@@ -267,6 +267,7 @@ class IpoptSolver(AbstractSolver):
         if problem_text is not None:  # Ipopt's INVALID_PROBLEM, with the bound named
             return invalid_problem(f, x0, problem_text, nlp.m, nlp, callback)
         exact = opts.hessian == "exact"
+        x0 = np.clip(x0, f.x_lower, f.x_upper)
         time_compile = 0.0
         if exact and nlp not in _HESSIAN_COMPILED:
             # built and called once before the clock starts, as the other callbacks are
@@ -274,7 +275,7 @@ class IpoptSolver(AbstractSolver):
             # the timed solve); reported as the backend's compile time
             t0 = time.perf_counter()
             nlp.build_hessian()
-            np.asarray(f.hessian(jnp.asarray(np.clip(x0, f.x_lower, f.x_upper)), jnp.zeros(nlp.m), 1.0))
+            np.asarray(f.hessian(jnp.asarray(x0), jnp.zeros(nlp.m), 1.0))
             time_compile = time.perf_counter() - t0
             _HESSIAN_COMPILED.add(nlp)
         problem_obj = _Problem(nlp, f, exact, callback)
@@ -285,7 +286,6 @@ class IpoptSolver(AbstractSolver):
                 problem.add_option(key, value)
             except TypeError as e:  # cyipopt raises TypeError for unknown options and bad values
                 raise InvalidOptionError(f"Ipopt rejected option {key}={value!r}: {e}") from None
-        x0 = np.clip(x0, f.x_lower, f.x_upper)
         if callback is not None:
             callback.on_start(nlp)
         t0 = time.perf_counter()
