@@ -527,7 +527,9 @@ def _check_positive_int(field: str, value: int, minimum: int = 1) -> None:
 def _check_seed(value: int) -> None:
     """A seed that JAX's PRNGKey takes (a 64-bit integer); a larger one raised OverflowError
     where the noise is drawn, after the compile."""
-    if not -(2**63) <= value < 2**63:
+    from jtraj.numbers import is_seed
+
+    if not is_seed(value):
         raise InputError("--seed", value, "expected a 64-bit integer (below 2**63 in magnitude)")
 
 

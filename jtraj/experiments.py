@@ -29,6 +29,7 @@ from jtraj import io as jio
 from jtraj import solvers
 from jtraj.deprecation import renamed_argument
 from jtraj.executors import EXECUTORS, WorkerLostError, executor_for
+from jtraj.numbers import is_seed
 from jtraj.parameterization import PARAMETERIZATIONS
 from jtraj.result import Outcome
 from jtraj.solver import evaluate, prepare, solve, solver_options, transcription_options, variables_label
@@ -554,8 +555,7 @@ def robustness(
     for s in sigmas:
         if not (math.isfinite(s) and s >= 0):
             raise ValueError(f"robustness: sigma={s!r}: expected noise levels (standard deviations) >= 0")
-    # JAX's PRNGKey takes a 64-bit integer; a larger seed raised OverflowError after the first compile
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not -(2**63) <= seed < 2**63:
+    if not is_seed(seed):
         raise ValueError(f"robustness: seed={seed!r}: expected a 64-bit integer (below 2**63 in magnitude)")
     loaded = [load_task(t) for t in tasks]
     _refuse_repeats("robustness: tasks", tasks, [t.name for t in loaded], "task")

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["is_real", "is_whole"]
+__all__ = ["is_real", "is_whole", "is_seed"]
 
 
 def is_real(value: Any) -> bool:
@@ -21,3 +21,9 @@ def is_real(value: Any) -> bool:
 def is_whole(value: Any) -> bool:
     """A Python or numpy integer (not a bool)."""
     return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+
+
+def is_seed(value: Any) -> bool:
+    """A whole number that JAX's ``PRNGKey`` takes: 64 bits, below 2**63 in magnitude (a larger
+    one raises OverflowError where the noise is drawn, after the NLP has compiled)."""
+    return is_whole(value) and -(2**63) <= value < 2**63

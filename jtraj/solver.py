@@ -16,6 +16,7 @@ from jtraj import robot as robots
 from jtraj import task as tasks
 from jtraj.deprecation import renamed_argument, warn_renamed
 from jtraj.nlp import KnotNLP
+from jtraj.numbers import is_seed, is_whole
 from jtraj.registry import lookup
 from jtraj.result import Outcome, Result
 from jtraj.solvers.base import initial_guess
@@ -233,10 +234,12 @@ def solve(
         raise ValueError(f"solve: noise={noise!r}: expected a standard deviation >= 0")
     # replicate=1.5 drew replicate 1 and replicate=-1 one no study has (numbers are cast to
     # uint32); a negative seed of numpy's noise failed in default_rng after the NLP was built
-    if replicate is not None and (isinstance(replicate, bool) or not isinstance(replicate, (int, np.integer)) or replicate < 0):
+    if replicate is not None and (not is_whole(replicate) or replicate < 0):
         raise ValueError(f"solve: replicate={replicate!r}: expected a replicate number >= 0 (jtraj.experiments.robustness numbers them from 0)")
-    if (noise or replicate is not None) and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))):
+    if (noise or replicate is not None) and not is_whole(seed):
         raise ValueError(f"solve: seed={seed!r}: expected an integer")
+    if replicate is not None and not is_seed(seed):  # the study's draws: JAX's PRNGKey, after the compile
+        raise ValueError(f"solve: seed={seed!r}: expected a 64-bit integer (below 2**63 in magnitude)")
     if noise and replicate is None and seed < 0:
         raise ValueError(f"solve: seed={seed!r}: expected a seed >= 0 for numpy's default_rng, which draws this noise (replicate= draws with JAX, which takes any)")
     backend = solvers.get(solver)

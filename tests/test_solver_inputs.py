@@ -186,6 +186,8 @@ def test_solve_refuses_bad_seeds_and_replicates_before_building_anything(monkeyp
         ({"noise": 0.1, "seed": 1.5}, r"seed=1.5: expected an integer"),
         ({"noise": 0.1, "replicate": 1.5}, r"replicate=1.5: expected a replicate number >= 0"),
         ({"noise": 0.1, "replicate": -1}, r"replicate=-1: expected a replicate number >= 0"),
+        # the study's draws take JAX's PRNGKey, which raised OverflowError after the compile
+        ({"noise": 0.1, "replicate": 0, "seed": 2**64}, r"seed=18446744073709551616: expected a 64-bit integer"),
     ):
         with pytest.raises(ValueError, match=match):
             jtraj.solver.solve("big_jump", **kwargs)
