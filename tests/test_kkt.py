@@ -126,6 +126,22 @@ def test_wrong_inertia_is_detected(rng, split):
     _took(split)
 
 
+def test_inertia_correction_stops_below_delta_w_max(rng):
+    """As Ipopt's, the correction makes no trial above ``delta_w_max``: it gives up (not ok)
+    with the last value it tried, which is at most the cap."""
+    system = random_system(rng, indefinite=True)
+    _, needed, ok = kkt.factor_with_correction(system, jnp.asarray(1e-9), jnp.asarray(0.0))
+    # from delta_w_last = 0 the trials are 1e-4, 1e-2, 1, ...: cap below the value that worked,
+    # above the trial before it
+    assert bool(ok) and float(needed) > 1e-2
+    cap = 0.5 * float(needed)
+    options = kkt.InertiaOptions(delta_w_max=cap)
+    _, delta_w, ok = kkt.factor_with_correction(system, jnp.asarray(1e-9), jnp.asarray(0.0), options)
+    assert not bool(ok)
+    assert 0.0 < float(delta_w) <= cap
+    assert float(delta_w) == pytest.approx(float(needed) / 100.0)
+
+
 def test_block_factor_equals_dense_cholesky(rng, split):
     K, n = 4, 3
     X = rng.normal(size=(K * n, K * n))

@@ -550,15 +550,21 @@ def factor_with_correction(
     def attempt(dw):
         return factor(diag, upper, coupled=coupled, shift=system.sigma + dw, keep=keep)
 
+    def following(dw, i):
+        # the trial after ``dw``, the i-th (i >= 1): Ipopt's first nonzero value, then growth
+        first = jnp.where(delta_w_last == 0.0, options.delta_w_first, jnp.maximum(options.delta_w_min, options.kappa_minus * delta_w_last))
+        grow = jnp.where(delta_w_last == 0.0, options.kappa_plus_first, options.kappa_plus) * dw
+        return jnp.where(i == 1, first, grow)
+
     def cond(state):
+        # as Ipopt's perturbation handler, a trial above delta_w_max is not made: the
+        # correction gives up with the last value tried
         _, ok, dw, i = state
-        return (~ok) & (i < options.max_attempts) & (dw <= options.delta_w_max)
+        return (~ok) & (i < options.max_attempts) & (following(dw, i) <= options.delta_w_max)
 
     def body(state):
         _, _, dw, i = state
-        first = jnp.where(delta_w_last == 0.0, options.delta_w_first, jnp.maximum(options.delta_w_min, options.kappa_minus * delta_w_last))
-        grow = jnp.where(delta_w_last == 0.0, options.kappa_plus_first, options.kappa_plus) * dw
-        dw_new = jnp.where(i == 1, first, grow)
+        dw_new = following(dw, i)
         fac, ok = attempt(dw_new)
         return fac, ok, dw_new, i + 1
 
