@@ -15,6 +15,17 @@ def warn_renamed(old: str, new: str, stacklevel: int = 3) -> None:
     warnings.warn(f"{old} is deprecated: it is now called {new}", DeprecationWarning, stacklevel=stacklevel)
 
 
+def _is_default(value: Any, default: Any) -> bool:
+    """Whether ``value`` is the argument's default: the same object, or equal to it as one
+    truth value. An array, whose ``==`` is elementwise, is never the default."""
+    if value is default:
+        return True
+    try:
+        return bool(value == default)
+    except (TypeError, ValueError):
+        return False
+
+
 def renamed_argument(new_value: T, old_value: Any, new: str, old: str, default: Any, stacklevel: int = 4) -> T:
     """The value of an argument renamed from ``old`` to ``new``.
 
@@ -24,7 +35,7 @@ def renamed_argument(new_value: T, old_value: Any, new: str, old: str, default: 
     points the warning at the caller of the function that calls this one."""
     if old_value is None:
         return new_value
-    if new_value is not default and new_value != default:
+    if not _is_default(new_value, default):
         raise TypeError(f"got both {new}= and {old}=; pass only {new}= ({old}= is its former name)")
     warn_renamed(f"{old}=", f"{new}=", stacklevel)
     return old_value
