@@ -25,3 +25,16 @@ def test_the_nlp_compiled_first_is_the_first_variants(monkeypatch, tmp_path, var
     bench.main(["big_jump", "--variants", variants, "--no-peer", "--out", str(tmp_path)])
     assert prepared == [variables]
     assert json.loads((tmp_path / "speed.json").read_text())[0]["compile_variables"] == variables
+
+
+def test_the_linear_solvers_time_is_read_from_ipopts_timing_table():
+    """speed.json's time_linear_solver is the wall time (not the CPU time) of Ipopt's
+    StdAugSystemSolverMultiSolve line, None where Ipopt printed no timing table."""
+    bench = bench_module("solve")
+    table = (
+        "OverallAlgorithm....................:      0.005 (sys:      0.000 wall:      0.009)\n"
+        " StdAugSystemSolverMultiSolve.......:      0.002 (sys:      0.000 wall:      0.003)\n"
+        " LinearSystemBackSolve..............:      0.004 (sys:      0.000 wall:      0.005)\n"
+    )
+    assert bench.linear_solver_time(table) == 0.003
+    assert bench.linear_solver_time("EXIT: Optimal Solution Found.\n") is None
