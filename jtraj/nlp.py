@@ -404,28 +404,38 @@ class KnotNLP:
         self.group_row_offset = offsets
         self.row_group = np.array(names)
 
+    def locate(self, kind: str, i: int) -> str:
+        """Where entry ``i`` of the flat variables (``kind`` "x") or constraint rows ("g") sits:
+        ``"knot K, slot 'q' entry E"`` or ``"group NAME at knot K, row R"``. Solvers name it
+        beside a bound they refuse (`jtraj.solvers.base.BoundNLP`)."""
+        if kind == "x":
+            knot, column = divmod(int(i), self.nz)
+            slot = next(name for name, _ in self.layout.slots if self.layout.slice(name).start <= column < self.layout.slice(name).stop)
+            return f"knot {knot}, slot {slot!r} entry {column - self.layout.offset(slot)}"
+        if kind == "g":
+            gi = int(np.searchsorted(self.group_row_offset, i, side="right")) - 1
+            g = self.groups[gi]
+            knot, row = divmod(int(self.row_index[gi][int(i) - self.group_row_offset[gi]]), g.n_rows)
+            return f"group {g.name} at knot {g.knots[knot]}, row {row}"
+        raise ValueError(f"kind={kind!r}: expected 'x' (variables) or 'g' (constraint rows)")
+
     def _check_bounds(self) -> None:
         """Raise ValueError where a lower bound is above its upper bound (or either is NaN) at
-        the default theta, naming the variable or the group's row: a solver reports such a
-        problem only as infeasible or invalid."""
+        the default theta, naming the variable or the group's row (`locate`), as the task is
+        built: a solver reports such a problem only as invalid, at the theta it solves at."""
         bad = np.flatnonzero(~(self.x_lower <= self.x_upper))
         if bad.size:
             i = int(bad[0])
-            knot, column = divmod(i, self.nz)
-            slot = next(name for name, _ in self.layout.slots if self.layout.slice(name).start <= column < self.layout.slice(name).stop)
             raise ValueError(
-                f"variable bounds: {bad.size} with lower > upper (or NaN), the first at knot {knot}, "
-                f"slot {slot!r} entry {column - self.layout.offset(slot)}: lower {self.x_lower[i]:g}, upper {self.x_upper[i]:g}"
+                f"variable bounds: {bad.size} with lower > upper (or NaN), the first at {self.locate('x', i)}: "
+                f"lower {self.x_lower[i]:g}, upper {self.x_upper[i]:g}"
             )
         bad = np.flatnonzero(~(self.g_lower <= self.g_upper))
         if bad.size:
             i = int(bad[0])
-            gi = int(np.searchsorted(self.group_row_offset, i, side="right")) - 1
-            g = self.groups[gi]
-            knot, row = divmod(int(self.row_index[gi][i - self.group_row_offset[gi]]), g.n_rows)
             raise ValueError(
-                f"constraint bounds: {bad.size} rows with lower > upper (or NaN), the first in group {g.name} "
-                f"at knot {g.knots[knot]}, row {row}: lower {self.g_lower[i]:g}, upper {self.g_upper[i]:g}"
+                f"constraint bounds: {bad.size} rows with lower > upper (or NaN), the first in {self.locate('g', i)}: "
+                f"lower {self.g_lower[i]:g}, upper {self.g_upper[i]:g}"
             )
 
     def _bounds(self, theta: Any) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:

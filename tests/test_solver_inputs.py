@@ -68,7 +68,8 @@ def test_ipopt_takes_a_knot_shaped_guess():
 def test_nan_bounds_are_refused(solver):
     nlp = speed_limited()
     theta = {"vmin": jnp.asarray(-1.0), "vmax": jnp.asarray(np.nan)}
-    with pytest.raises(ValueError, match=r"bound g_upper\[\d+\] is NaN"):
+    # a knot NLP's bound is named by its place too (KnotNLP.locate)
+    with pytest.raises(ValueError, match=r"bound g_upper\[30\] \(at group speed at knot 0, row 0\) is NaN"):
         solvers.get(solver).solve(nlp, np.zeros(nlp.n), theta)
     assert no_program(nlp)
     # a KnotNLP refuses NaN variable bounds when it is built (jtraj.nlp): bind's own check, for
@@ -87,7 +88,8 @@ def test_inconsistent_bounds_are_an_invalid_problem_for_both_solvers():
     jt = solvers.get("jtraj").solve(nlp, np.zeros(nlp.n), theta)
     batch, total, compiled = solvers.get("jtraj").solve_batch(nlp, np.zeros((2, nlp.n)), theta)
     assert no_program(nlp)  # refused before compiling (it was NUMERICAL_ERROR after a compile)
-    first = "g_lower[30]=0.5 > g_upper[30]=0.35"  # the first speed row, after the 2(K-1) dynamics rows
+    # the first speed row, after the 2(K-1) dynamics rows, and its place in the knot NLP
+    first = "g_lower[30]=0.5 > g_upper[30]=0.35 (at group speed at knot 0, row 0)"
     for s in [ipopt, jt, *batch]:
         assert s.status is Status.INVALID_PROBLEM and first in s.message
     assert len(batch) == 2 and total == compiled == 0.0
@@ -207,3 +209,14 @@ def test_a_nan_in_the_point_is_a_nan_violation():
     assert np.isnan(max_violation(np.array([0.5]), np.zeros(1), np.zeros(1), np.array([np.nan]), lo, hi))
     assert np.isnan(max_violation(np.array([np.nan]), np.zeros(1), np.zeros(1), np.array([0.0]), lo, hi))
     assert max_violation(np.array([0.5]), np.zeros(1), np.zeros(1), np.array([2.0]), lo, hi) == 1.0
+
+
+def test_a_knot_nlp_locates_variables_and_rows():
+    """`KnotNLP.locate`, which the solvers' bound messages use: knot and slot of a variable,
+    group, knot and row of a constraint row; another kind is refused by name."""
+    nlp = speed_limited()
+    assert nlp.locate("x", 3 * 2 + 1) == "knot 2, slot 'v' entry 0"
+    assert nlp.locate("g", 30 + 4) == "group speed at knot 4, row 0"
+    assert nlp.locate("g", 1) == "group dynamics at knot 0, row 1"
+    with pytest.raises(ValueError, match=r"kind='u': expected 'x'"):
+        nlp.locate("u", 0)

@@ -410,15 +410,27 @@ class BoundNLP:
     x_upper: np.ndarray
     g_lower: np.ndarray
     g_upper: np.ndarray
+    #: ``locate("x" | "g", i)``: where variable or row i sits in the NLP (`KnotNLP.locate`:
+    #: knot and slot, or group, knot and row), named beside a refused bound; None: indices only
+    locate: Callable[[str, int], str] | None = None
+
+    def where(self, kind: str, i: int) -> str:
+        """`` (at ...)``, the place of entry ``i`` of ``kind`` ("x" or "g") by ``locate``, or
+        nothing without one."""
+        return f" (at {self.locate(kind, i)})" if self.locate is not None else ""
 
     def inconsistent(self) -> str | None:
         """What is wrong when a lower bound exceeds its upper one (the first such bound,
-        variables before constraint rows), else None: Ipopt's INVALID_PROBLEM."""
+        variables before constraint rows, with its place where the NLP tells it), else None:
+        Ipopt's INVALID_PROBLEM."""
         for name, lower, upper in (("x", self.x_lower, self.x_upper), ("g", self.g_lower, self.g_upper)):
             bad = np.flatnonzero(lower > upper)
             if bad.size:
                 i = int(bad[0])
-                return f"inconsistent bounds: {name}_lower[{i}]={float(lower[i])!r} > {name}_upper[{i}]={float(upper[i])!r} ({bad.size} such {name} bound(s))"
+                return (
+                    f"inconsistent bounds: {name}_lower[{i}]={float(lower[i])!r} > {name}_upper[{i}]={float(upper[i])!r}"
+                    f"{self.where(name, i)} ({bad.size} such {name} bound(s))"
+                )
         return None
 
 
@@ -428,7 +440,8 @@ def _checked(f: BoundNLP) -> BoundNLP:
     for name in ("x_lower", "x_upper", "g_lower", "g_upper"):
         bad = np.flatnonzero(np.isnan(getattr(f, name)))
         if bad.size:
-            raise ValueError(f"the NLP's bound {name}[{int(bad[0])}] is NaN ({bad.size} NaN entries of {name}); check theta and the bounds' functions")
+            i = int(bad[0])
+            raise ValueError(f"the NLP's bound {name}[{i}]{f.where(name[0], i)} is NaN ({bad.size} NaN entries of {name}); check theta and the bounds' functions")
     return f
 
 
@@ -517,6 +530,7 @@ def bind(nlp: Any, theta: Any = None) -> BoundNLP:
             x_upper=x_upper,
             g_lower=g_lower,
             g_upper=g_upper,
+            locate=nlp.locate if callable(getattr(nlp, "locate", None)) else None,
         ))
     if theta is not None:
         raise TypeError(f"{type(nlp).__name__} takes no parameters theta; pass theta=None")
@@ -530,4 +544,5 @@ def bind(nlp: Any, theta: Any = None) -> BoundNLP:
         x_upper=np.asarray(nlp.x_upper, float),
         g_lower=np.asarray(nlp.g_lower, float),
         g_upper=np.asarray(nlp.g_upper, float),
+        locate=nlp.locate if callable(getattr(nlp, "locate", None)) else None,
     ))
