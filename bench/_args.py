@@ -42,11 +42,13 @@ def add_variables(ap: argparse.ArgumentParser, default: str, help: str | None = 
     ap.add_argument("--variables", default=default, choices=list(VARIABLES), help=help)
 
 
-def add_out(ap: argparse.ArgumentParser, name: str) -> None:
+def add_out(ap: argparse.ArgumentParser, name: str, default: str | None = None) -> None:
     """``--out DIR``: where `jtraj.provenance.write_results` writes ``NAME.json``, ``NAME.md``
     and ``provenance.json``; a folder that cannot be written (a file, no permission) is
-    argparse's one-line error as the command line is parsed, not a traceback after the work."""
-    ap.add_argument("--out", type=out_folder, help=f"write DIR/{name}.json, DIR/{name}.md, DIR/provenance.json")
+    argparse's one-line error as the command line is parsed, not a traceback after the work.
+    ``default``: the folder without ``--out`` (None: nothing is written)."""
+    where = f" (default {default})" if default is not None else ""
+    ap.add_argument("--out", type=out_folder, default=default, metavar="DIR", help=f"write DIR/{name}.json, DIR/{name}.md, DIR/provenance.json{where}")
 
 
 def out_folder(text: str) -> str:

@@ -37,7 +37,7 @@ from jtraj import robot as robot_lib
 from jtraj.parameterization import PARAMETERIZATIONS
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
-from _args import add_out  # noqa: E402
+from _args import add_out, add_param  # noqa: E402
 
 
 def timed(fn, repeats):
@@ -110,7 +110,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--robot", default="talos", choices=robot_lib.available())
     parser.add_argument("--knots", type=int, default=66)
     parser.add_argument("--repeats", type=int, default=30)
-    parser.add_argument("--param", default="quat1", choices=list(PARAMETERIZATIONS))
+    add_param(parser, "quat1")
     parser.add_argument("--skip-mjx", action="store_true", help="skip the slow jacfwd-through-MJX baseline")
     add_out(parser, "dynamics")
     args = parser.parse_args(argv)

@@ -51,7 +51,7 @@ from jtraj.task import Task, TaskError, available, retarget
 from jtraj.task import load as load_task
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
-from _args import DEFAULT_PEER, add_peer_options, out_folder  # noqa: E402
+from _args import DEFAULT_PEER, add_out, add_peer_options  # noqa: E402
 
 #: Iterations of the SE(3) tangent parameterization in the paper's Table IV.
 PAPER_TABLE_IV = {"walk": 14, "hopscotch": 10, "big_jump": 11, "handstand": 88, "backflip": 28, "sideflip": 29}
@@ -320,7 +320,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--peer", default=str(DEFAULT_PEER), help="path of the paper code's runner script, run as PEER TASK [--sigma S --seed N] ('' to skip it)")
     add_peer_options(ap, DEFAULT_PEER_SRC, DEFAULT_PEER_PYTHON)
     ap.add_argument("--code-costs", action="store_true", help="jtraj uses the cost weights of the code's task scripts (CODE_COSTS) where they differ from Table II")
-    ap.add_argument("--out", type=out_folder, default="results/side_by_side")
+    add_out(ap, "side_by_side", default="results/side_by_side")
     args = ap.parse_args(argv)
     # every input is checked before anything is solved
     if args.peer and not (os.path.isfile(args.peer) and os.access(args.peer, os.X_OK)):

@@ -60,7 +60,7 @@ from jtraj.provenance import write_results
 from jtraj.solver import prepare, solve
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
-from _args import DEFAULT_PEER, add_param, add_tasks, out_folder  # noqa: E402
+from _args import DEFAULT_PEER, add_out, add_param, add_tasks  # noqa: E402
 
 VARIANTS = {
     "paper": dict(variables="paper", exact_hessian=False),
@@ -225,7 +225,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--no-peer", action="store_true", help="do not run the public code")
     ap.add_argument("--repeat", type=int, default=1, metavar="N", help="measure each side N times (N odd), alternating, and report medians (default 1)")
     # checked as it is parsed: a file there failed in write_results after every solve
-    ap.add_argument("--out", type=out_folder, help="write DIR/speed.json and DIR/speed.md")
+    add_out(ap, "speed")
     ap.add_argument("--table-only", action="store_true", help="rewrite OUT/speed.md from OUT/speed.json, solve nothing")
     args = ap.parse_args(argv)
     if args.table_only:

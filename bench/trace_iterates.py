@@ -29,12 +29,12 @@ import jtraj
 from jtraj import solvers, success
 from jtraj.cli import InputError, _check_robots, _load_valid_task
 from jtraj.provenance import write_results
-from jtraj.solver import VARIABLES, with_changes
+from jtraj.solver import with_changes
 from jtraj.task import TaskError
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-from _args import add_out, add_peer_options  # noqa: E402
+from _args import add_out, add_peer_options, add_variables  # noqa: E402
 from side_by_side import (  # noqa: E402  (the same task variants and the same driver of the public code)
     CODE_COSTS,
     DEFAULT_PEER_PYTHON,
@@ -110,7 +110,7 @@ def render(runs: list[dict]) -> str:
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("task", choices=sorted(PEER_SCRIPTS))
-    ap.add_argument("--variables", default="paper", choices=sorted(VARIABLES))
+    add_variables(ap, "paper")
     ap.add_argument("--code-costs", action="store_true", help=f"jtraj with the cost weights of the code's scripts ({CODE_COSTS})")
     add_peer_options(ap, DEFAULT_PEER_SRC, DEFAULT_PEER_PYTHON)
     ap.add_argument("--no-peer", action="store_true")

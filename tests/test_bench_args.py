@@ -87,6 +87,9 @@ UNKNOWN_TASK = "unknown task; expected one of ['backflip', 'big_jump',"
         ("params_hop", ["--params", "se3,bogus"], "--params: 'bogus': unknown parameterization"),
         ("compile", ["big_jump", "--param", "bogus"], UNKNOWN_PARAM),
         ("compile", ["big_jump", "--variables", "bogus"], UNKNOWN_VARIABLES),
+        # bench/_args's helpers, as the scripts above (these defined the options by hand)
+        ("dynamics", ["--param", "bogus"], UNKNOWN_PARAM),
+        ("trace_iterates", ["backflip", "--variables", "bogus"], UNKNOWN_VARIABLES),
     ],
 )
 def test_tasks_parameterizations_and_variables_are_checked(monkeypatch, capsys, script, argv, message):
