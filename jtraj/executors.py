@@ -32,7 +32,7 @@ import dataclasses
 from collections.abc import Callable, Generator, Sequence
 from typing import Any
 
-__all__ = ["AbstractExecutor", "LocalExecutor", "RayExecutor", "EXECUTORS", "ExecutorUnavailableError", "WorkerLostError", "executor_for"]
+__all__ = ["AbstractExecutor", "LocalExecutor", "RayExecutor", "EXECUTORS", "ExecutorUnavailableError", "WorkerLostError", "check_executor_name", "executor_for"]
 
 #: Names accepted by `executor_for` and the command line's ``--executor``.
 EXECUTORS = ("local", "ray")
@@ -175,10 +175,14 @@ def _import_ray():
     return ray
 
 
+def check_executor_name(name: str, where: str = "executor_for") -> None:
+    """A ValueError unless ``name`` is one of `EXECUTORS`; ``where`` (the function given it:
+    ``executor_for``, or a sweep that checks before it writes anything) begins the message."""
+    if name not in EXECUTORS:
+        raise ValueError(f"{where}: executor={name!r}: expected one of {', '.join(EXECUTORS)}")
+
+
 def executor_for(name: str = "local", workers: int = 1, ray_address: str | None = None) -> AbstractExecutor:
     """The executor called ``name`` (one of `EXECUTORS`)."""
-    if name == "local":
-        return LocalExecutor(workers)
-    if name == "ray":
-        return RayExecutor(ray_address)
-    raise ValueError(f"unknown executor {name!r}; expected one of {', '.join(EXECUTORS)}")
+    check_executor_name(name)
+    return LocalExecutor(workers) if name == "local" else RayExecutor(ray_address)

@@ -28,7 +28,7 @@ import numpy as np
 from jtraj import io as jio
 from jtraj import solvers
 from jtraj.deprecation import renamed_argument
-from jtraj.executors import EXECUTORS, WorkerLostError, executor_for
+from jtraj.executors import WorkerLostError, check_executor_name, executor_for
 from jtraj.numbers import is_seed
 from jtraj.parameterization import PARAMETERIZATIONS
 from jtraj.result import Outcome
@@ -147,8 +147,7 @@ def _refuse_repeats(where: str, given: Sequence, keys: Sequence, what: str) -> N
 def _check_executor(function: str, executor: str, workers: int) -> None:
     """A ValueError for an unknown executor or a worker count below 1, before anything is
     written (the executor itself is made once the runs file is set up)."""
-    if executor not in EXECUTORS:
-        raise ValueError(f"{function}: executor={executor!r}: expected one of {', '.join(EXECUTORS)}")
+    check_executor_name(executor, function)
     if workers < 1:
         raise ValueError(f"{function}: workers={workers!r}: expected an integer >= 1")
 
