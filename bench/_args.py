@@ -19,13 +19,30 @@ DEFAULT_PEER = Path(__file__).resolve().parents[1].parent / "shared" / "peers" /
 
 def add_tasks(ap: argparse.ArgumentParser, default: Sequence[str] | None = None) -> None:
     """Positional ``tasks``: built-in tasks or task files, each checked as it is parsed
-    (`jtraj.task.task_argument`); ``default`` when none is given (None: an empty list)."""
+    (`jtraj.task.task_argument`), and each given once (`_EachTaskOnce`); ``default`` when none
+    is given (None: an empty list)."""
     from jtraj.task import task_argument
 
     if default is None:
-        ap.add_argument("tasks", nargs="*", type=task_argument)
+        ap.add_argument("tasks", nargs="*", type=task_argument, action=_EachTaskOnce)
     else:
-        ap.add_argument("tasks", nargs="*", type=task_argument, default=list(default))
+        ap.add_argument("tasks", nargs="*", type=task_argument, action=_EachTaskOnce, default=list(default))
+
+
+class _EachTaskOnce(argparse.Action):
+    """The ``tasks`` of `add_tasks`, refused (argparse's one-line error) where one is given
+    twice (``walk walk``, or a task file under two names): a benchmark would solve it twice
+    and table it twice, or (bench/revisions.py) pair the wrong records."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        from jtraj.experiments import RepeatedValueError, _refuse_repeats
+
+        tasks = list(values or [])
+        try:
+            _refuse_repeats("tasks", tasks, [Path(t).resolve() if t.endswith(".toml") else t for t in tasks], "task")
+        except RepeatedValueError as e:
+            parser.error(str(e))
+        setattr(namespace, self.dest, values)
 
 
 def add_param(ap: argparse.ArgumentParser, default: str = "se3") -> None:

@@ -94,8 +94,6 @@ def table(records: list[dict], labels: tuple[str, str]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from jtraj.experiments import RepeatedValueError, _refuse_repeats
-
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("rev", help="the earlier revision (git rev, e.g. HEAD~1)")
     add_tasks(ap, ["walk", "big_jump", "backflip", "sideflip"])
@@ -107,10 +105,6 @@ def main(argv: list[str] | None = None) -> int:
     # every argument before the worktree and the first compile
     if args.repeats < 1:
         ap.error(f"--repeats: {args.repeats}: expected an integer >= 1")
-    try:
-        _refuse_repeats("tasks", args.tasks, [Path(t).resolve() if t.endswith(".toml") else t for t in args.tasks], "task")
-    except RepeatedValueError as e:
-        ap.error(str(e))
     # a commit (not a tree or file, e.g. HEAD:README.md), and never read as one of git's options
     sha = subprocess.run(["git", "rev-parse", "--verify", "--quiet", "--short", f"{args.rev}^{{commit}}"], cwd=REPO, capture_output=True, text=True)
     if sha.returncode != 0:

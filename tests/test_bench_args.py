@@ -169,3 +169,38 @@ def test_an_out_folder_that_is_a_file_is_refused_before_any_work(monkeypatch, ca
     path = tmp_path / "results"
     path.write_text("")
     refused(_without_work(monkeypatch, script).main, [*argv, "--out", str(path)], capsys, f"argument --out: '{path}': is a file; expected a folder")
+
+
+#: the scripts whose positional tasks bench/_args.add_tasks defines, and what their command line needs before the tasks
+TASK_SCRIPTS = [("compile", []), ("euler_warm_start", []), ("fatrop", []), ("hessians", []), ("options", ["--variant", "default"]), ("profile_solve", []), ("revisions", ["HEAD"]), ("solve", ["--no-peer"]), ("unit_norm", [])]
+
+
+@pytest.mark.parametrize(("script", "before"), TASK_SCRIPTS)
+def test_a_task_given_twice_is_refused_before_any_work(monkeypatch, capsys, script, before):
+    """Only bench/revisions.py refused ``walk walk``: the others solved the task twice and
+    tabled it twice (bench/_args.add_tasks refuses it as the command line is parsed)."""
+    mod = bench_module(script) if script == "revisions" else _without_work(monkeypatch, script)
+    if script == "revisions":
+        monkeypatch.setattr(mod, "run_child", _no_work)
+        monkeypatch.setattr(mod.tempfile, "TemporaryDirectory", _no_work)
+    refused(mod.main, [*before, "walk", "big_jump", "walk"], capsys, "error: tasks: 'walk' given 2 times; expected each task once")
+
+
+def test_a_task_file_named_twice_is_one_task(monkeypatch, capsys, tmp_path):
+    """The same task file under two names is refused too; two files, or a file and a built-in
+    task, are different tasks (a benchmark may compare a changed copy of walk with walk)."""
+    import argparse
+    from importlib.resources import files
+
+    _args = bench_module("_args")
+    ap = argparse.ArgumentParser(prog="bench")
+    _args.add_tasks(ap, ["walk"])
+    text = files("jtraj.tasks").joinpath("walk.toml").read_text()
+    (tmp_path / "a.toml").write_text(text)
+    (tmp_path / "b.toml").write_text(text)
+    monkeypatch.chdir(tmp_path)
+    assert ap.parse_args([]).tasks == ["walk"]
+    assert ap.parse_args(["walk", "a.toml", "b.toml"]).tasks == ["walk", "a.toml", "b.toml"]
+    with pytest.raises(SystemExit):
+        ap.parse_args(["a.toml", f"{tmp_path}/a.toml"])
+    assert f"'a.toml' and '{tmp_path}/a.toml' are the same task" in capsys.readouterr().err
