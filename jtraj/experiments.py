@@ -623,8 +623,7 @@ def _select(runs: list[dict], task: Task, p: str, sigmas, replicates: int, seed:
 def _write_robustness_outputs(runs: list[dict], sigmas: Sequence[float], out: Path, figure: bool = True) -> None:
     summary = summarize_robustness(runs)
     jio.write_json(out / "table_iii.json", summary)
-    charts = sorted({r["noise_chart"] for r in runs if r.get("noise_chart")})
-    jio.write_text(out / "table_iii.md", _table_iii_markdown(summary, sigmas, sorted({r.get("solver", "ipopt") for r in runs}), charts))
+    jio.write_text(out / "table_iii.md", _table_iii_markdown(summary, sigmas))
     if figure and runs:
         plot_iterations(runs, out / "fig2.png")
 
@@ -698,12 +697,15 @@ def table_iii(runs: list[dict], iterations: bool = False) -> str:
     converged / task done in % of the runs. ``iterations`` adds to each cell the median
     iterations of its converged runs ("-": none converged)."""
     summary = summarize_robustness(runs)
-    charts = sorted({r["noise_chart"] for r in runs if r.get("noise_chart")})
-    solver_names = sorted({r.get("solver", "ipopt") for r in runs})
-    return _table_iii_markdown(summary, sorted({r["sigma"] for r in summary}), solver_names, charts, iterations)
+    return _table_iii_markdown(summary, sorted({r["sigma"] for r in summary}), iterations)
 
 
-def _table_iii_markdown(summary: list[dict], sigmas: Sequence[float], solver_names: Sequence[str] = ("ipopt",), noise_charts: Sequence[str] = (), iterations: bool = False) -> str:
+def _table_iii_markdown(summary: list[dict], sigmas: Sequence[float], iterations: bool = False) -> str:
+    """Table III of ``summary`` (`summarize_robustness`) at the noise levels ``sigmas``; its
+    heading names the solvers and noise charts of the summary's rows (the one place
+    `table_iii` and ``jtraj robustness``'s table_iii.md work them out)."""
+    solver_names = sorted({r["solver"] for r in summary})
+    noise_charts = sorted({r["noise_chart"] for r in summary if r["noise_chart"]})
     noise = ""
     if noise_charts:
         labels = " and ".join(PARAMETERIZATIONS[c].label for c in noise_charts)

@@ -842,6 +842,24 @@ def test_table_iii_of_runs_with_and_without_iterations():
     assert "median iterations of the converged runs" in counted and "median iterations" not in table_iii(runs)
 
 
+def test_table_iii_names_the_solvers_and_noise_charts_as_robustness_writes_them(tmp_path):
+    """table_iii and robustness's table_iii.md each worked out the heading's solvers and noise
+    charts from the runs; one place does it now, and both tables say the same. Rows of earlier
+    files (no solver, no chart) count as Ipopt's in their own charts."""
+    from jtraj.experiments import _write_robustness_outputs, table_iii
+
+    def run(solver, chart):
+        row = dict(task="walk", parameterization="quat1", sigma=0.5, replicate=0, converged=True, constraint_violation=1e-9, success=True, iterations=20, solver=solver, noise_chart=chart)
+        return {k: v for k, v in row.items() if v is not None}
+
+    runs = [run("jtraj", "se3"), run("ipopt", "euler"), run(None, None)]
+    _write_robustness_outputs(runs, [0.5], tmp_path, figure=False)
+    written = (tmp_path / "table_iii.md").read_text()
+    assert table_iii(runs) == written
+    assert "success of the solver (ipopt, jtraj)" in written and "coordinates of Euler" in written and "and SE(3)" in written, written
+    plain = table_iii(runs[2:])
+    assert "success of the solver (ipopt)" in plain and "coordinates of" not in plain
+
 @pytest.mark.parametrize("finished", [0, 1])
 def test_compare_interrupted_says_how_many_cells_its_table_holds(tmp_path, fake_solves, monkeypatch, finished):
     """Ctrl-C in compare: the command line said table_iv.json holds the cells finished before
