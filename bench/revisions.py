@@ -132,16 +132,18 @@ def main(argv: list[str] | None = None) -> int:
     print()
     print(md + note)
     if args.out:
-        from jtraj.provenance import write_provenance
+        from jtraj import io
+        from jtraj.provenance import provenance
 
+        # the files of `jtraj.provenance.write_results` (strict JSON, each written atomically),
+        # with the two revisions in the provenance: its record is built with them and written once
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
-        (out / "revisions.json").write_text(json.dumps(records, indent=1) + "\n")
-        (out / "revisions.md").write_text(md + note)
-        path = write_provenance(out, ["python", "bench/revisions.py", *(argv if argv is not None else sys.argv[1:])])
-        prov = json.loads(path.read_text())
-        prov["revisions"] = {"earlier": labels[0], "later": labels[1]}
-        path.write_text(json.dumps(prov, indent=2) + "\n")
+        record = provenance(["python", "bench/revisions.py", *(argv if argv is not None else sys.argv[1:])])
+        record["revisions"] = {"earlier": labels[0], "later": labels[1]}
+        io.write_json(out / "revisions.json", records)
+        io.write_text(out / "revisions.md", md + note)
+        io.write_json(out / "provenance.json", record)
     return 0
 
 

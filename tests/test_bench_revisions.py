@@ -94,3 +94,40 @@ def test_a_task_file_is_given_to_both_trees_by_its_absolute_path(revisions, monk
     assert revisions.main(["HEAD", "mine.toml", "--repeats", "1"]) == 0
     assert seen == [str(tmp_path / "mine.toml")] * 2
     assert "| mine.toml | 10 / 10 |" in capsys.readouterr().out
+
+
+def test_out_is_written_as_the_other_benchmarks_results_with_the_provenance_written_once(revisions, monkeypatch, tmp_path, capsys):
+    """``--out DIR`` wrote revisions.json with json.dumps (a solve's NaN cost as NaN, not JSON)
+    and provenance.json twice: once by write_provenance, then again with the revisions added.
+    Now: strict JSON, and one provenance record, naming both revisions, written once."""
+    import math
+    import pathlib
+
+    from jtraj import io
+
+    real_run = revisions.subprocess.run
+
+    def run(cmd, *args, **kwargs):  # no worktree: the children are faked
+        return revisions.subprocess.CompletedProcess(cmd, 0, "", "") if "worktree" in cmd else real_run(cmd, *args, **kwargs)
+
+    def child(tree, task, param, variables, repeats):
+        return dict(task=task, iterations=10, status="solved" if tree == revisions.REPO else "numerical_error", cost=1.0 if tree == revisions.REPO else math.nan, times=[1.0])
+
+    written: list[str] = []
+    real_write_text, real_path_write_text = io.write_text, pathlib.Path.write_text
+    monkeypatch.setattr(io, "write_text", lambda path, text: written.append(pathlib.Path(path).name) or real_write_text(path, text))
+    monkeypatch.setattr(pathlib.Path, "write_text", lambda self, *a, **k: written.append(self.name) or real_path_write_text(self, *a, **k))
+    monkeypatch.setattr(revisions.subprocess, "run", run)
+    monkeypatch.setattr(revisions, "run_child", child)
+    out = tmp_path / "out"
+    assert revisions.main(["HEAD", "walk", "--repeats", "1", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert sorted(written) == ["provenance.json", "revisions.json", "revisions.md"]
+    records = io.read_json(out / "revisions.json")  # strict JSON: the NaN is null
+    assert [(r["task"], r["cost"]) for r in records] == [("walk", None), ("walk", 1.0)]
+    prov = io.read_json(out / "provenance.json")
+    assert prov["command"] == f"python bench/revisions.py HEAD walk --repeats 1 --out {out}"
+    assert prov["revisions"] == {"earlier": records[0]["label"], "later": records[1]["label"]}
+    md = (out / "revisions.md").read_text()
+    assert md.startswith("| task | iterations (") and md in printed
+    assert sorted(p.name for p in out.iterdir()) == ["provenance.json", "revisions.json", "revisions.md"]  # no temporary file left
