@@ -31,9 +31,9 @@ On a GPU, jtraj's programs run on the GPU and Ipopt's NLP functions on the same 
 Prints the JAX device, one line per replicate (status, iterations, violation, task success) and,
 last, ``replicates: vmapped X s, sequential Y s, speedup Z``; ``--out DIR/F.json`` writes every
 figure as JSON (atomically, strict JSON), with the run's provenance (command, date, machine,
-versions) under ``provenance``, through `jtraj.provenance.write_results` as the other
-benchmarks write theirs: beside it ``DIR/F.md`` (the batches' table and the last lines) and
-``DIR/provenance.json`` (the results/replicates_* folders hold these files).
+versions) under ``provenance``, and, as `jtraj.provenance.write_results` writes the other
+benchmarks' results, beside it ``DIR/F.md`` (the batches' table and the last lines) and
+``DIR/provenance.json``, the same record (the results/replicates_* folders hold these files).
 """
 
 from __future__ import annotations
@@ -50,10 +50,11 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from jtraj import io as jio
 from jtraj import solvers
 from jtraj.cli import InputError, _check_out
 from jtraj.experiments import noisy_warm_starts
-from jtraj.provenance import provenance, write_results
+from jtraj.provenance import provenance
 from jtraj.solver import compile_callbacks, prepare, solve, solver_options
 from jtraj.success import FEASIBILITY_TOL
 from jtraj.success import evaluate as check_motion
@@ -185,9 +186,14 @@ def main(argv: list[str] | None = None) -> None:
     # the first strategy's line last (vmap's, by default: the issue's line)
     last = [f"replicates: {label[s]} {timed[s]:.2f} s, sequential {sequential:.2f} s, speedup {sequential / timed[s]:.2f} (sequential: {against})" for s in reversed(strategies)]
     if args.out:
-        command = sys.argv[1:] if argv is None else argv
-        report["provenance"] = provenance(["python", "bench/replicates.py", *command])
-        write_results(os.path.dirname(args.out) or ".", os.path.basename(args.out)[: -len(".json")], report, markdown(report, last), "bench/replicates.py", command)
+        # write_results's three files, with the one provenance record both F.json and
+        # provenance.json hold (write_results would build a second one)
+        out = Path(args.out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        report["provenance"] = provenance(["python", "bench/replicates.py", *(sys.argv[1:] if argv is None else argv)])
+        jio.write_json(out, report)
+        jio.write_text(out.with_suffix(".md"), markdown(report, last))
+        jio.write_json(out.parent / "provenance.json", report["provenance"])
     for line in last:
         print(line)
 

@@ -24,8 +24,8 @@ def _fake_run(monkeypatch, mod, replicates: int = 2):
 
 
 def test_out_is_written_as_the_other_benchmarks_results(monkeypatch, capsys, tmp_path):
-    """``--out DIR/F.json``: F.json with the run's provenance inside (as before), and, through
-    `jtraj.provenance.write_results` as every other benchmark, DIR/F.md and DIR/provenance.json."""
+    """``--out DIR/F.json``: F.json with the run's provenance inside (as before), and, as
+    `jtraj.provenance.write_results` writes every other benchmark's, DIR/F.md and DIR/provenance.json."""
     mod = bench_module("replicates")
     _fake_run(monkeypatch, mod)
     out = tmp_path / "replicates.json"
@@ -58,3 +58,25 @@ def test_an_out_that_cannot_be_written_is_refused_before_any_solve(monkeypatch, 
     last = capsys.readouterr().err.strip().splitlines()[-1]
     assert f"--out: '{out}': " in last
     assert {"folder": "is a folder; expected the path of a JSON file", "unwritable": "cannot create a file in", "not json": "expected the path of a JSON file, F.json"}[kind] in last
+
+
+def test_the_provenance_record_is_built_once(monkeypatch, tmp_path):
+    """F.json's provenance and provenance.json were two records, built one after the other
+    (their dates could differ, and git ran twice for the source): one record now, in both."""
+    import jtraj.provenance
+
+    mod = bench_module("replicates")
+    _fake_run(monkeypatch, mod)
+    built: list[list[str]] = []
+
+    def record(argv=None):
+        built.append(argv)
+        return {"command": " ".join(argv), "record": len(built)}
+
+    monkeypatch.setattr(mod, "provenance", record)
+    monkeypatch.setattr(jtraj.provenance, "provenance", record)
+    out = tmp_path / "runs" / "replicates.json"  # a folder to create
+    mod.main(["--replicates", "2", "--strategies", "vmap", "--out", str(out)])
+    assert len(built) == 1
+    assert json.loads(out.read_text())["provenance"] == json.loads((out.parent / "provenance.json").read_text()) == {"command": f"python bench/replicates.py --replicates 2 --strategies vmap --out {out}", "record": 1}
+    assert sorted(p.name for p in out.parent.iterdir()) == ["provenance.json", "replicates.json", "replicates.md"]
