@@ -118,11 +118,16 @@ np.savez(out, stats=np.array(stats), base=np.array(base))
 """
 
 
+class PeerError(RuntimeError):
+    """The public code failed (`peer_iterates`): its message says how, in the code's words."""
+
+
 def peer_iterates(task: str, peer_src: Path = DEFAULT_PEER_SRC, peer_python: Path = DEFAULT_PEER_PYTHON, sigma: float = 0.0, seed: int = 0) -> dict:
     """The public code's solve of ``task`` through `PEER_DRIVER`, with its runner's noise on
     the warm start (``sigma``, ``seed``; the code reads them from the environment as its
     runner sets them). Returns ``stats`` (iterations, 6), ``base`` (iterations, knots, 7) and
-    ``peerstats``, the code's own line of Ipopt statistics (iterations, time, status)."""
+    ``peerstats``, the code's own line of Ipopt statistics (iterations, time, status); a
+    `PeerError` where the code failed or printed no such line."""
     if not peer_python.exists():
         raise FileNotFoundError(f"{peer_python} does not exist: run the public code's runner once (it creates its environment), or pass --peer-python")
     script = peer_src / "examples" / "agile_exps" / f"{PEER_SCRIPTS[task]}.py"
@@ -133,10 +138,10 @@ def peer_iterates(task: str, peer_src: Path = DEFAULT_PEER_SRC, peer_python: Pat
         driver.write_text(PEER_DRIVER)
         run = subprocess.run([str(peer_python), str(driver), str(script), str(out)], cwd=work, env=env, capture_output=True, text=True)
         if run.returncode != 0:
-            raise RuntimeError(f"the public code failed on {task}: {run.stderr[-800:]}")
+            raise PeerError(f"the public code failed on {task}: {run.stderr[-800:]}")
         line = next((line for line in run.stdout.splitlines() if line.startswith("PEERSTATS")), None)
         if line is None:
-            raise RuntimeError(f"the public code printed no PEERSTATS line on {task}: {run.stdout[-800:]}")
+            raise PeerError(f"the public code printed no PEERSTATS line on {task}: {run.stdout[-800:]}")
         d = np.load(out)
         return dict(stats=d["stats"], base=d["base"], peerstats=ast.literal_eval(line[len("PEERSTATS") :].strip()))
 
@@ -144,12 +149,10 @@ def peer_iterates(task: str, peer_src: Path = DEFAULT_PEER_SRC, peer_python: Pat
 def run_peer_checked(task: str, sigma: float, seed: int, peer_src: Path = DEFAULT_PEER_SRC, peer_python: Path = DEFAULT_PEER_PYTHON) -> dict:
     """One solve of the paper's code through `peer_iterates`, its last iterate's base motion
     put through jtraj's task check (`jtraj.success`): the row `run_peer` gives, with ``turns``,
-    ``off_axis_share`` and ``task_ok``; an ``error`` row where the code failed."""
+    ``off_axis_share`` and ``task_ok``; where the code failed, `peer_iterates`'s `PeerError`,
+    which main() makes an ``error`` row (`_error_text`), as it does any solve that raised."""
     problem = builtin_task(task)
-    try:
-        d = peer_iterates(task, peer_src, peer_python, sigma, seed)
-    except RuntimeError as e:
-        return _error_row(task, sigma, seed, str(e)[-500:])
+    d = peer_iterates(task, peer_src, peer_python, sigma, seed)
     check = success.evaluate(d["base"][-1], problem.flip_axis, problem.flip_turns)
     st = d["peerstats"]
     return dict(
@@ -166,6 +169,12 @@ def run_peer_checked(task: str, sigma: float, seed: int, peer_src: Path = DEFAUL
         off_axis_share=check.off_axis_share,
         task_ok=bool(check.ok),
     )
+
+
+def _error_text(e: Exception) -> str:
+    """The ``error`` of the row of a solve that raised ``e``, its last 500 characters: the
+    public code's failure in its words (`PeerError`), anything else after its type's name."""
+    return (str(e) if isinstance(e, PeerError) else f"{type(e).__name__}: {e}")[-500:]
 
 
 def _error_row(task: str, sigma: float, seed: int, error: str, code: str = "paper") -> dict:
@@ -372,8 +381,8 @@ def main(argv: list[str] | None = None) -> None:
                     continue
                 try:
                     row = job()
-                except Exception as e:  # a jtraj solve that raised: an error row, as a failed peer gets; the other solves still run
-                    row = _error_row(task, args.sigma, seed, f"{type(e).__name__}: {e}"[-500:], code)
+                except Exception as e:  # a solve that raised (jtraj's, or the public code's through its driver): an error row; the other solves still run
+                    row = _error_row(task, args.sigma, seed, _error_text(e), code)
                 print(json.dumps(row), flush=True)
                 old = [i for i, r in enumerate(rows) if (r["code"], r["task"], r["sigma"], r["seed"]) == key]  # a failed one
                 if old:

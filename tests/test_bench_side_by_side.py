@@ -129,3 +129,32 @@ def test_a_stopped_run_leaves_its_own_unfinished_provenance(sbs, monkeypatch, tm
     prov = json.loads((out / "provenance.json").read_text())
     assert prov["complete"] is False and "--tasks big_jump,walk" in prov["command"]
     assert prov["earlier"] == [first]
+
+
+@pytest.mark.parametrize(
+    ("python", "error"),
+    [
+        # the code failed: the row holds its stderr, after what failed
+        ("echo boom >&2; exit 1", "the public code failed on backflip: boom\n"),
+        # the driver wrote no iterates: numpy's error, named
+        ("echo \"PEERSTATS {'status': 0, 'iter': 3, 'time': 1.0}\"", "FileNotFoundError: "),
+    ],
+)
+def test_a_failed_checked_peer_solve_is_an_error_row(sbs, monkeypatch, tmp_path, capsys, python, error):
+    """A noisy flip runs the paper's code through the driver (run_peer_checked): a run that
+    failed is an error row that the next run retries, whatever failed, as run_peer's."""
+    monkeypatch.setattr(sbs, "run_jtraj", _no_solve)
+    out = tmp_path / "out"
+    peer = fake_peer(tmp_path, "exit 1")  # not run: the driver runs the code
+    peer_python = fake_peer(tmp_path, python, name="python")
+    argv = ["--tasks", "backflip", "--variables", "", "--sigma", "0.5", "--peer", str(peer), "--peer-src", str(tmp_path), "--peer-python", str(peer_python), "--out", str(out)]
+    with pytest.raises(SystemExit) as exc:
+        sbs.main(argv)
+    assert str(exc.value.code).endswith("run again to retry them: paper on backflip (sigma 0.5, seed 0)")
+    (row,) = _rows(out)
+    assert (row["code"], row["task"], row["status"], row["iterations"]) == ("paper", "backflip", "error", None)
+    if error.endswith("\n"):
+        assert row["error"] == error
+    else:
+        assert row["error"].startswith(error)
+    assert "bench/side_by_side.py: paper on backflip (sigma 0.5, seed 0) failed: " in capsys.readouterr().err
