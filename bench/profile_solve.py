@@ -23,8 +23,10 @@ metadata, and summed by phase:
 The program is compiled afresh (``JTRAJ_NO_CACHE=1``, set here): JAX's persistent cache keys a
 program without its metadata, so a program cached before a scope moved would be attributed by
 the old names. Times are thread time, which on this 2-core machine exceeds the wall time where XLA runs two
-operations at once, and the profiler adds some; the shares are what to read. ``--out DIR``
-writes ``DIR/profile_solve.json``, ``DIR/profile_solve.md`` and ``DIR/provenance.json``.
+operations at once, and the profiler adds some; the shares are what to read. Each record has
+the solve's ``status`` (`jtraj.solvers.Status`'s value); the table shows it beside the
+iterations of a solve that did not succeed. ``--out DIR`` writes ``DIR/profile_solve.json``,
+``DIR/profile_solve.md`` and ``DIR/provenance.json``.
 """
 
 from __future__ import annotations
@@ -123,19 +125,31 @@ def profile(task: str, param: str, variables: str) -> dict:
         raise RuntimeError(f"{task}: no profiled operation carries a phase's scope; was the program compiled from this tree?")
     iterations = int(r.iterations)
     return dict(
-        task=task, parameterization=param, variables=variables, iterations=iterations, wall_s=round(wall, 3),
+        task=task, parameterization=param, variables=variables, status=status_of(r), iterations=iterations, wall_s=round(wall, 3),
         knots=ipm.view.K, n=ipm.view.n, m=ipm.view.m, thread_ms={p: round(by_phase[p] / 1e6, 1) for p in PHASES},
         share={p: round(by_phase[p] / total, 4) for p in PHASES}, thread_ms_per_iteration=round(total / 1e6 / max(iterations, 1), 1),
     )
 
 
+def status_of(r) -> str:
+    """How the profiled solve ended, as `jtraj.solve` says it (`jtraj.solvers.Status`'s value,
+    e.g. ``solved`` or ``max_iter``), from the compiled program's `IpmResult`."""
+    from jtraj.solvers.ipm import _STATUS, IpmStatus
+
+    return _STATUS[IpmStatus(int(r.status))].value
+
+
 def table(records: list[dict]) -> str:
-    """Markdown: one row per task, the phases' shares of the profiled thread time."""
+    """Markdown: one row per task, the phases' shares of the profiled thread time; a solve that
+    did not succeed has its status beside its iterations (records written before the status
+    was recorded have none: their rows are as they were)."""
     head = "| task | knots x n | iterations | solve (s) | thread ms / iteration | " + " | ".join(PHASES) + " |"
     lines = [head, "|" + "---|" * (5 + len(PHASES))]
     for r in records:
         shares = " | ".join(f"{100 * r['share'][p]:.0f} %" for p in PHASES)
-        lines.append(f"| {r['task']} | {r['knots']} x {r['n']} | {r['iterations']} | {r['wall_s']:.2f} | {r['thread_ms_per_iteration']:.0f} | {shares} |")
+        status = r.get("status", "solved")
+        iterations = f"{r['iterations']}" + ("" if status == "solved" else f" ({status})")
+        lines.append(f"| {r['task']} | {r['knots']} x {r['n']} | {iterations} | {r['wall_s']:.2f} | {r['thread_ms_per_iteration']:.0f} | {shares} |")
     return "\n".join(lines) + "\n"
 
 
@@ -150,7 +164,7 @@ def main(argv: list[str] | None = None) -> None:
     for task in a.tasks:
         records.append(profile(task, a.param, a.variables))
         r = records[-1]
-        print(f"{task}: {r['iterations']} iterations in {r['wall_s']:.2f} s; " + ", ".join(f"{p} {100 * r['share'][p]:.0f} %" for p in PHASES), flush=True)
+        print(f"{task}: {r['status']}, {r['iterations']} iterations in {r['wall_s']:.2f} s; " + ", ".join(f"{p} {100 * r['share'][p]:.0f} %" for p in PHASES), flush=True)
     text = table(records)
     print(text, end="")
     if a.out:
