@@ -631,12 +631,25 @@ def _check_variable_changes(variables: str, items: list[str] | None):
 
 def _input_errors() -> tuple[type[BaseException], ...]:
     from jtraj.executors import ExecutorUnavailableError
-    from jtraj.experiments import NoiseChartError, RepeatedValueError
     from jtraj.io import FileFormatError
     from jtraj.solvers.ipopt_catalog import IpoptOptionError
     from jtraj.task import TaskError
 
-    return (InputError, TaskError, IpoptOptionError, FileFormatError, NoiseChartError, RepeatedValueError, ExecutorUnavailableError)
+    errors: tuple[type[BaseException], ...] = (InputError, TaskError, IpoptOptionError, FileFormatError, ExecutorUnavailableError)
+    # jtraj.experiments imports MuJoCo (and its refusal of MUJOCO_GL) with the robot models: a
+    # command that has not imported it (jtraj params, wahba) cannot have raised its errors
+    if experiments := sys.modules.get("jtraj.experiments"):
+        errors += (experiments.NoiseChartError, experiments.RepeatedValueError)
+    return errors
+
+
+def _loads_mujoco(args: argparse.Namespace) -> bool:
+    """Whether the command may import MuJoCo (a robot model, a drawing): ``jtraj params``,
+    ``wahba`` and ``attitude`` without ``--render`` never do, and skip `_mujoco_gl_refused`'s
+    import of it (0.1 to 0.2 s)."""
+    if args.command in ("params", "wahba"):
+        return False
+    return args.command != "attitude" or bool(args.render)
 
 
 def _mujoco_gl_refused() -> str | None:
@@ -655,7 +668,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     args.argv = sys.argv[1:] if argv is None else list(argv)  # provenance.json's command
-    if refused := _mujoco_gl_refused():
+    if _loads_mujoco(args) and (refused := _mujoco_gl_refused()):
         print(f"jtraj {args.command}: {refused}; expected egl, osmesa or glfw, or leave it unset (jtraj then takes egl where there is no display)", file=sys.stderr)
         return EXIT_BAD_INPUT
     # one handler for every input error, wherever it is found: one line, exit status 2

@@ -495,6 +495,34 @@ def test_a_mujoco_gl_that_mujoco_refuses_is_one_line():
     assert done.stderr == "jtraj solve: invalid value for environment variable MUJOCO_GL: foo; expected egl, osmesa or glfw, or leave it unset (jtraj then takes egl where there is no display)\n"
 
 
+def test_attitude_render_refuses_a_mujoco_gl_that_mujoco_refuses_before_solving(tmp_path):
+    """jtraj attitude skips MuJoCo's import, but --render draws with it: the refusal still comes
+    first, as one line, not as a traceback after the solve."""
+    import os
+    import subprocess
+
+    env = {**os.environ, "MUJOCO_GL": "foo"}
+    out = tmp_path / "out"
+    done = subprocess.run([sys.executable, "-m", "jtraj.cli", "attitude", "satellite", "--render", "--out", str(out)], env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == cli.EXIT_BAD_INPUT, done.stderr
+    assert done.stderr.startswith("jtraj attitude: invalid value for environment variable MUJOCO_GL: foo; ") and done.stderr.count("\n") == 1, done.stderr
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("argv, code, err", [(["params"], 0, ""), (["wahba", "--trials", "0"], cli.EXIT_BAD_INPUT, "jtraj wahba: --trials: 0: expected an integer >= 1\n")])
+def test_commands_without_a_robot_do_not_import_mujoco(argv, code, err):
+    """jtraj params and wahba load no robot, yet every command imported MuJoCo at its start to
+    check MUJOCO_GL (0.1 to 0.2 s), and refused to run where MuJoCo refuses the variable; an
+    input error imported it too, to list jtraj.experiments's errors."""
+    import os
+    import subprocess
+
+    env = {**os.environ, "MUJOCO_GL": "foo"}
+    script = "import sys; from jtraj import cli; code = cli.main(sys.argv[1:]); assert 'mujoco' not in sys.modules, 'imported mujoco'; sys.exit(code)"
+    done = subprocess.run([sys.executable, "-c", script, *argv], env=env, capture_output=True, text=True, timeout=300)
+    assert (done.returncode, done.stderr) == (code, err)
+
+
 def test_ctrl_c_in_compare_before_any_cell_says_none_finished(monkeypatch, tmp_path, capsys):
     """compare's interrupt says how many cells its table holds; with none, the line must not
     send the user to a table_iv.json that an earlier run left."""
