@@ -135,7 +135,9 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     from jtraj.provenance import begin_run, end_run
 
     run = begin_run(args.out, ["jtraj", *args.argv])
+    args.compare_rows = None  # OUT/provenance.json is written: what an interrupt says (_kept)
     rows = compare(args.tasks_checked, _split(args.params), out=args.out, variables=args.variables, exact_hessian=args.exact_hessian, save_trajectories=not args.no_trajectories, executor=args.executor, workers=args.workers, ray_address=args.ray_address, solver=args.solver)
+    args.compare_rows = rows
     end_run(args.out, run)
     print((__import__("pathlib").Path(args.out) / "table_iv.md").read_text())
     return 0 if rows else 1
@@ -690,11 +692,20 @@ def main(argv: list[str] | None = None) -> int:
 
 def _kept(args: argparse.Namespace, interrupt: KeyboardInterrupt) -> str:
     """What an interrupted command leaves, for its message (compare says it in ``interrupt``:
-    how many cells its table holds, or none, where an earlier run's table may still lie)."""
+    how many cells its table holds, or none, where an earlier run's table may still lie;
+    an interrupt outside compare() is told by how far `_cmd_compare` got)."""
     if args.command == "robustness":
         return f"; the runs finished are kept in {Path(args.out) / 'runs.jsonl'}, and the same command again resumes from them"
     if args.command == "compare":
-        said = f"{interrupt}" if interrupt.args else f"{Path(args.out) / 'table_iv.json'} holds the cells finished before it"
+        out = Path(args.out)
+        if interrupt.args:
+            said = f"{interrupt}"
+        elif not hasattr(args, "compare_rows"):  # still checking its inputs
+            said = f"nothing was written to {out}"
+        elif args.compare_rows is None:  # before compare() began its cells
+            said = f"no cell was solved and no table written; {out / 'provenance.json'} records the run as unfinished"
+        else:
+            said = f"{out / 'table_iv.json'} holds all {len(args.compare_rows)} cells"
         return f"; {said} (the same command again solves every cell)"
     return ""
 

@@ -449,7 +449,7 @@ def test_a_lost_worker_is_one_line_and_exit_1(command, monkeypatch, tmp_path, ca
 
 @pytest.mark.parametrize(
     "command, kept",
-    [("robustness", "; the runs finished are kept in {out}/runs.jsonl, and the same command again resumes from them"), ("compare", "; {out}/table_iv.json holds the cells finished before it"), ("solve", "")],
+    [("robustness", "; the runs finished are kept in {out}/runs.jsonl, and the same command again resumes from them"), ("compare", "; no cell was solved and no table written; {out}/provenance.json records the run as unfinished"), ("solve", "")],
 )
 def test_ctrl_c_is_one_line_saying_what_was_kept(command, kept, monkeypatch, tmp_path, capsys):
     """Ctrl-C in a sweep: exit 130 and one line saying where the finished work is; it was a
@@ -535,6 +535,34 @@ def test_ctrl_c_in_compare_before_any_cell_says_none_finished(monkeypatch, tmp_p
     code, err = _run(["compare", "--tasks", "big_jump", "--params", "se3,euler", "--out", str(tmp_path / "out")], capsys)
     assert code == cli.EXIT_INTERRUPTED
     assert err == "jtraj compare: interrupted; none of the 2 cells had finished (the same command again solves every cell)\n"
+
+
+@pytest.mark.parametrize("when", ["checking inputs", "after its cells"])
+def test_ctrl_c_in_compare_outside_its_cells_says_what_was_written(when, monkeypatch, tmp_path, capsys):
+    """An interrupt that compare() did not word (while the inputs were checked, or once its
+    cells were done) said OUT/table_iv.json holds the cells finished before it: there was no
+    table yet, or it held them all."""
+    import jtraj.experiments
+    import jtraj.provenance
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    def solved(tasks, params, out, **kwargs):
+        return [dict(task=str(t), parameterization=p) for t in tasks for p in params]
+
+    out = tmp_path / "out"
+    if when == "checking inputs":
+        monkeypatch.setattr(cli, "_check_out", interrupted)
+        said = f"nothing was written to {out}"
+    else:
+        monkeypatch.setattr(jtraj.experiments, "compare", solved)
+        monkeypatch.setattr(jtraj.provenance, "end_run", interrupted)
+        said = f"{out}/table_iv.json holds all 2 cells"
+    code, err = _run(["compare", "--tasks", "big_jump", "--params", "se3,euler", "--out", str(out)], capsys)
+    assert code == cli.EXIT_INTERRUPTED
+    assert err == f"jtraj compare: interrupted; {said} (the same command again solves every cell)\n"
+    assert out.exists() == (when != "checking inputs")
 
 
 def test_robustness_refuses_a_winding_noise_chart_before_writing_out(tmp_path, capsys, no_solve):
