@@ -134,9 +134,9 @@ def profile(task: str, param: str, variables: str) -> dict:
 def status_of(r) -> str:
     """How the profiled solve ended, as `jtraj.solve` says it (`jtraj.solvers.Status`'s value,
     e.g. ``solved`` or ``max_iter``), from the compiled program's `IpmResult`."""
-    from jtraj.solvers.ipm import _STATUS, IpmStatus
+    from jtraj.solvers.ipm import IpmStatus
 
-    return _STATUS[IpmStatus(int(r.status))].value
+    return IpmStatus(int(r.status)).shared.value
 
 
 def table(records: list[dict]) -> str:

@@ -499,3 +499,11 @@ def test_feasibility_polish_after_a_loose_convergence_test():
         IpmOptions(kappa_soc=float("nan"))
     with pytest.raises(solvers.InvalidOptionError, match="armijo=True: expected a finite number"):
         IpmOptions(armijo=True)
+
+
+def test_every_termination_has_a_shared_status():
+    """`IpmStatus.shared`: how each end of the loop is reported in the shared enumeration (the
+    benchmarks' records use it)."""
+    assert IpmStatus.CONVERGED.shared is solvers.Status.SOLVED
+    assert IpmStatus.MAX_ITER.shared is solvers.Status.MAX_ITER
+    assert {s.shared for s in IpmStatus} <= set(solvers.Status)

@@ -118,6 +118,12 @@ class IpmStatus(enum.IntEnum):
     LINE_SEARCH_FAILED = 3  # several line searches in a row found no acceptable step
     NUMERICAL_ERROR = 4  # NaN in the iterate, or no delta_w gave a positive-definite matrix
 
+    @property
+    def shared(self) -> Status:
+        """The status of the shared enumeration (`jtraj.solvers.Status`) this termination is
+        reported as, e.g. CONVERGED -> ``Status.SOLVED``."""
+        return _STATUS[self]
+
 
 class _Tolerances(NamedTuple):
     """`IpmOptions.RUNTIME_FIELDS` as arrays, an input of the compiled solve."""
@@ -1530,7 +1536,7 @@ class JtrajSolver(AbstractSolver):
         values, derivatives = int(r.passes), int(r.derivative_passes)
         return Solution(
             x=x,
-            status=_STATUS[code],
+            status=code.shared,
             message=_MESSAGES.get(code, code.name),
             objective=float(r.objective),
             constraint_violation=max_violation(g, f.g_lower, f.g_upper, x, f.x_lower, f.x_upper),
