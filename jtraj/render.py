@@ -434,14 +434,23 @@ def _as_result(result) -> Result:
         raise NotDrawable("the result has no trajectory to draw (solve with keep_trajectory=True or load a folder with trajectory.npz)")
     if not hasattr(result.trajectory, "base_xyz_wxyz"):
         raise NotDrawable(f"{result.problem!r} is not a legged robot's motion (its trajectory is a {type(result.trajectory).__name__}); draw a rigid-body benchmark with jtraj.render.render_benchmark")
-    bad = ~np.all(np.isfinite(np.asarray(result.trajectory.base_xyz_wxyz)), axis=-1)
-    if bad.any():
-        raise NotDrawable(f"the base pose is NaN or infinite at {int(bad.sum())} knot(s), the first at knot {int(np.argmax(bad))} (the solver's status: {result.solver_status.value}); nothing to draw there")
+    status = f" (the solver's status: {result.solver_status.value})"
+    _refuse_non_finite("the base pose is", status, result.trajectory.base_xyz_wxyz)
     # MuJoCo draws NaN joint angles as missing limbs, without a word
-    bad = ~np.all(np.isfinite(np.asarray(result.trajectory.q_joints)), axis=-1)
-    if bad.any():
-        raise NotDrawable(f"the joint angles are NaN or infinite at {int(bad.sum())} knot(s), the first at knot {int(np.argmax(bad))} (the solver's status: {result.solver_status.value}); nothing to draw there")
+    _refuse_non_finite("the joint angles are", status, result.trajectory.q_joints)
     return result
+
+
+def _refuse_non_finite(what: str, note: str, *per_knot: Any) -> None:
+    """NotDrawable, saying how many knots and which first, where a knot of ``per_knot``
+    (arrays with the knots first) holds a NaN or an infinity; ``what`` names them, ``note``
+    follows the knots in the message."""
+    bad = np.zeros(len(per_knot[0]), bool)
+    for values in per_knot:
+        values = np.asarray(values)
+        bad |= ~np.all(np.isfinite(values), axis=tuple(range(1, values.ndim)))
+    if bad.any():
+        raise NotDrawable(f"{what} NaN or infinite at {int(bad.sum())} knot(s), the first at knot {int(np.argmax(bad))}{note}; nothing to draw there")
 
 
 def _render_options(options: RenderOptions | Mapping[str, Any] | None, kwargs: dict[str, Any]) -> RenderOptions:
@@ -640,9 +649,8 @@ def render_rigid_body(
         raise ValueError(f"strip must be a whole number of keyframes >= 1, got {strip!r}")
     options = _render_options(options, kwargs)
     t, xyz, wxyz = (np.asarray(a, float) for a in (t, xyz, wxyz))
-    bad = ~(np.all(np.isfinite(xyz), axis=-1) & np.all(np.isfinite(wxyz), axis=-1))
-    if bad.any():  # MuJoCo would refuse the body's NaN size ("nan size in geom")
-        raise NotDrawable(f"the body's position or attitude is NaN or infinite at {int(bad.sum())} knot(s), the first at knot {int(np.argmax(bad))}; nothing to draw there")
+    # MuJoCo would refuse the body's NaN size ("nan size in geom")
+    _refuse_non_finite("the body's position or attitude is", "", xyz, wxyz)
     extent = float(np.max(np.ptp(xyz, axis=0)))
     size = 1.0 if extent < 1e-6 else float(np.clip(0.2 * extent, 0.3, 2.0))
     travel = xyz[-1, :2] - xyz[0, :2]
