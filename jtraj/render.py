@@ -705,6 +705,11 @@ def render_benchmark(result, out_dir: str | Path, *, options: RenderOptions | No
 # ----------------------------------------------------------------------------------------
 # Files
 
+#: The file names `write_video` writes, by suffix (`render_directory` checks ``out`` against them first).
+_VIDEO_SUFFIXES = (".gif", ".mp4")
+#: Pillow's format for each file name `write_image` writes, by suffix (`render_directory` checks ``strip`` against them first).
+_IMAGE_FORMATS = {".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG"}
+
 
 def _pixels(array: Any, ndim: int, what: str) -> np.ndarray:
     """``array`` as uint8 pixels of ``ndim`` dimensions, the last RGB; ValueError otherwise
@@ -727,7 +732,7 @@ def write_video(frames: np.ndarray, path: str | Path, fps: float = 30.0) -> Path
     hundredths of a second, real time on average; above 50 fps viewers may slow it down)."""
     path = Path(path)
     suffix = path.suffix.lower()
-    if suffix not in (".gif", ".mp4"):
+    if suffix not in _VIDEO_SUFFIXES:
         raise ValueError(f"{path}: expected a .mp4 or .gif file name")
     if not is_real(fps) or not (math.isfinite(fps) and fps > 0):
         raise ValueError(f"fps must be a finite number > 0, got {fps!r}")
@@ -804,7 +809,7 @@ def write_image(image: np.ndarray, path: str | Path) -> Path:
     from PIL import Image
 
     path = Path(path)
-    fmt = {".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG"}.get(path.suffix.lower())
+    fmt = _IMAGE_FORMATS.get(path.suffix.lower())
     if fmt is None:
         raise ValueError(f"{path}: expected a .png, .jpg or .jpeg file name")
     image = _pixels(image, 3, "image")
@@ -831,10 +836,10 @@ def render_directory(
     # what would fail after minutes of drawing, checked first
     if out is None and strip is None:
         raise ValueError("nothing to write: give out (a .mp4 or .gif file) and/or strip (a .png or .jpg file)")
-    if out is not None and Path(out).suffix.lower() not in (".mp4", ".gif"):
+    if out is not None and Path(out).suffix.lower() not in _VIDEO_SUFFIXES:
         raise ValueError(f"{out}: expected a .mp4 or .gif file name")
     if strip is not None:
-        if Path(strip).suffix.lower() not in (".png", ".jpg", ".jpeg"):
+        if Path(strip).suffix.lower() not in _IMAGE_FORMATS:
             raise ValueError(f"{strip}: expected a .png, .jpg or .jpeg file name")
         _check_strip(keyframes, layout, spacing)
     directory = Path(directory)
