@@ -254,10 +254,11 @@ class Frames:
     in_contact: np.ndarray
 
 
-def _interpolate_poses(t: np.ndarray, xyz: np.ndarray, wxyz: np.ndarray, times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _interpolate_poses(t: np.ndarray, xyz: np.ndarray, wxyz: np.ndarray, times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Poses (T, 7) ``[xyz, wxyz]`` at ``times`` (clipped to the knots ``t``), moving at a
     constant body twist between knots: ``T_k Exp(s Log(T_k^-1 T_k+1))``; also the knot ``k``
-    (T,) before each time and the fraction ``s`` (T,) of the interval."""
+    (T,) before each time, the knot ``k1`` (T,) after it and the fraction ``s`` (T,) of the
+    interval."""
     from jaxlie import SE3
 
     times = np.clip(np.asarray(times, float), t[0], t[-1])
@@ -269,7 +270,7 @@ def _interpolate_poses(t: np.ndarray, xyz: np.ndarray, wxyz: np.ndarray, times: 
     T = np.concatenate([wxyz, xyz], axis=1)  # jaxlie stores wxyz_xyz
     Ta, Tb = SE3(T[k]), SE3(T[k1])
     pose = np.asarray((Ta @ SE3.exp((Ta.inverse() @ Tb).log() * s[:, None])).wxyz_xyz)
-    return np.concatenate([pose[:, 4:], pose[:, :4]], axis=1), k, s
+    return np.concatenate([pose[:, 4:], pose[:, :4]], axis=1), k, k1, s
 
 
 def interpolate(trajectory: Trajectory, times: np.ndarray) -> Frames:
@@ -278,10 +279,8 @@ def interpolate(trajectory: Trajectory, times: np.ndarray) -> Frames:
     contact points linearly, contact flags from the nearest knot."""
     t = np.asarray(trajectory.t, float)
     xyz_wxyz = np.asarray(trajectory.base_xyz_wxyz, float)
-    base, k, s = _interpolate_poses(t, xyz_wxyz[:, :3], xyz_wxyz[:, 3:7], times)
+    base, k, k1, s = _interpolate_poses(t, xyz_wxyz[:, :3], xyz_wxyz[:, 3:7], times)
     times = np.clip(np.asarray(times, float), t[0], t[-1])
-
-    k1 = np.minimum(k + 1, len(t) - 1)
 
     def lerp(a):
         a = np.asarray(a, float)
