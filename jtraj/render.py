@@ -67,8 +67,9 @@ class RenderError(RuntimeError):
 
 class NotDrawable(ValueError):
     """The result (or the folder it was loaded from) holds no legged robot's motion that can be
-    drawn: no trajectory, a rigid-body benchmark's, or NaN base poses or joint angles; the
-    message says which. `render_rigid_body` raises it for a NaN path."""
+    drawn: no trajectory, a rigid-body benchmark's, NaN base poses or joint angles, or NaN
+    contact forces where forces are drawn (`RenderOptions.forces`); the message says which.
+    `render_rigid_body` raises it for a NaN path."""
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -452,6 +453,15 @@ def _refuse_non_finite(what: str, note: str, *per_knot: Any) -> None:
         raise NotDrawable(f"{what} NaN or infinite at {int(bad.sum())} knot(s), the first at knot {int(np.argmax(bad))}{note}; nothing to draw there")
 
 
+def _check_forces(result: Result, options: RenderOptions) -> None:
+    """Where forces are drawn, NaN or infinite ones (with finite poses) are refused before
+    anything is drawn: they were drawn as arrows to NaN, and spread to the frames on either
+    side of their knot, as forces are interpolated."""
+    if options.forces:
+        note = f" (the solver's status: {result.solver_status.value}; forces=False draws the motion without them)"
+        _refuse_non_finite("the contact forces are", note, result.trajectory.forces)
+
+
 def _render_options(options: RenderOptions | Mapping[str, Any] | None, kwargs: dict[str, Any]) -> RenderOptions:
     """``options`` (None: the defaults; a mapping: their changes) with ``kwargs`` over it."""
     if options is None or isinstance(options, Mapping):
@@ -483,6 +493,7 @@ def render(result: Result | str | Path, options: RenderOptions | Mapping[str, An
     """
     options = _render_options(options, kwargs)
     result = _as_result(result)
+    _check_forces(result, options)
     traj = result.trajectory
     duration = float(traj.t[-1] - traj.t[0])
     n = max(2, int(round(duration / options.speed * options.fps)) + 1)
@@ -549,6 +560,7 @@ def keyframe_strip(
     _check_strip(n, layout, spacing)
     options = _render_options(options, kwargs)
     result = _as_result(result)
+    _check_forces(result, options)
     traj = result.trajectory
     if spacing == "motion":
         from jtraj import robot as robots

@@ -242,6 +242,27 @@ def test_render_names_what_it_was_given_instead_of_a_result(result):
         keyframe_strip(broken, options=SMALL)
 
 
+def test_nan_forces_are_refused_before_drawing_where_forces_are_drawn(result, monkeypatch):
+    import jtraj.render as jrender
+
+    # finite poses, non-finite forces (in stance, knots 1 and 2): drawn as arrows to NaN before
+    forces = np.array(result.trajectory.forces)
+    forces[1, 0, 2] = np.nan
+    forces[2, 3, 0] = np.inf
+    broken = dataclasses.replace(result, trajectory=dataclasses.replace(result.trajectory, forces=forces))
+    match = r"the contact forces are NaN or infinite at 2 knot\(s\), the first at knot 1 \(the solver's status: solved; forces=False draws the motion without them\); nothing to draw there"
+    with monkeypatch.context() as m:
+        m.setattr(jrender._Painter, "for_robot", lambda *a, **k: pytest.fail("opened a renderer before checking the forces"))
+        with pytest.raises(NotDrawable, match=match):
+            render(broken, SMALL)
+        for layout in ("side", "overlay"):
+            with pytest.raises(NotDrawable, match=match):
+                keyframe_strip(broken, 2, layout=layout, options=SMALL)
+    # without the arrows the motion is drawn, and is the motion with finite forces drawn without them
+    video = render(broken, SMALL, forces=False, label=False, fps=2)
+    np.testing.assert_array_equal(video, render(result, SMALL, forces=False, label=False, fps=2))
+
+
 def test_collada_visuals_are_converted_for_every_go2_body():
     go2 = robots.load("go2")
     model = robots.load_render_model(go2)
