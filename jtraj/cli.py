@@ -180,7 +180,7 @@ def _cmd_attitude(args: argparse.Namespace) -> int:
 def _render_options(args: argparse.Namespace):
     from jtraj.render import RenderOptions
 
-    return RenderOptions(width=args.width, height=args.height, fps=args.fps, speed=args.speed, shadows=not args.no_shadows)
+    return RenderOptions(width=args.width, height=args.height, fps=args.fps, speed=args.speed, shadows=not args.no_shadows, forces=not args.no_forces)
 
 
 def _render_after_solve(command: str, draw, out: str) -> bool:
@@ -270,6 +270,7 @@ def _add_render_parsers(sub) -> None:
     p.add_argument("--width", type=int, default=640, help="image width in pixels (default 640)")
     p.add_argument("--height", type=int, default=480, help="image height in pixels (default 480)")
     p.add_argument("--no-shadows", action="store_true", help="faster with software OpenGL")
+    p.add_argument("--no-forces", action="store_true", help="no contact-force arrows (they are drawn by default)")
     p.set_defaults(func=_cmd_render)
 
     p = sub.add_parser("plot", help="figures of a solution folder (or of a `jtraj compare` folder)")

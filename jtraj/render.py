@@ -458,7 +458,7 @@ def _check_forces(result: Result, options: RenderOptions) -> None:
     anything is drawn: they were drawn as arrows to NaN, and spread to the frames on either
     side of their knot, as forces are interpolated."""
     if options.forces:
-        note = f" (the solver's status: {result.solver_status.value}; forces=False draws the motion without them)"
+        note = f" (the solver's status: {result.solver_status.value}; RenderOptions(forces=False), or jtraj render --no-forces, draws the motion without them)"
         _refuse_non_finite("the contact forces are", note, result.trajectory.forces)
 
 

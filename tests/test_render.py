@@ -250,7 +250,7 @@ def test_nan_forces_are_refused_before_drawing_where_forces_are_drawn(result, mo
     forces[1, 0, 2] = np.nan
     forces[2, 3, 0] = np.inf
     broken = dataclasses.replace(result, trajectory=dataclasses.replace(result.trajectory, forces=forces))
-    match = r"the contact forces are NaN or infinite at 2 knot\(s\), the first at knot 1 \(the solver's status: solved; forces=False draws the motion without them\); nothing to draw there"
+    match = r"the contact forces are NaN or infinite at 2 knot\(s\), the first at knot 1 \(the solver's status: solved; RenderOptions\(forces=False\), or jtraj render --no-forces, draws the motion without them\); nothing to draw there"
     with monkeypatch.context() as m:
         m.setattr(jrender._Painter, "for_robot", lambda *a, **k: pytest.fail("opened a renderer before checking the forces"))
         with pytest.raises(NotDrawable, match=match):
@@ -261,6 +261,21 @@ def test_nan_forces_are_refused_before_drawing_where_forces_are_drawn(result, mo
     # without the arrows the motion is drawn, and is the motion with finite forces drawn without them
     video = render(broken, SMALL, forces=False, label=False, fps=2)
     np.testing.assert_array_equal(video, render(result, SMALL, forces=False, label=False, fps=2))
+
+
+def test_render_command_draws_without_forces_on_request(result, tmp_path, capsys):
+    """`jtraj render` refuses non-finite forces in one line, as a bad DIR, and ``--no-forces``
+    draws the motion without them."""
+    forces = np.array(result.trajectory.forces)
+    forces[1, 0, 2] = np.nan
+    dataclasses.replace(result, trajectory=dataclasses.replace(result.trajectory, forces=forces)).save(tmp_path / "run")
+    size = ["--width", str(W), "--height", str(H), "--fps", "2", "--no-shadows"]
+    assert main(["render", str(tmp_path / "run"), "--strip", str(tmp_path / "k.png"), "--keyframes", "2", *size]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("jtraj render: DIR:") and "the contact forces are NaN or infinite at 1 knot(s)" in err and err.count("\n") == 1
+    assert not (tmp_path / "k.png").exists()
+    assert main(["render", str(tmp_path / "run"), "--strip", str(tmp_path / "k.png"), "--keyframes", "2", "--no-forces", *size]) == 0
+    assert (tmp_path / "k.png").stat().st_size > 1000
 
 
 def test_collada_visuals_are_converted_for_every_go2_body():
