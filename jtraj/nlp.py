@@ -408,16 +408,19 @@ class KnotNLP:
         """Where entry ``i`` of the flat variables (``kind`` "x") or constraint rows ("g") sits:
         ``"knot K, slot 'q' entry E"`` or ``"group NAME at knot K, row R"``. Solvers name it
         beside a bound they refuse (`jtraj.solvers.base.BoundNLP`)."""
+        size = {"x": self.n, "g": self.m}.get(kind)
+        if size is None:
+            raise ValueError(f"kind={kind!r}: expected 'x' (variables) or 'g' (constraint rows)")
+        if not 0 <= int(i) < size:
+            raise IndexError(f"{kind}[{i}]: the NLP has {size} {'variables' if kind == 'x' else 'constraint rows'}")
         if kind == "x":
             knot, column = divmod(int(i), self.nz)
             slot = next(name for name, _ in self.layout.slots if self.layout.slice(name).start <= column < self.layout.slice(name).stop)
             return f"knot {knot}, slot {slot!r} entry {column - self.layout.offset(slot)}"
-        if kind == "g":
-            gi = int(np.searchsorted(self.group_row_offset, i, side="right")) - 1
-            g = self.groups[gi]
-            knot, row = divmod(int(self.row_index[gi][int(i) - self.group_row_offset[gi]]), g.n_rows)
-            return f"group {g.name} at knot {g.knots[knot]}, row {row}"
-        raise ValueError(f"kind={kind!r}: expected 'x' (variables) or 'g' (constraint rows)")
+        gi = int(np.searchsorted(self.group_row_offset, i, side="right")) - 1
+        g = self.groups[gi]
+        knot, row = divmod(int(self.row_index[gi][int(i) - self.group_row_offset[gi]]), g.n_rows)
+        return f"group {g.name} at knot {g.knots[knot]}, row {row}"
 
     def _check_bounds(self) -> None:
         """Raise ValueError where a lower bound is above its upper bound (or either is NaN) at

@@ -220,3 +220,7 @@ def test_a_knot_nlp_locates_variables_and_rows():
     assert nlp.locate("g", 1) == "group dynamics at knot 0, row 1"
     with pytest.raises(ValueError, match=r"kind='u': expected 'x'"):
         nlp.locate("u", 0)
+    # an index outside the NLP is refused, not wrapped or taken from the last group
+    for kind, i, size in (("x", nlp.n, nlp.n), ("x", -1, nlp.n), ("g", nlp.m, nlp.m)):
+        with pytest.raises(IndexError, match=rf"{kind}\[{i}\]: the NLP has {size} "):
+            nlp.locate(kind, i)
