@@ -21,9 +21,11 @@ def _is_default(value: Any, default: Any) -> bool:
     if value is default:
         return True
     try:
-        return bool(value == default)
+        same = value == default
     except (TypeError, ValueError):
         return False
+    # an array's == is an array (one entry or many): not one truth value
+    return getattr(same, "ndim", 0) == 0 and bool(same)
 
 
 def renamed_argument(new_value: T, old_value: Any, new: str, old: str, default: Any, stacklevel: int = 4) -> T:

@@ -17,7 +17,7 @@ def test_new_name_alone_needs_no_warning(recwarn):
     assert not [w for w in recwarn if issubclass(w.category, DeprecationWarning)]
 
 
-@pytest.mark.parametrize("new_value", ["lean", np.arange(3.0), np.zeros(1)])
+@pytest.mark.parametrize("new_value", ["lean", np.arange(3.0), np.zeros(1), np.array(["compact"])])
 def test_both_names_are_refused(new_value):
     # an array under the new name is not taken for the default: its == is elementwise, and
     # its truth value (ambiguous for more than one entry) must not decide
