@@ -7,8 +7,8 @@
 For every task (and noise draw): the paper's code (SE(3) tangent, its own settings, through its
 runner script, which prints one JSON line), then ``jtraj.solve(task, "se3", variables=...)`` for
 each choice of variables. Iterations are what is compared: on a shared machine the times are noisy. Writes
-``OUT/side_by_side.json`` (one row per solve), ``OUT/side_by_side.md`` (the table the README
-quotes) and ``OUT/provenance.json``. Rows already in the JSON are kept (resume), except the
+``DIR/side_by_side.json`` (one row per solve), ``DIR/side_by_side.md`` (the table the README
+quotes) and ``DIR/provenance.json``. Rows already in the JSON are kept (resume), except the
 solves that failed (rows with status ``error``): they run again. The exit status is nonzero when
 a solve failed.
 

@@ -226,7 +226,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--repeat", type=int, default=1, metavar="N", help="measure each side N times (N odd), alternating, and report medians (default 1)")
     # checked as it is parsed: a file there failed in write_results after every solve
     add_out(ap, "speed")
-    ap.add_argument("--table-only", action="store_true", help="rewrite OUT/speed.md from OUT/speed.json, solve nothing")
+    ap.add_argument("--table-only", action="store_true", help="rewrite DIR/speed.md from DIR/speed.json, solve nothing")
     args = ap.parse_args(argv)
     if args.table_only:
         if not args.out:

@@ -206,9 +206,11 @@ def _check_render_args(args: argparse.Namespace) -> None:
         raise InputError("--out, --strip", "neither given", "expected --out FILE.mp4|FILE.gif and/or --strip FILE.png", verbatim=True)
     if not (Path(args.dir) / "trajectory.npz").is_file():
         raise InputError("DIR", args.dir, "expected a folder written by `jtraj solve` (with trajectory.npz)")
-    if args.out is not None and Path(args.out).suffix.lower() not in (".mp4", ".gif"):
+    from jtraj.render import _IMAGE_FORMATS, _VIDEO_SUFFIXES
+
+    if args.out is not None and Path(args.out).suffix.lower() not in _VIDEO_SUFFIXES:
         raise InputError("--out", args.out, "expected a .mp4 or .gif file name")
-    if args.strip is not None and Path(args.strip).suffix.lower() not in (".png", ".jpg", ".jpeg"):
+    if args.strip is not None and Path(args.strip).suffix.lower() not in _IMAGE_FORMATS:
         raise InputError("--strip", args.strip, "expected a .png (or .jpg) file name")
     for field, value in (("--speed", args.speed), ("--fps", args.fps)):
         if not (math.isfinite(value) and value > 0):

@@ -537,8 +537,9 @@ def factor_with_correction(
 
     Tries ``delta_w = 0`` first, then ``max(delta_w_min, kappa_minus delta_w_last)`` (or
     ``delta_w_first``), growing by ``kappa_plus`` (``kappa_plus_first`` when there was no
-    earlier value) until the condensed matrix is positive definite.
-    Returns (factor, delta_w used, ok).
+    earlier value) until the condensed matrix is positive definite; as Ipopt, it makes no trial
+    above ``delta_w_max`` nor more than ``max_attempts``, and then gives up (ok False) with the
+    last value tried. Returns (factor, delta_w used, ok).
     """
     d = system.d0 + delta_c
     coupled = coupled_columns(system.pattern, system.H is not None)
