@@ -50,11 +50,10 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from jtraj import io as jio
 from jtraj import solvers
 from jtraj.cli import InputError, _check_out
 from jtraj.experiments import noisy_warm_starts
-from jtraj.provenance import provenance
+from jtraj.provenance import provenance, write_results
 from jtraj.solver import compile_callbacks, prepare, solve, solver_options
 from jtraj.success import FEASIBILITY_TOL
 from jtraj.success import evaluate as check_motion
@@ -186,14 +185,10 @@ def main(argv: list[str] | None = None) -> None:
     # the first strategy's line last (vmap's, by default: the line)
     last = [f"replicates: {label[s]} {timed[s]:.2f} s, sequential {sequential:.2f} s, speedup {sequential / timed[s]:.2f} (sequential: {against})" for s in reversed(strategies)]
     if args.out:
-        # write_results's three files, with the one provenance record both F.json and
-        # provenance.json hold (write_results would build a second one)
+        # one provenance record, held by F.json and written as provenance.json
         out = Path(args.out)
-        out.parent.mkdir(parents=True, exist_ok=True)
         report["provenance"] = provenance(["python", "bench/replicates.py", *(sys.argv[1:] if argv is None else argv)])
-        jio.write_json(out, report)
-        jio.write_text(out.with_suffix(".md"), markdown(report, last))
-        jio.write_json(out.parent / "provenance.json", report["provenance"])
+        write_results(out.parent, out.stem, report, markdown(report, last), "bench/replicates.py", record=report["provenance"])
     for line in last:
         print(line)
 

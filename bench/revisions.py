@@ -132,18 +132,13 @@ def main(argv: list[str] | None = None) -> int:
     print()
     print(md + note)
     if args.out:
-        from jtraj import io
-        from jtraj.provenance import provenance
+        from jtraj.provenance import provenance, write_results
 
-        # the files of `jtraj.provenance.write_results` (strict JSON, each written atomically),
-        # with the two revisions in the provenance: its record is built with them and written once
-        out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
+        # strict JSON, each file written atomically, with the two revisions in the provenance:
+        # its record is built with them and written once
         record = provenance(["python", "bench/revisions.py", *(argv if argv is not None else sys.argv[1:])])
         record["revisions"] = {"earlier": labels[0], "later": labels[1]}
-        io.write_json(out / "revisions.json", records)
-        io.write_text(out / "revisions.md", md + note)
-        io.write_json(out / "provenance.json", record)
+        write_results(args.out, "revisions", records, md + note, "bench/revisions.py", record=record)
     return 0
 
 

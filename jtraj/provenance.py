@@ -150,13 +150,18 @@ def end_run(out: str | Path, record: dict) -> Path:
     return io.write_json(Path(out) / "provenance.json", record)
 
 
-def write_results(out: str | Path, name: str, records: object, markdown: str, script: str, argv: list[str] | None = None) -> list[Path]:
+def write_results(
+    out: str | Path, name: str, records: object, markdown: str, script: str, argv: list[str] | None = None, record: dict | None = None
+) -> list[Path]:
     """A benchmark's results folder: ``out/NAME.json`` (its records, strict JSON), ``out/NAME.md``
     (the table rendered from them) and ``out/provenance.json``, whose command is ``python SCRIPT``
-    with ``argv`` (default: this process's arguments). Returns the three paths."""
+    with ``argv`` (default: this process's arguments), or ``record``, a provenance record the
+    script built itself (e.g. with fields of its own, or one its records also hold). Returns the
+    three paths."""
     from jtraj import io
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    command = ["python", script, *(sys.argv[1:] if argv is None else argv)]
-    return [io.write_json(out / f"{name}.json", records), io.write_text(out / f"{name}.md", markdown), write_provenance(out, command)]
+    if record is None:
+        record = provenance(["python", script, *(sys.argv[1:] if argv is None else argv)])
+    return [io.write_json(out / f"{name}.json", records), io.write_text(out / f"{name}.md", markdown), io.write_json(out / "provenance.json", record)]
