@@ -34,7 +34,11 @@ def _group(i: int, folder: str, action: str) -> int:
     """A group for worker processes: writes its process id to ``folder/started-i``, then
     returns i at once ("quick"), after 60 s ("sleep"), raises ("raise") or kills its own
     process ("die")."""
-    Path(folder, f"started-{i}").write_text(str(os.getpid()))
+    # written whole, then renamed: a worker stopped between creating the file and writing its
+    # id left an empty started-i, which _workers_ended could not read
+    partial = Path(folder, f".started-{i}.{os.getpid()}")
+    partial.write_text(str(os.getpid()))
+    partial.rename(Path(folder, f"started-{i}"))
     if action == "raise":
         raise RuntimeError(f"group {i} failed")
     if action == "die":
