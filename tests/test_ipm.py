@@ -64,6 +64,44 @@ def test_active_bound_and_inequality(toy):
     np.testing.assert_allclose(x.reshape(-1), ref.x, atol=1e-4)
 
 
+def test_nlp_error_takes_the_rows_violation_not_the_slacks_lag(toy):
+    """Convergence is judged by Ipopt's NLP error, whose primal part is how far c(x) lies
+    outside its bounds (its curr_nlp_constraint_violation), not by how far the slacks lag
+    c(x) (c - s, the barrier problem's residual). A point whose speed rows are inside their
+    bounds but whose slacks lag by 0.1 was held back as if it violated them by 0.1."""
+    _, ipm = toy
+    p, st = ipm._start(jnp.zeros((K, 3)), None)
+    ineq = np.asarray(p.ineq)
+    assert ineq.any()
+    lagging = st._replace(s=jnp.where(p.ineq, st.c - 0.1, st.s))
+    _, _, barrier_primal, _ = ipm._error(p, lagging, 0.0)
+    _, _, nlp_primal, _ = ipm._error(p, lagging, 0.0, nlp=True)
+    assert float(barrier_primal) >= 0.1 - 1e-12
+    assert float(nlp_primal) == pytest.approx(float(ipm._constr_viol(p, lagging.c)))
+    # the rows' violation at the start is that of the dynamics rows, not the slacks' lag
+    assert float(nlp_primal) == pytest.approx(float(ipm._error(p, st, 0.0, nlp=True)[2]))
+
+
+def test_free_mode_empties_the_filter_every_iteration(toy):
+    """Ipopt's adaptive barrier update resets the line search on every free-mode iteration,
+    whether or not the oracle's mu changed (clipped to mu_min it does not): the filter held 1
+    and 2 entries at the toy's last free-mode iterations, at mu_min."""
+    _, ipm = toy
+    p, st = ipm._start(jnp.zeros((K, 3)), None)
+    step = jax.jit(lambda st, passes: ipm._iteration(p, st, passes, None))
+    passes = jnp.zeros((2,), jnp.int32)
+    free_iterations = 0
+    for _ in range(100):
+        st, passes = step(st, passes)
+        if bool(st.free_mode):
+            free_iterations += 1
+            assert int(st.n_filter) == 0, (int(st.it), int(st.n_filter), float(st.mu))
+        if int(st.status) != IpmStatus.RUNNING:
+            break
+    assert int(st.status) == IpmStatus.CONVERGED and free_iterations > 5
+    assert float(st.mu) == pytest.approx(ipm.options.mu_min)  # the oracle's mu was clipped
+
+
 def test_monotone_barrier_strategy_reaches_the_same_solution(toy):
     """The default barrier update is Ipopt's adaptive one; the monotone (Fiacco-McCormick)
     update is an option and must find the same optimum."""
@@ -227,14 +265,22 @@ def test_negative_curvature_goes_through_inertia_correction():
     # matrices need delta_w > 0 (measured 2026-12-04: from the second iteration to the eleventh)
     p, st = ipm._start(z0, None)
     step = jax.jit(lambda st, passes: ipm._iteration(p, st, passes, None))
-    delta_w = []
+    delta_w, last = [], []
     passes = jnp.zeros((2,), jnp.int32)  # (values, derivatives) evaluated so far
     for _ in range(100):
         st, passes = step(st, passes)
         delta_w.append(float(st.delta_w))
+        last.append(float(st.delta_w_last))
         if int(st.status) != IpmStatus.RUNNING:
             break
     assert int(st.status) == IpmStatus.CONVERGED and max(delta_w) > 0.0, delta_w
+    # the next correction starts from the last positive delta_w, remembered through the
+    # iterations that needed none (Algorithm IC; it was forgotten there and every correction
+    # began again at delta_w_first): here the last iterations need none and keep it
+    assert delta_w[-1] == 0.0 and last[-1] > 0.0
+    for i in range(len(delta_w)):
+        used = [w for w in delta_w[: i + 1] if w > 0.0]
+        assert last[i] == (used[-1] if used else 0.0), (i, delta_w, last)
     r = ipm.solve(z0, None)
     assert int(r.status) == IpmStatus.CONVERGED
     x = np.asarray(r.x)
@@ -289,8 +335,8 @@ def test_converges_on_small_go2_hop_with_the_other_parameterizations(param):
 def test_dual_regularization_floor_keeps_the_tight_tail_at_ipopts_pace():
     """At tol 1e-8, mu reaches mu_min and the scaled ``delta_c mu^(1/4)`` (5.6e-11) makes the
     condensed matrix so ill-conditioned that its Cholesky needs ``delta_w`` about every other
-    iteration (measured: 122 iterations on this hop against Ipopt's 28). A floor of 1e-9 keeps
-    the tail at Ipopt's pace (measured 28)."""
+    iteration (measured 2026-12-06: 115 iterations on this hop against Ipopt's 28). A floor of
+    1e-9 keeps the tail at Ipopt's pace (measured 28)."""
     from test_transcription import HOP
 
     from jtraj import solve

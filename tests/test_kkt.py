@@ -142,6 +142,37 @@ def test_inertia_correction_stops_below_delta_w_max(rng):
     assert float(delta_w) == pytest.approx(float(needed) / 100.0)
 
 
+def _least_shift(system, delta_c):
+    """The smallest delta_w (to 1e-12 relative) at which the condensed matrix factors."""
+    d = system.d0 + delta_c
+
+    def ok(dw):
+        return bool(kkt.factor(*kkt.condensed_blocks(system, d, jnp.asarray(dw)))[1])
+
+    lo, hi = 0.0, 1.0
+    while not ok(hi):
+        lo, hi = hi, 2.0 * hi
+    while hi - lo > 1e-12 * hi:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if ok(mid) else (mid, hi)
+    return hi
+
+
+def test_inertia_correction_from_a_remembered_value_grows_as_ipopt(rng):
+    """From an earlier ``delta_w_last`` the trials are ``delta_w_last / 3`` grown by 8, and by
+    100 once a trial is more than 1e5 times ``delta_w_last`` (Ipopt's PDPerturbationHandler).
+    Growing by 8 throughout stopped at 2.86 times the least shift that works instead of 6.99."""
+    system = random_system(rng, indefinite=True)
+    delta_c = jnp.asarray(1e-9)
+    least = _least_shift(system, delta_c)
+    last = 1e-9 * least
+    _, delta_w, ok = kkt.factor_with_correction(system, delta_c, jnp.asarray(last))
+    # last/3 * 8^7 = 6.99e5 last > 1e5 last, then two factors of 100
+    assert bool(ok)
+    assert float(delta_w) == pytest.approx(last / 3.0 * 8.0**7 * 100.0**2, rel=1e-12)
+    assert float(delta_w) / least == pytest.approx(6.99, abs=0.01)
+
+
 def test_block_factor_equals_dense_cholesky(rng, split):
     K, n = 4, 3
     X = rng.normal(size=(K * n, K * n))

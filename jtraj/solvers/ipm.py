@@ -49,7 +49,17 @@ Differences from Ipopt, and why:
   solve; it runs in a loop that a vmapped batch enters only when one of its members corrects),
   without a feasibility restoration phase: a failed line search takes its last (tiny) step and
   the solve stops after several in a row. A trial point
-  costs the objective and constraints only; the Jacobian is evaluated at accepted points.
+  costs the objective and constraints only; the Jacobian is evaluated at accepted points. As
+  in Ipopt, the filter is emptied whenever mu changes and at every free-mode iteration of the
+  adaptive strategy; a step for which the switching and Armijo conditions hold leaves it as
+  it is, whichever test accepted the step (step A-7); a filter entry rejects only a point
+  worse in both measures; the acceptance tests allow Ipopt's rounding margin (10 eps of the
+  reference value); and the inertia correction starts from the last positive ``delta_w``,
+  remembered through iterations that needed none (Algorithm IC).
+- Not implemented from Ipopt (its defaults in brackets): the damping of one-sided bounds in
+  the barrier function (``kappa_d`` 1e-5), least-squares initial multipliers (y starts at 0),
+  the relaxation of bounds (``bound_relax_factor`` 1e-8), the watchdog procedure, tiny-step
+  detection, and ``obj_max_inc``.
 - Everything is one `jax.jit` program (`lax.while_loop`); `jax.vmap` of `IPM.solve` over
   initial guesses (and parameters theta) is one program too. On an accelerator it is
   vectorized: the replicates step together, and a converged replicate's state no longer
@@ -184,8 +194,8 @@ class IpmOptions(AbstractOptions):
         delta_c_min: a floor under the scaled ``delta_c mu^(1/4)`` (default 0: none). With mu at
             ``mu_min`` the scaled value is 5.6e-11, the condensed matrix weighs the equality rows
             by its inverse, and its Cholesky needs ``delta_w`` about every other iteration
-            (measured on the tests' Go2 hop at tol 1e-8: 83 to 122 iterations against Ipopt's
-            20 to 38; with ``delta_c_min=1e-9`` 20 to 28, docs/measurements.md). Not the
+            (measured on the tests' Go2 hop at tol 1e-8: 86 to 117 iterations against Ipopt's
+            20 to 38; with ``delta_c_min=1e-9`` 21 to 31, docs/measurements.md). Not the
             default: at the study's tol 1e-3 the floor takes the back-flip from 29 iterations
             to 102 (`results/delta_c_variants/`).
         refine_steps, min_refine_steps, residual_ratio_max: iterative refinement of each KKT
@@ -503,7 +513,8 @@ class _State(NamedTuple):
     fac_diag: jax.Array  # (K, n, n) block Cholesky factor
     fac_sub: jax.Array
     delta_c: jax.Array
-    delta_w: jax.Array
+    delta_w: jax.Array  # of the current direction's factorization (0 when none was needed)
+    delta_w_last: jax.Array  # the last positive delta_w of any factorization (Algorithm IC's)
     # bookkeeping
     first: jax.Array
     it: jax.Array
@@ -673,12 +684,18 @@ class IPM:
         cu_s = jnp.where(p.has_su, (p.cu - st.s) * st.vu - mu, 0.0)
         return r_x, r_s, r_c, (cl_x, cu_x, cl_s, cu_s)
 
-    def _error(self, p: _Problem, st: _State, mu):
-        """(scaled error, dual_inf, primal_inf, compl) as in Ipopt's optimality test."""
+    def _error(self, p: _Problem, st: _State, mu, nlp: bool = False):
+        """(scaled error, dual_inf, primal_inf, compl) as in Ipopt's optimality test.
+
+        ``nlp=True`` (the NLP's error, mu = 0): the primal part is the violation of the rows'
+        bounds by c(x), as Ipopt's ``curr_nlp_error`` (its ``curr_nlp_constraint_violation``);
+        otherwise (a barrier problem's error) it is the residual ``c - s`` of the slacks' rows,
+        as its ``curr_barrier_error``. The two differ where c(x) is inside its bounds but the
+        slack has not caught up."""
         o = self.options
         r_x, r_s, r_c, compl = self._residuals(p, st, mu)
         dual_inf = jnp.maximum(jnp.max(jnp.abs(r_x)), jnp.max(jnp.abs(r_s)))
-        primal_inf = jnp.max(jnp.abs(r_c))
+        primal_inf = self._constr_viol(p, st.c) if nlp else jnp.max(jnp.abs(r_c))
         compl_inf = jnp.max(jnp.stack([jnp.max(jnp.abs(c)) for c in compl]))
         n_rows = jnp.sum(p.eq | p.ineq)
         z_sum = sum(jnp.sum(jnp.abs(jnp.where(mask, z, 0.0))) for z, mask in ((st.zl, p.has_xl), (st.zu, p.has_xu), (st.vl, p.has_sl), (st.vu, p.has_su)))
@@ -790,7 +807,7 @@ class IPM:
             free_mode=jnp.asarray(o.mu_strategy == "adaptive"), refs=jnp.full((4,), jnp.inf),
             mu_filter=jnp.full((self.FILTER_SIZE, 2), jnp.inf),
             # element Hessians are state only for the partitioned BFGS (the others rebuild them)
-            H=jnp.broadcast_to(o.bfgs_init * jnp.eye(2 * n), (K, 2 * n, 2 * n)) if o.hessian == "bfgs" else jnp.zeros((K, 2 * n, 2 * n)) if o.hessian == "exact" else jnp.zeros((0,)), scaled=jnp.zeros((K,), bool), delta_w=zero,
+            H=jnp.broadcast_to(o.bfgs_init * jnp.eye(2 * n), (K, 2 * n, 2 * n)) if o.hessian == "bfgs" else jnp.zeros((K, 2 * n, 2 * n)) if o.hessian == "exact" else jnp.zeros((0,)), scaled=jnp.zeros((K,), bool), delta_w=zero, delta_w_last=zero,
             S=jnp.zeros((l, K, n)), Y=jnp.zeros((l, K, n)), used=jnp.zeros((l,), bool), lsigma=jnp.asarray(o.lbfgs_init_val),
             lskip=jnp.zeros((), jnp.int32),
             fac_diag=jnp.zeros((K, n, n)), fac_sub=jnp.zeros((K, n if coupled is None else coupled.size, n)), delta_c=zero,
@@ -802,7 +819,7 @@ class IPM:
 
     def _finish(self, p: _Problem, st: _State, passes: jax.Array) -> IpmResult:
         """The result of the state; ``passes`` is the (values, derivatives) evaluation count."""
-        err, dual_inf, _, compl = self._error(p, st, 0.0)
+        err, dual_inf, _, compl = self._error(p, st, 0.0, nlp=True)
         return IpmResult(
             x=st.x, y=st.y, z_lower=st.zl, z_upper=st.zu, status=st.status, iterations=st.it,
             objective=st.f, constr_viol=self._constr_viol(p, st.c), dual_inf=dual_inf, compl=compl,
@@ -868,6 +885,7 @@ class IPM:
     FILTER_SIZE = 64
     # Ipopt's filter line-search constants (Wächter & Biegler 2006, section 2.3 and Table 1)
     GAMMA_THETA, GAMMA_PHI, DELTA, S_THETA, S_PHI, ETA_PHI = 1e-5, 1e-8, 1.0, 1.1, 2.3, 1e-8
+    ROUNDING = 10.0 * float(np.finfo(np.float64).eps)  # Ipopt's Compare_le tolerance, relative
 
     def _measures(self, p: _Problem, x, s, f, c, mu):
         """(theta, phi): l1 infeasibility and barrier objective."""
@@ -911,10 +929,18 @@ class IPM:
             finite = jnp.isfinite(th_t) & jnp.isfinite(ph_t)
             # a correction is judged with the first trial's alpha (Ipopt's alpha_primal_test)
             switching = (st.slope < 0) & (alpha * (-st.slope) ** self.S_PHI > self.DELTA * st.theta0 ** self.S_THETA)
-            armijo = ph_t <= st.phi0 + self.ETA_PHI * alpha * st.slope
+            # Ipopt's comparisons allow a rounding error of 10 eps of the reference value
+            # (its Compare_le)
+            slack_phi = self.ROUNDING * jnp.abs(st.phi0)
+            armijo = ph_t - st.phi0 <= self.ETA_PHI * alpha * st.slope + slack_phi
             f_type = switching & (st.theta0 <= st.theta_min)
-            sufficient = jnp.where(f_type, armijo, (th_t <= (1.0 - self.GAMMA_THETA) * st.theta0) | (ph_t <= st.phi0 - self.GAMMA_PHI * st.theta0))
-            in_filter = jnp.any((th_t >= st.filter[:, 0]) & (ph_t >= st.filter[:, 1]))
+            sufficient = jnp.where(
+                f_type, armijo,
+                (th_t <= (1.0 - self.GAMMA_THETA) * st.theta0 + self.ROUNDING * st.theta0) | (ph_t - st.phi0 <= -self.GAMMA_PHI * st.theta0 + slack_phi),
+            )
+            # a filter entry rejects a point no better than it in both measures (Ipopt's
+            # Filter::Acceptable: acceptable where one measure is at most the entry's)
+            in_filter = jnp.any((th_t > st.filter[:, 0]) & (ph_t > st.filter[:, 1]))
             accept = finite & (th_t <= st.theta_max) & sufficient & ~in_filter
             # second-order corrections: after a rejected first trial that raised the violation,
             # then while each correction lowers it by kappa_soc (Wachter & Biegler, A-5.5 to 5.10)
@@ -938,7 +964,11 @@ class IPM:
             back = ~advance & ~do_soc
             alpha = jnp.where(back, 0.5 * alpha, alpha)
             trials = jnp.where(back, trials + 1, trials).astype(jnp.int32)
-            return (alpha, trials, status, xt, s_t, ft, ct, th_t, advance, f_type & armijo, give_up & ~st.first, passes.at[0].add(1), soc)
+            # the filter is left as it is after a step where the switching condition and the
+            # Armijo condition both hold, whichever test accepted it (Wächter & Biegler 2006,
+            # step A-7; Ipopt's FilterLSAcceptor::UpdateForNextIteration): theta_min only picks
+            # the test
+            return (alpha, trials, status, xt, s_t, ft, ct, th_t, advance, switching & armijo, give_up & ~st.first, passes.at[0].add(1), soc)
 
         alpha, trials, status, xt, s_t, ft, ct, th_t, done, f_step, failed, passes, soc = lax.while_loop(trial_cond, trial_body, init)
         # the accepted point came from a correction: its step is the one taken (primal length
@@ -1027,7 +1057,7 @@ class IPM:
         )
 
         # convergence error (at mu = 0, so the barrier update below does not change it)
-        err, dual_inf, _, compl = self._error(p, new, 0.0)
+        err, dual_inf, _, compl = self._error(p, new, 0.0, nlp=True)
         mu_new, free_mode, refs, mu_max, mu_filter = self._update_mu(p, new, first, err)
         if o.mu_oracle == "quality-function":
             # Ipopt's fraction to the boundary: from the NLP error in free mode, from mu otherwise;
@@ -1049,8 +1079,10 @@ class IPM:
             jnp.where(new.ls_fail >= o.max_line_search_failures, int(IpmStatus.LINE_SEARCH_FAILED),
             jnp.where(it >= o.max_iter, int(IpmStatus.MAX_ITER), int(IpmStatus.RUNNING)))))
         new = self._direction(p, new._replace(status=status.astype(jnp.int32)), theta)  # sets mu with the quality function
-        # a new barrier problem (or a failed line search) empties the filter
-        reset = (new.mu != mu) | failed
+        # a new barrier problem, every free-mode iteration of the adaptive strategy (Ipopt's
+        # AdaptiveMuUpdate resets the line search there even when mu comes out the same, e.g.
+        # at mu_min), or a failed line search empties the filter
+        reset = (new.mu != mu) | failed | (new.free_mode & (o.mu_strategy == "adaptive"))
         history = st.history.at[it].set(jnp.stack([ft, viol, dual_inf, jnp.log10(new.mu), jnp.where(first, jnp.nan, alpha)]))
         return new._replace(
             history=history,
@@ -1157,7 +1189,9 @@ class IPM:
         delta_c = o.delta_c * st.mu ** 0.25 if o.delta_c_mu_scaled else jnp.asarray(o.delta_c)
         if o.delta_c_mu_scaled and o.delta_c_min > 0.0:
             delta_c = jnp.maximum(delta_c, o.delta_c_min)
-        fac, delta_w, ok = kkt.factor_with_correction(system, delta_c, st.delta_w)
+        # the correction starts from the last positive delta_w, kept through the iterations
+        # that needed none (Wächter & Biegler 2006, Algorithm IC; Ipopt's perturbation handler)
+        fac, delta_w, ok = kkt.factor_with_correction(system, delta_c, st.delta_w_last)
         avg = jnp.maximum(self._complementarity(p, st)[0], 1e-300)
         rx, rc = jax.tree.map(lambda a, b: jnp.stack([a, b]), right_hand_side(0.0, r_c), right_hand_side(avg, r_c))
         # both right-hand sides at once: their first block solves share the sweeps with the
@@ -1179,6 +1213,7 @@ class IPM:
         return st._replace(
             dx=dx, ds=ds, dy=dy, dzl=dzl, dzu=dzu, dvl=dvl, dvu=dvu, alpha=a_max, alpha_dual=a_dual, mu=mu,
             phi0=phi0, theta0=theta0, slope=slope, delta_w=jnp.where(ok, delta_w, st.delta_w), status=status.astype(jnp.int32),
+            delta_w_last=jnp.where(ok & (delta_w > 0.0), delta_w, st.delta_w_last),
             fac_diag=fac.diag, fac_sub=fac.sub, delta_c=delta_c,
             H=H if o.hessian == "exact" else st.H,
         )

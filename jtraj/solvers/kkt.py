@@ -536,10 +536,13 @@ def factor_with_correction(
     """Factor with the smallest ``delta_w`` of Ipopt's sequence that gives the right inertia.
 
     Tries ``delta_w = 0`` first, then ``max(delta_w_min, kappa_minus delta_w_last)`` (or
-    ``delta_w_first``), growing by ``kappa_plus`` (``kappa_plus_first`` when there was no
-    earlier value) until the condensed matrix is positive definite; as Ipopt, it makes no trial
+    ``delta_w_first``), growing by ``kappa_plus`` until the condensed matrix is positive
+    definite; as Ipopt's perturbation handler, it grows by ``kappa_plus_first`` instead when
+    there was no earlier value or the trial is more than 1e5 times it, and it makes no trial
     above ``delta_w_max`` nor more than ``max_attempts``, and then gives up (ok False) with the
-    last value tried. Returns (factor, delta_w used, ok).
+    last value tried. ``delta_w_last`` is the last positive ``delta_w`` used by any earlier
+    factorization, not only the previous one (Wächter & Biegler 2006, Algorithm IC: only a
+    correction sets it). Returns (factor, delta_w used, ok).
     """
     d = system.d0 + delta_c
     coupled = coupled_columns(system.pattern, system.H is not None)
@@ -554,7 +557,7 @@ def factor_with_correction(
     def following(dw, i):
         # the trial after ``dw``, the i-th (i >= 1): Ipopt's first nonzero value, then growth
         first = jnp.where(delta_w_last == 0.0, options.delta_w_first, jnp.maximum(options.delta_w_min, options.kappa_minus * delta_w_last))
-        grow = jnp.where(delta_w_last == 0.0, options.kappa_plus_first, options.kappa_plus) * dw
+        grow = jnp.where((delta_w_last == 0.0) | (1e5 * delta_w_last < dw), options.kappa_plus_first, options.kappa_plus) * dw
         return jnp.where(i == 1, first, grow)
 
     def cond(state):
