@@ -553,3 +553,25 @@ def test_every_termination_has_a_shared_status():
     assert IpmStatus.CONVERGED.shared is solvers.Status.SOLVED
     assert IpmStatus.MAX_ITER.shared is solvers.Status.MAX_ITER
     assert {s.shared for s in IpmStatus} <= set(solvers.Status)
+
+
+def test_a_failed_inertia_correction_is_not_reported_as_nan(monkeypatch):
+    """When no delta_w up to delta_w_max gives the Newton matrix the right inertia, the solve
+    ends as a failed step computation with its own message; it ended as NUMERICAL_ERROR, which
+    the shared status describes as a function returning NaN or Inf."""
+    from jtraj.solvers import kkt
+
+    # an NLP of its own: its compiled programs, kept on the NLP, must not serve other tests
+    nlp = double_integrator()
+    real = kkt.factor_with_correction
+
+    def never(system, delta_c, delta_w_last, options=kkt.InertiaOptions()):
+        fac, delta_w, _ = real(system, delta_c, delta_w_last, options)
+        return fac, delta_w, jnp.asarray(False)
+
+    monkeypatch.setattr(kkt, "factor_with_correction", never)
+    r = IPM(nlp, IpmOptions(tol=1e-8, max_iter=20)).solve(jnp.zeros((K, 3)), None)
+    assert int(r.status) == IpmStatus.INERTIA_FAILED
+    assert IpmStatus.INERTIA_FAILED.shared is solvers.Status.STEP_COMPUTATION_FAILED
+    sol = solvers.get("jtraj").solve(nlp, np.zeros(nlp.n), None, {"tol": 1e-8, "max_iter": 20})
+    assert sol.status is solvers.Status.STEP_COMPUTATION_FAILED and "delta_w" in sol.message, sol.message

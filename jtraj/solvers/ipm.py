@@ -126,7 +126,8 @@ class IpmStatus(enum.IntEnum):
     CONVERGED = 1
     MAX_ITER = 2
     LINE_SEARCH_FAILED = 3  # several line searches in a row found no acceptable step
-    NUMERICAL_ERROR = 4  # NaN in the iterate, or no delta_w gave a positive-definite matrix
+    NUMERICAL_ERROR = 4  # NaN or Inf in the iterate or its function values
+    INERTIA_FAILED = 5  # no delta_w up to delta_w_max gave a positive-definite Newton matrix
 
     @property
     def shared(self) -> Status:
@@ -1209,7 +1210,7 @@ class IPM:
         theta0, phi0 = self._measures(p, x, st.s, st.f, st.c, mu)
         grad_bar_x, grad_bar_s = barrier_gradients(mu)
         slope = jnp.sum(grad_bar_x * dx) + jnp.sum(grad_bar_s * ds)
-        status = jnp.where((st.status == int(IpmStatus.RUNNING)) & ~ok, int(IpmStatus.NUMERICAL_ERROR), st.status)
+        status = jnp.where((st.status == int(IpmStatus.RUNNING)) & ~ok, int(IpmStatus.INERTIA_FAILED), st.status)
         return st._replace(
             dx=dx, ds=ds, dy=dy, dzl=dzl, dzu=dzu, dvl=dvl, dvu=dvu, alpha=a_max, alpha_dual=a_dual, mu=mu,
             phi0=phi0, theta0=theta0, slope=slope, delta_w=jnp.where(ok, delta_w, st.delta_w), status=status.astype(jnp.int32),
@@ -1363,6 +1364,7 @@ _STATUS = {
     IpmStatus.MAX_ITER: Status.MAX_ITER,
     IpmStatus.LINE_SEARCH_FAILED: Status.RESTORATION_FAILED,
     IpmStatus.NUMERICAL_ERROR: Status.NUMERICAL_ERROR,
+    IpmStatus.INERTIA_FAILED: Status.STEP_COMPUTATION_FAILED,
 }
 _MESSAGES = {
     # the loop also ends, still RUNNING, at its bound on evaluations (`IPM._max_passes`), which
@@ -1371,7 +1373,8 @@ _MESSAGES = {
     IpmStatus.CONVERGED: "converged (Ipopt's optimality test)",
     IpmStatus.MAX_ITER: "iteration limit reached",
     IpmStatus.LINE_SEARCH_FAILED: "the filter line search failed several times in a row (this solver has no restoration phase)",
-    IpmStatus.NUMERICAL_ERROR: "NaN/Inf in the iterate, or no regularization made the KKT matrix's inertia right",
+    IpmStatus.NUMERICAL_ERROR: "NaN or Inf in the iterate or in the functions' values there",
+    IpmStatus.INERTIA_FAILED: "no regularization delta_w up to delta_w_max made the Newton matrix positive definite (Ipopt would turn to its restoration phase; this solver has none)",
 }
 
 
