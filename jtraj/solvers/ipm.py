@@ -59,7 +59,12 @@ Differences from Ipopt, and why:
 - Not implemented from Ipopt (its defaults in brackets): the damping of one-sided bounds in
   the barrier function (``kappa_d`` 1e-5), least-squares initial multipliers (y starts at 0),
   the relaxation of bounds (``bound_relax_factor`` 1e-8), the watchdog procedure, tiny-step
-  detection, and ``obj_max_inc``.
+  detection, and ``obj_max_inc``. Smaller differences: a solved barrier problem lowers mu at
+  most 4 times in one iteration (Ipopt's monotone loop has no bound, and its adaptive
+  strategy's fixed mode lowers it once); the filter holds 64 entries in a ring and keeps
+  dominated ones; with the LOQO oracle the free mode's fraction to the boundary is
+  ``1 - mu`` (Ipopt's is ``1 - error`` with every oracle); ``delta_w_max`` is the paper's
+  1e40 (Ipopt's default 1e20).
 - Everything is one `jax.jit` program (`lax.while_loop`); `jax.vmap` of `IPM.solve` over
   initial guesses (and parameters theta) is one program too. On an accelerator it is
   vectorized: the replicates step together, and a converged replicate's state no longer
