@@ -550,9 +550,13 @@ def test_feasibility_polish_after_a_loose_convergence_test():
 def test_every_termination_has_a_shared_status():
     """`IpmStatus.shared`: how each end of the loop is reported in the shared enumeration (the
     benchmarks' records use it)."""
+    from jtraj.solvers.ipm import _STATUS
+
     assert IpmStatus.CONVERGED.shared is solvers.Status.SOLVED
     assert IpmStatus.MAX_ITER.shared is solvers.Status.MAX_ITER
-    assert {s.shared for s in IpmStatus} <= set(solvers.Status)
+    # every termination has its entry (a missing one raised KeyError only when it occurred)
+    assert set(_STATUS) == set(IpmStatus)
+    assert all(isinstance(s.shared, solvers.Status) for s in IpmStatus)
 
 
 def test_a_failed_inertia_correction_is_not_reported_as_nan(monkeypatch):
