@@ -825,10 +825,10 @@ class IPM:
 
     def _finish(self, p: _Problem, st: _State, passes: jax.Array) -> IpmResult:
         """The result of the state; ``passes`` is the (values, derivatives) evaluation count."""
-        err, dual_inf, _, compl = self._error(p, st, 0.0, nlp=True)
+        err, dual_inf, constr_viol, compl = self._error(p, st, 0.0, nlp=True)
         return IpmResult(
             x=st.x, y=st.y, z_lower=st.zl, z_upper=st.zu, status=st.status, iterations=st.it,
-            objective=st.f, constr_viol=self._constr_viol(p, st.c), dual_inf=dual_inf, compl=compl,
+            objective=st.f, constr_viol=constr_viol, dual_inf=dual_inf, compl=compl,
             error=err, mu=st.mu, passes=passes[0], derivative_passes=passes[1], history=st.history,
         )
 
@@ -893,6 +893,12 @@ class IPM:
     GAMMA_THETA, GAMMA_PHI, DELTA, S_THETA, S_PHI, ETA_PHI = 1e-5, 1e-8, 1.0, 1.1, 2.3, 1e-8
     ROUNDING = 10.0 * float(np.finfo(np.float64).eps)  # Ipopt's Compare_le tolerance, relative
 
+    @classmethod
+    def _le(cls, lhs, rhs, ref):
+        """``lhs <= rhs`` up to a rounding error of 10 eps of the reference value ``ref``, as
+        Ipopt's acceptance tests compare (its ``Compare_le``)."""
+        return lhs - rhs <= cls.ROUNDING * jnp.abs(ref)
+
     def _measures(self, p: _Problem, x, s, f, c, mu):
         """(theta, phi): l1 infeasibility and barrier objective."""
         return self._infeasibility_l1(p, c, s), f + self._barrier(p, x, s, mu)
@@ -935,14 +941,11 @@ class IPM:
             finite = jnp.isfinite(th_t) & jnp.isfinite(ph_t)
             # a correction is judged with the first trial's alpha (Ipopt's alpha_primal_test)
             switching = (st.slope < 0) & (alpha * (-st.slope) ** self.S_PHI > self.DELTA * st.theta0 ** self.S_THETA)
-            # Ipopt's comparisons allow a rounding error of 10 eps of the reference value
-            # (its Compare_le)
-            slack_phi = self.ROUNDING * jnp.abs(st.phi0)
-            armijo = ph_t - st.phi0 <= self.ETA_PHI * alpha * st.slope + slack_phi
+            armijo = self._le(ph_t - st.phi0, self.ETA_PHI * alpha * st.slope, st.phi0)
             f_type = switching & (st.theta0 <= st.theta_min)
             sufficient = jnp.where(
                 f_type, armijo,
-                (th_t <= (1.0 - self.GAMMA_THETA) * st.theta0 + self.ROUNDING * st.theta0) | (ph_t - st.phi0 <= -self.GAMMA_PHI * st.theta0 + slack_phi),
+                self._le(th_t, (1.0 - self.GAMMA_THETA) * st.theta0, st.theta0) | self._le(ph_t - st.phi0, -self.GAMMA_PHI * st.theta0, st.phi0),
             )
             # a filter entry rejects a point no better than it in both measures (Ipopt's
             # Filter::Acceptable: acceptable where one measure is at most the entry's)
@@ -1063,7 +1066,8 @@ class IPM:
         )
 
         # convergence error (at mu = 0, so the barrier update below does not change it)
-        err, dual_inf, _, compl = self._error(p, new, 0.0, nlp=True)
+        # (the NLP error's primal part is the rows' violation, the convergence test's too)
+        err, dual_inf, viol, compl = self._error(p, new, 0.0, nlp=True)
         mu_new, free_mode, refs, mu_max, mu_filter = self._update_mu(p, new, first, err)
         if o.mu_oracle == "quality-function":
             # Ipopt's fraction to the boundary: from the NLP error in free mode, from mu otherwise;
@@ -1075,7 +1079,6 @@ class IPM:
             tau = jnp.maximum(o.tau_min, 1.0 - mu_new)
         new = new._replace(mu=mu_new, tau=tau, free_mode=free_mode, refs=refs, mu_max=mu_max, mu_filter=mu_filter)
         # convergence and limits at the new iterate
-        viol = self._constr_viol(p, ct)
         t = p.tols
         converged = (err <= t.tol) & (viol <= t.constr_viol_tol) & (dual_inf <= t.dual_inf_tol) & (compl <= t.compl_inf_tol)
         finite = jnp.isfinite(err) & jnp.all(jnp.isfinite(xt))
@@ -1085,10 +1088,10 @@ class IPM:
             jnp.where(new.ls_fail >= o.max_line_search_failures, int(IpmStatus.LINE_SEARCH_FAILED),
             jnp.where(it >= o.max_iter, int(IpmStatus.MAX_ITER), int(IpmStatus.RUNNING)))))
         new = self._direction(p, new._replace(status=status.astype(jnp.int32)), theta)  # sets mu with the quality function
-        # a new barrier problem, every free-mode iteration of the adaptive strategy (Ipopt's
-        # AdaptiveMuUpdate resets the line search there even when mu comes out the same, e.g.
-        # at mu_min), or a failed line search empties the filter
-        reset = (new.mu != mu) | failed | (new.free_mode & (o.mu_strategy == "adaptive"))
+        # a new barrier problem, every free-mode iteration (only the adaptive strategy has
+        # one; Ipopt's AdaptiveMuUpdate resets the line search there even when mu comes out the
+        # same, e.g. at mu_min), or a failed line search empties the filter
+        reset = (new.mu != mu) | failed | new.free_mode
         history = st.history.at[it].set(jnp.stack([ft, viol, dual_inf, jnp.log10(new.mu), jnp.where(first, jnp.nan, alpha)]))
         return new._replace(
             history=history,
