@@ -1,22 +1,25 @@
-"""Cost of one backward pass through the solver against one solve (`jtraj.differentiable`).
+"""Cost of one backward pass through the solver against one solve (`jtraj.differentiable`),
+with each forward solver side by side in one run.
 
-    python bench/differentiate.py [--knots-scale 1] [--repeat 3] [--out DIR]
+    python bench/differentiate.py [--solvers ipopt,jtraj] [--knots-scale 1] [--repeat 3] [--out DIR]
 
-On a Go2 hop (the task of tests/test_differentiable.py), after compiling everything once:
-- solve, cold: Ipopt from the task's warm start;
-- solve, warm: Ipopt re-solving from the solution (what an optax loop or a finite
-  difference does), through ``jax.jit(f)``;
+On a Go2 hop (the task of tests/test_differentiable.py), for each solver of ``--solvers`` (its
+forward-solve defaults, `jtraj.differentiate.forward_options`: tol 1e-10 and the exact
+Hessian), after compiling everything once:
+- solve, cold: from the task's warm start;
+- solve, warm: re-solving from the solution (what an optax loop or a finite difference does),
+  through ``jax.jit(f)``;
 - sensitivity system: active set, assembly of K and its sparse LU (host, once per solve; the
   assembly runs in the forward pass, so the warm solve above includes it, the LU in the first
   backward pass);
 - backward: ``jax.jit(jax.grad(loss))`` minus the warm solve it contains (the sparse LU of K,
   the transposed triangular solve and the JAX vector-Jacobian products of the residual and the
-  motion).
+  motion). The table gives the iterations of both warm solves: the difference stands for the
+  backward pass only where they agree.
 
-Each figure is the fastest of ``--repeat`` runs. ``--out DIR`` writes them with the run's
-provenance (command, date, machine, versions): ``DIR/differentiate.json``,
-``DIR/differentiate.md`` and ``DIR/provenance.json`` (the figures depend on the machine and its
-load: none are kept here).
+Each figure is the fastest of ``--repeat`` runs; the solvers' gradients of the loss are printed
+and must agree. ``--out DIR`` writes them with the run's provenance (command, date, machine,
+versions): ``DIR/differentiate.json``, ``DIR/differentiate.md`` and ``DIR/provenance.json``.
 """
 
 from __future__ import annotations
@@ -58,33 +61,41 @@ def best_of(fn, repeat):
     return min(times)
 
 
+SOLVER_NAMES = {"ipopt": "Ipopt", "jtraj": "jtraj's solver"}
+
+
 def table(rec: dict) -> str:
-    """Markdown: one row per figure of the record `main` measures, in milliseconds."""
+    """Markdown: one row per figure of the record `main` measures, in milliseconds, and one
+    pair of columns (ms, iterations) per solver."""
     from jtraj.tables import markdown_table
 
-    rows = [
-        ("solve, cold (Ipopt from the task's warm start)", f"{rec['cold_ms']:.1f}", rec["cold_iterations"]),
-        ("solve, warm (re-solve from the solution)", f"{rec['warm_ms']:.1f}", rec["warm_iterations"]),
-        ("sensitivity system (active set, K, sparse LU)", f"{rec['system_ms']:.1f}", ""),
-        ("backward pass (grad minus its warm solve)", f"{rec['grad_ms'] - rec['warm_ms']:.1f}", ""),
-        ("grad of a loss through the solver, total", f"{rec['grad_ms']:.1f}", ""),
+    names = list(rec["solvers"])
+    header = [""]
+    for name in names:
+        header += [f"{SOLVER_NAMES.get(name, name)} ms", "iterations"]
+    figures = [
+        ("solve, cold (from the task's warm start)", lambda r: f"{r['cold_ms']:.1f}", "cold_iterations"),
+        ("solve, warm (re-solve from the solution)", lambda r: f"{r['warm_ms']:.1f}", "warm_iterations"),
+        ("sensitivity system (active set, K, sparse LU)", lambda r: f"{r['system_ms']:.1f}", None),
+        ("backward pass (grad minus its warm solve)", lambda r: f"{r['grad_ms'] - r['warm_ms']:.1f}", None),
+        ("grad of a loss through the solver, total", lambda r: f"{r['grad_ms']:.1f}", "grad_iterations"),
     ]
+    rows = []
+    for label, ms, its in figures:
+        row: list[object] = [label]
+        for name in names:
+            r = rec["solvers"][name]
+            row += [ms(r), r[its] if its else ""]
+        rows.append(tuple(row))
     note = f"Go2 hop, {rec['knots']} knots: n = {rec['n']} variables, m = {rec['m']} constraints; the fastest of {rec['repeat']} runs, compile excluded."
-    return markdown_table(("", "ms", "Ipopt iterations"), rows, note)
+    return markdown_table(tuple(header), rows, note)
 
 
-def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--knots-scale", type=int, default=1, help="divide the timestep by this (more knots)")
-    ap.add_argument("--repeat", type=int, default=3)
-    add_out(ap, "differentiate")
-    args = ap.parse_args(argv)
-    if args.knots_scale < 1:
-        ap.error(f"--knots-scale: {args.knots_scale}: expected an integer >= 1 (the timestep is divided by it)")
-    if args.repeat < 1:
-        ap.error(f"--repeat: {args.repeat}: expected an integer >= 1")
-    f = differentiable(hop(args.knots_scale))
+def measure(task: Task, solver: str, repeat: int) -> tuple[dict, object]:
+    """One solver's figures (ms, iterations) and its gradient of the loss at the task's theta."""
+    f = differentiable(task, solver=solver)
     theta = f.theta
+    name = SOLVER_NAMES.get(solver, solver)
 
     def loss(th):
         m = f(th)
@@ -92,21 +103,20 @@ def main(argv: list[str] | None = None) -> None:
 
     solve = jax.jit(lambda th: f(th).cost)
     grad = jax.jit(jax.grad(loss))
-    jax.block_until_ready(grad(theta))  # compile both, solve once
+    gradient = jax.block_until_ready(grad(theta))  # compile both, solve once
     jax.block_until_ready(solve(theta))
 
     def cold():
         f.warm_start_from(None)
         return solve(theta)
 
-    print(f"Go2 hop, {f.transcription.N + 1} knots: n = {f.nlp.n} variables, m = {f.nlp.m} constraints", flush=True)
-    t_cold = best_of(cold, args.repeat)
+    t_cold = best_of(cold, repeat)
     cold_iterations = f.last_solution.stats.iterations
-    print(f"solve, cold (Ipopt from the task's warm start): {t_cold * 1e3:8.1f} ms ({cold_iterations} iterations)", flush=True)
+    print(f"{name}: solve, cold (from the task's warm start): {t_cold * 1e3:8.1f} ms ({cold_iterations} iterations)", flush=True)
     jax.block_until_ready(solve(theta))
-    t_warm = best_of(lambda: solve(theta), args.repeat)
+    t_warm = best_of(lambda: solve(theta), repeat)
     warm_iterations = f.last_solution.stats.iterations
-    print(f"solve, warm (re-solve from the solution):       {t_warm * 1e3:8.1f} ms ({warm_iterations} iterations)", flush=True)
+    print(f"{name}: solve, warm (re-solve from the solution): {t_warm * 1e3:8.1f} ms ({warm_iterations} iterations)", flush=True)
     x, lam = f.last_solution.x, f.last_solution.mult_g
 
     def system():
@@ -115,19 +125,67 @@ def main(argv: list[str] | None = None) -> None:
         s.solve(np.concatenate([np.ones(f.nlp.n), np.zeros(f.nlp.m)]), transpose=True)
         return s.matrix.nnz
 
-    t_system = best_of(system, args.repeat)
-    print(f"sensitivity system (active set, K, sparse LU):  {t_system * 1e3:8.1f} ms (K in the forward pass, LU in the backward)", flush=True)
-    t_grad = best_of(lambda: grad(theta), args.repeat)
-    print(f"backward pass (grad minus its warm solve):      {(t_grad - t_warm) * 1e3:8.1f} ms")
-    print(f"grad of a loss through the solver, total:       {t_grad * 1e3:8.1f} ms")
+    t_system = best_of(system, repeat)
+    print(f"{name}: sensitivity system (active set, K, sparse LU): {t_system * 1e3:8.1f} ms (K in the forward pass, LU in the backward)", flush=True)
+    t_grad = best_of(lambda: grad(theta), repeat)
+    # the warm solve inside grad: the backward pass below is the difference only where both
+    # warm solves took the same iterations
+    grad_iterations = f.last_solution.stats.iterations
+    print(f"{name}: backward pass (grad minus its warm solve): {(t_grad - t_warm) * 1e3:8.1f} ms")
+    print(f"{name}: grad of a loss through the solver, total: {t_grad * 1e3:8.1f} ms ({grad_iterations} iterations in its warm solve)", flush=True)
+    rec = dict(
+        cold_ms=t_cold * 1e3, cold_iterations=cold_iterations, warm_ms=t_warm * 1e3, warm_iterations=warm_iterations,
+        system_ms=t_system * 1e3, grad_ms=t_grad * 1e3, grad_iterations=grad_iterations, n=f.nlp.n, m=f.nlp.m, knots=f.transcription.N + 1,
+    )
+    return rec, gradient
+
+
+def gradients_agree(a, b, rtol: float = 1e-5) -> float:
+    """Largest difference of two gradients (pytrees), relative to the largest entry of ``b``;
+    raises SystemExit when it exceeds ``rtol`` (a backward pass of a wrong solution is no
+    measurement)."""
+    la = np.concatenate([np.ravel(np.asarray(v, float)) for v in jax.tree.leaves(a)])
+    lb = np.concatenate([np.ravel(np.asarray(v, float)) for v in jax.tree.leaves(b)])
+    diff = float(np.max(np.abs(la - lb)) / max(np.max(np.abs(lb)), 1e-300))
+    if not diff <= rtol:
+        raise SystemExit(f"bench/differentiate.py: the solvers' gradients differ by {diff:.1e} of the largest entry (more than {rtol:g})")
+    return diff
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--solvers", default="ipopt,jtraj", help="comma-separated forward solvers, measured one after the other (default ipopt,jtraj)")
+    ap.add_argument("--knots-scale", type=int, default=1, help="divide the timestep by this (more knots)")
+    ap.add_argument("--repeat", type=int, default=3)
+    add_out(ap, "differentiate")
+    args = ap.parse_args(argv)
+    if args.knots_scale < 1:
+        ap.error(f"--knots-scale: {args.knots_scale}: expected an integer >= 1 (the timestep is divided by it)")
+    if args.repeat < 1:
+        ap.error(f"--repeat: {args.repeat}: expected an integer >= 1")
+    from jtraj import solvers
+
+    names = [s.strip() for s in args.solvers.split(",") if s.strip()]
+    unknown = [s for s in names if s not in solvers.SOLVERS]
+    if not names or unknown or len(set(names)) != len(names):
+        ap.error(f"--solvers: {args.solvers!r}: expected distinct names of {', '.join(solvers.SOLVERS)}")
+    task = hop(args.knots_scale)
+    records, gradients = {}, {}
+    for name in names:
+        records[name], gradients[name] = measure(task, name, args.repeat)
+    first = records[names[0]]
+    print(f"Go2 hop, {first['knots']} knots: n = {first['n']} variables, m = {first['m']} constraints")
+    for name in names[1:]:
+        diff = gradients_agree(gradients[name], gradients[names[0]])
+        print(f"gradients of the loss, {name} against {names[0]}: largest difference {diff:.1e} of the largest entry")
+    rec = dict(
+        task="go2 hop", knots=first["knots"], n=first["n"], m=first["m"], repeat=args.repeat, knots_scale=args.knots_scale,
+        solvers={name: {k: v for k, v in r.items() if k not in ("n", "m", "knots")} for name, r in records.items()},
+    )
+    print(table(rec))
     if args.out:
         from jtraj.provenance import write_results
 
-        rec = dict(
-            task="go2 hop", knots=f.transcription.N + 1, n=f.nlp.n, m=f.nlp.m, repeat=args.repeat, knots_scale=args.knots_scale,
-            cold_ms=t_cold * 1e3, cold_iterations=cold_iterations, warm_ms=t_warm * 1e3, warm_iterations=warm_iterations,
-            system_ms=t_system * 1e3, grad_ms=t_grad * 1e3,
-        )
         write_results(args.out, "differentiate", rec, table(rec), "bench/differentiate.py", argv)
         print(f"wrote {args.out}/differentiate.json, differentiate.md, provenance.json")
 

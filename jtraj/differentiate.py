@@ -2,9 +2,10 @@
 
 ``f = jtraj.differentiable(task)`` returns ``f(theta) -> OptimalMotion``: a JAX function of
 the parameter pytree ``theta`` (`jtraj.transcription.TaskParams`: target, timestep, friction,
-force bounds, cost weights, link masses, standing pose) whose value is Ipopt's solution of the
-task at theta (any `jtraj.solvers` backend, Ipopt by default, through `jax.pure_callback`; warm-started from the previous solution) and whose
-derivatives come from the implicit function theorem at that solution (`jtraj.implicit`,
+force bounds, cost weights, link masses, standing pose) whose value is the solution of the
+task at theta (any `jtraj.solvers` backend, Ipopt by default, through `jax.pure_callback`;
+warm-started from the previous solution; `forward_options` gives Ipopt and jtraj's solver
+tight defaults) and whose derivatives come from the implicit function theorem at that solution (`jtraj.implicit`,
 `jtraj.sensitivity`). ``jax.grad``, ``jax.jacobian``, ``jax.jvp`` and ``jax.vjp`` work through
 it, and so does ``jax.jit`` around the user's own loss.
 
@@ -54,11 +55,25 @@ from jtraj.sensitivity import check_weak_tol
 from jtraj.solver import transcription_options
 from jtraj.transcription import COMPACT_VARIABLES, CONSTRAINT_STAGES, GRAVITY, TaskParams, Transcription, TranscriptionOptions, cost_terms
 
-__all__ = ["OptimalMotion", "DifferentiableTask", "differentiable", "SolveError", "IPOPT_OPTIONS", "forward_options", "motion"]
+__all__ = ["OptimalMotion", "DifferentiableTask", "differentiable", "SolveError", "IPOPT_OPTIONS", "JTRAJ_OPTIONS", "forward_options", "motion"]
 
 #: Ipopt settings of the forward solve: tight (the derivatives are those of the exact
 #: solution) with the exact Hessian, which the sensitivity system needs anyway.
 IPOPT_OPTIONS: dict[str, Any] = {"tol": 1e-10, "constr_viol_tol": 1e-10, "hessian": "exact", "max_iter": 500}
+
+#: jtraj's solver's settings of the forward solve: Ipopt's above, and a floor of 1e-7 under
+#: the dual regularization ``delta_c mu^(1/4)`` (`jtraj.solvers.IpmOptions.delta_c_min`).
+#: Without it the regularization falls to 5.6e-11 at ``mu_min``, the condensed Newton matrix
+#: weighs the equality rows by its inverse, and its Cholesky fails in rounding at every
+#: iteration from there on; the inertia correction's ``delta_w`` (about 1e-6) then swamps the
+#: force regularization's curvature (about 5e-8 on the Go2) and the steps creep. Measured on
+#: the Go2 hop of tests/test_differentiable.py (2026-12-06): with floors 1e-9, 1e-8, 1e-7, 1e-6
+#: and 1e-5 the solve took 211, 38, 15, 15 and 18 iterations, Ipopt 15; without one it stopped
+#: at the 500-iteration limit (docs/measurements.md).
+JTRAJ_OPTIONS: dict[str, Any] = {**IPOPT_OPTIONS, "delta_c_min": 1e-7}
+
+#: the forward solve's defaults by backend name (`forward_options`)
+_FORWARD_OPTIONS: dict[str, dict[str, Any]] = {"ipopt": IPOPT_OPTIONS, "jtraj": JTRAJ_OPTIONS}
 
 
 class SolveError(RuntimeError):
@@ -248,14 +263,15 @@ def differentiable(
         force_weight: weight of the force regularization ``1/2 w |f / (m g)|^2`` per knot
             and contact point (makes internal contact forces unique).
         solver: a `jtraj.solvers.SOLVERS` name or a solver object, for the forward solve.
-        options: its options. For Ipopt a dict is merged over `IPOPT_OPTIONS` (tol 1e-10 and
-            the exact Hessian; None: those alone), so ``{"max_iter": 50}`` keeps the tight
-            tolerance; an options object is used as given. Other backends: their defaults
-            and the dict's changes. Those are loose for derivatives: jtraj's solver stops at
-            tol 1e-3 (measured on the Go2 hop of tests/test_differentiable.py: d take-off
-            velocity / d trunk mass -1.42992e-3 against Ipopt's -1.43133e-3, which central
-            differences confirm), and at tol 1e-10 with the exact Hessian it reached its
-            iteration limit (500) there.
+        options: its options. A dict is merged over the forward solve's defaults (None:
+            those alone), `IPOPT_OPTIONS` for Ipopt (tol 1e-10 and the exact Hessian) and
+            `JTRAJ_OPTIONS` for jtraj's solver (the same, and a floor under its dual
+            regularization), so ``{"max_iter": 50}`` keeps the tight tolerance; an options
+            object is used as given. Other backends: their defaults and the dict's changes.
+            jtraj's solver's own defaults are loose for derivatives: it stops at tol 1e-3
+            (measured on the Go2 hop of tests/test_differentiable.py: d take-off velocity /
+            d trunk mass -1.42992e-3 against Ipopt's -1.43133e-3, which central differences
+            confirm); with `JTRAJ_OPTIONS` it gives Ipopt's -1.431328e-3 in 15 iterations.
         weak_tol: tolerance of the weak-activity (degeneracy) test, relative to the largest
             multiplier (see `jtraj.sensitivity.active_set`).
         layout: the former name of ``variables`` (deprecated: warns).
@@ -290,8 +306,10 @@ def differentiable(
 
 
 def forward_options(backend: solvers.AbstractSolver, options: solvers.AbstractOptions | dict[str, Any] | None) -> solvers.AbstractOptions:
-    """The forward solve's options: for Ipopt a dict (or None) over `IPOPT_OPTIONS`, an options
-    object as given; other backends: ``backend.options(options)``."""
-    if backend.name == "ipopt" and (options is None or isinstance(options, Mapping)):
-        options = {**IPOPT_OPTIONS, **(options or {})}
+    """The forward solve's options: a dict (or None) over `IPOPT_OPTIONS` for Ipopt and over
+    `JTRAJ_OPTIONS` for jtraj's solver, an options object as given; other backends:
+    ``backend.options(options)``."""
+    defaults = _FORWARD_OPTIONS.get(backend.name)
+    if defaults is not None and (options is None or isinstance(options, Mapping)):
+        options = {**defaults, **(options or {})}
     return backend.options(options)

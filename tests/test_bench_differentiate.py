@@ -1,14 +1,33 @@
-"""bench/differentiate.py: its table, written with the run's provenance by ``--out``."""
+"""bench/differentiate.py: its table, one pair of columns per solver, and its refusals."""
 
+import numpy as np
+import pytest
 from conftest import bench_module
 
 
-def test_table_gives_each_figure_and_the_backward_pass():
-    rec = dict(task="go2 hop", knots=9, n=594, m=638, repeat=3, knots_scale=1, cold_ms=815.0, cold_iterations=15, warm_ms=624.0, warm_iterations=12, system_ms=61.0, grad_ms=942.0)
+def test_table_gives_each_figure_and_the_backward_pass_per_solver():
+    ipopt = dict(cold_ms=815.0, cold_iterations=15, warm_ms=624.0, warm_iterations=12, system_ms=61.0, grad_ms=942.0, grad_iterations=12)
+    jt = dict(cold_ms=300.0, cold_iterations=16, warm_ms=120.0, warm_iterations=3, system_ms=60.0, grad_ms=290.5, grad_iterations=3)
+    rec = dict(task="go2 hop", knots=9, n=594, m=638, repeat=3, knots_scale=1, solvers={"ipopt": ipopt, "jtraj": jt})
     lines = bench_module("differentiate").table(rec).splitlines()
-    assert lines[0] == "|  | ms | Ipopt iterations |"
-    assert lines[2] == "| solve, cold (Ipopt from the task's warm start) | 815.0 | 15 |"
-    assert lines[3] == "| solve, warm (re-solve from the solution) | 624.0 | 12 |"
-    assert lines[5] == "| backward pass (grad minus its warm solve) | 318.0 |  |"  # grad less the warm solve
-    assert lines[6] == "| grad of a loss through the solver, total | 942.0 |  |"
+    assert lines[0] == "|  | Ipopt ms | iterations | jtraj's solver ms | iterations |"
+    assert lines[2] == "| solve, cold (from the task's warm start) | 815.0 | 15 | 300.0 | 16 |"
+    assert lines[3] == "| solve, warm (re-solve from the solution) | 624.0 | 12 | 120.0 | 3 |"
+    assert lines[5] == "| backward pass (grad minus its warm solve) | 318.0 |  | 170.5 |  |"  # grad less the warm solve
+    assert lines[6] == "| grad of a loss through the solver, total | 942.0 | 12 | 290.5 | 3 |"
     assert lines[-1] == "Go2 hop, 9 knots: n = 594 variables, m = 638 constraints; the fastest of 3 runs, compile excluded."
+
+
+def test_gradients_that_differ_stop_the_benchmark():
+    bench = bench_module("differentiate")
+    a = {"x": np.array([1.0, -2.0]), "y": np.array(0.5)}
+    assert bench.gradients_agree(a, {"x": np.array([1.0, -2.0 + 1e-7]), "y": np.array(0.5)}) == pytest.approx(5e-8)
+    with pytest.raises(SystemExit, match=r"gradients differ by 5\.0e-02"):
+        bench.gradients_agree(a, {"x": np.array([1.0, -2.0]), "y": np.array(0.6)})
+
+
+@pytest.mark.parametrize("solvers", ["ipopt,bogus", "", "ipopt,ipopt"])
+def test_bad_solver_lists_are_refused(solvers, capsys):
+    with pytest.raises(SystemExit):
+        bench_module("differentiate").main(["--solvers", solvers])
+    assert "--solvers" in capsys.readouterr().err

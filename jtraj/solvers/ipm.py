@@ -203,7 +203,11 @@ class IpmOptions(AbstractOptions):
             (measured on the tests' Go2 hop at tol 1e-8: 86 to 117 iterations against Ipopt's
             20 to 38; with ``delta_c_min=1e-9`` 21 to 31, docs/measurements.md). Not the
             default: at the study's tol 1e-3 the floor takes the back-flip from 29 iterations
-            to 102 (`results/delta_c_variants/`).
+            to 102 (`results/delta_c_variants/`). With the exact Hessian a floor of 1e-9 is
+            too low: on the Go2 hop of tests/test_differentiable.py at tol 1e-10 the
+            factorization needed ``delta_w`` (about 1e-6) at every iteration once mu reached
+            ``mu_min``, 211 iterations against Ipopt's 15; 1e-7 took 15
+            (`jtraj.differentiate.JTRAJ_OPTIONS`, docs/measurements.md).
         refine_steps, min_refine_steps, residual_ratio_max: iterative refinement of each KKT
             solve (Ipopt's ``max_refinement_steps``, ``min_refinement_steps`` and
             ``residual_ratio_max``): it stops once the residual ratio is at most
