@@ -66,7 +66,7 @@ IPOPT_OPTIONS: dict[str, Any] = {"tol": 1e-10, "constr_viol_tol": 1e-10, "hessia
 #: Without it the regularization falls to 5.6e-11 at ``mu_min``, the condensed Newton matrix
 #: weighs the equality rows by its inverse, and its Cholesky fails in rounding at every
 #: iteration from there on; the inertia correction's ``delta_w`` (about 1e-6) then swamps the
-#: force regularization's curvature (about 5e-8 on the Go2) and the steps creep. Measured on
+#: force regularization's curvature (4e-8 on the Go2) and the steps creep. Measured on
 #: the Go2 hop of tests/test_differentiable.py (2026-12-06): with floors 1e-9, 1e-8, 1e-7, 1e-6
 #: and 1e-5 the solve took 211, 38, 15, 15 and 18 iterations, Ipopt 15; without one it stopped
 #: at the 500-iteration limit (docs/measurements.md).
