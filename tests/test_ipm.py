@@ -102,6 +102,40 @@ def test_free_mode_empties_the_filter_every_iteration(toy):
     assert float(st.mu) == pytest.approx(ipm.options.mu_min)  # the oracle's mu was clipped
 
 
+def test_filter_is_left_alone_after_a_switching_and_armijo_step(toy):
+    """Wachter & Biegler's step A-7 (Ipopt's FilterLSAcceptor::UpdateForNextIteration): the
+    filter is augmented after a step unless the switching condition and the Armijo condition
+    both held, whether or not the step was judged as an f-type step (theta <= theta_min). With
+    theta_min set to 0 every step is judged by the filter's tests, and a switching and Armijo
+    step must still leave the filter as it is (regression: it was augmented unless theta <=
+    theta_min). The monotone strategy keeps the filter between barrier problems."""
+    nlp, ipm = toy
+    mono = IPM(nlp, dataclasses.replace(ipm.options, mu_strategy="monotone"))
+    p, st = mono._start(jnp.zeros((K, 3)), None)
+    step = jax.jit(lambda st, passes: mono._iteration(p, st, passes, None))
+    measures = jax.jit(lambda x, s, f, c, mu: mono._measures(p, x, s, f, c, mu))
+    passes = jnp.zeros((2,), jnp.int32)
+    checked = {True: 0, False: 0}  # steps checked, by whether switching and Armijo held
+    for _ in range(100):
+        if not bool(st.first):
+            pre = st._replace(theta_min=jnp.zeros_like(st.theta_min))
+            post, _ = step(pre, passes)
+            reset = float(post.mu) != float(pre.mu) or int(post.status) != IpmStatus.RUNNING
+            if not reset:
+                alpha, slope, theta0, phi0 = float(post.alpha), float(pre.slope), float(pre.theta0), float(pre.phi0)
+                _, phi = measures(post.x, post.s, post.f, post.c, pre.mu)
+                switching = slope < 0 and alpha * (-slope) ** IPM.S_PHI > IPM.DELTA * theta0**IPM.S_THETA
+                armijo = float(phi) - phi0 <= IPM.ETA_PHI * alpha * slope + IPM.ROUNDING * abs(phi0)
+                added = int(post.n_filter) - int(pre.n_filter)
+                assert added == (0 if switching and armijo else 1), (int(post.it), switching, armijo, added)
+                checked[switching and armijo] += 1
+        st, passes = step(st, passes)
+        if int(st.status) != IpmStatus.RUNNING:
+            break
+    assert int(st.status) == IpmStatus.CONVERGED
+    assert checked[True] >= 2 and checked[False] >= 2, checked
+
+
 def test_monotone_barrier_strategy_reaches_the_same_solution(toy):
     """The default barrier update is Ipopt's adaptive one; the monotone (Fiacco-McCormick)
     update is an option and must find the same optimum."""
