@@ -63,7 +63,7 @@ IPOPT_OPTIONS: dict[str, Any] = {"tol": 1e-10, "constr_viol_tol": 1e-10, "hessia
 
 #: jtraj's solver's settings of the forward solve: Ipopt's above, and a floor of 1e-7 under
 #: the dual regularization ``delta_c mu^(1/4)`` (`jtraj.solvers.IpmOptions.delta_c_min`).
-#: Without it the regularization falls to 5.6e-11 at ``mu_min``, the condensed Newton matrix
+#: Without it the regularization falls to 1.8e-11 at ``mu_min``, the condensed Newton matrix
 #: weighs the equality rows by its inverse, and its Cholesky fails in rounding at every
 #: iteration from there on; the inertia correction's ``delta_w`` (about 1e-6) then swamps the
 #: force regularization's curvature (4e-8 on the Go2) and the steps creep. Measured on
@@ -148,8 +148,9 @@ class DifferentiableTask:
             sol = backend.solve(nlp, x0, theta, self.options)
             self.last_solution = sol
             if not sol.status.converged:
+                own = f" ({sol.message})" if sol.message and sol.message != sol.status.message else ""
                 raise SolveError(
-                    f"{tr.task.name}: {backend.name} did not converge at this theta ({sol.status.value}: {sol.status.message}; "
+                    f"{tr.task.name}: {backend.name} did not converge at this theta ({sol.status.value}: {sol.status.message}{own}; "
                     f"{sol.stats.iterations} iterations, violation {sol.constraint_violation:.1e})"
                 )
             if sol.status is not solvers.Status.SOLVED:

@@ -367,7 +367,7 @@ def test_converges_on_small_go2_hop_with_the_other_parameterizations(param):
 
 
 def test_dual_regularization_floor_keeps_the_tight_tail_at_ipopts_pace():
-    """At tol 1e-8, mu reaches mu_min and the scaled ``delta_c mu^(1/4)`` (5.6e-11) makes the
+    """At tol 1e-8, mu reaches mu_min and the scaled ``delta_c mu^(1/4)`` (1.8e-11) makes the
     condensed matrix so ill-conditioned that its Cholesky needs ``delta_w`` about every other
     iteration (measured 2026-12-06: 115 iterations on this hop against Ipopt's 28). A floor of
     1e-9 keeps the tail at Ipopt's pace (measured 28)."""

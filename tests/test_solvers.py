@@ -60,6 +60,25 @@ def test_every_status_has_a_message_and_acceptable_is_not_solved():
     assert set(_MESSAGES) == set(IpmStatus) and all(len(text) > 10 for text in _MESSAGES.values())
 
 
+def test_a_tight_solve_stuck_at_mu_min_is_told_the_floor_under_delta_c():
+    """jtraj's solver at its iteration limit with tol <= 1e-6, mu at mu_min and no floor under
+    delta_c mu^(1/4) says which delta_c_min shortens that tail (1e-9 with L-BFGS, 1e-7 with the
+    exact Hessian, docs/measurements.md); other stops keep the plain message."""
+    from jtraj.solvers.ipm import _MESSAGES, IpmOptions, IpmStatus, _status_message
+
+    tight = IpmOptions(tol=1e-8)
+    mu_min = tight.mu_min
+    hint = _status_message(IpmStatus.MAX_ITER, tight, mu_min)
+    assert hint.startswith(_MESSAGES[IpmStatus.MAX_ITER]) and "delta_c_min=1e-9" in hint and "1.8e-11" in hint
+    assert "delta_c_min=1e-7" in _status_message(IpmStatus.MAX_ITER, IpmOptions(tol=1e-10, hessian="exact"), mu_min)
+    plain = _MESSAGES[IpmStatus.MAX_ITER]
+    assert _status_message(IpmStatus.MAX_ITER, IpmOptions(), mu_min) == plain  # the study's tol 1e-3
+    assert _status_message(IpmStatus.MAX_ITER, tight, 10 * mu_min) == plain  # mu above its floor
+    assert _status_message(IpmStatus.MAX_ITER, IpmOptions(tol=1e-8, delta_c_min=1e-9), mu_min) == plain  # floored already
+    assert _status_message(IpmStatus.MAX_ITER, IpmOptions(tol=1e-8, delta_c_mu_scaled=False), mu_min) == plain
+    assert _status_message(IpmStatus.LINE_SEARCH_FAILED, tight, mu_min) == _MESSAGES[IpmStatus.LINE_SEARCH_FAILED]
+
+
 def test_ipopt_return_codes_map_to_the_enumeration():
     # every code of Ipopt's ApplicationReturnStatus
     codes = {0, 1, 2, 3, 4, 5, 6, -1, -2, -3, -4, -5, -10, -11, -12, -13, -100, -101, -102, -199}

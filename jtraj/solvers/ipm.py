@@ -198,7 +198,7 @@ class IpmOptions(AbstractOptions):
             rows dependent: 12 per stance knot on Talos). Otherwise a fixed value removed by
             iterative refinement.
         delta_c_min: a floor under the scaled ``delta_c mu^(1/4)`` (default 0: none). With mu at
-            ``mu_min`` the scaled value is 5.6e-11, the condensed matrix weighs the equality rows
+            ``mu_min`` the scaled value is 1.8e-11, the condensed matrix weighs the equality rows
             by its inverse, and its Cholesky needs ``delta_w`` about every other iteration
             (measured on the tests' Go2 hop at tol 1e-8: 86 to 117 iterations against Ipopt's
             20 to 38; with ``delta_c_min=1e-9`` 21 to 31, docs/measurements.md). Not the
@@ -1390,6 +1390,25 @@ _MESSAGES = {
 }
 
 
+#: a tolerance at or below this is "tight" for `_status_message`'s hint
+_TIGHT_TOL = 1e-6
+
+
+def _status_message(code: IpmStatus, opts: IpmOptions, mu: float) -> str:
+    """The status's message; at the iteration limit of a tight solve (``tol`` <= 1e-6) whose
+    mu sat at ``mu_min`` without a floor under the dual regularization, with the remedy
+    measured for that tail (`IpmOptions.delta_c_min`)."""
+    message = _MESSAGES.get(code, code.name)
+    if code is IpmStatus.MAX_ITER and opts.tol <= _TIGHT_TOL and opts.delta_c_mu_scaled and opts.delta_c_min == 0.0 and mu <= opts.mu_min * (1.0 + 1e-12):
+        floor = "1e-7" if opts.hessian == "exact" else "1e-9"
+        message += (
+            f"; mu sat at mu_min, where the dual regularization delta_c mu^(1/4) is {opts.delta_c * opts.mu_min**0.25:.1e} and the "
+            f"Newton matrix's factorization needs inertia corrections in rounding: at tight tolerances set delta_c_min={floor} "
+            "(docs/measurements.md)"
+        )
+    return message
+
+
 class JtrajSolver(AbstractSolver):
     """jtraj's own interior-point solver (`IPM`) as a backend of `jtraj.solvers.SOLVERS`.
 
@@ -1587,7 +1606,7 @@ class JtrajSolver(AbstractSolver):
         return Solution(
             x=x,
             status=code.shared,
-            message=_MESSAGES.get(code, code.name),
+            message=_status_message(code, opts, float(r.mu)),
             objective=float(r.objective),
             constraint_violation=max_violation(g, f.g_lower, f.g_upper, x, f.x_lower, f.x_upper),
             mult_g=np.asarray(view.from_stage_rows(r.y)),
