@@ -174,7 +174,7 @@ class DifferentiableTask:
 
     @options.setter
     def options(self, options: solvers.AbstractOptions | dict[str, Any] | None) -> None:
-        # a dict went to the backend as it was: Ipopt's defaults (tol 1e-8, L-BFGS) replaced
+        # a dict went to the backend as it was: the backend's defaults (jtraj's Ipopt options: tol 1e-3, L-BFGS) replaced
         # the tight IPOPT_OPTIONS that differentiable() merges a dict over
         self._options = forward_options(self.backend, options)
 

@@ -23,8 +23,11 @@ Differences from Ipopt, and why:
   rank-12 term in compact form, Byrd, Nocedal and Schnabel 1994), whose low-rank term the
   Newton solve handles by Sherman-Morrison-Woodbury around the block factorization of the
   rest, so the matrix stays block tridiagonal. The exact Hessian per element (the 2n x 2n block
-  of the knot-k terms on (z_k, z_{k+1})) is an option: fewer iterations (big_jump 11 against
-  14, both with the LOQO oracle), several times the cost per iteration and a far longer compile. A damped (Powell) BFGS
+  of the knot-k terms on (z_k, z_{k+1})) is an option. On the six tasks with the default barrier
+  rule it took fewer iterations on big_jump (10 against 11) and the side-flip (19 against 33),
+  as many on hopscotch, more on the walk (23 against 16), and it missed the back-flip (a motion
+  of -0.85 turn) and the handstand (200 iterations). It also costs 11 to 18 times as much per
+  iteration and compiles far longer (`results/hessians/`, the README). A damped (Powell) BFGS
   per element (partitioned quasi-Newton, Griewank and Toint) is another; it converges on small
   problems but not on the whole-body tasks (big_jump: multipliers grow to 1e7 and the dual
   infeasibility stalls near 1e4): its unexplored directions keep the identity's curvature.
