@@ -288,3 +288,21 @@ def test_forward_options_of_jtraj_keep_its_tight_defaults():
     assert forward_options(jt, None) == jt.options(JTRAJ_OPTIONS)
     given = solvers.IpmOptions(tol=1e-4)
     assert forward_options(jt, given) == given
+
+
+def test_vmap_over_theta_gives_each_members_solution_and_gradient(hop):
+    """``jax.vmap`` of the optimal motion and of its gradient over a batch of parameters: each
+    member is the one solved alone (the forward solves run one after another in the callback;
+    the backward passes' linear solves take the batch at once)."""
+    theta = hop.theta
+    frictions = jnp.array([0.6, 0.9])
+
+    def loss(friction):
+        return hop(theta.replace(friction=friction)).cost
+
+    values = jax.vmap(loss)(frictions)
+    grads = jax.vmap(jax.grad(loss))(frictions)
+    for i, friction in enumerate(frictions):
+        np.testing.assert_allclose(float(values[i]), float(loss(friction)), rtol=1e-7)
+        np.testing.assert_allclose(float(grads[i]), float(jax.grad(loss)(friction)), rtol=1e-6, atol=1e-9)
+    assert float(values[0]) > float(values[1])  # a lower friction makes the hop dearer
