@@ -1,7 +1,7 @@
 """Cost of one backward pass through the solver against one solve (`jtraj.differentiable`),
 with each forward solver side by side in one run.
 
-    python bench/differentiate.py [--solvers ipopt,jtraj] [--knots-scale 1] [--repeat 3] [--out DIR]
+    python bench/differentiate.py [--solvers ipopt,jtraj] [--knots-scale 1] [--repeat 3] [--batch 4] [--out DIR]
 
 On a Go2 hop (the task of tests/test_differentiable.py), for each solver of ``--solvers`` (its
 forward-solve defaults, `jtraj.differentiate.forward_options`: tol 1e-10 and the exact
@@ -15,7 +15,11 @@ Hessian), after compiling everything once:
 - backward: ``jax.jit(jax.grad(loss))`` minus the warm solve it contains (the sparse LU of K,
   the transposed triangular solve and the JAX vector-Jacobian products of the residual and the
   motion). The table gives the iterations of both warm solves: the difference stands for the
-  backward pass only where they agree.
+  backward pass only where they agree;
+- a batch: the gradient at ``--batch`` frictions (0.8 to 1.2 times the task's), through
+  ``jax.vmap`` against one after another, every member from the solution at the task's theta.
+  Under ``jax.vmap`` the forward solves of jtraj's solver run side by side in threads
+  (`jtraj.differentiate`), Ipopt's one after another.
 
 Each figure is the fastest of ``--repeat`` runs; the solvers' gradients of the loss are printed
 and must agree. ``--out DIR`` writes them with the run's provenance (command, date, machine,
@@ -80,6 +84,12 @@ def table(rec: dict) -> str:
         ("backward pass (grad minus its warm solve)", lambda r: f"{r['grad_ms'] - r['warm_ms']:.1f}", None),
         ("grad of a loss through the solver, total", lambda r: f"{r['grad_ms']:.1f}", "grad_iterations"),
     ]
+    if all("batch_ms" in rec["solvers"][name] for name in names):
+        batch = rec["solvers"][names[0]]["batch"]
+        figures += [
+            (f"grad at {batch} frictions, jax.vmap", lambda r: f"{r['batch_ms']:.1f}", None),
+            (f"grad at {batch} frictions, one after another", lambda r: f"{r['sequential_ms']:.1f}", None),
+        ]
     rows = []
     for label, ms, its in figures:
         row: list[object] = [label]
@@ -91,7 +101,7 @@ def table(rec: dict) -> str:
     return markdown_table(tuple(header), rows, note)
 
 
-def measure(task: Task, solver: str, repeat: int) -> tuple[dict, object]:
+def measure(task: Task, solver: str, repeat: int, batch: int = 4) -> tuple[dict, object]:
     """One solver's figures (ms, iterations) and its gradient of the loss at the task's theta."""
     f = differentiable(task, solver=solver)
     theta = f.theta
@@ -133,9 +143,43 @@ def measure(task: Task, solver: str, repeat: int) -> tuple[dict, object]:
     grad_iterations = f.last_solution.stats.iterations
     print(f"{name}: backward pass (grad minus its warm solve): {(t_grad - t_warm) * 1e3:8.1f} ms")
     print(f"{name}: grad of a loss through the solver, total: {t_grad * 1e3:8.1f} ms ({grad_iterations} iterations in its warm solve)", flush=True)
+    # a batch of frictions: jax.vmap of the gradient against the members one after another,
+    # every member from the solution at the task's theta
+    frictions = jnp.asarray(theta.friction) * jnp.linspace(0.8, 1.2, batch)
+
+    def at(friction):
+        return loss(theta.replace(friction=friction))
+
+    batched = jax.jit(jax.vmap(jax.grad(at)))
+    single = jax.jit(jax.grad(at))
+    x_star = np.asarray(f.last_solution.x)
+    f.warm_start_from(x_star)
+    g_batch = jax.block_until_ready(batched(frictions))  # compile
+    g_single = []
+    for fr in frictions:
+        f.warm_start_from(x_star)
+        g_single.append(float(single(fr)))
+
+    def run_batched():
+        f.warm_start_from(x_star)
+        return batched(frictions)
+
+    def run_sequential():
+        out = []
+        for fr in frictions:
+            f.warm_start_from(x_star)
+            out.append(single(fr))
+        return out
+
+    t_batch = best_of(run_batched, repeat)
+    t_seq = best_of(run_sequential, repeat)
+    gradients_agree(np.asarray(g_batch), np.asarray(g_single))
+    print(f"{name}: grad at {batch} frictions, vmapped {t_batch * 1e3:8.1f} ms, one after another {t_seq * 1e3:8.1f} ms, speedup {t_seq / t_batch:.2f}", flush=True)
     rec = dict(
         cold_ms=t_cold * 1e3, cold_iterations=cold_iterations, warm_ms=t_warm * 1e3, warm_iterations=warm_iterations,
-        system_ms=t_system * 1e3, grad_ms=t_grad * 1e3, grad_iterations=grad_iterations, n=f.nlp.n, m=f.nlp.m, knots=f.transcription.N + 1,
+        system_ms=t_system * 1e3, grad_ms=t_grad * 1e3, grad_iterations=grad_iterations,
+        batch=batch, batch_ms=t_batch * 1e3, sequential_ms=t_seq * 1e3,
+        n=f.nlp.n, m=f.nlp.m, knots=f.transcription.N + 1,
     )
     return rec, gradient
 
@@ -157,12 +201,15 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--solvers", default="ipopt,jtraj", help="comma-separated forward solvers, measured one after the other (default ipopt,jtraj)")
     ap.add_argument("--knots-scale", type=int, default=1, help="divide the timestep by this (more knots)")
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--batch", type=int, default=4, help="frictions of the batched gradient (jax.vmap against one after another)")
     add_out(ap, "differentiate")
     args = ap.parse_args(argv)
     if args.knots_scale < 1:
         ap.error(f"--knots-scale: {args.knots_scale}: expected an integer >= 1 (the timestep is divided by it)")
     if args.repeat < 1:
         ap.error(f"--repeat: {args.repeat}: expected an integer >= 1")
+    if args.batch < 2:
+        ap.error(f"--batch: {args.batch}: expected an integer >= 2")
     from jtraj import solvers
 
     names = [s.strip() for s in args.solvers.split(",") if s.strip()]
@@ -172,7 +219,7 @@ def main(argv: list[str] | None = None) -> None:
     task = hop(args.knots_scale)
     records, gradients = {}, {}
     for name in names:
-        records[name], gradients[name] = measure(task, name, args.repeat)
+        records[name], gradients[name] = measure(task, name, args.repeat, args.batch)
     first = records[names[0]]
     print(f"Go2 hop, {first['knots']} knots: n = {first['n']} variables, m = {first['m']} constraints")
     for name in names[1:]:

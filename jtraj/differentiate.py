@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import warnings
 from collections.abc import Mapping
 from typing import Any
@@ -137,7 +138,7 @@ class DifferentiableTask:
         self.last_solution: solvers.Solution | None = None
         self._x_warm: np.ndarray | None = None
 
-        def forward(theta):
+        def prepare(theta):
             theta = jax.tree_util.tree_map(jnp.asarray, theta)
             # differentiable() checks the task's weights; theta can set them too (here they are
             # values, also under jax.jit): without them the optimum is not unique and the
@@ -145,28 +146,55 @@ class DifferentiableTask:
             # Go2 hop: d cost / d target x 0.025 against 0.037 by re-solving)
             _check_weights(tr.task.name, float(theta.configuration_weight), float(theta.acceleration_weight), "theta sets")
             x0 = tr.warm_start(theta).reshape(-1) if self._x_warm is None else self._x_warm
-            sol = backend.solve(nlp, x0, theta, self.options)
-            self.last_solution = sol
+            return theta, x0
+
+        def checked(sol, member=""):
             if not sol.status.converged:
                 own = f" ({sol.message})" if sol.message and sol.message != sol.status.message else ""
                 raise SolveError(
-                    f"{tr.task.name}: {backend.name} did not converge at this theta ({sol.status.value}: {sol.status.message}{own}; "
+                    f"{tr.task.name}: {backend.name} did not converge at this theta{member} ({sol.status.value}: {sol.status.message}{own}; "
                     f"{sol.stats.iterations} iterations, violation {sol.constraint_violation:.1e})"
                 )
             if sol.status is not solvers.Status.SOLVED:
                 # Ipopt's acceptable level allows a violation and a complementarity of 1e-2 by
                 # default: the active set read off such a point, and the derivatives, may be wrong
                 warnings.warn(
-                    f"{tr.task.name}: {backend.name} stopped at an approximate solution ({sol.status.value}: {sol.status.message}; "
+                    f"{tr.task.name}: {backend.name} stopped at an approximate solution{member} ({sol.status.value}: {sol.status.message}; "
                     f"violation {sol.constraint_violation:.1e}): the derivatives are those of this point and may be wrong "
                     f"(Ipopt: acceptable_iter=0 solves on to tol; a warnings filter 'error' refuses such points)",
                     RuntimeWarning,
-                    stacklevel=2,
+                    stacklevel=3,
                 )
-            self._x_warm = sol.x
             return sol.x, sol.mult_g
 
-        self._solution = implicit_solution(nlp, forward, weak_tol=weak_tol)
+        def forward(theta):
+            theta, x0 = prepare(theta)
+            sol = backend.solve(nlp, x0, theta, self.options)
+            self.last_solution = sol
+            out = checked(sol)
+            self._x_warm = sol.x
+            return out
+
+        def forward_many(thetas):
+            # a batch (jax.vmap over theta): every member from the same warm start, side by side
+            # where the backend runs as compiled JAX (`_side_by_side`), else one after another
+            prepared = [prepare(theta) for theta in thetas]
+            opts = self.options
+            solve = lambda job: backend.solve(nlp, job[1], job[0], opts)  # noqa: E731
+            if _side_by_side(backend) and len(prepared) > 1:
+                from concurrent.futures import ThreadPoolExecutor
+
+                # the first to need the program compiles it; the others wait for it
+                with ThreadPoolExecutor(min(len(prepared), os.cpu_count() or 1)) as pool:
+                    solutions = list(pool.map(solve, prepared))
+            else:
+                solutions = [solve(job) for job in prepared]
+            self.last_solution = solutions[-1]
+            outs = [checked(sol, f" (member {i} of a batch of {len(solutions)})") for i, sol in enumerate(solutions)]
+            self._x_warm = solutions[-1].x
+            return outs
+
+        self._solution = implicit_solution(nlp, forward, weak_tol=weak_tol, forward_many=forward_many)
 
     @property
     def options(self) -> solvers.AbstractOptions:
@@ -230,6 +258,13 @@ def motion(tr: Transcription, nlp: KnotNLP, x: jax.Array, theta: TaskParams, lam
         x=x,
         lam=lam,
     )
+
+
+def _side_by_side(backend: solvers.AbstractSolver) -> bool:
+    """Whether a batch's forward solves may run side by side in threads: jtraj's solver (one
+    compiled JAX program per NLP, which releases the GIL while it runs), not Ipopt (its
+    callbacks hold the GIL, and MUMPS is not known to be thread-safe)."""
+    return backend.name == "jtraj"
 
 
 def _check_weights(name: str, configuration_weight: float, acceleration_weight: float, source: str) -> None:

@@ -137,6 +137,7 @@ def implicit_solution(
     *,
     weak_tol: float = 1e-6,
     cache_size: int = 16,
+    forward_many: Callable[[list[Any]], list[tuple[np.ndarray, np.ndarray]]] | None = None,
 ) -> Callable[[Any], ImplicitSolution]:
     """``theta -> ImplicitSolution`` solving ``nlp`` with ``forward`` and differentiable in theta.
 
@@ -148,6 +149,10 @@ def implicit_solution(
         weak_tol: weak-activity tolerance of `jtraj.sensitivity.active_set`.
         cache_size: how many factorized systems to keep for backward passes (an integer >= 0;
             a pass whose system is no longer kept rebuilds it from the solution).
+        forward_many: optional host function ``forward_many([theta, ...]) -> [(x, lam), ...]``
+            solving several parameter sets in one call (e.g. side by side). Given, ``jax.vmap``
+            over theta hands the whole batch to it; otherwise the batch's members go to
+            ``forward`` one after another.
     """
     # checked here: a negative size failed at the first solve with a bare KeyError, a
     # negative or NaN weak_tol was taken without a word
@@ -159,10 +164,9 @@ def implicit_solution(
     bool_n = jax.ShapeDtypeStruct((n,), jnp.bool_)
     bool_m = jax.ShapeDtypeStruct((m,), jnp.bool_)
 
-    @_in_main_thread_device
-    def host_forward(theta):
-        theta = jax.tree_util.tree_map(np.asarray, theta)
-        x, lam = forward(theta)
+    def finish(theta, x, lam):
+        """The callback's outputs for one member: the solution checked, its active set, and
+        the token of its factorized sensitivity system."""
         x = np.asarray(x, float)
         lam = np.asarray(lam, float)
         # a wrong shape failed deep in the active set ("operands could not be broadcast"), and
@@ -177,6 +181,27 @@ def implicit_solution(
         lam = np.where(a.row_active, lam, 0.0)
         return x, lam, np.bool_(a.degenerate), a.at_bound, a.at_upper, a.row_active, a.row_upper, np.int64(token)
 
+    @_in_main_thread_device
+    def host_forward(theta):
+        theta = jax.tree_util.tree_map(np.asarray, theta)
+        return finish(theta, *forward(theta))
+
+    def host_forward_many(shapes, theta):
+        """``vmap_method="expand_dims"``: each leaf of theta has its batch axes in front (size
+        1 where that leaf is not batched); ``shapes`` are the leaves' shapes of one member."""
+        leaves, treedef = jax.tree_util.tree_flatten(jax.tree_util.tree_map(np.asarray, theta))
+        batch = np.broadcast_shapes(*(leaf.shape[: leaf.ndim - len(shape)] for leaf, shape in zip(leaves, shapes, strict=True)))
+        if batch == ():
+            return finish(theta, *forward(jax.tree_util.tree_unflatten(treedef, leaves)))
+        size = int(np.prod(batch))
+        flat = [np.broadcast_to(leaf, batch + shape).reshape((size,) + shape) for leaf, shape in zip(leaves, shapes, strict=True)]
+        members = [jax.tree_util.tree_unflatten(treedef, [leaf[i] for leaf in flat]) for i in range(size)]
+        solutions = forward_many(members)
+        if len(solutions) != size:
+            raise ValueError(f"forward_many returned {len(solutions)} solutions for {size} parameter sets")
+        outs = [finish(th, x, lam) for th, (x, lam) in zip(members, solutions, strict=True)]
+        return tuple(np.stack(parts).reshape(batch + np.shape(parts[0])) for parts in zip(*outs, strict=True))
+
     out_shapes = (
         jax.ShapeDtypeStruct((n,), jnp.float64),
         jax.ShapeDtypeStruct((m,), jnp.float64),
@@ -187,7 +212,11 @@ def implicit_solution(
 
     @_first_order_only
     def forward_callback(theta):
-        return jax.pure_callback(host_forward, out_shapes, theta, vmap_method="sequential")
+        if forward_many is None:
+            return jax.pure_callback(host_forward, out_shapes, theta, vmap_method="sequential")
+        # one member's leaf shapes, known here (under vmap the tracers have them)
+        shapes = tuple(tuple(np.shape(leaf)) for leaf in jax.tree_util.tree_leaves(theta))
+        return jax.pure_callback(_in_main_thread_device(functools.partial(host_forward_many, shapes)), out_shapes, theta, vmap_method="expand_dims")
 
     def primal(theta) -> ImplicitSolution:
         if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(theta)):

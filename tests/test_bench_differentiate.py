@@ -6,8 +6,8 @@ from conftest import bench_module
 
 
 def test_table_gives_each_figure_and_the_backward_pass_per_solver():
-    ipopt = dict(cold_ms=815.0, cold_iterations=15, warm_ms=624.0, warm_iterations=12, system_ms=61.0, grad_ms=942.0, grad_iterations=12)
-    jt = dict(cold_ms=300.0, cold_iterations=16, warm_ms=120.0, warm_iterations=3, system_ms=60.0, grad_ms=290.5, grad_iterations=3)
+    ipopt = dict(cold_ms=815.0, cold_iterations=15, warm_ms=624.0, warm_iterations=12, system_ms=61.0, grad_ms=942.0, grad_iterations=12, batch=4, batch_ms=3000.0, sequential_ms=3100.0)
+    jt = dict(cold_ms=300.0, cold_iterations=16, warm_ms=120.0, warm_iterations=3, system_ms=60.0, grad_ms=290.5, grad_iterations=3, batch=4, batch_ms=700.0, sequential_ms=1200.0)
     rec = dict(task="go2 hop", knots=9, n=594, m=638, repeat=3, knots_scale=1, solvers={"ipopt": ipopt, "jtraj": jt})
     lines = bench_module("differentiate").table(rec).splitlines()
     assert lines[0] == "|  | Ipopt ms | iterations | jtraj's solver ms | iterations |"
@@ -15,6 +15,12 @@ def test_table_gives_each_figure_and_the_backward_pass_per_solver():
     assert lines[3] == "| solve, warm (re-solve from the solution) | 624.0 | 12 | 120.0 | 3 |"
     assert lines[5] == "| backward pass (grad minus its warm solve) | 318.0 |  | 170.5 |  |"  # grad less the warm solve
     assert lines[6] == "| grad of a loss through the solver, total | 942.0 | 12 | 290.5 | 3 |"
+    assert lines[7] == "| grad at 4 frictions, jax.vmap | 3000.0 |  | 700.0 |  |"
+    assert lines[8] == "| grad at 4 frictions, one after another | 3100.0 |  | 1200.0 |  |"
+    # a record without the batch (an earlier run) has no batch rows
+    for r in (ipopt, jt):
+        del r["batch_ms"]
+    assert "frictions" not in bench_module("differentiate").table(rec)
     assert lines[-1] == "Go2 hop, 9 knots: n = 594 variables, m = 638 constraints; the fastest of 3 runs, compile excluded."
 
 
@@ -26,8 +32,8 @@ def test_gradients_that_differ_stop_the_benchmark():
         bench.gradients_agree(a, {"x": np.array([1.0, -2.0]), "y": np.array(0.6)})
 
 
-@pytest.mark.parametrize("solvers", ["ipopt,bogus", "", "ipopt,ipopt"])
-def test_bad_solver_lists_are_refused(solvers, capsys):
+@pytest.mark.parametrize("argv", [["--solvers", "ipopt,bogus"], ["--solvers", ""], ["--solvers", "ipopt,ipopt"], ["--batch", "1"]])
+def test_bad_arguments_are_refused(argv, capsys):
     with pytest.raises(SystemExit):
-        bench_module("differentiate").main(["--solvers", solvers])
-    assert "--solvers" in capsys.readouterr().err
+        bench_module("differentiate").main(argv)
+    assert argv[0] in capsys.readouterr().err

@@ -4,6 +4,8 @@ One `jtraj.differentiable` function (compiled once, module fixture) is evaluated
 parameter values; every finite difference re-solves from the solution at tight tolerance.
 """
 
+import os
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -306,3 +308,28 @@ def test_vmap_over_theta_gives_each_members_solution_and_gradient(hop):
         np.testing.assert_allclose(float(values[i]), float(loss(friction)), rtol=1e-7)
         np.testing.assert_allclose(float(grads[i]), float(jax.grad(loss)(friction)), rtol=1e-6, atol=1e-9)
     assert float(values[0]) > float(values[1])  # a lower friction makes the hop dearer
+
+
+def test_vmap_with_jtraj_solver_solves_the_batch_side_by_side(hop_jtraj, monkeypatch):
+    """With jtraj's solver, ``jax.vmap`` over theta hands the batch to threads that solve its
+    members side by side (the program compiled once); each member equals its solve alone."""
+    from concurrent import futures
+
+    pools = []
+    real = futures.ThreadPoolExecutor
+
+    def counting(workers, *args, **kwargs):
+        pools.append(workers)
+        return real(workers, *args, **kwargs)
+
+    monkeypatch.setattr(futures, "ThreadPoolExecutor", counting)
+    theta = hop_jtraj.theta
+    frictions = jnp.array([0.6, 0.9])
+
+    def loss(friction):
+        return hop_jtraj(theta.replace(friction=friction)).cost
+
+    grads = jax.vmap(jax.grad(loss))(frictions)
+    assert pools and pools[0] == min(2, os.cpu_count() or 1)
+    for i, friction in enumerate(frictions):
+        np.testing.assert_allclose(float(grads[i]), float(jax.grad(loss)(friction)), rtol=1e-6, atol=1e-9)

@@ -91,6 +91,7 @@ from __future__ import annotations
 import dataclasses
 import enum
 import os
+import threading
 import time
 import warnings
 from typing import Any, ClassVar, NamedTuple
@@ -1412,6 +1413,10 @@ def _status_message(code: IpmStatus, opts: IpmOptions, mu: float) -> str:
     return message
 
 
+#: serializes `JtrajSolver._program`'s compiles (a threading lock: compiles run one at a time)
+_COMPILE_LOCK = threading.Lock()
+
+
 class JtrajSolver(AbstractSolver):
     """jtraj's own interior-point solver (`IPM`) as a backend of `jtraj.solvers.SOLVERS`.
 
@@ -1570,13 +1575,16 @@ class JtrajSolver(AbstractSolver):
         seconds spent compiling in this call. ``say(text)``, if given, is told before and after
         a compile."""
         key = kind + str(jax.tree.map(lambda a: (np.shape(a), jnp.result_type(a)), theta))
-        if key in ipm.compiled:
-            return ipm.compiled[key], 0.0
-        if say is not None:
-            say(f"jtraj solver: compiling its {kind}program (once per NLP and options other than the tolerances)")
-        t0 = time.perf_counter()
-        ipm.compiled[key] = jitted.lower(x0, theta, ipm.tolerances).compile()
-        seconds = time.perf_counter() - t0
+        # one compile at a time: solves started side by side in threads (a vmapped
+        # `jtraj.differentiable`) wait for the first one's program instead of each compiling it
+        with _COMPILE_LOCK:
+            if key in ipm.compiled:
+                return ipm.compiled[key], 0.0
+            if say is not None:
+                say(f"jtraj solver: compiling its {kind}program (once per NLP and options other than the tolerances)")
+            t0 = time.perf_counter()
+            ipm.compiled[key] = jitted.lower(x0, theta, ipm.tolerances).compile()
+            seconds = time.perf_counter() - t0
         if say is not None:
             say(f"jtraj solver: compiled in {seconds:.1f} s")
         return ipm.compiled[key], seconds
