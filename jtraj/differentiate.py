@@ -189,8 +189,10 @@ class DifferentiableTask:
                     solutions = list(pool.map(solve, prepared))
             else:
                 solutions = [solve(job) for job in prepared]
-            self.last_solution = solutions[-1]
-            outs = [checked(sol, f" (member {i} of a batch of {len(solutions)})") for i, sol in enumerate(solutions)]
+            outs = []
+            for i, sol in enumerate(solutions):  # a loop, not a comprehension: checked's stacklevel
+                self.last_solution = sol  # the failed member, if one fails
+                outs.append(checked(sol, f" (member {i} of a batch of {len(solutions)})"))
             self._x_warm = solutions[-1].x
             return outs
 
@@ -262,9 +264,12 @@ def motion(tr: Transcription, nlp: KnotNLP, x: jax.Array, theta: TaskParams, lam
 
 def _side_by_side(backend: solvers.AbstractSolver) -> bool:
     """Whether a batch's forward solves may run side by side in threads: jtraj's solver (one
-    compiled JAX program per NLP, which releases the GIL while it runs), not Ipopt (its
-    callbacks hold the GIL, and MUMPS is not known to be thread-safe)."""
-    return backend.name == "jtraj"
+    compiled JAX program per NLP, which releases the GIL while it runs) on a CPU-only JAX; not
+    Ipopt (its callbacks hold the GIL, and MUMPS is not known to be thread-safe), and not on an
+    accelerator, where the callback's thread keeps JAX's default device on the CPU
+    (`jtraj.implicit`) and the workers, which do not inherit that setting, would dispatch to
+    the accelerator from inside the running computation."""
+    return backend.name == "jtraj" and jax.default_backend() == "cpu"
 
 
 def _check_weights(name: str, configuration_weight: float, acceleration_weight: float, source: str) -> None:

@@ -124,6 +124,12 @@ class _SystemCache:
             self.systems.popitem(last=False)
         return token
 
+    def restore(self, token: int, system: KKTSystem) -> None:
+        """Keep ``system`` again under its token (rebuilt after it was evicted)."""
+        self.systems[token] = system
+        while len(self.systems) > max(self.size, 1):
+            self.systems.popitem(last=False)
+
     def get(self, token: int) -> KKTSystem | None:
         system = self.systems.get(token)
         if system is not None:
@@ -249,7 +255,7 @@ def implicit_solution(
                 i = rows[0]
                 th = jax.tree_util.tree_unflatten(treedef, [leaf.reshape((-1,) + leaf.shape[len(batch):])[i] for leaf in thetas])
                 system = kkt_system(nlp, xs[i], lams[i], th, weak_tol=weak_tol)
-                cache.systems[int(t)] = system
+                cache.restore(int(t), system)
             out[rows] = system.solve(bb[rows], transpose=transpose)
         return out.reshape(batch + (b.shape[-1],))
 

@@ -291,9 +291,7 @@ def solve(
                 say(f"  {backend.name} converged, but to a violation of {result.constraint_violation:.2e}, over the task check's {FEASIBILITY_TOL:g}")
             else:
                 say(f"  {backend.name} stopped: {result.solver_status.value} ({result.solver_status.message})")
-                # the solver's own wording: the bound at fault of an invalid problem, a remedy
-                # for jtraj's solver's tight tail (`jtraj.solvers.ipm._status_message`)
-                if result.status_msg and result.status_msg != result.solver_status.message:
+                if result.solver_status is solvers.Status.INVALID_PROBLEM:  # the bound at fault is in the solver's own message
                     say(f"  {result.status_msg}")
             worst = sorted(result.violation_by_group.items(), key=lambda kv: -kv[1])[:3]
             say("  largest violations: " + ", ".join(f"{k} {v:.2e}" for k, v in worst))

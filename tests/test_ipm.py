@@ -613,3 +613,17 @@ def test_a_failed_inertia_correction_is_not_reported_as_nan(monkeypatch):
     assert IpmStatus.INERTIA_FAILED.shared is solvers.Status.STEP_COMPUTATION_FAILED
     sol = solvers.get("jtraj").solve(nlp, np.zeros(nlp.n), None, {"tol": 1e-8, "max_iter": 20})
     assert sol.status is solvers.Status.STEP_COMPUTATION_FAILED and "delta_w" in sol.message, sol.message
+
+
+def test_ipms_made_side_by_side_share_one_program():
+    """IPMs of one NLP and options made in several threads at once (the forward solves of a
+    vmapped `jtraj.differentiable`) share one owner's compiled programs (regression: each
+    thread's IPM had its own, and each compiled the program again, one after another)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    nlp = double_integrator()
+    options = IpmOptions(tol=1e-6)
+    with ThreadPoolExecutor(4) as pool:
+        ipms = list(pool.map(lambda _: IPM(nlp, options), range(4)))
+    assert len({id(ipm.compiled) for ipm in ipms}) == 1 and len({id(ipm.view) for ipm in ipms}) == 1
+    assert len(nlp.solver_programs) == 1

@@ -625,6 +625,10 @@ def _split_over_devices(batch: Any, devices: list, size: int, args: tuple, in_ba
     return jax.tree.map(lambda a: a[:size], out) if pad else out
 
 
+#: guards the shared IPMs of an NLP (`IPM.__init__`)
+_SHARED_LOCK = threading.Lock()
+
+
 class IPM:
     """The interior-point solver for one `KnotNLP` (its shapes are static; bounds, initial
     guess, parameters theta and the tolerances are inputs, so new values do not recompile).
@@ -644,17 +648,21 @@ class IPM:
         # in LLVM)
         key = ("ipm", self.options.compiled_part())
         shared = nlp.solver_programs
-        owner = shared.get(key)
-        if owner is None:
-            # this IPM traces the program; its options' run-time fields are never read there
-            self.view = StageView(nlp)
-            if self.options.hessian == "exact":
-                self.view.prepare_hessian()
-            self.program = jax.jit(_members_apart_on_cpu(self._solve, self.options.cpu_batch == "vectorized"))
-            self.compiled: dict[str, Any] = {}  # ahead-of-time compiled programs (`JtrajSolver`)
-            shared[key] = self
-        else:
-            self.view, self.program, self.compiled = owner.view, owner.program, owner.compiled
+        # one owner per key also when solves start side by side in threads (a vmapped
+        # `jtraj.differentiable`): each thread's IPM had its own compiled programs, so each
+        # compiled the program again
+        with _SHARED_LOCK:
+            owner = shared.get(key)
+            if owner is None:
+                # this IPM traces the program; its options' run-time fields are never read there
+                self.view = StageView(nlp)
+                if self.options.hessian == "exact":
+                    self.view.prepare_hessian()
+                self.program = jax.jit(_members_apart_on_cpu(self._solve, self.options.cpu_batch == "vectorized"))
+                self.compiled: dict[str, Any] = {}  # ahead-of-time compiled programs (`JtrajSolver`)
+                shared[key] = self
+            else:
+                self.view, self.program, self.compiled = owner.view, owner.program, owner.compiled
 
     def solve(self, x0: jax.Array, theta: Any = None) -> IpmResult:
         """Solve from x0 (K, n) at theta (the jitted program with this IPM's tolerances)."""
@@ -1413,7 +1421,7 @@ def _status_message(code: IpmStatus, opts: IpmOptions, mu: float) -> str:
     return message
 
 
-#: serializes `JtrajSolver._program`'s compiles (a threading lock: compiles run one at a time)
+#: serializes `JtrajSolver._program`'s compiles (compiles run one at a time)
 _COMPILE_LOCK = threading.Lock()
 
 
@@ -1575,6 +1583,8 @@ class JtrajSolver(AbstractSolver):
         seconds spent compiling in this call. ``say(text)``, if given, is told before and after
         a compile."""
         key = kind + str(jax.tree.map(lambda a: (np.shape(a), jnp.result_type(a)), theta))
+        if key in ipm.compiled:
+            return ipm.compiled[key], 0.0
         # one compile at a time: solves started side by side in threads (a vmapped
         # `jtraj.differentiable`) wait for the first one's program instead of each compiling it
         with _COMPILE_LOCK:
@@ -1614,10 +1624,13 @@ class JtrajSolver(AbstractSolver):
                     break
         g = np.asarray(f.constraints(jnp.asarray(x)))
         values, derivatives = int(r.passes), int(r.derivative_passes)
+        message = _status_message(code, opts, float(r.mu))
+        if message != _MESSAGES.get(code, code.name):  # the tight tail's remedy: said where it shows
+            warnings.warn(f"jtraj's solver: {message}", RuntimeWarning, stacklevel=3)
         return Solution(
             x=x,
             status=code.shared,
-            message=_status_message(code, opts, float(r.mu)),
+            message=message,
             objective=float(r.objective),
             constraint_violation=max_violation(g, f.g_lower, f.g_upper, x, f.x_lower, f.x_upper),
             mult_g=np.asarray(view.from_stage_rows(r.y)),
