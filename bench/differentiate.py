@@ -18,7 +18,7 @@ Hessian), after compiling everything once:
   backward pass only where they agree;
 - a batch: the gradient at ``--batch`` frictions (0.8 to 1.2 times the task's), through
   ``jax.vmap`` against one after another, every member from the solution at the task's theta.
-  Under ``jax.vmap`` the forward solves of jtraj's solver run side by side in threads
+  Under ``jax.vmap`` on a CPU the forward solves of jtraj's solver run side by side in threads
   (`jtraj.differentiate`), Ipopt's one after another.
 
 Each figure is the fastest of ``--repeat`` runs; the solvers' gradients of the loss are printed
