@@ -627,3 +627,21 @@ def test_ipms_made_side_by_side_share_one_program():
         ipms = list(pool.map(lambda _: IPM(nlp, options), range(4)))
     assert len({id(ipm.compiled) for ipm in ipms}) == 1 and len({id(ipm.view) for ipm in ipms}) == 1
     assert len(nlp.solver_programs) == 1
+
+
+def test_a_tight_solve_at_its_limit_warns_with_the_floor_to_set():
+    """A tight solve (tol 1e-15) that reaches its iteration limit with mu at mu_min and no floor
+    under delta_c says which delta_c_min to set, in its message and in a RuntimeWarning; with
+    the floor set it does not."""
+    import warnings
+
+    nlp = double_integrator()
+    tight = {"tol": 1e-15, "constr_viol_tol": 1e-15, "compl_inf_tol": 1e-15, "max_iter": 20}
+    backend = solvers.get("jtraj")
+    with pytest.warns(RuntimeWarning, match="set delta_c_min=1e-9"):
+        sol = backend.solve(nlp, np.zeros(nlp.n), None, tight)
+    assert sol.status is solvers.Status.MAX_ITER and "delta_c_min=1e-9" in sol.message
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        floored = backend.solve(nlp, np.zeros(nlp.n), None, {**tight, "delta_c_min": 1e-9})
+    assert "delta_c_min" not in floored.message
