@@ -153,12 +153,6 @@ def measure(task: Task, solver: str, repeat: int, batch: int = 4) -> tuple[dict,
     batched = jax.jit(jax.vmap(jax.grad(at)))
     single = jax.jit(jax.grad(at))
     x_star = np.asarray(f.last_solution.x)
-    f.warm_start_from(x_star)
-    g_batch = jax.block_until_ready(batched(frictions))  # compile
-    g_single = []
-    for fr in frictions:
-        f.warm_start_from(x_star)
-        g_single.append(float(single(fr)))
 
     def run_batched():
         f.warm_start_from(x_star)
@@ -171,6 +165,8 @@ def measure(task: Task, solver: str, repeat: int, batch: int = 4) -> tuple[dict,
             out.append(single(fr))
         return out
 
+    g_batch = jax.block_until_ready(run_batched())  # compile both
+    g_single = jax.block_until_ready(run_sequential())
     t_batch = best_of(run_batched, repeat)
     t_seq = best_of(run_sequential, repeat)
     gradients_agree(np.asarray(g_batch), np.asarray(g_single))

@@ -119,15 +119,14 @@ class _SystemCache:
 
     def put(self, system: KKTSystem) -> int:
         token = next(self.counter)
-        self.systems[token] = system
-        while len(self.systems) > self.size:
-            self.systems.popitem(last=False)
+        self.restore(token, system)
         return token
 
     def restore(self, token: int, system: KKTSystem) -> None:
-        """Keep ``system`` again under its token (rebuilt after it was evicted)."""
+        """Keep ``system`` under ``token`` (a new one, or one rebuilt after it was evicted),
+        dropping the oldest beyond the cache's size."""
         self.systems[token] = system
-        while len(self.systems) > max(self.size, 1):
+        while len(self.systems) > self.size:
             self.systems.popitem(last=False)
 
     def get(self, token: int) -> KKTSystem | None:
