@@ -136,6 +136,48 @@ def test_filter_is_left_alone_after_a_switching_and_armijo_step(toy):
     assert checked[True] >= 2 and checked[False] >= 2, checked
 
 
+def test_armijo_test_allows_ipopts_rounding_margin(toy):
+    """Ipopt's acceptance tests compare with ``Compare_le``: ``lhs - rhs <= 10 eps |reference|``
+    (`IPM._le`). Take a step whose first trial was accepted by the Armijo test (theta_min set
+    to +inf, so every switching step is judged by it alone) and move phi0 so that the trial
+    misses the Armijo test by 3 eps of |phi0|: the step is still accepted, at the same trial
+    point, and a solver without the margin (``ROUNDING = 0``) rejects it. At 30 eps both
+    reject it."""
+    nlp, ipm = toy
+
+    class Strict(IPM):
+        ROUNDING = 0.0
+
+    strict = Strict(nlp, ipm.options)
+    p, st = ipm._start(jnp.zeros((K, 3)), None)
+    step = jax.jit(lambda st, passes: ipm._iteration(p, st, passes, None))
+    step_strict = jax.jit(lambda st, passes: strict._iteration(p, st, passes, None))
+    measures = jax.jit(lambda x, s, f, c, mu: ipm._measures(p, x, s, f, c, mu))
+    passes = jnp.zeros((2,), jnp.int32)
+    checked = 0
+    for _ in range(100):
+        if not bool(st.first):
+            pre = st._replace(theta_min=jnp.full_like(st.theta_min, jnp.inf))
+            post, _ = step(pre, passes)
+            alpha, slope, theta0 = float(pre.alpha), float(pre.slope), float(pre.theta0)
+            switching = slope < 0 and alpha * (-slope) ** IPM.S_PHI > IPM.DELTA * theta0**IPM.S_THETA
+            if switching and int(post.trials) == 0 and float(post.alpha) == alpha and int(post.status) == IpmStatus.RUNNING:
+                _, phi = measures(post.x, post.s, post.f, post.c, pre.mu)
+                base = float(phi) - IPM.ETA_PHI * alpha * slope  # phi0 at which Armijo holds with equality
+                for miss, margin_accepts in ((3.0, True), (30.0, False)):
+                    moved = pre._replace(phi0=jnp.asarray(base - miss * np.finfo(np.float64).eps * abs(base)))
+                    with_margin, _ = step(moved, passes)
+                    without, _ = step_strict(moved, passes)
+                    same = lambda s: bool(jnp.array_equal(s.x, post.x))  # noqa: E731
+                    assert same(with_margin) == margin_accepts, (int(post.it), miss)
+                    assert not same(without), (int(post.it), miss)
+                checked += 1
+        st, passes = step(st, passes)
+        if int(st.status) != IpmStatus.RUNNING or checked >= 3:
+            break
+    assert checked >= 3
+
+
 def test_monotone_barrier_strategy_reaches_the_same_solution(toy):
     """The default barrier update is Ipopt's adaptive one; the monotone (Fiacco-McCormick)
     update is an option and must find the same optimum."""
