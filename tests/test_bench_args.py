@@ -15,7 +15,7 @@ def _no_work(*args, **kwargs):
     [
         (["--robot", "g1"], "--robot: 'g1': expected ROBOT=OTHER"),
         (["--set", "force_limits"], "--set: 'force_limits': expected FIELD=VALUE"),
-        (["--set", "no_such_field=rows"], "--set: "),
+        (["--set", "no_such_field=rows"], "--set: ['no_such_field']: not a field of the variables that can be set"),
         (["--peer-python", "/nonexistent/python"], "--peer-python: '/nonexistent/python' does not exist"),
     ],
 )

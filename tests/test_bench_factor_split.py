@@ -27,7 +27,6 @@ def test_factor_split_bench_compares_the_two_factors(monkeypatch):
     for rec in (small, split):
         assert rec["max_rel_diff"] < 1e-12
         assert set(rec["stats"]) == {"one call", "halves"}
-        assert all(s["min_ms"] <= s["p25_ms"] <= s["median_ms"] for s in rec["stats"].values())
     lines = bench.table([small, split]).splitlines()
     assert lines[2].startswith("| 3 x 4 (2) | no (n <= 4) |")
     assert lines[3].startswith("| 3 x 9 (5) | yes |")
