@@ -137,11 +137,34 @@ def test_regression_eq41_sign():
     assert Q.geodesic_cost(Q.multiplicative_update(q, -1e-3 * g), qg) < Q.geodesic_cost(q, qg)
 
 
-def test_functions_jit_and_vmap(rng):
-    qs = jnp.stack(random_quaternions(rng, 4))
-    G = jax.jit(jax.vmap(Q.attitude_jacobian))(qs)
-    for i in range(4):
-        np.testing.assert_allclose(G[i], Q.attitude_jacobian(qs[i]), atol=1e-15)
+#: the module's functions with arguments of each kind: "q" a unit quaternion, "v" a 3-vector,
+#: "x" a 13-state (r, q, v, omega), "g" a 1 x 4 row (dh/dq), "h" a 4 x 4 matrix (d2h/dq2)
+JIT_VMAP = [
+    ("L", "q"), ("R", "q"), ("multiply", "qq"), ("conjugate", "q"), ("rotation_matrix", "q"), ("rotate", "qv"),
+    ("attitude_jacobian", "q"), ("cayley", "v"), ("cayley_inv", "q"), ("cayley_inv_jacobian", "q"),
+    ("multiplicative_update", "qv"), ("jacobian_correction", "gq"), ("hessian_correction", "hgq"),
+    ("quaternion_jacobian_correction", "hqq"), ("error_state_jacobian", "x"), ("geodesic_cost", "qq"),
+    ("geodesic_cost_gradient", "qq"), ("geodesic_cost_hessian", "qq"),
+]
+
+
+@pytest.mark.parametrize(("name", "kinds"), JIT_VMAP, ids=[f[0] for f in JIT_VMAP])
+def test_functions_jit_and_vmap(rng, name, kinds):
+    """``jax.jit(jax.vmap(f))`` over a batch equals ``f`` member by member."""
+    B = 4
+
+    def draw(kind):
+        if kind == "q":
+            return jnp.stack(random_quaternions(rng, B))
+        if kind == "x":
+            return jnp.concatenate([rng.normal(size=(B, 3)), jnp.stack(random_quaternions(rng, B)), rng.normal(size=(B, 6))], axis=1)
+        return jnp.asarray(rng.normal(size={"v": (B, 3), "g": (B, 1, 4), "h": (B, 4, 4)}[kind]))
+
+    f = getattr(Q, name)
+    args = [draw(k) for k in kinds]
+    batched = jax.jit(jax.vmap(f))(*args)
+    for i in range(B):
+        np.testing.assert_allclose(batched[i], f(*(a[i] for a in args)), rtol=1e-12, atol=1e-14)
 
 
 def test_regression_eq41_gradient_half_a_turn_from_the_goal():

@@ -72,7 +72,13 @@ def test_interpolation_follows_the_constant_twist_and_hits_the_knots(result):
         expected = T0 @ SE3.exp(TWIST * tk)
         np.testing.assert_allclose(qpos[:3], expected.translation(), atol=1e-9)
         np.testing.assert_allclose(abs(qpos[3:7] @ np.asarray(expected.rotation().wxyz)), 1.0, atol=1e-9)
-    np.testing.assert_allclose(interpolate(traj, traj.t).qpos[:, 7:], traj.q_joints)
+    # joints: linearly between their knots (joints that move from knot to knot, so that a wrong
+    # weight or knot index shows)
+    moving = dataclasses.replace(traj, q_joints=traj.q_joints + 0.1 * np.sin(np.arange(traj.q_joints.size)).reshape(traj.q_joints.shape))
+    np.testing.assert_allclose(interpolate(moving, moving.t).qpos[:, 7:], moving.q_joints, atol=1e-12)
+    between = interpolate(moving, [0.3 * moving.t[1] + 0.7 * moving.t[2], 0.9 * moving.t[4] + 0.1 * moving.t[5]]).qpos[:, 7:]
+    np.testing.assert_allclose(between[0], 0.3 * moving.q_joints[1] + 0.7 * moving.q_joints[2], atol=1e-12)
+    np.testing.assert_allclose(between[1], 0.9 * moving.q_joints[4] + 0.1 * moving.q_joints[5], atol=1e-12)
     # forces are interpolated linearly, contact flags taken from the nearest knot
     half = interpolate(traj, [0.5 * (traj.t[2] + traj.t[3])])
     np.testing.assert_allclose(half.forces[0], 0.5 * (traj.forces[2] + traj.forces[3]))

@@ -269,7 +269,9 @@ def _write_toml(path, config):
 
 def test_toml_writer_round_trips(tmp_path):
     config = _talos_config()
-    robot = robot_lib.load_file(_write_toml(tmp_path / "copy.toml", config))
+    path = _write_toml(tmp_path / "copy.toml", config)
+    assert tomllib.loads(path.read_text()) == config  # every table and value, as written
+    robot = robot_lib.load_file(path)
     assert robot.joint_names == robot_lib.load("talos").joint_names
     assert robot.contact_names == robot_lib.load("talos").contact_names
 

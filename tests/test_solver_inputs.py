@@ -57,11 +57,24 @@ def test_an_initial_guess_of_another_size_is_refused(solver, x0):
 
 
 def test_ipopt_takes_a_knot_shaped_guess():
+    """A (K, n) guess is read knot after knot, as its row-major flattening: a guess that differs
+    from knot to knot and variable to variable (an all-zero one would hide a transposed or
+    column-major reading) starts where the flat guess starts and ends where it ends."""
     nlp = double_integrator()
-    x0 = np.zeros((K, 3))
-    a = solvers.get("ipopt").solve(nlp, x0)
-    b = solvers.get("ipopt").solve(nlp, x0.reshape(-1))
-    assert a.converged and a.stats.iterations == b.stats.iterations
+    x0 = np.random.default_rng(0).uniform(-0.1, 0.1, (K, 3))
+    firsts = []
+    for guess in (x0, x0.reshape(-1)):
+        rec = solvers.RecordIterates()
+        firsts.append(rec)
+        assert solvers.get("ipopt").solve(nlp, guess, None, None, rec).converged
+    a, b = firsts
+    np.testing.assert_array_equal(a.iterates[0], b.iterates[0])
+    # Ipopt starts from the guess pushed inside the variable bounds (bound_push); the fixed
+    # variables sit on their bounds and the free ones are the flat guess's
+    free = nlp.x_lower < nlp.x_upper
+    np.testing.assert_array_equal(a.iterates[0][free], x0.reshape(-1)[free])
+    assert len(a.iterates) == len(b.iterates)
+    np.testing.assert_array_equal(a.iterates[-1], b.iterates[-1])
 
 
 @pytest.mark.parametrize("solver", ["jtraj", "ipopt"])
