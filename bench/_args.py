@@ -80,12 +80,13 @@ def out_folder(text: str) -> str:
     return text
 
 
-def add_peer_options(ap: argparse.ArgumentParser, peer_src, peer_python) -> None:
+def add_peer_options(ap: argparse.ArgumentParser, peer_python, peer_src_default: str) -> None:
     """The options of the scripts that run the paper's public code beside jtraj (side_by_side,
     trace_iterates): ``--robot ROBOT=OTHER`` and ``--set FIELD=VALUE`` (repeatable), and where
-    the public code's sources and its environment's Python are (defaults ``peer_src`` and
-    ``peer_python``, side_by_side's)."""
-    ap.add_argument("--peer-src", type=Path, default=peer_src, help="the public code's sources (noisy flips run them through a driver that reads the last iterate)")
+    the public code's sources and its environment's Python are (``--peer-src`` None unless
+    given: the script takes the sources beside the runner, ``peer_src_default`` says which in
+    the help; ``--peer-python`` default ``peer_python``)."""
+    ap.add_argument("--peer-src", type=Path, default=None, help=f"the public code's sources (noisy flips run them through a driver that reads the last iterate; default: {peer_src_default})")
     ap.add_argument("--peer-python", type=Path, default=peer_python, help="the Python of the environment the runner creates")
     ap.add_argument("--robot", action="append", default=[], metavar="ROBOT=OTHER", help="jtraj solves tasks on ROBOT with the model OTHER (e.g. talos=talos_full: the study's Talos)")
     ap.add_argument(

@@ -69,8 +69,18 @@ def builtin_task(name: str) -> Task:
     return load_task(name)
 
 
-#: The public code's sources, beside its runner.
-DEFAULT_PEER_SRC = DEFAULT_PEER.parent / "se3_trajopt" / "src"
+def peer_sources(runner: Path | str) -> Path:
+    """The public code's sources, where its runner keeps them: ``se3_trajopt/src`` beside the
+    runner script (`--peer-src`'s default, from the runner the command names)."""
+    return Path(runner).resolve().parent / "se3_trajopt" / "src"
+
+
+def check_peer_src(ap: argparse.ArgumentParser, peer_src: Path) -> None:
+    """Refuse a ``--peer-src`` without the code's task scripts, before anything runs."""
+    if not (peer_src / "examples" / "agile_exps").is_dir():
+        ap.error(f"--peer-src: '{peer_src}' does not hold the public code's examples/agile_exps: pass the folder of its sources")
+
+
 #: The environment the public code's runner creates on first use.
 DEFAULT_PEER_PYTHON = Path(os.environ.get("SE3_TRAJOPT_VENV", Path(tempfile.gettempdir()) / "se3-trajopt-venv")) / "bin" / "python"
 #: The public code's script of each task (as its runner maps them).
@@ -122,7 +132,7 @@ class PeerError(RuntimeError):
     """The public code failed (`peer_iterates`): its message says how, in the code's words."""
 
 
-def peer_iterates(task: str, peer_src: Path = DEFAULT_PEER_SRC, peer_python: Path = DEFAULT_PEER_PYTHON, sigma: float = 0.0, seed: int = 0) -> dict:
+def peer_iterates(task: str, peer_src: Path, peer_python: Path = DEFAULT_PEER_PYTHON, sigma: float = 0.0, seed: int = 0) -> dict:
     """The public code's solve of ``task`` through `PEER_DRIVER`, with its runner's noise on
     the warm start (``sigma``, ``seed``; the code reads them from the environment as its
     runner sets them). Returns ``stats`` (iterations, 6), ``base`` (iterations, knots, 7) and
@@ -146,7 +156,7 @@ def peer_iterates(task: str, peer_src: Path = DEFAULT_PEER_SRC, peer_python: Pat
         return dict(stats=d["stats"], base=d["base"], peerstats=ast.literal_eval(line[len("PEERSTATS") :].strip()))
 
 
-def run_peer_checked(task: str, sigma: float, seed: int, peer_src: Path = DEFAULT_PEER_SRC, peer_python: Path = DEFAULT_PEER_PYTHON) -> dict:
+def run_peer_checked(task: str, sigma: float, seed: int, peer_src: Path, peer_python: Path = DEFAULT_PEER_PYTHON) -> dict:
     """One solve of the paper's code through `peer_iterates`, its last iterate's base motion
     put through jtraj's task check (`jtraj.success`): the row `run_peer` gives, with ``turns``,
     ``off_axis_share`` and ``task_ok``; where the code failed, `peer_iterates`'s `PeerError`,
@@ -327,7 +337,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--sigma", type=noise_level, default=0.0)
     ap.add_argument("--seeds", type=seed_list, default="0", help="comma-separated seeds of the noise draws (with --sigma > 0)")
     ap.add_argument("--peer", default=str(DEFAULT_PEER), help="path of the paper code's runner script, run as PEER TASK [--sigma S --seed N] ('' to skip it)")
-    add_peer_options(ap, DEFAULT_PEER_SRC, DEFAULT_PEER_PYTHON)
+    add_peer_options(ap, DEFAULT_PEER_PYTHON, "the folder se3_trajopt/src beside --peer")
     ap.add_argument("--code-costs", action="store_true", help="jtraj uses the cost weights of the code's task scripts (CODE_COSTS) where they differ from Table II")
     add_out(ap, "side_by_side", default="results/side_by_side")
     args = ap.parse_args(argv)
@@ -346,8 +356,11 @@ def main(argv: list[str] | None = None) -> None:
     except (InputError, TaskError) as e:
         ap.error(str(e))
     changes = parse_changes(ap, args.set, names or "paper")
-    if args.peer and args.sigma and any(builtin_task(t).flip_axis is not None for t in tasks) and not args.peer_python.exists():
-        ap.error(f"--peer-python: '{args.peer_python}' does not exist: run the public code's runner once (it creates its environment), or pass --peer-python")
+    if args.peer and args.sigma and any(builtin_task(t).flip_axis is not None for t in tasks):  # noisy flips run the code's sources
+        if not args.peer_python.exists():
+            ap.error(f"--peer-python: '{args.peer_python}' does not exist: run the public code's runner once (it creates its environment), or pass --peer-python")
+        args.peer_src = args.peer_src or peer_sources(args.peer)
+        check_peer_src(ap, args.peer_src)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     path = out / "side_by_side.json"

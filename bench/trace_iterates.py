@@ -34,16 +34,17 @@ from jtraj.task import TaskError
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-from _args import add_out, add_peer_options, add_variables  # noqa: E402
+from _args import DEFAULT_PEER, add_out, add_peer_options, add_variables  # noqa: E402
 from side_by_side import (  # noqa: E402  (the same task variants and the same driver of the public code)
     CODE_COSTS,
     DEFAULT_PEER_PYTHON,
-    DEFAULT_PEER_SRC,
     PEER_SCRIPTS,
+    check_peer_src,
     jtraj_label,
     jtraj_task,
     parse_changes,
     peer_iterates,
+    peer_sources,
 )
 
 
@@ -112,7 +113,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("task", choices=sorted(PEER_SCRIPTS))
     add_variables(ap, "paper")
     ap.add_argument("--code-costs", action="store_true", help=f"jtraj with the cost weights of the code's scripts ({CODE_COSTS})")
-    add_peer_options(ap, DEFAULT_PEER_SRC, DEFAULT_PEER_PYTHON)
+    add_peer_options(ap, DEFAULT_PEER_PYTHON, f"the folder se3_trajopt/src beside the runner, {DEFAULT_PEER}")
     ap.add_argument("--no-peer", action="store_true")
     add_out(ap, "iterates")
     args = ap.parse_args(argv)
@@ -124,8 +125,11 @@ def main(argv: list[str] | None = None) -> None:
     except (InputError, TaskError) as e:
         ap.error(str(e))
     changes = parse_changes(ap, args.set, args.variables)
-    if not args.no_peer and not args.peer_python.exists():
-        ap.error(f"--peer-python: '{args.peer_python}' does not exist: run the public code's runner once (it creates its environment), pass --peer-python, or --no-peer")
+    if not args.no_peer:
+        if not args.peer_python.exists():
+            ap.error(f"--peer-python: '{args.peer_python}' does not exist: run the public code's runner once (it creates its environment), pass --peer-python, or --no-peer")
+        args.peer_src = args.peer_src or peer_sources(DEFAULT_PEER)
+        check_peer_src(ap, args.peer_src)
     task = jtraj_task(args.task, robots, args.code_costs)
     runs = []
     if not args.no_peer:

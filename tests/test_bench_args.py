@@ -2,6 +2,8 @@
 (exit status 2), before anything is compiled or solved. Each test replaces what would do the
 work with a function that fails the test if it is called."""
 
+import sys
+
 import pytest
 from conftest import bench_module, refused
 
@@ -17,6 +19,7 @@ def _no_work(*args, **kwargs):
         (["--set", "force_limits"], "--set: 'force_limits': expected FIELD=VALUE"),
         (["--set", "no_such_field=rows"], "--set: ['no_such_field']: not a field of the variables that can be set"),
         (["--peer-python", "/nonexistent/python"], "--peer-python: '/nonexistent/python' does not exist"),
+        (["--peer-python", sys.executable, "--peer-src", "/nonexistent/src"], "--peer-src: '/nonexistent/src' does not hold the public code's examples/agile_exps"),
     ],
 )
 def test_trace_iterates(monkeypatch, capsys, argv, message):

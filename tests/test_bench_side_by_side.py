@@ -147,7 +147,9 @@ def test_a_failed_checked_peer_solve_is_an_error_row(sbs, monkeypatch, tmp_path,
     out = tmp_path / "out"
     peer = fake_peer(tmp_path, "exit 1")  # not run: the driver runs the code
     peer_python = fake_peer(tmp_path, python, name="python")
-    argv = ["--tasks", "backflip", "--variables", "", "--sigma", "0.5", "--peer", str(peer), "--peer-src", str(tmp_path), "--peer-python", str(peer_python), "--out", str(out)]
+    src = tmp_path / "src"
+    (src / "examples" / "agile_exps").mkdir(parents=True)
+    argv = ["--tasks", "backflip", "--variables", "", "--sigma", "0.5", "--peer", str(peer), "--peer-src", str(src), "--peer-python", str(peer_python), "--out", str(out)]
     with pytest.raises(SystemExit) as exc:
         sbs.main(argv)
     assert str(exc.value.code).endswith("run again to retry them: paper on backflip (sigma 0.5, seed 0)")
@@ -158,3 +160,18 @@ def test_a_failed_checked_peer_solve_is_an_error_row(sbs, monkeypatch, tmp_path,
     else:
         assert row["error"].startswith(error)
     assert "bench/side_by_side.py: paper on backflip (sigma 0.5, seed 0) failed: " in capsys.readouterr().err
+
+
+def test_the_code_sources_are_found_beside_the_runner_and_checked(sbs, monkeypatch, tmp_path, capsys):
+    """A noisy flip runs the public code's sources: by default those beside the runner that
+    --peer names (se3_trajopt/src), and a folder without its task scripts is refused before
+    anything runs."""
+    monkeypatch.setattr(sbs, "run_jtraj", _no_solve)
+    monkeypatch.setattr(sbs, "run_peer_checked", _no_solve)
+    peer = fake_peer(tmp_path, "exit 1")
+    peer_python = fake_peer(tmp_path, "exit 1", name="python")
+    assert sbs.peer_sources(peer) == tmp_path.resolve() / "se3_trajopt" / "src"
+    argv = ["--tasks", "backflip", "--variables", "", "--sigma", "0.5", "--peer", str(peer), "--peer-python", str(peer_python), "--out", str(tmp_path / "out")]
+    refused(sbs.main, argv, capsys, f"--peer-src: '{tmp_path.resolve() / 'se3_trajopt' / 'src'}' does not hold the public code's examples/agile_exps")
+    refused(sbs.main, [*argv, "--peer-src", str(tmp_path)], capsys, f"--peer-src: '{tmp_path}' does not hold the public code's examples/agile_exps")
+    assert not (tmp_path / "out").exists()
