@@ -371,11 +371,17 @@ class Transcription:
         default = self.default_theta() if base is None else base
         if theta is None:
             return default
+        no_rows = f"task {self.task.name!r} sets no max_delta_force, so it has no force-rate rows to bound; set it in the task"
         if isinstance(theta, TaskParams):
             overrides = {f.name: getattr(theta, f.name) for f in dataclasses.fields(theta)}
+            # a TaskParams carries every field: without the rows only inf (the default) is
+            # what it says (a traced value is not looked at, as in `TaskParams.check`)
+            bound = overrides["max_delta_force"]
+            if self.task.max_delta_force is None and not isinstance(bound, jax.core.Tracer) and np.isfinite(np.asarray(bound)).any():
+                raise ValueError(no_rows)
         elif isinstance(theta, Mapping):
             if "max_delta_force" in theta and self.task.max_delta_force is None:
-                raise ValueError(f"task {self.task.name!r} sets no max_delta_force, so it has no force-rate rows to bound; set it in the task")
+                raise ValueError(no_rows)
             overrides = dict(theta)
         else:
             raise TypeError(f"theta must be None, a mapping of parameter overrides or a TaskParams, got {type(theta).__name__}")

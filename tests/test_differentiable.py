@@ -209,6 +209,8 @@ def test_call_checks_theta_and_a_failed_solve_raises_solve_error(hop):
         hop([0.6])
     with pytest.raises(ValueError, match="sets no max_delta_force"):  # as jtraj.solve refuses it
         hop({"max_delta_force": 100.0})
+    with pytest.raises(ValueError, match="sets no max_delta_force"):  # also as a field of TaskParams (it was ignored)
+        hop(theta.replace(max_delta_force=100.0))
     assert hop.last_solution is solves
     with pytest.raises(ValueError, match=r"warm start of shape \(5,\)"):
         hop.warm_start_from(np.zeros(5))
