@@ -667,4 +667,4 @@ class KnotNLP:
     def violation(self, x: np.ndarray, theta: Any = None) -> float:
         """Max violation of the constraint rows and variable bounds at x (and theta)."""
         viol, bviol = self._violations(x, theta)
-        return float(max(viol.max(initial=0.0), bviol.max(initial=0.0)))
+        return float(np.max([viol.max(initial=0.0), bviol.max(initial=0.0)]))  # max(0.0, nan) is 0.0

@@ -93,3 +93,18 @@ def test_bounds_with_lower_above_upper_are_refused():
     active = np.ones((N - 1, 2), bool)
     active[1, 1] = False
     assert _nlp(row_lower=row_lower, active=active).m == 3
+
+
+def test_violation_of_a_nan_point_is_nan():
+    """A NaN variable is no feasible point, also where no constraint row reads it (Python's
+    max(0.0, nan) is 0.0, which reported it as feasible)."""
+    layout = Layout((("p", 1), ("u", 1)))
+    K = 3
+    rows = ConstraintGroup("p", (Dep("p"),), lambda theta, data, p: p, np.arange(K), np.full((K, 1), -1.0), np.full((K, 1), 1.0), np.ones((K, 1), bool))
+    cost = CostGroup("u", (Dep("u"),), lambda theta, data, u: jnp.sum(u**2), np.arange(K))
+    nlp = KnotNLP(layout, K, [cost], [rows], np.full((K, 2), -1.0), np.full((K, 2), 1.0))
+    x = np.zeros(nlp.n)
+    assert nlp.violation(x) == 0.0
+    x[1] = np.nan  # u at the first knot: no row reads it
+    assert np.isnan(nlp.violation(x))
+    assert np.isnan(nlp.violation_by_group(x)["bounds"]) and nlp.violation_by_group(x)["p"] == 0.0
