@@ -125,7 +125,7 @@ def test_filter_is_left_alone_after_a_switching_and_armijo_step(toy):
                 alpha, slope, theta0, phi0 = float(post.alpha), float(pre.slope), float(pre.theta0), float(pre.phi0)
                 _, phi = measures(post.x, post.s, post.f, post.c, pre.mu)
                 switching = slope < 0 and alpha * (-slope) ** IPM.S_PHI > IPM.DELTA * theta0**IPM.S_THETA
-                armijo = float(phi) - phi0 <= IPM.ETA_PHI * alpha * slope + IPM.ROUNDING * abs(phi0)
+                armijo = float(phi) - phi0 <= mono.options.armijo * alpha * slope + IPM.ROUNDING * abs(phi0)
                 added = int(post.n_filter) - int(pre.n_filter)
                 assert added == (0 if switching and armijo else 1), (int(post.it), switching, armijo, added)
                 checked[switching and armijo] += 1
@@ -142,16 +142,19 @@ def test_armijo_test_allows_ipopts_rounding_margin(toy):
     to +inf, so every switching step is judged by it alone) and move phi0 so that the trial
     misses the Armijo test by 3 eps of |phi0|: the step is still accepted, at the same trial
     point, and a solver without the margin (``ROUNDING = 0``) rejects it. At 30 eps both
-    reject it."""
+    reject it. The Armijo constant is the option ``armijo`` (Ipopt's eta_phi): a decrease
+    that the default 1e-8 accepts, ``armijo=0.4`` rejects."""
     nlp, ipm = toy
 
     class Strict(IPM):
         ROUNDING = 0.0
 
     strict = Strict(nlp, ipm.options)
+    demanding = IPM(nlp, dataclasses.replace(ipm.options, armijo=0.4))  # Ipopt's eta_phi, default 1e-8
     p, st = ipm._start(jnp.zeros((K, 3)), None)
     step = jax.jit(lambda st, passes: ipm._iteration(p, st, passes, None))
     step_strict = jax.jit(lambda st, passes: strict._iteration(p, st, passes, None))
+    step_demanding = jax.jit(lambda st, passes: demanding._iteration(p, st, passes, None))
     measures = jax.jit(lambda x, s, f, c, mu: ipm._measures(p, x, s, f, c, mu))
     passes = jnp.zeros((2,), jnp.int32)
     checked = 0
@@ -163,14 +166,17 @@ def test_armijo_test_allows_ipopts_rounding_margin(toy):
             switching = slope < 0 and alpha * (-slope) ** IPM.S_PHI > IPM.DELTA * theta0**IPM.S_THETA
             if switching and int(post.trials) == 0 and float(post.alpha) == alpha and int(post.status) == IpmStatus.RUNNING:
                 _, phi = measures(post.x, post.s, post.f, post.c, pre.mu)
-                base = float(phi) - IPM.ETA_PHI * alpha * slope  # phi0 at which Armijo holds with equality
+                base = float(phi) - ipm.options.armijo * alpha * slope  # phi0 at which Armijo holds with equality
+                same = lambda s: bool(jnp.array_equal(s.x, post.x))  # noqa: E731  the first trial point taken
                 for miss, margin_accepts in ((3.0, True), (30.0, False)):
                     moved = pre._replace(phi0=jnp.asarray(base - miss * np.finfo(np.float64).eps * abs(base)))
                     with_margin, _ = step(moved, passes)
                     without, _ = step_strict(moved, passes)
-                    same = lambda s: bool(jnp.array_equal(s.x, post.x))  # noqa: E731
                     assert same(with_margin) == margin_accepts, (int(post.it), miss)
                     assert not same(without), (int(post.it), miss)
+                # a decrease of half what armijo=0.4 asks for passes the default's test, not its
+                moved = pre._replace(phi0=jnp.asarray(float(phi) - 0.5 * 0.4 * alpha * slope))
+                assert same(step(moved, passes)[0]) and not same(step_demanding(moved, passes)[0])
                 checked += 1
         st, passes = step(st, passes)
         if int(st.status) != IpmStatus.RUNNING or checked >= 3:

@@ -230,10 +230,10 @@ class IpmOptions(AbstractOptions):
             replaced by the accumulated ``c_soc = alpha c_soc + c(trial)``) are tried, while each
             lowers the violation by the factor ``kappa_soc``; then backtracking resumes along
             the original direction. ``max_soc=0`` turns them off.
-        armijo: not used: the filter line search's sufficient-decrease constant is Ipopt's
-            ``eta_phi`` = 1e-8 (`IPM.ETA_PHI`), whatever this is set to. The field is kept
-            (with Ipopt's range for eta_phi) because recorded options (results/) list it;
-            making it effective at its default 1e-4 would change every solve's iterations.
+        armijo: the filter line search's sufficient-decrease constant, Ipopt's ``eta_phi``
+            (default 1e-8, Ipopt's). Until 2026-12-06 the field was ignored and
+            its default read 1e-4, so options recorded before then (results/) list 1e-4 for
+            solves that used 1e-8.
         max_line_search_failures: consecutive failed line searches before giving up.
         bfgs_init: initial element Hessian scale of the BFGS approximation.
         bfgs_scaling: rescale each element's initial matrix by its first curvature pair.
@@ -329,7 +329,7 @@ class IpmOptions(AbstractOptions):
     max_line_search: int = 30
     max_soc: int = 4
     kappa_soc: float = 0.99
-    armijo: float = 1e-4
+    armijo: float = 1e-8
     max_line_search_failures: int = 5
     bfgs_init: float = 1.0
     bfgs_scaling: bool = True
@@ -906,7 +906,7 @@ class IPM:
 
     FILTER_SIZE = 64
     # Ipopt's filter line-search constants (Wächter & Biegler 2006, section 2.3 and Table 1)
-    GAMMA_THETA, GAMMA_PHI, DELTA, S_THETA, S_PHI, ETA_PHI = 1e-5, 1e-8, 1.0, 1.1, 2.3, 1e-8
+    GAMMA_THETA, GAMMA_PHI, DELTA, S_THETA, S_PHI = 1e-5, 1e-8, 1.0, 1.1, 2.3  # eta_phi: IpmOptions.armijo
     ROUNDING = 10.0 * float(np.finfo(np.float64).eps)  # Ipopt's Compare_le tolerance, relative
 
     @classmethod
@@ -957,7 +957,7 @@ class IPM:
             finite = jnp.isfinite(th_t) & jnp.isfinite(ph_t)
             # a correction is judged with the first trial's alpha (Ipopt's alpha_primal_test)
             switching = (st.slope < 0) & (alpha * (-st.slope) ** self.S_PHI > self.DELTA * st.theta0 ** self.S_THETA)
-            armijo = self._le(ph_t - st.phi0, self.ETA_PHI * alpha * st.slope, st.phi0)
+            armijo = self._le(ph_t - st.phi0, o.armijo * alpha * st.slope, st.phi0)
             f_type = switching & (st.theta0 <= st.theta_min)
             sufficient = jnp.where(
                 f_type, armijo,
