@@ -94,10 +94,9 @@ def _task_friction(task_name: str) -> float | None:
     """The friction coefficient of a built-in task, None when ``task_name`` is not one."""
     from jtraj import task as tasks
 
-    try:
-        return float(tasks.load(task_name).friction)
-    except Exception:  # not a built-in task name (a task built in Python or from a file)
+    if task_name not in tasks.available():  # a task built in Python or from a file
         return None
+    return float(tasks.load(task_name).friction)  # a built-in task that fails to load says why
 
 
 def friction_cone_ratio(forces: np.ndarray, friction: float) -> np.ndarray:

@@ -95,3 +95,21 @@ def test_friction_cone_panel_uses_the_friction_solved_at(result):
     at_half = dataclasses.replace(result, options={**result.options, "theta": {"friction": 0.5}})
     assert plot_solution(at_half).axes[5].get_ylabel() == "|f_t| / (mu f_z), mu = 0.5"
     assert plot_solution(at_half, friction=0.3).axes[5].get_ylabel() == "|f_t| / (mu f_z), mu = 0.3"
+
+
+def test_friction_of_a_result_without_theta_is_its_builtin_tasks(monkeypatch):
+    """A result without a recorded theta (older files) takes a built-in task's friction; a name
+    that is no built-in task gives none (the panel's 0.9), and a built-in task that fails to
+    load says so instead of passing for an unknown name."""
+    from jtraj import plots
+    from jtraj import task as tasks
+
+    assert plots._task_friction("big_jump") == tasks.load("big_jump").friction
+    assert plots._task_friction("my_own_hop") is None
+
+    def broken(name):
+        raise tasks.TaskError("broken file")
+
+    monkeypatch.setattr(tasks, "load", broken)
+    with pytest.raises(tasks.TaskError, match="broken file"):
+        plots._task_friction("big_jump")
