@@ -108,8 +108,8 @@ def test_friction_of_a_result_without_theta_is_its_builtin_tasks(monkeypatch):
     assert plots._task_friction("my_own_hop") is None
 
     def broken(name):
-        raise tasks.TaskError("broken file")
+        raise tasks.TaskError("phases[0].duration", -1.0, "a positive duration")
 
     monkeypatch.setattr(tasks, "load", broken)
-    with pytest.raises(tasks.TaskError, match="broken file"):
+    with pytest.raises(tasks.TaskError, match="a positive duration"):
         plots._task_friction("big_jump")
