@@ -72,7 +72,7 @@ def builtin_task(name: str) -> Task:
 def peer_sources(runner: Path | str) -> Path:
     """The public code's sources, where its runner keeps them: ``se3_trajopt/src`` beside the
     runner script (`--peer-src`'s default, from the runner the command names)."""
-    return Path(runner).resolve().parent / "se3_trajopt" / "src"
+    return Path(os.path.abspath(runner)).parent / "se3_trajopt" / "src"  # beside the path, as the runner looks (links not followed)
 
 
 def check_peer_src(ap: argparse.ArgumentParser, peer_src: Path) -> None:
@@ -359,7 +359,8 @@ def main(argv: list[str] | None = None) -> None:
     if args.peer and args.sigma and any(builtin_task(t).flip_axis is not None for t in tasks):  # noisy flips run the code's sources
         if not args.peer_python.exists():
             ap.error(f"--peer-python: '{args.peer_python}' does not exist: run the public code's runner once (it creates its environment), or pass --peer-python")
-        args.peer_src = args.peer_src or peer_sources(args.peer)
+        # absolute: the code runs in a folder of its own
+        args.peer_src, args.peer_python = Path(os.path.abspath(args.peer_src or peer_sources(args.peer))), Path(os.path.abspath(args.peer_python))
         check_peer_src(ap, args.peer_src)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

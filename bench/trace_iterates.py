@@ -20,6 +20,7 @@ trajectories), ``OUT/iterates.md`` (the two tables) and ``OUT/provenance.json``.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -128,7 +129,8 @@ def main(argv: list[str] | None = None) -> None:
     if not args.no_peer:
         if not args.peer_python.exists():
             ap.error(f"--peer-python: '{args.peer_python}' does not exist: run the public code's runner once (it creates its environment), pass --peer-python, or --no-peer")
-        args.peer_src = args.peer_src or peer_sources(DEFAULT_PEER)
+        # absolute: the code runs in a folder of its own
+        args.peer_src, args.peer_python = Path(os.path.abspath(args.peer_src or peer_sources(DEFAULT_PEER))), Path(os.path.abspath(args.peer_python))
         check_peer_src(ap, args.peer_src)
     task = jtraj_task(args.task, robots, args.code_costs)
     runs = []

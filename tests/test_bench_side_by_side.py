@@ -170,8 +170,30 @@ def test_the_code_sources_are_found_beside_the_runner_and_checked(sbs, monkeypat
     monkeypatch.setattr(sbs, "run_peer_checked", _no_solve)
     peer = fake_peer(tmp_path, "exit 1")
     peer_python = fake_peer(tmp_path, "exit 1", name="python")
-    assert sbs.peer_sources(peer) == tmp_path.resolve() / "se3_trajopt" / "src"
+    assert sbs.peer_sources(peer) == tmp_path / "se3_trajopt" / "src"
     argv = ["--tasks", "backflip", "--variables", "", "--sigma", "0.5", "--peer", str(peer), "--peer-python", str(peer_python), "--out", str(tmp_path / "out")]
-    refused(sbs.main, argv, capsys, f"--peer-src: '{tmp_path.resolve() / 'se3_trajopt' / 'src'}' does not hold the public code's examples/agile_exps")
+    refused(sbs.main, argv, capsys, f"--peer-src: '{tmp_path / 'se3_trajopt' / 'src'}' does not hold the public code's examples/agile_exps")
     refused(sbs.main, [*argv, "--peer-src", str(tmp_path)], capsys, f"--peer-src: '{tmp_path}' does not hold the public code's examples/agile_exps")
     assert not (tmp_path / "out").exists()
+
+
+def test_relative_code_paths_reach_the_code_as_absolute_ones(sbs, monkeypatch, tmp_path):
+    """The public code runs in a temporary folder of its own: relative --peer-src and
+    --peer-python are made absolute before it starts (they passed the checks, then the code
+    could not find its script)."""
+    monkeypatch.setattr(sbs, "run_jtraj", _no_solve)
+    seen = []
+
+    def record(task, sigma, seed, peer_src, peer_python):
+        seen.append((peer_src, peer_python))
+        raise RuntimeError("recorded")
+
+    monkeypatch.setattr(sbs, "run_peer_checked", record)
+    (tmp_path / "src" / "examples" / "agile_exps").mkdir(parents=True)
+    peer = fake_peer(tmp_path, "exit 1")
+    fake_peer(tmp_path, "exit 1", name="python")
+    monkeypatch.chdir(tmp_path)
+    argv = ["--tasks", "backflip", "--variables", "", "--sigma", "0.5", "--peer", str(peer), "--peer-src", "src", "--peer-python", "python", "--out", "out"]
+    with pytest.raises(SystemExit):
+        sbs.main(argv)
+    assert seen == [(tmp_path / "src", tmp_path / "python")]

@@ -106,18 +106,26 @@ def _table_lines(text: str) -> list[str]:
     return [line for line in text.splitlines() if line.startswith("|")]
 
 
+#: results folders whose Markdown was written before the script's note under the table was
+#: reworded (FATROP's status explained): their table rows are checked
+NOTE_REWORDED = {"fatrop/walk_backflip"}
+
+
 @pytest.mark.parametrize(("stem", "script", "function"), RENDERED, ids=[r[0] for r in RENDERED])
 def test_markdown_is_rendered_from_its_json(stem, script, function):
-    """The table rows of every ``results/**/STEM.md`` are what the script renders of the JSON
-    beside it (the note under a table may have been reworded since an older run)."""
+    """Every ``results/**/STEM.md`` is what the script renders of the JSON beside it (only the
+    table rows in `NOTE_REWORDED`'s folders)."""
     folders = [p for p in _results_dirs() if (p / f"{stem}.json").exists()]
     assert folders, f"results/ holds no {stem}.json"
     render = getattr(bench_module(script), function)
     for folder in folders:
         records = json.loads((folder / f"{stem}.json").read_text())
         assert records
-        table = _table_lines((folder / f"{stem}.md").read_text())
-        assert table and table == _table_lines(render(records)), f"{folder}/{stem}.md was not rendered from its JSON"
+        text, rendered = (folder / f"{stem}.md").read_text(), render(records)
+        if _folder_id(folder) in NOTE_REWORDED:
+            text, rendered = _table_lines(text), _table_lines(rendered)
+            assert text
+        assert text == rendered, f"{folder}/{stem}.md was not rendered from its JSON"
 
 
 def test_revisions_tables_are_rendered_from_their_json():
@@ -258,7 +266,7 @@ def _elapsed_s(log: Path) -> float:
 
 def test_readme_study_timings_are_their_runs_files():
     """The README's table of `jtraj robustness --solver jtraj` runs (issue 11's 10-minute goal):
-    each row's wall time is /usr/bin/time's in the folder's log, and its compiles, batches and
+    each row's commit, machine and compilation cache are its folder's provenance, its wall time is /usr/bin/time's in the folder's log, and its compiles, batches and
     iterations are the sums over the folder's runs.jsonl (`time_compile`, `time_s`: each
     member's share of its batch, `iterations`); the row of the run that filled the cache, whose
     runs file was not kept, is its ``cold_fill.log``'s (the batches' lines and /usr/bin/time)."""
@@ -271,6 +279,17 @@ def test_readme_study_timings_are_their_runs_files():
     for row in rows:
         cells = [c.strip().strip("*") for c in row.strip("|").split("|")]
         folder = ROOT / re.search(r"`(results/[^`]+)/`", cells[0]).group(1)
+        # commit, machine and cache: the folder's provenance (its command says how it was run)
+        prov = json.loads((folder / "provenance.json").read_text())
+        command = prov["command"]
+        assert cells[1].split()[0] in command, row
+        assert all(word in prov["machine"]["cpu"] for word in cells[2].split()) and int(prov["machine"]["cores"]) == 2, row
+        if "cold_fill.log" in cells[0]:  # the run that filled the cache the folder's run used
+            assert cells[3] == "empty" and "filled by the same command run just before it from an empty folder" in command, row
+        elif cells[3] == "empty":
+            assert ("empty folder" in command or "cold compilation cache" in command) and "filled" not in command, row
+        else:
+            assert cells[3].startswith("filled") and "filled" in command, row
         minutes, seconds = re.fullmatch(r"(\d+) min (\d+) s", cells[4]).groups()
         wall = 60 * int(minutes) + int(seconds)
         if "cold_fill.log" in cells[0]:

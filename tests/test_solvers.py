@@ -173,7 +173,7 @@ def test_jtraj_option_ranges_are_ipopts():
         spec = specs[ipopt_name]
         ours = (lo, lo_open, hi, hi_open) if name != "kappa_sigma" else (0.0, True, np.inf, True)  # Ipopt: below 1 turns it off
         assert ours == (spec.lower, spec.lower_strict, spec.upper, spec.upper_strict), name
-        assert getattr(IpmOptions(), name) == float(spec.default) or name == "armijo", name  # armijo is unused (Ipopt's eta_phi is)
+        assert getattr(IpmOptions(), name) == float(spec.default), name
 
 
 def test_stdout_capture_is_one_thread_at_a_time():
