@@ -1,8 +1,8 @@
-"""bench/differentiate.py: its table, one pair of columns per solver, and its refusals."""
+"""bench/differentiate.py: its table, one pair of columns per solver, and its gradient check (its refusals: tests/test_bench_args.py)."""
 
 import numpy as np
 import pytest
-from conftest import bench_module, refused
+from conftest import bench_module
 
 
 def test_table_gives_each_figure_and_the_backward_pass_per_solver():
@@ -30,25 +30,3 @@ def test_gradients_that_differ_stop_the_benchmark():
     assert bench.gradients_agree(a, {"x": np.array([1.0, -2.0 + 1e-7]), "y": np.array(0.5)}) == pytest.approx(5e-8)
     with pytest.raises(SystemExit, match=r"gradients differ by 5\.0e-02"):
         bench.gradients_agree(a, {"x": np.array([1.0, -2.0]), "y": np.array(0.6)})
-
-
-def _no_work(*args, **kwargs):
-    raise AssertionError("did work after a bad input")
-
-
-@pytest.mark.parametrize(
-    ("argv", "message"),
-    [
-        (["--solvers", "ipopt,bogus"], "--solvers: 'ipopt,bogus': expected distinct names of "),
-        (["--solvers", ""], "--solvers: '': expected distinct names of "),
-        (["--solvers", "ipopt,ipopt"], "--solvers: 'ipopt,ipopt': expected distinct names of "),
-        (["--batch", "1"], "--batch: 1: expected an integer >= 2"),
-    ],
-)
-def test_bad_arguments_are_refused(monkeypatch, capsys, argv, message):
-    """The message is the benchmark's own (argparse's usage line names every option, so the
-    option's name alone would match any refusal), and nothing is built or solved first."""
-    mod = bench_module("differentiate")
-    for name in ("hop", "measure"):
-        monkeypatch.setattr(mod, name, _no_work)
-    refused(mod.main, argv, capsys, message)
