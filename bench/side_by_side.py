@@ -75,10 +75,17 @@ def peer_sources(runner: Path | str) -> Path:
     return Path(os.path.abspath(runner)).parent / "se3_trajopt" / "src"  # beside the path, as the runner looks (links not followed)
 
 
-def check_peer_src(ap: argparse.ArgumentParser, peer_src: Path) -> None:
-    """Refuse a ``--peer-src`` without the code's task scripts, before anything runs."""
-    if not (peer_src / "examples" / "agile_exps").is_dir():
-        ap.error(f"--peer-src: '{peer_src}' does not hold the public code's examples/agile_exps: pass the folder of its sources")
+def check_peer_paths(ap: argparse.ArgumentParser, args: argparse.Namespace, runner: Path | str, remedy: str) -> None:
+    """The public code's paths (`add_peer_options`), checked before anything runs: its
+    environment's Python must exist (``remedy`` says what else the user can do) and its
+    sources (``--peer-src``, default beside ``runner``) must hold its task scripts. Both are
+    made absolute in ``args``: the code runs in a folder of its own."""
+    if not args.peer_python.exists():
+        ap.error(f"--peer-python: '{args.peer_python}' does not exist: run the public code's runner once (it creates its environment), {remedy}")
+    args.peer_src = Path(os.path.abspath(args.peer_src or peer_sources(runner)))
+    args.peer_python = Path(os.path.abspath(args.peer_python))
+    if not (args.peer_src / "examples" / "agile_exps").is_dir():
+        ap.error(f"--peer-src: '{args.peer_src}' does not hold the public code's examples/agile_exps: pass the folder of its sources")
 
 
 #: The environment the public code's runner creates on first use.
@@ -357,11 +364,7 @@ def main(argv: list[str] | None = None) -> None:
         ap.error(str(e))
     changes = parse_changes(ap, args.set, names or "paper")
     if args.peer and args.sigma and any(builtin_task(t).flip_axis is not None for t in tasks):  # noisy flips run the code's sources
-        if not args.peer_python.exists():
-            ap.error(f"--peer-python: '{args.peer_python}' does not exist: run the public code's runner once (it creates its environment), or pass --peer-python")
-        # absolute: the code runs in a folder of its own
-        args.peer_src, args.peer_python = Path(os.path.abspath(args.peer_src or peer_sources(args.peer))), Path(os.path.abspath(args.peer_python))
-        check_peer_src(ap, args.peer_src)
+        check_peer_paths(ap, args, args.peer, "or pass --peer-python")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     path = out / "side_by_side.json"

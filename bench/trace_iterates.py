@@ -20,7 +20,6 @@ trajectories), ``OUT/iterates.md`` (the two tables) and ``OUT/provenance.json``.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 from pathlib import Path
 
@@ -40,12 +39,11 @@ from side_by_side import (  # noqa: E402  (the same task variants and the same d
     CODE_COSTS,
     DEFAULT_PEER_PYTHON,
     PEER_SCRIPTS,
-    check_peer_src,
+    check_peer_paths,
     jtraj_label,
     jtraj_task,
     parse_changes,
     peer_iterates,
-    peer_sources,
 )
 
 
@@ -127,11 +125,7 @@ def main(argv: list[str] | None = None) -> None:
         ap.error(str(e))
     changes = parse_changes(ap, args.set, args.variables)
     if not args.no_peer:
-        if not args.peer_python.exists():
-            ap.error(f"--peer-python: '{args.peer_python}' does not exist: run the public code's runner once (it creates its environment), pass --peer-python, or --no-peer")
-        # absolute: the code runs in a folder of its own
-        args.peer_src, args.peer_python = Path(os.path.abspath(args.peer_src or peer_sources(DEFAULT_PEER))), Path(os.path.abspath(args.peer_python))
-        check_peer_src(ap, args.peer_src)
+        check_peer_paths(ap, args, DEFAULT_PEER, "pass --peer-python, or --no-peer")
     task = jtraj_task(args.task, robots, args.code_costs)
     runs = []
     if not args.no_peer:
