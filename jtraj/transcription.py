@@ -371,20 +371,19 @@ class Transcription:
         default = self.default_theta() if base is None else base
         if theta is None:
             return default
-        no_rows = f"task {self.task.name!r} sets no max_delta_force, so it has no force-rate rows to bound; set it in the task"
         if isinstance(theta, TaskParams):
             overrides = {f.name: getattr(theta, f.name) for f in dataclasses.fields(theta)}
-            # a TaskParams carries every field: without the rows only inf (the default) is
-            # what it says (a traced value is not looked at, as in `TaskParams.check`)
-            bound = overrides["max_delta_force"]
-            if self.task.max_delta_force is None and not isinstance(bound, jax.core.Tracer) and np.isfinite(np.asarray(bound)).any():
-                raise ValueError(no_rows)
         elif isinstance(theta, Mapping):
-            if "max_delta_force" in theta and self.task.max_delta_force is None:
-                raise ValueError(no_rows)
             overrides = dict(theta)
         else:
             raise TypeError(f"theta must be None, a mapping of parameter overrides or a TaskParams, got {type(theta).__name__}")
+        # Without force-rate rows only inf (the default, no bound) says what the problem is;
+        # a finite bound would be ignored, with a gradient of 0. Both forms are held to this
+        # (a TaskParams carries every field); a traced value is not looked at, as in
+        # `TaskParams.check`.
+        bound = overrides.get("max_delta_force", np.inf)
+        if self.task.max_delta_force is None and not isinstance(bound, jax.core.Tracer) and np.isfinite(np.asarray(bound, float)).any():
+            raise ValueError(f"task {self.task.name!r} sets no max_delta_force, so it has no force-rate rows to bound; set it in the task")
         return self._within_joint_limits(default.replace(**overrides).check())
 
     def _within_joint_limits(self, theta: TaskParams) -> TaskParams:

@@ -211,6 +211,9 @@ def test_call_checks_theta_and_a_failed_solve_raises_solve_error(hop):
         hop({"max_delta_force": 100.0})
     with pytest.raises(ValueError, match="sets no max_delta_force"):  # also as a field of TaskParams (it was ignored)
         hop(theta.replace(max_delta_force=100.0))
+    # inf (no bound) is what the task says, in either form
+    assert hop.transcription.resolve_theta({"max_delta_force": np.inf}).max_delta_force == np.inf
+    assert hop.transcription.resolve_theta(theta.replace(max_delta_force=np.inf)).max_delta_force == np.inf
     assert hop.last_solution is solves
     with pytest.raises(ValueError, match=r"warm start of shape \(5,\)"):
         hop.warm_start_from(np.zeros(5))
