@@ -114,9 +114,10 @@ class Result:
         **fields: Any,
     ) -> Result:
         """The result of ``solution``: feasible when the solver converged with a constraint
-        violation of at most ``feasibility_tol`` (the problem's own units); ``task_ok`` is the
-        problem's task check; ``fields`` are the problem's descriptive fields."""
-        feasible = solution.converged and solution.constraint_violation <= feasibility_tol
+        violation below ``feasibility_tol`` (the problem's own units; the rule Table III's
+        summary applies to runs); ``task_ok`` is the problem's task check; ``fields`` are the
+        problem's descriptive fields."""
+        feasible = solution.converged and solution.constraint_violation < feasibility_tol
         return cls(
             status=Outcome.of(feasible, task_ok),
             solver_status=solution.status,

@@ -280,6 +280,24 @@ def test_summary_keeps_solvers_and_noise_charts_apart(tmp_path, monkeypatch):
     assert [(r["solver"], r["noise_chart"]) for r in summarize_robustness(old)] == [("ipopt", None)]
 
 
+def test_table_iii_counts_a_converged_run_only_when_it_is_feasible():
+    """The paper's Table III success is "converged to a feasible point": a run the solver calls
+    converged with a violation at or over `FEASIBILITY_TOL` is not counted, nor are its
+    iterations."""
+    from jtraj.experiments import _table_iii_markdown, summarize_robustness
+    from jtraj.success import FEASIBILITY_TOL
+
+    def run(violation, iterations):
+        return dict(task="walk", parameterization="se3", sigma=0.1, converged=True, constraint_violation=violation, success=True, iterations=iterations)
+
+    runs = [run(1e-9, 20), run(0.5 * FEASIBILITY_TOL, 30), run(FEASIBILITY_TOL, 40), run(2 * FEASIBILITY_TOL, 50)]
+    (row,) = summarize_robustness(runs)
+    assert (row["converged_rate"], row["task_success_rate"], row["iterations_median"]) == (0.5, 0.5, 25.0)
+    assert "| walk | se3 | 50% / 50% |" in _table_iii_markdown([row], [0.1])
+    (row,) = summarize_robustness([run(2 * FEASIBILITY_TOL, 50)])
+    assert (row["converged_rate"], row["iterations_median"]) == (0.0, None)
+
+
 def test_fig2_gives_each_setting_one_colour_in_every_panel(tmp_path, monkeypatch):
     """Fig. 2: a setting keeps its colour and marker across tasks even where another setting has
     no converged run (the colours used to follow each panel's own cycle); one legend lists every

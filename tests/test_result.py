@@ -225,3 +225,32 @@ def test_summary_does_not_split_a_time_the_solver_did_not_split():
     assert split.endswith("0.75 s (compile 3.5 s; derivatives 0.25 s, ipopt 0.50 s)")
     whole = make_result(None, solver="jtraj", stats=Stats(iterations=12, time_total=0.29, time_evaluations=0.0)).summary()
     assert whole.endswith("0.29 s (compile 3.5 s; not split between the NLP's functions and jtraj)") and "derivatives" not in whole
+
+
+@pytest.mark.parametrize(
+    "status, violation, task_ok, outcome",
+    [
+        (Status.SOLVED, 1e-9, True, Outcome.SOLVED),
+        (Status.ACCEPTABLE, 1e-9, False, Outcome.TASK_FAILED),
+        (Status.SOLVED, 0.5, True, Outcome.NOT_CONVERGED),  # converged to an infeasible point
+        (Status.SOLVED, 1e-2, True, Outcome.NOT_CONVERGED),  # at the tolerance is not below it
+        (Status.MAX_ITER, 1e-9, True, Outcome.NOT_CONVERGED),
+    ],
+)
+def test_from_solution_needs_convergence_and_a_violation_below_the_tolerance(status, violation, task_ok, outcome):
+    """A solve is feasible when it converged with a violation below ``feasibility_tol`` (Table
+    III's rule for runs, `jtraj.experiments.summarize_robustness`); the task check decides
+    between SOLVED and TASK_FAILED only then."""
+    from jtraj.solvers import Solution
+
+    n, m = 3, 2
+    solution = Solution(
+        x=np.zeros(n), status=status, message=status.message, objective=1.0, constraint_violation=violation,
+        mult_g=np.zeros(m), mult_x_lower=np.zeros(n), mult_x_upper=np.zeros(n), stats=Stats(iterations=7),
+    )
+    result = Result.from_solution(
+        solution, feasibility_tol=1e-2, task_ok=task_ok, violation_by_group={"dynamics": violation},
+        problem="hop", variant="se3", model="go2", solver="ipopt", time_compile=0.0, metrics={}, n_variables=n,
+    )
+    assert result.status is outcome and result.solver_status is status
+    assert result.converged == status.converged and result.constraint_violation == violation and result.n_constraints == m
