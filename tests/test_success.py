@@ -90,12 +90,14 @@ def test_regression_non_finite_trajectory_fails(where):
         assert not check.ok and "NaN or infinite" in check.reason, (kwargs, check)
 
 
-@pytest.mark.parametrize("degrees", [90.0, 135.0, 180.0, -180.0])
+@pytest.mark.parametrize("degrees", [90.0, 135.0, 180.0, -180.0, 180.0 + 1e-9, 181.0, -181.0, 200.0])
 def test_regression_a_planned_turn_is_not_a_somersault(degrees):
     """Regression: tasks without a flip failed whenever the base turned a quarter turn in all,
     so a task whose target turns the base (``target.rotation_rpy``, here a yaw) failed as a
     somersault when it did that turn; the check now measures the rotation beyond the turn
-    from the first to the last attitude, which a spin on top of the planned turn still fails."""
+    from the first to the last attitude, which a spin on top of the planned turn still fails.
+    Past half a turn ``Log`` of the first-to-last rotation is the short way round (181 deg is
+    -179 deg), so the check also takes the long way; the cases past 180 deg need it."""
     Z = [0.0, 0.0, 1.0]
     turn = np.radians(degrees)
     assert success.evaluate(_about(Z, _ramp(turn))).ok
