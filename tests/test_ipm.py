@@ -77,9 +77,21 @@ def test_nlp_error_takes_the_rows_violation_not_the_slacks_lag(toy):
     _, _, barrier_primal, _ = ipm._error(p, lagging, 0.0)
     _, _, nlp_primal, _ = ipm._error(p, lagging, 0.0, nlp=True)
     assert float(barrier_primal) >= 0.1 - 1e-12
-    assert float(nlp_primal) == pytest.approx(float(ipm._constr_viol(p, lagging.c)))
-    # the rows' violation at the start is that of the dynamics rows, not the slacks' lag
+
+    def rows_violation(c):  # max over the rows of how far c lies outside [cl, cu], by numpy
+        cl, cu, c = np.asarray(p.cl), np.asarray(p.cu), np.asarray(c)
+        rows = np.asarray(p.eq | p.ineq)
+        with np.errstate(invalid="ignore"):
+            return float(np.max(np.where(rows, np.maximum(np.maximum(cl - c, c - cu), 0.0), 0.0)))
+
+    # the slacks' lag does not count: the start's rows' violation, with or without it
+    assert float(nlp_primal) == pytest.approx(rows_violation(st.c))
     assert float(nlp_primal) == pytest.approx(float(ipm._error(p, st, 0.0, nlp=True)[2]))
+    # a row of c(x) outside its bounds does count, by how far it is outside
+    row = int(np.flatnonzero(ineq & np.isfinite(np.asarray(p.cu)))[0])
+    outside = lagging._replace(c=lagging.c.at[row].set(p.cu[row] + 7.0))
+    _, _, nlp_outside, _ = ipm._error(p, outside, 0.0, nlp=True)
+    assert rows_violation(outside.c) == pytest.approx(7.0) and float(nlp_outside) == pytest.approx(7.0)
 
 
 def test_free_mode_empties_the_filter_every_iteration(toy):
