@@ -306,3 +306,79 @@ def test_readme_study_timings_are_their_runs_files():
             assert number(cells[6]) == round(sum(r["time_s"] for r in runs)), row
             assert number(cells[7]) == sum(r["iterations"] for r in runs), row
         assert wall == round(_elapsed_s(log)), row
+
+
+@pytest.mark.parametrize("page", PAGES)
+def test_code_fences_close(page):
+    """Every fenced code block closes on a line of its own: a closing fence with text after it
+    is not one (CommonMark), so the rest of the page would render as code (README.md had
+    such a line after the replicate benchmark's output)."""
+    fence = None  # the opening fence's backticks while inside a block
+    for number, line in enumerate((ROOT / page).read_text().splitlines(), 1):
+        stripped = line.strip()
+        ticks = len(stripped) - len(stripped.lstrip("`"))
+        if fence is None:
+            if ticks >= 3:
+                assert "`" not in stripped[ticks:], f"{page} line {number}: a fence's info string holds a backtick: {line!r}"
+                fence, opened = "`" * ticks, number
+        elif ticks >= len(fence):
+            assert not stripped[ticks:].strip(), f"{page} line {number}: text after a closing fence: {line!r}"
+            fence = None
+    assert fence is None, f"{page}: the code block opened on line {opened} does not close"
+
+
+def _paragraphs(text: str) -> list[str]:
+    """The page's paragraphs and list items, each as one line (blank lines, list bullets,
+    headings, tables and fences separate them)."""
+    out: list[list[str]] = [[]]
+    for line in text.splitlines():
+        s = line.strip()
+        if not s or s.startswith(("- ", "* ", "#", "|", "```")):
+            out.append([s] if s.startswith(("- ", "* ")) else [])
+        else:
+            out[-1].append(s)
+    return [" ".join(p) for p in out if p]
+
+
+@pytest.mark.parametrize("page", PAGES)
+def test_quoted_speed_ratios_are_their_speed_files(page):
+    """A ratio quoted in prose as ``Rx (A s against B s)`` (jtraj's median against the public
+    code's, `bench/solve.py`) is a record of a ``speed.json`` in a results folder the same
+    paragraph names: both medians to the digits quoted, and their ratio to one decimal."""
+    pair = re.compile(r"(\d+(?:\.\d+)?)x\**,?\s+\(?(\d+\.\d+) s against (\d+\.\d+) s")
+    checked = 0
+    for paragraph in _paragraphs((ROOT / page).read_text()):
+        quoted = pair.findall(paragraph)
+        if not quoted:
+            continue
+        records = []
+        for folder in sorted(set(re.findall(r"results/[A-Za-z0-9_]+", paragraph))):
+            if (ROOT / folder / "speed.json").exists():
+                for task in json.loads((ROOT / folder / "speed.json").read_text()):
+                    peer = (task.get("peer") or {}).get("time_s")
+                    records += [(v["time_s"], peer) for v in task["variants"] if peer]
+        for ratio, ours, theirs in quoted:
+            digits = len(ours.split(".")[1]), len(theirs.split(".")[1]), len(ratio.split(".")[1]) if "." in ratio else 0
+            assert any(
+                (f"{t:.{digits[0]}f}", f"{p:.{digits[1]}f}", f"{p / t:.{digits[2]}f}") == (ours, theirs, ratio) for t, p in records
+            ), f"{page}: '{ratio}x ({ours} s against {theirs} s)' is no record of the speed.json files its paragraph names: {paragraph[:200]}"
+            checked += 1
+    if page == "README.md":
+        assert checked >= 6
+
+
+@pytest.mark.parametrize("page", PAGES)
+def test_quoted_replicate_lines_are_their_logs(page):
+    """A line of `bench/replicates.py` quoted on the page (``replicates: ... speedup Z``) is a
+    line of a log in a results folder the page names, to the last digit quoted."""
+    text = re.sub(r"\s*\n\s*", " ", (ROOT / page).read_text())
+    logs = {}
+    for folder in set(re.findall(r"results/[A-Za-z0-9_]+", text)):
+        for log in (ROOT / folder).glob("*.log"):
+            for line in log.read_text(errors="replace").splitlines():
+                logs.setdefault(line.strip(), folder)
+    quoted = re.findall(r"replicates: [^`]*?speedup [\d.]+\d(?: \([^)`]*\))?", text)
+    for q in quoted:
+        assert any(line == q or (line.startswith(q) and not line[len(q)].isdigit()) for line in logs), f"{page}: {q!r} is in no log of the results folders it names"
+    if page == "README.md":
+        assert len(quoted) >= 5
