@@ -111,7 +111,7 @@ def test_free_mode_empties_the_filter_every_iteration(toy):
         if int(st.status) != IpmStatus.RUNNING:
             break
     assert int(st.status) == IpmStatus.CONVERGED and free_iterations > 5
-    assert float(st.mu) == pytest.approx(ipm.options.mu_min)  # the oracle's mu was clipped
+    assert float(st.mu) == pytest.approx(ipm.options.mu_min_value())  # the oracle's mu was clipped
 
 
 def test_filter_is_left_alone_after_a_switching_and_armijo_step(toy):
@@ -692,12 +692,15 @@ def test_ipms_made_side_by_side_share_one_program():
 def test_a_tight_solve_at_its_limit_warns_with_the_floor_to_set():
     """A tight solve (tol 1e-15) that reaches its iteration limit with mu at mu_min and no floor
     under delta_c says which delta_c_min to set, in its message and in a RuntimeWarning; with
-    the floor set it does not."""
+    the floor set it does not. (With mu_min not given it is Ipopt's tol / 2, and the same
+    solve converges in 15 iterations, Ipopt's 16; given as 1e-11 it stops at the limit.)"""
     import warnings
 
     nlp = double_integrator()
     tight = {"tol": 1e-15, "constr_viol_tol": 1e-15, "compl_inf_tol": 1e-15, "max_iter": 20}
     backend = solvers.get("jtraj")
+    assert backend.solve(nlp, np.zeros(nlp.n), None, tight).converged
+    tight["mu_min"] = 1e-11
     with pytest.warns(RuntimeWarning, match="set delta_c_min=1e-9"):
         sol = backend.solve(nlp, np.zeros(nlp.n), None, tight)
     assert sol.status is solvers.Status.MAX_ITER and "delta_c_min=1e-9" in sol.message
@@ -705,3 +708,50 @@ def test_a_tight_solve_at_its_limit_warns_with_the_floor_to_set():
         warnings.simplefilter("error", RuntimeWarning)
         floored = backend.solve(nlp, np.zeros(nlp.n), None, {**tight, "delta_c_min": 1e-9})
     assert "delta_c_min" not in floored.message
+
+
+def fixed_ends_double_integrator() -> KnotNLP:
+    """The double integrator without any bound on a free variable and without inequality rows:
+    fixed end points, the dynamics rows and the effort cost."""
+    layout = Layout((("p", 1), ("v", 1), ("u", 1)))
+
+    def step(theta, data, p, v, u, p1, v1):
+        return jnp.concatenate([p1 - p - H_STEP * v1, v1 - v - H_STEP * u])
+
+    groups = [ConstraintGroup("dynamics", (Dep("p"), Dep("v"), Dep("u"), Dep("p", 1), Dep("v", 1)), step, np.arange(K - 1),
+                              np.zeros((K - 1, 2)), np.zeros((K - 1, 2)), np.ones((K - 1, 2), bool))]
+    costs = [CostGroup("effort", (Dep("u"),), lambda theta, data, u: 0.5 * jnp.sum(u**2), np.arange(K))]
+    lower, upper = np.full((K, 3), -np.inf), np.full((K, 3), np.inf)
+    lower[0] = upper[0] = 0.0
+    lower[-1] = upper[-1] = [1.0, 0.0, 0.0]
+    return KnotNLP(layout, K, costs, groups, lower, upper)
+
+
+@pytest.mark.parametrize("oracle", ["quality-function", "loqo"])
+def test_a_problem_without_bounds_keeps_mu_at_mu_min(oracle):
+    """Regression: without bounds the average complementarity is 0, so mu_max and then mu were
+    0, the dual regularization delta_c mu^(1/4) vanished, and every factorization failed
+    (step_computation_failed at the first iteration, where Ipopt solves it). As Ipopt's
+    adaptive update, mu stays at mu_min."""
+    nlp = fixed_ends_double_integrator()
+    ours = solvers.get("jtraj").solve(nlp, np.zeros(nlp.n), None, {"mu_oracle": oracle, "tol": 1e-8})
+    ref = solvers.get("ipopt").solve(nlp, np.zeros(nlp.n), None, {"tol": 1e-10})
+    assert ours.converged and ref.converged, (ours.status, ours.message)
+    assert {it.mu for it in ours.history[1:]} == {IpmOptions(tol=1e-8).mu_min_value()}
+    np.testing.assert_allclose(ours.x, ref.x, atol=1e-6)
+    assert ours.stats.iterations <= ref.stats.iterations + 2
+
+
+def test_mu_min_follows_ipopts_rule_when_not_given(toy):
+    """Ipopt's mu_min, when not given, is min(1e-11, tol / 2, compl_inf_tol / 2): at tol 1e-13
+    its mu reaches 5e-14 on the toy, and so does this solver's; a given mu_min is kept."""
+    assert IpmOptions().mu_min_value() == 1e-11 and IpmOptions(tol=1e-13, compl_inf_tol=1e-12).mu_min_value() == 5e-14
+    assert IpmOptions(tol=1e-13, mu_min=1e-9).mu_min_value() == 1e-9
+    nlp, _ = toy
+    tight = {"tol": 1e-13, "constr_viol_tol": 1e-13, "compl_inf_tol": 1e-13, "max_iter": 100}
+    ours = solvers.get("jtraj").solve(nlp, np.zeros(nlp.n), None, tight)
+    ref = solvers.get("ipopt").solve(nlp, np.zeros(nlp.n), None, tight)
+    assert ours.converged and ref.converged
+    assert min(it.mu for it in ref.history) == 5e-14
+    assert min(it.mu for it in ours.history) == pytest.approx(5e-14, rel=1e-9)  # (sigma avg at its lower end)
+    assert ours.stats.iterations <= ref.stats.iterations + 2  # 18 with mu_min 1e-11, Ipopt 13

@@ -67,7 +67,7 @@ def test_a_tight_solve_stuck_at_mu_min_is_told_the_floor_under_delta_c():
     from jtraj.solvers.ipm import _MESSAGES, IpmOptions, IpmStatus, _status_message
 
     tight = IpmOptions(tol=1e-8)
-    mu_min = tight.mu_min
+    mu_min = tight.mu_min_value()
     hint = _status_message(IpmStatus.MAX_ITER, tight, mu_min)
     assert hint.startswith(_MESSAGES[IpmStatus.MAX_ITER]) and "delta_c_min=1e-9" in hint and "1.8e-11" in hint
     assert "delta_c_min=1e-7" in _status_message(IpmStatus.MAX_ITER, IpmOptions(tol=1e-10, hessian="exact"), mu_min)
@@ -77,6 +77,10 @@ def test_a_tight_solve_stuck_at_mu_min_is_told_the_floor_under_delta_c():
     assert _status_message(IpmStatus.MAX_ITER, IpmOptions(tol=1e-8, delta_c_min=1e-9), mu_min) == plain  # floored already
     assert _status_message(IpmStatus.MAX_ITER, IpmOptions(tol=1e-8, delta_c_mu_scaled=False), mu_min) == plain
     assert _status_message(IpmStatus.LINE_SEARCH_FAILED, tight, mu_min) == _MESSAGES[IpmStatus.LINE_SEARCH_FAILED]
+    # at tol 1e-13 mu_min is Ipopt's tol / 2, and the hint reads that floor
+    tighter = IpmOptions(tol=1e-13, compl_inf_tol=1e-13)
+    assert "delta_c_min=1e-9" in _status_message(IpmStatus.MAX_ITER, tighter, 5e-14)
+    assert _status_message(IpmStatus.MAX_ITER, tighter, 1e-11) == plain
 
 
 def test_ipopt_return_codes_map_to_the_enumeration():
@@ -135,6 +139,11 @@ def test_bad_options_fail_at_construction(kwargs, match):
         # accepted before, though Ipopt's range starts at 1 (0 reset the L-BFGS memory every iteration)
         ({"lbfgs_max_skipping": 0}, "lbfgs_max_skipping=0: expected an integer >= 1"),
         ({"min_refine_steps": 4, "refine_steps": 3}, "min_refine_steps=4: expected at most refine_steps=3"),
+        # accepted and ignored before: the floor is under the scaled regularization only
+        ({"delta_c_min": 1e-7, "delta_c_mu_scaled": False}, "delta_c_min=1e-07: a floor under the scaled delta_c mu"),
+        # mu_min is None when not given; a given one is a finite number in Ipopt's range
+        ({"mu_min": float("nan")}, "mu_min=nan: expected a finite number"),
+        ({"mu_min": "1e-9"}, "mu_min='1e-9': expected a finite number"),
     ],
 )
 def test_bad_jtraj_options_fail_at_construction(kwargs, match):
@@ -173,7 +182,10 @@ def test_jtraj_option_ranges_are_ipopts():
         spec = specs[ipopt_name]
         ours = (lo, lo_open, hi, hi_open) if name != "kappa_sigma" else (0.0, True, np.inf, True)  # Ipopt: below 1 turns it off
         assert ours == (spec.lower, spec.lower_strict, spec.upper, spec.upper_strict), name
-        assert getattr(IpmOptions(), name) == float(spec.default), name
+        if name == "mu_min":  # not given (None): Ipopt's rule, its default at the usual tolerances
+            assert IpmOptions().mu_min is None and IpmOptions(tol=1e-8).mu_min_value() == float(spec.default)
+        else:
+            assert getattr(IpmOptions(), name) == float(spec.default), name
 
 
 def test_stdout_capture_is_one_thread_at_a_time():

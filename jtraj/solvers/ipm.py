@@ -190,11 +190,16 @@ class IpmOptions(AbstractOptions):
             adaptive_mu_monotone_init_factor, filter_margin_fact, filter_max_margin: Ipopt's
             constants of the adaptive strategy. ``mu_max=None`` (default) is, as in Ipopt when
             the option is not given, ``mu_max_fact`` times the initial point's average
-            complementarity.
+            complementarity; ``mu_min=None`` (default) is, as in Ipopt when the option is not
+            given, ``min(1e-11, tol / 2, compl_inf_tol / 2)`` (`mu_min_value`; 1e-11 for every
+            tolerance above 2e-11). A problem without bounds on its free variables and without
+            inequality rows keeps mu at ``mu_min`` and tau at ``tau_min``, as Ipopt's adaptive
+            update does (there is no complementarity to take it from).
         mu_init, kappa_eps, kappa_mu, theta_mu, tau_min, kappa_sigma, s_max: Ipopt's barrier
             and safeguard constants. ``mu_init`` is the monotone strategy's first barrier
-            parameter; the adaptive strategy starts, as Ipopt's, from mu = 1, which only sets
-            the first factorization's dual regularization ``delta_c mu^(1/4)``.
+            parameter; the adaptive strategy starts, as Ipopt's, from mu = 1, which with the
+            quality-function oracle only sets the first factorization's dual regularization
+            ``delta_c mu^(1/4)`` (the LOQO oracle replaces it before the first factorization).
         bound_push, bound_frac: how far the initial point is pushed inside its bounds.
         delta_c, delta_c_mu_scaled: dual regularization of every row. Scaled (default):
             ``delta_c mu^(1/4)`` and part of the system, as Ipopt's perturbation for a
@@ -338,7 +343,7 @@ class IpmOptions(AbstractOptions):
     lbfgs_init_min: float = 1e-8
     lbfgs_init_max: float = 1e8
     lbfgs_max_skipping: int = 2
-    mu_min: float = 1e-11
+    mu_min: float | None = None
     mu_max: float | None = None
     mu_max_fact: float = 1e3
     sigma_min: float = 1e-6
@@ -378,7 +383,7 @@ class IpmOptions(AbstractOptions):
                     raise InvalidOptionError(f"jtraj option {field.name}={value!r}: expected an integer in [0, {_INT32_MAX}]")
             elif value is None and "None" in str(field.type):
                 continue
-            elif isinstance(default, float) and (isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)) or not np.isfinite(value)):
+            elif (isinstance(default, float) or (default is None and "float" in str(field.type))) and (isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)) or not np.isfinite(value)):
                 raise InvalidOptionError(f"jtraj option {field.name}={value!r}: expected a finite number")
         _positive(self, "tol", "constr_viol_tol", "dual_inf_tol", "compl_inf_tol", "mu_init", "delta_c")
         for name in ("delta_c_min", "residual_ratio_max"):
@@ -387,6 +392,8 @@ class IpmOptions(AbstractOptions):
         _positive(self, "mu_max", "feasibility_polish_tol", allow_none=True)
         for name, (lo, lo_open, hi, hi_open, _) in self.RANGES.items():
             value = getattr(self, name)
+            if value is None:  # mu_min: Ipopt's rule when not given
+                continue
             if (value <= lo if lo_open else value < lo) or (value >= hi if hi_open else value > hi):
                 interval = f"{'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
                 raise InvalidOptionError(f"jtraj option {name}={value!r}: expected a number in {interval}")
@@ -397,6 +404,8 @@ class IpmOptions(AbstractOptions):
             raise InvalidOptionError(f"jtraj option max_line_search_failures={self.max_line_search_failures!r}: expected an integer >= 1")
         if self.lbfgs_max_skipping < 1:  # Ipopt's limited_memory_max_skipping is >= 1; 0 reset the memory every iteration
             raise InvalidOptionError(f"jtraj option lbfgs_max_skipping={self.lbfgs_max_skipping!r}: expected an integer >= 1 (Ipopt's limited_memory_max_skipping)")
+        if self.delta_c_min > 0.0 and not self.delta_c_mu_scaled:
+            raise InvalidOptionError(f"jtraj option delta_c_min={self.delta_c_min!r}: a floor under the scaled delta_c mu^(1/4), which delta_c_mu_scaled=false does not use")
         if self.min_refine_steps > self.refine_steps:
             raise InvalidOptionError(f"jtraj option min_refine_steps={self.min_refine_steps!r}: expected at most refine_steps={self.refine_steps!r}")
         per_iteration = self.max_line_search + 1 + self.max_soc
@@ -405,6 +414,10 @@ class IpmOptions(AbstractOptions):
                 f"jtraj option max_iter={self.max_iter!r}: expected at most {_INT32_MAX // per_iteration - 1} with max_line_search={self.max_line_search} "
                 f"and max_soc={self.max_soc} (the solver bounds its evaluations, (max_iter + 1) (max_line_search + 1 + max_soc), in a 32-bit integer)"
             )
+
+    def mu_min_value(self) -> float:
+        """``mu_min``, or where it is not given Ipopt's rule at these tolerances."""
+        return self.mu_min if self.mu_min is not None else float(_ipopt_mu_min(self.tol, self.compl_inf_tol, np))
 
     def compiled_part(self) -> "IpmOptions":
         """These options with the `RUNTIME_FIELDS` at fixed values (the polish kept on or off):
@@ -535,6 +548,17 @@ class _State(NamedTuple):
     status: jax.Array
     ls_fail: jax.Array
     history: jax.Array
+
+
+#: Ipopt's mu_min when the option is not given (its catalog's default)
+_MU_MIN = 1e-11
+
+
+def _ipopt_mu_min(tol, compl_inf_tol, xp):
+    """Ipopt's adaptive update's mu_min when the option is not given: its default, or half the
+    tighter of ``tol`` and ``compl_inf_tol`` where that is smaller (measured with the bundled
+    Ipopt: at tol 1e-13 its mu reaches 5e-14)."""
+    return xp.minimum(_MU_MIN, 0.5 * xp.minimum(tol, compl_inf_tol))
 
 
 def _safe(num, den, mask):
@@ -1093,6 +1117,11 @@ class IPM:
             mu_new = jnp.where(free_mode & (o.mu_strategy == "adaptive"), mu, mu_new)
         else:
             tau = jnp.maximum(o.tau_min, 1.0 - mu_new)
+        if o.mu_strategy == "adaptive":
+            # as Ipopt's adaptive update: without bounds there is no complementarity to choose
+            # mu from (its average is 0, and so would be mu_max and mu): mu_min and tau_min
+            none = self._n_bounds(p) == 0
+            mu_new, tau, free_mode = jnp.where(none, self._mu_min(p), mu_new), jnp.where(none, o.tau_min, tau), free_mode & ~none
         new = new._replace(mu=mu_new, tau=tau, free_mode=free_mode, refs=refs, mu_max=mu_max, mu_filter=mu_filter)
         # convergence and limits at the new iterate
         t = p.tols
@@ -1114,6 +1143,16 @@ class IPM:
             filter=jnp.where(reset, jnp.full_like(filt, jnp.inf), filt),
             n_filter=jnp.where(reset, 0, n_filter).astype(jnp.int32),
         )
+
+    def _mu_min(self, p: _Problem):
+        """``mu_min``, or Ipopt's rule at the run's tolerances where it is not given."""
+        o = self.options
+        return o.mu_min if o.mu_min is not None else _ipopt_mu_min(p.tols.tol, p.tols.compl_inf_tol, jnp)
+
+    @staticmethod
+    def _n_bounds(p: _Problem):
+        """The number of finite bounds on free variables and inequality rows' slacks."""
+        return sum(jnp.sum(mask) for mask in (p.has_xl, p.has_xu, p.has_sl, p.has_su))
 
     def _complementarity(self, p: _Problem, st: _State):
         """(average, smallest) product of bound distance and multiplier over all bounds."""
@@ -1160,7 +1199,8 @@ class IPM:
         mu_max = jnp.where(first, o.mu_max_fact * avg, st.mu_max) if o.mu_max is None else st.mu_max
         xi = smallest / jnp.maximum(avg, 1e-300)
         sigma = 0.1 * jnp.minimum(0.05 * (1.0 - xi) / jnp.maximum(xi, 1e-300), 2.0) ** 3
-        mu_loqo = jnp.clip(sigma * avg, o.mu_min, mu_max)
+        mu_min = self._mu_min(p)
+        mu_loqo = jnp.clip(sigma * avg, mu_min, mu_max)
         mu_filter = st.mu_filter
         if o.adaptive_mu_globalization == "kkt-error":
             progress = err <= o.adaptive_mu_kkterror_red_fact * jnp.max(st.refs)
@@ -1177,7 +1217,7 @@ class IPM:
             slot = jnp.argmax(jnp.isinf(kept[:, 0]))  # a free slot (the first, when all are full)
             mu_filter = jnp.where(free, kept.at[slot].set(point), st.mu_filter)
         to_fixed = st.free_mode & ~free
-        mu_fixed = jnp.where(to_fixed, jnp.clip(o.adaptive_mu_monotone_init_factor * avg, o.mu_min, mu_max), mu_mono)
+        mu_fixed = jnp.where(to_fixed, jnp.clip(o.adaptive_mu_monotone_init_factor * avg, mu_min, mu_max), mu_mono)
         refs = jnp.where(free, jnp.roll(st.refs, 1).at[0].set(err), st.refs)
         return jnp.where(free, mu_loqo, mu_fixed), free, refs, mu_max, mu_filter
 
@@ -1228,7 +1268,8 @@ class IPM:
         if o.mu_strategy == "adaptive" and o.mu_oracle == "quality-function":
             with jax.named_scope("ipm_mu_oracle"):
                 mu = jnp.where(st.free_mode, self._quality_function_mu(p, st, affine, centering, avg), mu)
-        step = jax.tree.map(lambda a, c: a + (mu / avg) * c, affine, centering)
+        scale = jnp.where(self._n_bounds(p) > 0, mu / avg, 0.0)  # no bounds: no centering
+        step = jax.tree.map(lambda a, c: a + scale * c, affine, centering)
         dx, ds, dy, dzl, dzu, dvl, dvu = step
         a_max, a_dual = self._step_bounds(p, st, step, st.tau)
         theta0, phi0 = self._measures(p, x, st.s, st.f, st.c, mu)
@@ -1369,7 +1410,8 @@ class IPM:
         q_1, q_1minus = quality(1.0), quality(sigma_1minus)
         larger = q_1minus > q_1  # the quality falls beyond sigma = 1
         up_big = jnp.minimum(o.sigma_max, st.mu_max / avg)
-        lo_small = jnp.maximum(o.sigma_min, o.mu_min / avg)
+        mu_min = self._mu_min(p)
+        lo_small = jnp.maximum(o.sigma_min, mu_min / avg)
         up_small = jnp.minimum(jnp.maximum(lo_small, sigma_1minus), st.mu_max / avg)
         lo, up = jnp.where(larger, 1.0, lo_small), jnp.where(larger, up_big, up_small)
         best, q_best, lo_e, up_e = golden(lo, jnp.maximum(up, lo))
@@ -1378,7 +1420,7 @@ class IPM:
         end = jnp.where(up_e == up, up, lo)
         sigma = jnp.where(((up_e == up) | (lo_e == lo)) & (quality(end) < q_best), end, best)
         sigma = jnp.where(lo >= up, jnp.where(larger, up, lo), sigma)  # empty interval: its end
-        return jnp.clip(sigma * avg, o.mu_min, st.mu_max)
+        return jnp.clip(sigma * avg, mu_min, st.mu_max)
 
 
 #: IpmStatus -> the shared enumeration
@@ -1411,10 +1453,11 @@ def _status_message(code: IpmStatus, opts: IpmOptions, mu: float) -> str:
     mu sat at ``mu_min`` without a floor under the dual regularization, with the remedy
     measured for that tail (`IpmOptions.delta_c_min`)."""
     message = _MESSAGES.get(code, code.name)
-    if code is IpmStatus.MAX_ITER and opts.tol <= _TIGHT_TOL and opts.delta_c_mu_scaled and opts.delta_c_min == 0.0 and mu <= opts.mu_min * (1.0 + 1e-12):
+    mu_min = opts.mu_min_value()
+    if code is IpmStatus.MAX_ITER and opts.tol <= _TIGHT_TOL and opts.delta_c_mu_scaled and opts.delta_c_min == 0.0 and mu <= mu_min * (1.0 + 1e-12):
         floor = "1e-7" if opts.hessian == "exact" else "1e-9"
         message += (
-            f"; mu sat at mu_min, where the dual regularization delta_c mu^(1/4) is {opts.delta_c * opts.mu_min**0.25:.1e} and the "
+            f"; mu sat at mu_min, where the dual regularization delta_c mu^(1/4) is {opts.delta_c * mu_min**0.25:.1e} and the "
             f"Newton matrix's factorization needs inertia corrections in rounding: at tight tolerances set delta_c_min={floor} "
             "(docs/measurements.md)"
         )
