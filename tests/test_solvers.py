@@ -109,6 +109,10 @@ def test_ipopt_return_codes_map_to_the_enumeration():
         # other Ipopt options against the bundled Ipopt's list, here and not when a solve starts
         ({"extra": {"max_itr": 3}}, "max_itr=3: unknown Ipopt option; did you mean max_iter"),
         ({"extra": {"mu_strategy": "fast"}}, r"mu_strategy='fast': expected one of \['monotone', 'adaptive'\]"),
+        # file options Ipopt finds bad only at the solve ("Invalid option encountered.") or skips
+        ({"extra": {"output_file": "/proc/no-such-folder/ipopt.txt"}}, "output_file='/proc/no-such-folder/ipopt.txt': expected a file path in an existing, writable folder"),
+        ({"extra": {"output_file": "/"}}, "output_file='/': a folder; expected a file path"),
+        ({"extra": {"option_file_name": "/no-such-file.opt"}}, "option_file_name='/no-such-file.opt': expected a readable Ipopt options file"),
     ],
 )
 def test_bad_options_fail_at_construction(kwargs, match):

@@ -175,6 +175,25 @@ def _range(spec: OptionSpec) -> str:
     return f"{lo}, {hi}"
 
 
+#: Ipopt's free-text options that name a file: it finds a bad one only when a solve starts, and
+#: then says "Invalid option encountered." (an output file it cannot open) or nothing at all
+#: (an option file that does not exist is skipped after "Using option file ...")
+_FILE_OPTIONS = ("output_file", "option_file_name")
+
+
+def _check_file_option(name: str, path: str) -> None:
+    """Refuse an ``output_file`` Ipopt could not open for writing, or an ``option_file_name``
+    that is not a readable file."""
+    if name == "output_file":
+        folder = os.path.dirname(os.path.abspath(path))
+        if os.path.isdir(path):
+            raise IpoptOptionError(name, path, "a folder; expected a file path")
+        if not os.path.isdir(folder) or not os.access(folder, os.W_OK | os.X_OK):
+            raise IpoptOptionError(name, path, f"expected a file path in an existing, writable folder ({folder} is not one)")
+    elif not os.path.isfile(path) or not os.access(path, os.R_OK):
+        raise IpoptOptionError(name, path, "expected a readable Ipopt options file (Ipopt skips one it cannot read)")
+
+
 def check(name: str, value: Any) -> Any:
     """``value`` as Ipopt expects it for option ``name`` (an integer given for a real option
     becomes a float; True/False become "yes"/"no"), or `IpoptOptionError`."""
@@ -194,6 +213,8 @@ def check(name: str, value: Any) -> Any:
             raise IpoptOptionError(name, value, f"expected one of {list(spec.values)}")
         if name == "linear_solver" and not linear_solver_available(value.lower()):
             raise IpoptOptionError(name, value, "not available in this Ipopt build (its library is not installed); expected mumps")
+        if value and name in _FILE_OPTIONS:
+            _check_file_option(name, value)
         return value
     real = _is_real(name)
     number_types = (int, float, np.integer, np.floating) if real else (int, np.integer)
