@@ -120,6 +120,7 @@ class RayExecutor(AbstractExecutor):
                 # a tiny sweep's compile took 152 s in a worker beside two busy processes on 2
                 # cores, 11 s in the calling process)
                 kwargs["_system_config"] = {"worker_niceness": 0}
+            _reachable(self.address)
             try:
                 ray.init(address=self.address, **kwargs)
             except (ConnectionError, ValueError) as e:  # no cluster there, or a malformed address
@@ -165,6 +166,27 @@ def _stop(pool) -> None:
         if p.is_alive():  # SIGTERM ignored or handled
             p.kill()
             p.join()
+
+
+def _reachable(address: str | None, timeout: float = 5.0) -> None:
+    """`ExecutorUnavailableError` where ``address`` names a host and port (``HOST:PORT`` or
+    ``ray://HOST:PORT``) that takes no TCP connection within ``timeout`` seconds: ``ray.init``
+    retries such an address for minutes without a word (measured: still waiting after 500 s
+    for 127.0.0.1:1). Other addresses (None, ``"auto"``) are left to Ray."""
+    import socket
+
+    if not address:
+        return
+    host, sep, port = address.removeprefix("ray://").rpartition(":")
+    if not sep or not host or not port.isdigit():
+        return
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout).close()
+    except (OSError, ValueError) as e:
+        raise ExecutorUnavailableError(
+            f"Ray could not connect to a cluster at {address!r}: nothing answers at {host}:{port} ({e}); give the address of a running "
+            "cluster, e.g. --ray-address auto on one of its nodes or ray://HOST:10001, or leave it out to start a local instance"
+        ) from None
 
 
 def _import_ray():

@@ -126,6 +126,7 @@ def _fake_ray(calls: dict) -> types.ModuleType:
 def test_ray_executor_submits_one_task_per_group(monkeypatch):
     calls = {}
     monkeypatch.setitem(sys.modules, "ray", _fake_ray(calls))
+    monkeypatch.setattr("jtraj.executors._reachable", lambda address: None)  # no host 'head' here
     out = list(RayExecutor(address="ray://head:10001").map(operator.sub, [(10, 1), (10, 2), (10, 3)]))
     assert calls["address"] == "ray://head:10001"
     assert calls["options"]["num_cpus"] == 1.0
@@ -168,6 +169,7 @@ def test_ray_unreachable_cluster_is_one_clear_error(monkeypatch, error):
     address and Ray's reason, before any group is submitted."""
     calls: dict = {}
     monkeypatch.setitem(sys.modules, "ray", _refusing_ray(calls, error))
+    monkeypatch.setattr("jtraj.executors._reachable", lambda address: None)  # Ray's own refusal
     with pytest.raises(ExecutorUnavailableError, match=r"Ray could not connect to a cluster at 'head:1'") as info:
         list(RayExecutor(address="head:1").map(operator.add, [(1, 2)]))
     assert str(error) in str(info.value)
@@ -178,11 +180,30 @@ def test_cli_unreachable_ray_cluster_exits_2_with_one_line(monkeypatch, tmp_path
     from jtraj import cli
 
     monkeypatch.setitem(sys.modules, "ray", _refusing_ray({}, ConnectionError("Failed to connect to Ray cluster at head:1")))
+    monkeypatch.setattr("jtraj.executors._reachable", lambda address: None)
     monkeypatch.setattr("jtraj.experiments._compare_one", lambda *args, **kwargs: pytest.fail("a solve started"))
     rc = cli.main(["compare", "--tasks", "big_jump", "--params", "se3", "--executor", "ray", "--ray-address", "head:1", "--out", str(tmp_path / "out")])
     err = capsys.readouterr().err
     assert rc == cli.EXIT_BAD_INPUT
     assert err.count("\n") == 1 and err.startswith("jtraj compare: Ray could not connect to a cluster at 'head:1'"), err
+
+
+def test_an_address_nothing_answers_at_is_refused_before_ray_init(monkeypatch):
+    """``ray.init`` retries a HOST:PORT that takes no connection for minutes without a word
+    (127.0.0.1:1 was still waiting after 500 s): such an address is refused at once, and
+    one that takes a connection is handed to Ray."""
+    import socket
+
+    calls: dict = {}
+    monkeypatch.setitem(sys.modules, "ray", _fake_ray(calls))
+    with pytest.raises(ExecutorUnavailableError, match=r"Ray could not connect to a cluster at 'ray://127.0.0.1:1': nothing answers at 127.0.0.1:1"):
+        RayExecutor(address="ray://127.0.0.1:1").connect()
+    assert "address" not in calls  # ray.init was not called
+    with socket.create_server(("127.0.0.1", 0)) as server:
+        address = f"127.0.0.1:{server.getsockname()[1]}"
+        RayExecutor(address=address).connect()
+    assert calls["address"] == address
+    RayExecutor(address="auto").connect()  # left to Ray (the fake is initialized by now)
 
 
 def test_executor_for_names():
