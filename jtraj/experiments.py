@@ -39,7 +39,7 @@ from jtraj.task import Task
 from jtraj.task import load as load_task
 from jtraj.transcription import TranscriptionOptions
 
-__all__ = ["compare", "robustness", "table_iii", "noisy_warm_starts", "chart_noisy_warm_starts", "check_noise_chart", "poses_in_chart", "NoiseChartError", "noise_key", "run_key", "variables_hash", "read_runs", "summarize_robustness", "setting_label", "TABLE_IV_PAPER_SE3", "RepeatedValueError", "plot_iterations"]
+__all__ = ["compare", "robustness", "table_iii", "noisy_warm_starts", "chart_noisy_warm_starts", "check_noise_chart", "check_runs_file", "poses_in_chart", "NoiseChartError", "noise_key", "run_key", "variables_hash", "read_runs", "summarize_robustness", "setting_label", "TABLE_IV_PAPER_SE3", "RepeatedValueError", "plot_iterations"]
 
 #: Iterations of the SE(3) tangent parameterization in the paper's Table IV.
 TABLE_IV_PAPER_SE3 = {"walk": 14, "hopscotch": 10, "big_jump": 11, "handstand": 88, "backflip": 28, "sideflip": 29}
@@ -371,12 +371,67 @@ def run_key(row: dict) -> tuple:
 _RUN_FIELDS = ("task", "converged", "constraint_violation", "success", "iterations")
 
 
+def _is_string(v) -> bool:
+    return isinstance(v, str)
+
+
+def _is_integer(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _is_bool(v) -> bool:
+    return isinstance(v, bool)
+
+
+#: the JSON kind of each field of `RUN_KEY` and `_RUN_FIELDS`, as the sweeps write them: a key
+#: field's value is hashed and compared (a list made `run_key` unhashable), a result field's
+#: is compared and counted by the tables (a string violation crashed Table III); null where
+#: the value can be unknown (the fields `_KEY_DEFAULTS` gives None, a NaN violation)
+_FIELD_KINDS = {
+    **{k: (_is_string, "a string") for k in ("task_hash", "parameterization", "layout", "hessian", "options_hash", "solver", "task")},
+    **{k: (lambda v: v is None or _is_string(v), "a string or null") for k in ("variables_hash", "noise_chart", "robot_hash")},
+    "seed": (_is_integer, "an integer"),
+    "sigma": (_is_number, "a number"),
+    "replicate": (_is_integer, "an integer"),
+    "converged": (_is_bool, "true or false"),
+    "constraint_violation": (lambda v: v is None or _is_number(v), "a number or null"),
+    "success": (_is_bool, "true or false"),
+    "iterations": (_is_integer, "an integer"),
+}
+
+
+def _json_kind(value) -> str:
+    """The JSON kind of a parsed value, for a message."""
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    return {str: "a string", int: "an integer", float: "a number", list: "an array", dict: "an object"}.get(type(value), type(value).__name__)
+
+
 def _not_a_run(record) -> str | None:
-    """Why a parsed line of a runs file is not a run (None: it is one)."""
+    """Why a parsed line of a runs file is not a run (None: it is one): not an object, a field of
+    its key or of the tables missing (a field `_KEY_DEFAULTS` gives may be, in earlier files), or
+    one of another kind than the sweeps write (`_FIELD_KINDS`)."""
     if not isinstance(record, dict):
         return f"a JSON {type(record).__name__}, not an object"
     missing = [k for k in (*RUN_KEY, *_RUN_FIELDS) if k not in record and k not in _KEY_DEFAULTS]
-    return f"no {', '.join(map(repr, missing))}" if missing else None
+    if missing:
+        return f"no {', '.join(map(repr, missing))}"
+    wrong = [f"{k!r} is {_json_kind(record[k])} (expected {kind})" for k, (fits, kind) in _FIELD_KINDS.items() if k in record and not fits(record[k])]
+    return ", ".join(wrong) or None
+
+
+def check_runs_file(out: str | Path, resume: bool = True) -> None:
+    """Raise `jtraj.io.FileFormatError` naming OUT/runs.jsonl where something there cannot be a
+    runs file (a folder, a named pipe) or, with ``resume``, cannot be read: before a study
+    writes or compiles anything (`robustness` checks it, and the command line can before it
+    writes OUT/provenance.json). Without ``resume`` the file is moved aside, not read."""
+    jio.check_file(Path(out) / RUNS_FILE, "a JSON-lines file of runs (or none, to start the study)", read=resume)
 
 
 def _lines(numbers: list[int]) -> str:
@@ -397,9 +452,11 @@ def _move_aside(path: Path, why: str) -> Path:
 def read_runs(path: str | Path, progress: TextIO | None = None) -> list[dict]:
     """Runs of a runs.jsonl file, first of each key kept. A file with lines that do not parse
     (a kill during a write, damage) or are not runs (not a JSON object, or without a field of a
-    run's key or one the tables read) is moved aside to ``runs.jsonl.corrupt-N`` with a warning
+    run's key or one the tables read, or with one of another kind than the sweeps write:
+    `_not_a_run`) is moved aside to ``runs.jsonl.corrupt-N`` with a warning
     on ``progress`` (None: the ``sys.stderr`` of the call), and the lines that are runs are
-    written back (the runs of the others are solved again)."""
+    written back (the runs of the others are solved again). A folder or a file that cannot be
+    read there raises `jtraj.io.FileFormatError` naming it (a missing file holds no runs)."""
     path = Path(path)
     numbered, bad = jio.read_jsonl_lines(path)
     checked = [(line, r, _not_a_run(r)) for line, r in numbered]
@@ -564,6 +621,7 @@ def robustness(
     _check_executor("robustness", executor, workers)
     progress = _progress_stream(progress)
     out = Path(out)
+    check_runs_file(out, resume)
     out.mkdir(parents=True, exist_ok=True)
     runs_path = out / RUNS_FILE
     solvers.get(solver)  # an unknown name fails here, before the first solve

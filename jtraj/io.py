@@ -12,7 +12,7 @@ it would be worse); the encoder then runs with ``allow_nan=False`` so that nothi
 can slip through. numpy and JAX scalars and arrays, enums and dataclasses are converted on the way.
 
 `read_json` raises `FileFormatError` (a `ValueError`) with one line naming the file when it is
-missing, empty or not valid JSON.
+missing, empty or not valid JSON; `read_jsonl` when it is a folder or cannot be read.
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ import enum
 import json
 import math
 import os
+import stat
 import tempfile
 from collections.abc import Iterator, Mapping
 from pathlib import Path
@@ -41,13 +42,14 @@ __all__ = [
     "append_jsonl",
     "read_jsonl",
     "read_jsonl_lines",
+    "check_file",
     "write_npz",
     "save_figure",
 ]
 
 
 class FileFormatError(ValueError):
-    """A file that is missing, empty or not in the expected format; the message names it."""
+    """A file that is missing, empty, unreadable or not in the expected format; the message names it."""
 
 
 @contextlib.contextmanager
@@ -191,9 +193,36 @@ def append_jsonl(path: str | Path, record: Any) -> None:
         os.close(fd)
 
 
+def check_file(path: str | Path, expected: str, read: bool = True) -> bool:
+    """Whether ``path`` exists (False where it does not); `FileFormatError` naming it, with
+    ``expected`` (what it should be, e.g. "a JSON-lines file"), where it is there but no regular
+    file (a folder; a named pipe, whose read would wait for a writer) or, with ``read``, a file
+    this process cannot open for reading. A caller checks before it writes or computes anything
+    that a read of the file would then lose."""
+    path = Path(path)
+    try:
+        mode = path.stat().st_mode
+        if not stat.S_ISREG(mode):
+            raise FileFormatError(f"{path}: {'is a folder' if stat.S_ISDIR(mode) else 'is not a regular file'}; expected {expected}")
+        if read:
+            with open(path, "rb"):
+                pass
+    except FileNotFoundError:
+        return False
+    except OSError as e:
+        raise _unreadable(path, e, expected) from None
+    return True
+
+
+def _unreadable(path: Path, error: OSError, expected: str) -> FileFormatError:
+    # the system's reason as it gives it (permission denied, an I/O error, a parent that is a file)
+    return FileFormatError(f"{path}: cannot be read (the system says: {error.strerror or error}); expected {expected}")
+
+
 def read_jsonl(path: str | Path) -> tuple[list[Any], list[int]]:
     """Records of a JSON-lines file and the 1-based numbers of the lines that did not parse
-    (a torn last line after a kill, or damage). A missing file gives no records."""
+    (a torn last line after a kill, or damage). A missing file gives no records; a folder or
+    a file that cannot be read, a `FileFormatError` naming it (`check_file`)."""
     numbered, bad = read_jsonl_lines(path)
     return [record for _, record in numbered], bad
 
@@ -201,17 +230,22 @@ def read_jsonl(path: str | Path) -> tuple[list[Any], list[int]]:
 def read_jsonl_lines(path: str | Path) -> tuple[list[tuple[int, Any]], list[int]]:
     """`read_jsonl` with the 1-based line number of each record: ``([(line, record), ...], bad)``."""
     path = Path(path)
-    if not path.exists():
+    if not check_file(path, "a JSON-lines file", read=False):
         return [], []
     records, bad = [], []
-    with open(path, "rb") as f:
-        for i, raw in enumerate(f, 1):
-            if not raw.strip():
-                continue
-            try:
-                records.append((i, json.loads(raw.decode("utf-8"), parse_constant=_reject_constant)))
-            except (UnicodeDecodeError, ValueError):
-                bad.append(i)
+    try:
+        with open(path, "rb") as f:
+            for i, raw in enumerate(f, 1):
+                if not raw.strip():
+                    continue
+                try:
+                    records.append((i, json.loads(raw.decode("utf-8"), parse_constant=_reject_constant)))
+                except (UnicodeDecodeError, ValueError):
+                    bad.append(i)
+    except FileNotFoundError:  # removed since it was checked
+        return [], []
+    except OSError as e:
+        raise _unreadable(path, e, "a JSON-lines file") from None
     return records, bad
 
 

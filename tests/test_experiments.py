@@ -757,6 +757,62 @@ def test_rows_that_are_not_runs_are_set_aside_with_the_torn_lines(tmp_path, fake
     assert len(path.read_text().splitlines()) == 4 and len(read_runs(path)) == 4
 
 
+def test_rows_with_values_of_another_kind_are_set_aside_with_the_torn_lines(tmp_path, fake_solves):
+    """Rows whose fields are there but of another kind than the sweeps write are set aside as
+    rows that are not runs, and their runs solved again: a list for sigma made the run's key
+    unhashable (a TypeError in read_runs), and a string violation of a run of this call crashed
+    Table III. A row of an earlier file (no solver, variables or robot content, a NaN violation
+    written as null) is still a run."""
+    kw = dict(sigmas=[0.1], replicates=3, seed=4, out=tmp_path)
+    robustness(["walk"], ["se3"], progress=None, **kw)
+    path = tmp_path / RUNS_FILE
+    rows = [json.loads(line) for line in path.read_text().splitlines()]
+    earlier = {k: v for k, v in rows[2].items() if k not in ("solver", "variables_hash", "noise_chart", "robot_hash")} | {"constraint_violation": None}
+    text = [rows[0] | {"sigma": [0.1]}, rows[1] | {"constraint_violation": "abc"}, rows[2], rows[2] | {"seed": "5", "iterations": True}, earlier]
+    path.write_text("".join(json.dumps(r) + "\n" for r in text))
+    fake_solves.clear()
+    stream = io.StringIO()
+    runs = robustness(["walk"], ["se3"], progress=stream, **kw)
+    warning, note, resuming = stream.getvalue().splitlines()[:3]
+    assert warning == (
+        f"warning: {path}: line(s) [1, 2, 4] are not runs (line 1: 'sigma' is an array (expected a number); line 2: 'constraint_violation' is a string (expected a number or null); "
+        f"line 4: 'seed' is a string (expected an integer), 'iterations' is true (expected an integer)); the file was moved to {path}.corrupt-1 and its 2 good runs kept"
+    )
+    assert note.startswith("note: 1 runs in ") and resuming == f"resuming: 1 of this call's 3 runs already in {path}"
+    assert [r["replicate"] for r in runs] == [0, 1, 2] and len(fake_solves) == 2  # replicates 0 and 1 solved again
+    assert runs[2] == rows[2] and earlier in read_runs(path) and len(read_runs(path)) == 4
+
+
+def test_a_runs_file_that_cannot_be_read_is_refused_before_anything_is_solved(tmp_path, fake_solves, monkeypatch, capsys):
+    """OUT/runs.jsonl a folder ended jtraj robustness in an IsADirectoryError traceback (exit
+    status 1); a file it cannot read (here an I/O error) in an OSError one. Each is now one
+    line naming the file, exit status 2, before the study compiles or writes anything."""
+    from jtraj.cli import EXIT_BAD_INPUT, main
+    from jtraj.io import FileFormatError
+
+    out = tmp_path / "rob"
+    runs = out / RUNS_FILE
+    runs.mkdir(parents=True)
+    expected = "expected a JSON-lines file of runs (or none, to start the study)"
+    argv = ["robustness", "--tasks", "walk", "--params", "se3", "--sigmas", "0.1", "--replicates", "1", "--out", str(out)]
+    for extra in ([], ["--no-resume"]):
+        assert main(argv + extra) == EXIT_BAD_INPUT
+        assert capsys.readouterr().err == f"jtraj robustness: {runs}: is a folder; {expected}\n"
+    with pytest.raises(FileFormatError, match=f"^{runs}: is a folder; "):
+        robustness(["walk"], ["se3"], [0.1], replicates=1, out=out, progress=None)
+    assert runs.is_dir() and not list(runs.iterdir()) and not (out / "table_iii.json").exists()
+    runs.rmdir()
+    runs.write_text("")
+
+    def unreadable(*args, **kwargs):
+        raise OSError(5, "Input/output error")
+
+    monkeypatch.setattr(experiments.jio, "open", unreadable, raising=False)
+    assert main(argv) == EXIT_BAD_INPUT
+    assert capsys.readouterr().err == f"jtraj robustness: {runs}: cannot be read (the system says: Input/output error); {expected}\n"
+    assert not fake_solves and not (out / "table_iii.json").exists() and runs.read_text() == ""
+
+
 @pytest.mark.parametrize("kwargs, message", [(dict(executor="dask"), "executor='dask': expected one of local, ray"), (dict(workers=0), "workers=0: expected an integer >= 1")])
 def test_an_unknown_executor_is_refused_before_the_runs_file_is_touched(tmp_path, fake_solves, kwargs, message):
     """robustness(resume=False) moved runs.jsonl aside, then found the executor unknown; and

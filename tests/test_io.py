@@ -87,6 +87,32 @@ def test_jsonl_append_finishes_a_short_write(tmp_path, monkeypatch):
     assert io.read_jsonl(path) == ([{"task": "walk", "replicate": 1}, {"task": "walk", "replicate": 2}], [])
 
 
+@pytest.mark.parametrize("kind, expected", [("folder", "is a folder"), ("fifo", "is not a regular file"), ("unreadable", "cannot be read (the system says: Input/output error)")])
+def test_jsonl_that_cannot_be_read_is_named(tmp_path, monkeypatch, kind, expected):
+    """A folder where a JSON-lines file should be raised IsADirectoryError (a traceback of
+    jtraj robustness), a named pipe waited for a writer, another OSError escaped as it was:
+    each is a `FileFormatError` of one line naming the file. A missing file holds no records."""
+    path = tmp_path / "runs.jsonl"
+    assert io.read_jsonl(path) == ([], []) and not io.check_file(path, "a JSON-lines file")
+    if kind == "folder":
+        path.mkdir()
+    elif kind == "fifo":
+        os.mkfifo(path)
+    else:
+        path.write_text('{"i": 0}\n')
+
+        def unreadable(*args, **kwargs):
+            raise OSError(5, "Input/output error")
+
+        monkeypatch.setattr(io, "open", unreadable, raising=False)
+    for read in (lambda: io.read_jsonl(path), lambda: io.check_file(path, "a JSON-lines file")):
+        with pytest.raises(io.FileFormatError) as e:
+            read()
+        assert str(e.value) == f"{path}: {expected}; expected a JSON-lines file"
+    if kind == "unreadable":  # without read, only what is there is checked
+        assert io.check_file(path, "a JSON-lines file", read=False)
+
+
 def test_npz_and_figure_round_trip(tmp_path):
     a = np.random.default_rng(0).standard_normal((4, 3))
     io.write_npz(tmp_path / "t.npz", a=a, names=np.array(["x", "y"]))
