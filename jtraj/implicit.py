@@ -242,8 +242,8 @@ def implicit_solution(
         batch = b.shape[:-1]
         tokens = token.reshape(-1)
         bb = b.reshape(-1, b.shape[-1])
-        xs = np.asarray(x).reshape(-1, n)
-        lams = np.asarray(lam).reshape(-1, m)
+        xs = np.asarray(x).reshape(len(tokens), n)  # (-1, 0) is no shape for an NLP without rows
+        lams = np.asarray(lam).reshape(len(tokens), m)
         thetas = [np.asarray(leaf) for leaf in jax.tree_util.tree_leaves(theta)]
         treedef = jax.tree_util.tree_structure(theta)
         out = np.empty_like(bb)

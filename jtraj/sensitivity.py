@@ -191,6 +191,11 @@ def _solution_point(nlp: ParametricNLP, x: Any, lam: Any, weak_tol: Any) -> tupl
     return x, lam
 
 
+#: `active_set`: a slack and a multiplier both small and within this factor of each other are
+#: a weakly active pair, not a strictly complementary one
+WEAK_RATIO = 100.0
+
+
 def _side_and_slack(value, lower, upper):
     """Nearer bound (True: upper) and the slack to it, elementwise."""
     s_lo = np.where(np.isfinite(lower), value - lower, np.inf)
@@ -205,7 +210,12 @@ def active_set(
     """Active set at a KKT point (see the module docstring for the rules).
 
     ``weak_tol``: a constraint or bound is weakly active when both its slack and its
-    multiplier are below ``weak_tol * max(1, largest multiplier)``.
+    multiplier are below ``weak_tol * max(1, largest multiplier)``, or when both are below
+    ``sqrt(weak_tol)`` times that scale and within a factor `WEAK_RATIO` of each other: an
+    interior-point solve ends a weakly active pair with both near ``sqrt(mu)``, which at tol
+    1e-10 (Ipopt, ``jtraj.differentiate``'s forward solve) is about 4e-6, above ``weak_tol``,
+    while a strictly complementary pair ends with one of the two near ``mu`` over the other.
+    ``weak_tol=0`` turns both tests off.
     """
     x, lam = _solution_point(nlp, x, lam, weak_tol)
     xl, xu, gl, gu = (np.asarray(b, float) for b in nlp.bounds(theta))
@@ -219,17 +229,21 @@ def active_set(
     scale = max(1.0, float(np.abs(lam).max(initial=0.0)), float(np.abs(z[~fixed]).max(initial=0.0)))
     tol = weak_tol * scale
 
+    def weak(slack, mult):
+        near = np.minimum(slack, mult) * WEAK_RATIO >= np.maximum(slack, mult)
+        return ((slack < tol) & (mult < tol)) | (near & (np.maximum(slack, mult) < np.sqrt(weak_tol) * scale))
+
     x_up, x_slack = _side_and_slack(x, xl, xu)
     z_mag = np.abs(z)
     at_bound = fixed | (np.isfinite(x_slack) & (z_mag > x_slack))
-    weak_bounds = ~fixed & np.isfinite(x_slack) & (x_slack < tol) & (z_mag < tol)
+    weak_bounds = ~fixed & np.isfinite(x_slack) & weak(x_slack, z_mag)
 
     equality = gl == gu
     g_up, g_slack = _side_and_slack(g, gl, gu)
     g_up = np.where(equality, False, g_up)
     lam_mag = np.abs(lam)
     row_active = equality | (np.isfinite(g_slack) & (lam_mag > g_slack))
-    weak_rows = ~equality & np.isfinite(g_slack) & (g_slack < tol) & (lam_mag < tol)
+    weak_rows = ~equality & np.isfinite(g_slack) & weak(g_slack, lam_mag)
     # weakly active: one-sided; keep the side where the constraint may become slack
     at_bound &= ~weak_bounds
     row_active &= ~weak_rows
@@ -324,10 +338,13 @@ class KKTSystem:
         Z = self._lu.solve(np.ascontiguousarray(B), trans=trans)
         for _ in range(refinements):
             Z = Z + self._lu.solve(np.ascontiguousarray(B - K @ Z), trans=trans)
-        residual = np.abs(B - K @ Z).max(initial=0.0)
-        if not (np.all(np.isfinite(Z)) and residual <= 1e-6 * max(1.0, np.abs(B).max(initial=0.0))):
+        # per right-hand side and relative to it: a floor of 1 let any Z pass for a small one
+        # (an inconsistent system's tangent of size 1e-6 came back as a value, of size 1 as
+        # SingularKKTError)
+        residual = np.abs(B - K @ Z).max(axis=0, initial=0.0)
+        if not (np.all(np.isfinite(Z)) and np.all(residual <= 1e-6 * np.abs(B).max(axis=0, initial=0.0))):
             raise SingularKKTError(
-                f"the sensitivity system could not be solved at this solution (residual {residual:.1e}; {self.active.summary()}): "
+                f"the sensitivity system could not be solved at this solution (residual {residual.max():.1e}; {self.active.summary()}): "
                 f"the solution is not differentiable here"
             )
         return Z.T.reshape(rhs.shape)

@@ -11,8 +11,9 @@ from jtraj.implicit import implicit_solution
 from jtraj.sensitivity import DenseNLP, active_set, kkt_system
 
 
-def ipopt_forward(nlp: DenseNLP, x0):
-    """Solve ``nlp`` at theta with Ipopt (tight tolerance, exact Hessian): (x, lam)."""
+def ipopt_forward(nlp: DenseNLP, x0, **options):
+    """Solve ``nlp`` at theta with Ipopt (tight tolerance, exact Hessian; ``options`` replace
+    the defaults): (x, lam)."""
 
     def forward(theta):
         xl, xu, gl, gu = (np.asarray(b, float) for b in nlp.bounds(theta))
@@ -40,7 +41,7 @@ def ipopt_forward(nlp: DenseNLP, x0):
                 return nlp.hess_rows, nlp.hess_cols
 
         problem = cyipopt.Problem(n=nlp.n, m=nlp.m, problem_obj=Callbacks(), lb=xl, ub=xu, cl=gl, cu=gu)
-        for k, v in dict(tol=1e-12, print_level=0, sb="yes", mu_strategy="monotone").items():
+        for k, v in dict(dict(tol=1e-12, print_level=0, sb="yes", mu_strategy="monotone"), **options).items():
             problem.add_option(k, v)
         x, info = problem.solve(np.clip(x0, xl, xu))
         assert info["status"] == 0, info["status_msg"]
@@ -159,7 +160,14 @@ def test_grad_vjp_jvp_agree_and_compose_with_jit():
     np.testing.assert_allclose(g, g_fd, rtol=1e-6)
 
 
-def test_weakly_active_constraint_is_flagged_and_one_sided():
+#: Ipopt's settings of the weak-activity tests: the tests' tight monotone solve, and
+#: jtraj.differentiate's tol 1e-10 with Ipopt's adaptive default, which ends a weakly active
+#: pair at a slack and multiplier of about 4e-6 (above weak_tol: it went unflagged)
+WEAK_SETTINGS = {"tol 1e-12": {}, "tol 1e-10": {"tol": 1e-10, "mu_strategy": "adaptive"}}
+
+
+@pytest.mark.parametrize("setting", list(WEAK_SETTINGS))
+def test_weakly_active_constraint_is_flagged_and_one_sided(setting):
     # min (x - theta)^2 s.t. x <= 0 at theta = 0: the bound is reached with a zero multiplier
     nlp = DenseNLP(
         lambda x, th: (x[0] - th[0]) ** 2,
@@ -167,7 +175,7 @@ def test_weakly_active_constraint_is_flagged_and_one_sided():
         lambda th: (np.full(1, -np.inf), np.full(1, np.inf), np.array([-np.inf]), np.array([0.0])),
         1, 1,
     )
-    forward = ipopt_forward(nlp, np.array([-1.0]))
+    forward = ipopt_forward(nlp, np.array([-1.0]), **WEAK_SETTINGS[setting])
     solve = implicit_solution(nlp, forward)
     assert bool(solve(jnp.zeros(1)).degenerate)
     d = float(jax.grad(lambda t: solve(t).x[0])(jnp.zeros(1))[0])
@@ -177,6 +185,62 @@ def test_weakly_active_constraint_is_flagged_and_one_sided():
     assert abs(left - 1.0) < 1e-3 and abs(right) < 1e-3  # the two one-sided derivatives differ
     assert abs(d - 1.0) < 1e-8  # treated as inactive: the side where it is slack
     assert not bool(solve(jnp.array([-0.5])).degenerate)
+
+
+@pytest.mark.parametrize("setting", list(WEAK_SETTINGS))
+def test_weakly_active_bound_is_flagged_and_one_sided(setting):
+    """The same for a variable bound, x0 >= 0 at theta0 = 0 (its multiplier comes from
+    stationarity; it was flagged at neither setting and held at the bound, derivative 0)."""
+    nlp = DenseNLP(
+        lambda x, th: jnp.sum((x - th) ** 2),
+        lambda x, th: jnp.array([x[0] - x[1]]),
+        lambda th: (jnp.zeros(2), jnp.full(2, jnp.inf), jnp.array([-10.0]), jnp.array([10.0])),
+        2, 1,
+    )
+    solve = implicit_solution(nlp, ipopt_forward(nlp, np.ones(2), **WEAK_SETTINGS[setting]))
+    theta = jnp.array([0.0, 1.0])
+    assert bool(solve(theta).degenerate)
+    np.testing.assert_allclose(np.asarray(jax.jacobian(lambda t: solve(t).x)(theta)), np.eye(2), atol=1e-8)  # the slack side
+    strict = jnp.array([-1.0, 1.0])  # strictly active: held at the bound, not degenerate
+    assert not bool(solve(strict).degenerate)
+    np.testing.assert_allclose(np.asarray(jax.jacobian(lambda t: solve(t).x)(strict)), np.diag([0.0, 1.0]), atol=1e-8)
+
+
+def test_an_inconsistent_tangent_is_refused_at_any_size():
+    """Two equal rows x0 + x1 = theta0 and = theta1: a tangent that moves them apart has no
+    solution, whatever its size (one of size 1e-6 passed the residual test, whose floor was an
+    absolute 1e-6, and came back as a derivative); a consistent one is a derivative."""
+    from jtraj.sensitivity import SingularKKTError
+
+    nlp = DenseNLP(
+        lambda x, th: jnp.sum(x**2),
+        lambda x, th: jnp.array([x[0] + x[1], x[0] + x[1]]),
+        lambda th: (jnp.full(2, -jnp.inf), jnp.full(2, jnp.inf), th, th),
+        2, 2,
+    )
+    theta = np.array([1.0, 1.0])
+    x, lam = ipopt_forward(nlp, np.zeros(2))(theta)
+    system = kkt_system(nlp, x, lam, theta)
+    n = nlp.n
+    for size in (1.0, 1e-6, 1e-9):  # the rows' right-hand sides moved apart
+        with pytest.raises(SingularKKTError, match="could not be solved"):
+            system.solve(np.r_[np.zeros(n), size, 0.0])
+    for size in (1.0, 1e-6):  # moved together: x moves by half of it along (1, 1)
+        np.testing.assert_allclose(system.solve(np.r_[np.zeros(n), size, size])[:n], [size / 2, size / 2], rtol=1e-8)
+
+
+def test_an_nlp_without_rows_is_differentiated():
+    """An NLP with variable bounds only (m = 0): its derivative failed reshaping the empty
+    multipliers to (-1, 0)."""
+    nlp = DenseNLP(
+        lambda x, th: jnp.sum((x - th) ** 2),
+        lambda x, th: jnp.zeros(0),
+        lambda th: (jnp.array([0.0, -jnp.inf]), jnp.full(2, jnp.inf), jnp.zeros(0), jnp.zeros(0)),
+        2, 0,
+    )
+    solve = implicit_solution(nlp, ipopt_forward(nlp, np.ones(2)))
+    J = jax.jacobian(lambda t: solve(t).x)(jnp.array([-1.0, 0.5]))  # x0 held at its bound
+    np.testing.assert_allclose(np.asarray(J), np.diag([0.0, 1.0]), atol=1e-8)
 
 
 def test_second_derivatives_are_refused_in_words():
