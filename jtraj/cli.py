@@ -16,9 +16,7 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import sys
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +28,10 @@ EXIT_TASK_FAILED = 3
 EXIT_NOT_CONVERGED = 4
 #: exit status of a command interrupted by Ctrl-C (SIGINT), as the shell gives it
 EXIT_INTERRUPTED = 130
+#: `jtraj wahba`'s largest --trials and --iterations: its arrays grow with both (about 13 kB a
+#: trial at 12 iterations), and counts far past them ended in JAX's errors or out of memory
+WAHBA_MAX_TRIALS = 100_000
+WAHBA_MAX_ITERATIONS = 100
 
 
 def _cmd_params(args: argparse.Namespace) -> int:
@@ -96,8 +98,8 @@ def _cmd_solve(args: argparse.Namespace) -> int:
 def _solve_out(args: argparse.Namespace) -> str:
     """``jtraj solve``'s output folder: ``--out``, else ``runs/TASK_PARAM``, and
     ``runs/TASK_PARAM_ROBOT`` when ``--robot`` put the task on another robot (the solve on the
-    task's own robot keeps its folder)."""
-    if args.out:
+    task's own robot keeps its folder). An empty ``--out`` is kept, for `_check_out` to refuse."""
+    if args.out is not None:
         return args.out
     from jtraj import task as tasks
 
@@ -219,9 +221,11 @@ def _check_render_args(args: argparse.Namespace) -> None:
         if value < 16:
             raise InputError(field, value, "expected at least 16 pixels")
     _check_positive_int("--keyframes", args.keyframes, 2)
-    # the files' folders, before minutes of drawing
-    for field, value in (("--out", args.out), ("--strip", args.strip)):
+    # the files and their folders, before minutes of drawing
+    for field, value, example in (("--out", args.out, "motion.mp4"), ("--strip", args.strip, "keyframes.png")):
         if value is not None:
+            if Path(value).is_dir():
+                raise InputError(field, value, f"is a folder; expected a file name, e.g. {Path(value) / example}")
             _check_out(str(Path(value).parent), field, shown=value)
 
 
@@ -249,7 +253,7 @@ def _cmd_plot(args: argparse.Namespace) -> int:
     solved = all((folder / name).is_file() for name in ("result.json", "trajectory.npz"))
     if not (solved or (folder / "table_iv.json").is_file()):
         raise InputError("DIR", args.dir, "expected a folder written by `jtraj solve` (result.json and trajectory.npz) or `jtraj compare` (table_iv.json)")
-    _check_out(args.out or args.dir)
+    _check_out(args.dir if args.out is None else args.out)
     try:
         paths = plot_directory(folder, args.out)
     except FileFormatError as e:
@@ -269,8 +273,8 @@ def _add_render_parsers(sub) -> None:
     p.add_argument("--spacing", default="motion", choices=["motion", "time"], help="strip: keyframes evenly along the base's motion (default) or in time")
     p.add_argument("--speed", type=float, default=1.0, help="playback speed, 1 = real time (default)")
     p.add_argument("--fps", type=float, default=30.0, help="video frames per second (default 30)")
-    p.add_argument("--width", type=int, default=640, help="image width in pixels (default 640)")
-    p.add_argument("--height", type=int, default=480, help="image height in pixels (default 480)")
+    p.add_argument("--width", type=int, default=640, help="image width in pixels (default 640; the strip's panels at most 480)")
+    p.add_argument("--height", type=int, default=480, help="image height in pixels (default 480; the strip's panels at most 480)")
     p.add_argument("--no-shadows", action="store_true", help="faster with software OpenGL")
     p.add_argument("--no-forces", action="store_true", help="no contact-force arrows (they are drawn by default)")
     p.set_defaults(func=_cmd_render)
@@ -376,8 +380,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("wahba", help="Wahba's problem: projected vs multiplicative Gauss-Newton (writes OUT/wahba.{npz,json,png})")
     p.add_argument("--out", default="runs/wahba", help="output folder (default runs/wahba)")
-    p.add_argument("--trials", type=int, default=100, help="random problems (default 100, the paper's)")
-    p.add_argument("--iterations", type=int, default=12, help="Gauss-Newton iterations per method (default 12)")
+    p.add_argument("--trials", type=int, default=100, help=f"random problems (default 100, the paper's; at most {WAHBA_MAX_TRIALS})")
+    p.add_argument("--iterations", type=int, default=12, help=f"Gauss-Newton iterations per method (default 12; at most {WAHBA_MAX_ITERATIONS})")
     p.add_argument("--seed", type=int, default=0, help="seed of the problems (default 0)")
     p.set_defaults(func=_cmd_wahba)
 
@@ -403,27 +407,16 @@ class InputError(ValueError):
 
 
 def _check_out(path: str | None, field: str = "--out", shown: str | None = None) -> None:
-    """An output folder must be a folder (or not exist yet) that this user can write in.
-    ``shown``: the value the user gave, where ``path`` is derived from it (a file's folder)."""
+    """An output folder must be a folder (or not exist yet) that this user can write in
+    (`jtraj.io.output_folder_problem`). ``shown``: the value the user gave, where ``path`` is
+    derived from it (a file's folder)."""
     if path is None:
         return
-    value = path if shown is None else shown
-    p = Path(path)
-    if p.exists() and not p.is_dir():
-        raise InputError(field, value, "is a file; expected a folder (existing or to be created)")
-    existing = p
-    while not existing.exists():
-        existing = existing.parent
-    if not existing.is_dir():
-        raise InputError(field, value, f"{existing} is a file; expected a folder")
-    # a real probe: permission bits do not tell (root, read-only mounts, /proc)
-    try:
-        fd, probe = tempfile.mkstemp(prefix=".jtraj-write-test.", dir=existing)
-        os.close(fd)
-        os.unlink(probe)
-    except OSError as e:
-        # the system's reason as it gives it (/proc answers "No such file or directory")
-        raise InputError(field, value, f"cannot create a file in {os.path.abspath(existing)} (the system says: {e.strerror}); expected a folder you can write in") from None
+    from jtraj.io import output_folder_problem
+
+    problem = output_folder_problem(path)
+    if problem is not None:
+        raise InputError(field, path if shown is None else shown, problem)
 
 
 def _check_names(field: str, text: str, known: list[str], what: str, allow_files: bool = False) -> list[str]:
@@ -449,16 +442,24 @@ def _check_robots(items: list[str] | None) -> dict[str, str]:
         for name in (old, new):
             if name not in known:
                 raise InputError("--robot", item, f"unknown robot {name!r}; expected one of {', '.join(known)}")
+        if old in robots:  # the last one won without a word
+            raise InputError("--robot", item, f"robot {old!r} already mapped by --robot {old}={robots[old]}; expected each robot once")
         robots[old] = new
     return robots
 
 
-def _load_valid_task(name: str, robots: dict[str, str] | None = None):
+def _load_valid_task(name: str, robots: dict[str, str] | None = None, all_used: bool = False):
     """The task ``name`` (on the robot ``robots`` maps its robot to) with the checks that need
-    its robot done; errors name its file."""
+    its robot done; errors name its file. ``all_used`` (one task, `jtraj solve`): a mapping of
+    a robot the task is not on is refused, as it would be ignored (a sweep's mapping may be for
+    some of its tasks only)."""
     from jtraj import task as tasks
 
-    task = tasks.retarget(tasks.load(name), robots or {})
+    task = tasks.load(name)
+    unused = [f"{old}={new}" for old, new in (robots or {}).items() if old != task.robot]
+    if all_used and unused:
+        raise InputError("--robot", unused[0], f"task {task.name!r} is on robot {task.robot!r}; expected --robot {task.robot}=OTHER or no --robot")
+    task = tasks.retarget(task, robots or {})
     try:
         return task.validate()
     except tasks.TaskError as e:
@@ -524,7 +525,9 @@ def _check_ipopt(items: list[str] | None, solver: str = "ipopt", field: str = "-
     return options
 
 
-def _check_positive_int(field: str, value: int, minimum: int = 1) -> None:
+def _check_positive_int(field: str, value: int, minimum: int = 1, maximum: int | None = None) -> None:
+    if maximum is not None and not minimum <= value <= maximum:
+        raise InputError(field, value, f"expected an integer in [{minimum}, {maximum}]")
     if value < minimum:
         raise InputError(field, value, f"expected an integer >= {minimum}")
 
@@ -544,8 +547,10 @@ def _check_inputs(args: argparse.Namespace) -> None:
     if cmd in ("solve", "compare", "robustness"):
         args.robots_checked = _check_robots(args.robot)
         args.variables = _check_variable_changes(args.variables, args.variable_changes)
+    if cmd == "params":
+        _check_seed(args.seed)
     if cmd == "solve":
-        args.task_checked = _load_valid_task(args.task, args.robots_checked)
+        args.task_checked = _load_valid_task(args.task, args.robots_checked, all_used=True)
         args.out_checked = _solve_out(args)
         _check_out(args.out_checked)
         if not (math.isfinite(args.noise) and args.noise >= 0):
@@ -566,6 +571,11 @@ def _check_inputs(args: argparse.Namespace) -> None:
 
             check_noise_chart([args.task_checked], [args.param], args.variables, args.noise_chart)
         args.ipopt_checked = _check_ipopt(args.ipopt, getattr(args, "solver", "ipopt"))
+        if args.exact_hessian:  # as solve() refuses it, in the command line's words
+            from jtraj.solver import _hessian_conflict
+
+            if conflict := _hessian_conflict(args.ipopt_checked):
+                raise InputError(f"--ipopt {conflict[0]}", conflict[1], "conflicts with --exact-hessian; expected 'exact' or no --exact-hessian")
     elif cmd in ("compare", "robustness"):
         # sweeps: every name is checked before the first solve
         args.tasks_checked = _check_tasks("--tasks", args.tasks, args.robots_checked)
@@ -603,15 +613,16 @@ def _check_inputs(args: argparse.Namespace) -> None:
 
             check_noise_chart(args.tasks_checked, _split(args.params), args.variables, args.noise_chart)
     elif cmd == "wahba":
-        _check_positive_int("--trials", args.trials)
-        _check_positive_int("--iterations", args.iterations)
+        _check_positive_int("--trials", args.trials, 1, WAHBA_MAX_TRIALS)
+        _check_positive_int("--iterations", args.iterations, 1, WAHBA_MAX_ITERATIONS)
         _check_positive_int("--seed", args.seed, 0)  # as run_wahba, which refuses a negative seed
+        _check_seed(args.seed)
         _check_out(args.out)
     elif cmd == "attitude":
         if args.render and args.bench == "all":
             raise InputError("--render", "all", "draws one benchmark; give its name (quadflip, barrelroll or satellite)", verbatim=True)
-        if args.knots is not None:
-            _check_positive_int("--knots", args.knots, 3)
+        # --knots: each benchmark has its own lower bound, which jtraj.attitude.cli.main checks
+        # (one line, exit status 2) before anything is solved
         _check_out(args.out)
 
 

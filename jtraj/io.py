@@ -43,6 +43,7 @@ __all__ = [
     "read_jsonl",
     "read_jsonl_lines",
     "check_file",
+    "output_folder_problem",
     "write_npz",
     "save_figure",
 ]
@@ -191,6 +192,31 @@ def append_jsonl(path: str | Path, record: Any) -> None:
         os.fsync(fd)
     finally:
         os.close(fd)
+
+
+def output_folder_problem(path: str | Path) -> str | None:
+    """What is wrong with ``path`` as an output folder, in words ("is a file; expected a
+    folder ..."), or None where it is a folder (or none yet) this user can write in: checked
+    before a command or `jtraj.solve` computes what it would write there."""
+    if not str(path):  # Path("") is the current folder: a default was meant, or a typo
+        return "expected a folder name (existing or to be created)"
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        return "is a file; expected a folder (existing or to be created)"
+    existing = p
+    while not existing.exists():
+        existing = existing.parent
+    if not existing.is_dir():
+        return f"{existing} is a file; expected a folder"
+    # a real probe: permission bits do not tell (root, read-only mounts, /proc)
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".jtraj-write-test.", dir=existing)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as e:
+        # the system's reason as it gives it (/proc answers "No such file or directory")
+        return f"cannot create a file in {os.path.abspath(existing)} (the system says: {e.strerror}); expected a folder you can write in"
+    return None
 
 
 def check_file(path: str | Path, expected: str, read: bool = True) -> bool:

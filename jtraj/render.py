@@ -843,7 +843,7 @@ def render_directory(
     """``jtraj render``: the video (``out``) and/or the keyframe strip (``strip``) of the
     solution in ``directory`` (its ``result.json`` and ``trajectory.npz``); returns the paths.
     The strip's panels are ``options``' size capped at 480 x 480 pixels each (a 640 x 480
-    video gets 480 x 480 panels)."""
+    video gets 480 x 480 panels). A path that is a folder is refused before anything is drawn."""
     # what would fail after minutes of drawing, checked first
     if out is None and strip is None:
         raise ValueError("nothing to write: give out (a .mp4 or .gif file) and/or strip (a .png or .jpg file)")
@@ -853,6 +853,9 @@ def render_directory(
         if Path(strip).suffix.lower() not in _IMAGE_FORMATS:
             raise ValueError(f"{strip}: expected a .png, .jpg or .jpeg file name")
         _check_strip(keyframes, layout, spacing)
+    for path in (out, strip):
+        if path is not None and Path(path).is_dir():
+            raise ValueError(f"{path}: is a folder; expected the name of a file to write")
     directory = Path(directory)
     if not (directory / "trajectory.npz").is_file():
         raise FileNotFoundError(f"{directory}: no trajectory.npz (expected a folder written by `jtraj solve`)")

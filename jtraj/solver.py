@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jtraj import config, solvers
+from jtraj import io as jio
 from jtraj import parameterization as params
 from jtraj import robot as robots
 from jtraj import task as tasks
@@ -219,7 +220,8 @@ def solve(
             ``sys.stdout`` of the moment; a text stream prints there; False or None is quiet;
             a `jtraj.solvers.AbstractCallback` receives the iterations instead.
         progress_every: print every this many iterations (default 1: each).
-        out: directory to write ``result.json`` and ``trajectory.npz`` into.
+        out: directory to write ``result.json`` and ``trajectory.npz`` into: a folder (or none
+            yet) this user can write in, checked before the compile (as ``jtraj solve --out``).
         keep_trajectory: attach the solution's `jtraj.transcription.Trajectory` to the result (default
             True); False keeps only the figures of the solve (the sweeps' setting), and
             ``out`` then writes no ``trajectory.npz``.
@@ -242,6 +244,8 @@ def solve(
         raise ValueError(f"solve: seed={seed!r}: expected a 64-bit integer (below 2**63 in magnitude)")
     if noise and replicate is None and seed < 0:
         raise ValueError(f"solve: seed={seed!r}: expected a seed >= 0 for numpy's default_rng, which draws this noise (replicate= draws with JAX, which takes any)")
+    if out is not None and (problem := jio.output_folder_problem(out)) is not None:  # (not after the solve)
+        raise ValueError(f"solve: out={out!r}: {problem}")
     backend = solvers.get(solver)
     solver_options(backend, options, ipopt_options, exact_hessian, 0)  # the task's limit comes below
     if isinstance(progress_every, bool) or not isinstance(progress_every, int) or progress_every < 1:
@@ -308,16 +312,28 @@ def solver_options(
     max_iter: int,
 ) -> solvers.AbstractOptions:
     """The backend's options object: a given object as it is; otherwise the task's iteration
-    limit, then the dicts, then ``exact_hessian``."""
+    limit, then the dicts, then ``exact_hessian`` (a dict's Hessian option that asks for another
+    Hessian is a ValueError: one of the two would be ignored)."""
     if isinstance(options, solvers.AbstractOptions):
         if ipopt_options:
             raise ValueError("pass the solver options either as an options object or as ipopt_options, not both")
         return backend.options(options, hessian="exact") if exact_hessian else backend.options(options)
     merged: dict[str, Any] = {"max_iter": max_iter, **(options or {}), **(ipopt_options or {})}
     if exact_hessian:
+        if conflict := _hessian_conflict(merged):
+            raise ValueError(f"solve: {conflict[0]}={conflict[1]!r} with exact_hessian=True: expected {conflict[0]}='exact' or exact_hessian=False")
         merged.pop("hessian_approximation", None)
         merged["hessian"] = "exact"
     return backend.options(merged)
+
+
+def _hessian_conflict(options: dict[str, Any]) -> tuple[str, Any] | None:
+    """The option of ``options`` that asks for another Hessian than the exact one (Ipopt's
+    ``hessian_approximation``, the backends' ``hessian``), as (name, value); None if none does."""
+    for key in ("hessian_approximation", "hessian"):
+        if key in options and options[key] != "exact":
+            return key, options[key]
+    return None
 
 
 def evaluate(tr: Transcription, solution: solvers.Solution, traj, compile_time: float, options: dict[str, Any], nnz_jacobian: int = 0, violation_by_group: dict[str, float] | None = None, theta: TaskParams | None = None, solver: str = "ipopt") -> Result:

@@ -9,7 +9,7 @@ was expected.
 
 TOML form (see ``tasks/big_jump.toml``)::
 
-    name = "big_jump"
+    name = "big_jump"                # names the run folders (runs/big_jump_se3): no '/', not '.'-first
     robot = "talos"
     timestep = 0.05
     friction = 0.9
@@ -356,6 +356,9 @@ def _check_and_normalize(t: Task) -> None:
 
     if not isinstance(t.name, str) or not t.name:
         raise TaskError("name", t.name, "expected a non-empty string")
+    # the name is a folder's in runs/ (runs/NAME_PARAM, a sweep's OUT/NAME_PARAM): "../x" wrote outside it
+    if t.name.startswith(".") or any(sep in t.name for sep in ("/", "\\")) or not t.name.isprintable():
+        raise TaskError("name", t.name, "expected a plain name for the run folders (e.g. my_jump): no '/' or '\\', no control characters, not starting with '.'")
     robots = robot_module.available()
     if t.robot not in robots:
         raise TaskError("robot", t.robot, f"expected one of {list(robots)}")
@@ -595,8 +598,10 @@ def from_file(path: str | Path) -> Task:
     try:
         with open(path, "rb") as f:
             data = tomllib.load(f)
-    except (FileNotFoundError, IsADirectoryError):
+    except FileNotFoundError:
         raise TaskError("task file", str(path), "does not exist; expected a .toml task file") from None
+    except IsADirectoryError:
+        raise TaskError("task file", str(path), "is a folder; expected a .toml task file") from None
     except tomllib.TOMLDecodeError as e:
         raise TaskError("task file", str(path), f"not valid TOML ({e})") from None
     except UnicodeDecodeError as e:  # TOML is UTF-8: a Latin-1 description, say

@@ -77,6 +77,24 @@ def _run(argv, capsys):
         (["robustness", "--tasks", "big_jump", "--sigmas", "0.1,0.1"], "jtraj robustness: --sigmas: '0.1' given 2 times; expected each noise level once\n"),
         (["compare", "--params", "se3,euler,se3"], "jtraj compare: --params: 'se3' given 2 times; expected each parameterization once\n"),
         (["compare", "--tasks", "walk,big_jump,tasks/walk.toml"], "jtraj compare: --tasks: 'walk' and 'tasks/walk.toml' are the same task ('walk'); expected each task once\n"),
+        # OverflowError from JAX's PRNGKey, and JAX's (MLIR's) errors for a count past any memory
+        (["params", "--seed", str(10**23)], f"jtraj params: --seed: {10**23}: expected a 64-bit integer (below 2**63 in magnitude)\n"),
+        (["wahba", "--seed", str(10**23)], f"jtraj wahba: --seed: {10**23}: expected a 64-bit integer (below 2**63 in magnitude)\n"),
+        (["wahba", "--trials", str(10**20)], f"jtraj wahba: --trials: {10**20}: expected an integer in [1, {cli.WAHBA_MAX_TRIALS}]\n"),
+        (["wahba", "--iterations", str(cli.WAHBA_MAX_ITERATIONS + 1)], f"jtraj wahba: --iterations: {cli.WAHBA_MAX_ITERATIONS + 1}: expected an integer in [1, {cli.WAHBA_MAX_ITERATIONS}]\n"),
+        # the explicit option was dropped and the exact Hessian used
+        (["solve", "big_jump", "--exact-hessian", "--ipopt", "hessian_approximation=limited-memory"], "jtraj solve: --ipopt hessian_approximation: 'limited-memory': conflicts with --exact-hessian; expected 'exact' or no --exact-hessian\n"),
+        (["solve", "big_jump", "--solver", "jtraj", "--exact-hessian", "--ipopt", "hessian=bfgs"], "jtraj solve: --ipopt hessian: 'bfgs': conflicts with --exact-hessian"),
+        # a mapping the one task does not use, and a second mapping of a robot, were ignored
+        (["solve", "big_jump", "--robot", "go2=talos"], "jtraj solve: --robot: 'go2=talos': task 'big_jump' is on robot 'talos'; expected --robot talos=OTHER or no --robot\n"),
+        (["solve", "big_jump", "--robot", "talos=talos_full", "--robot", "go2=talos"], "jtraj solve: --robot: 'go2=talos': task 'big_jump' is on robot 'talos'"),
+        (["solve", "big_jump", "--robot", "talos=talos_full", "--robot", "talos=g1"], "jtraj solve: --robot: 'talos=g1': robot 'talos' already mapped by --robot talos=talos_full; expected each robot once\n"),
+        (["compare", "--tasks", "walk", "--robot", "talos=talos_full", "--robot", "talos=talos_full"], "jtraj compare: --robot: 'talos=talos_full': robot 'talos' already mapped"),
+        # an empty --out wrote to the default folder (solve) or the current one (the sweeps)
+        (["solve", "big_jump", "--out", ""], "jtraj solve: --out: '': expected a folder name (existing or to be created)\n"),
+        (["compare", "--tasks", "walk", "--out", ""], "jtraj compare: --out: '': expected a folder name"),
+        # the first check said ">= 3", the benchmark's then ">= 11"
+        (["attitude", "satellite", "--knots", "2"], "jtraj attitude: --knots: 2: benchmark satellite: n_knots must be an integer >= 11"),
     ],
 )
 def test_bad_command_lines(argv, line, capsys, no_solve):
@@ -126,6 +144,11 @@ def test_plot_and_render_check_their_folders_before_drawing(tmp_path, monkeypatc
     for flag, name in (("--out", "v.mp4"), ("--strip", "s.png")):
         code, err = _run(["render", str(run), flag, f"/proc/jtraj-x/{name}"], capsys)
         assert code == 2 and err.startswith(f"jtraj render: {flag}: '/proc/jtraj-x/{name}': cannot create a file in /proc"), err
+    # a file name that is a folder failed in the write, after the drawing
+    for flag, name, example in (("--out", "v.mp4", "motion.mp4"), ("--strip", "s.png", "keyframes.png")):
+        (tmp_path / name).mkdir()
+        code, err = _run(["render", str(run), flag, str(tmp_path / name)], capsys)
+        assert code == 2 and err == f"jtraj render: {flag}: {str(tmp_path / name)!r}: is a folder; expected a file name, e.g. {tmp_path / name / example}\n"
 
 
 def test_plot_and_render_of_an_attitude_folder(tmp_path, capsys, monkeypatch):
@@ -176,6 +199,13 @@ def test_bad_task_file_is_one_line(tmp_path, capsys, no_solve):
     path.write_text(GOOD_TOML.replace('"FL_foot"', '"FL_paw"'))
     code, err = _run(["solve", str(path)], capsys)
     assert code == 2 and err.startswith(f"jtraj solve: {path}: phases[0].contacts: 'FL_paw': expected a contact of robot 'go2'")
+    # the name makes the run folder, runs/NAME_PARAM: this one wrote outside runs/
+    path.write_text(GOOD_TOML.replace('name = "x"', 'name = "../../escaped"'))
+    code, err = _run(["solve", str(path)], capsys)
+    assert code == 2 and err.startswith(f"jtraj solve: {path}: name: '../../escaped': expected a plain name for the run folders") and err.count("\n") == 1
+    (tmp_path / "dir.toml").mkdir()
+    code, err = _run(["solve", str(tmp_path / "dir.toml")], capsys)
+    assert code == 2 and err == f"jtraj solve: task file: {str(tmp_path / 'dir.toml')!r}: is a folder; expected a .toml task file\n"
 
 
 def test_real_options_accept_integers():
@@ -422,6 +452,15 @@ def test_each_task_is_loaded_once(monkeypatch, tmp_path):
     assert loads == ["walk", "sideflip"] and [t.robot for t in seen["tasks"]] == ["talos_full", "go2"]
 
 
+def test_render_help_says_the_strip_is_at_most_480_pixels(capsys):
+    """The strip's panels are capped at 480 x 480 pixels, which only a docstring said."""
+    with pytest.raises(SystemExit):
+        cli.main(["render", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "image width in pixels (default 640; the strip's panels at most 480)" in text
+    assert "image height in pixels (default 480; the strip's panels at most 480)" in text
+
+
 def test_every_option_says_what_it_does():
     """`jtraj CMD --help` describes every argument (the README's summary points there)."""
     import argparse
@@ -509,7 +548,7 @@ def test_attitude_render_refuses_a_mujoco_gl_that_mujoco_refuses_before_solving(
     assert not out.exists()
 
 
-@pytest.mark.parametrize("argv, code, err", [(["params"], 0, ""), (["wahba", "--trials", "0"], cli.EXIT_BAD_INPUT, "jtraj wahba: --trials: 0: expected an integer >= 1\n")])
+@pytest.mark.parametrize("argv, code, err", [(["params"], 0, ""), (["wahba", "--trials", "0"], cli.EXIT_BAD_INPUT, f"jtraj wahba: --trials: 0: expected an integer in [1, {cli.WAHBA_MAX_TRIALS}]\n")])
 def test_commands_without_a_robot_do_not_import_mujoco(argv, code, err):
     """jtraj params and wahba load no robot, yet every command imported MuJoCo at its start to
     check MUJOCO_GL (0.1 to 0.2 s), and refused to run where MuJoCo refuses the variable; an
@@ -588,5 +627,5 @@ def test_solve_on_another_robot_has_its_own_default_folder(monkeypatch, tmp_path
     monkeypatch.chdir(tmp_path)
     assert cli.main(["solve", "big_jump"]) == 0
     assert cli.main(["solve", "big_jump", "--robot", "talos=talos_full"]) == 0
-    assert cli.main(["solve", "sideflip", "--robot", "talos=talos_full"]) == 0  # a Go2 task: not retargeted
-    assert outs == ["runs/big_jump_se3", "runs/big_jump_se3_talos_full", "runs/sideflip_se3"]
+    assert cli.main(["solve", "sideflip", "--robot", "talos=talos_full"]) == cli.EXIT_BAD_INPUT  # a Go2 task: the mapping would be ignored
+    assert outs == ["runs/big_jump_se3", "runs/big_jump_se3_talos_full"]

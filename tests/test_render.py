@@ -452,6 +452,8 @@ def test_render_directory_checks_its_arguments_before_drawing(result, tmp_path, 
     import jtraj.render as jrender
 
     result.save(tmp_path)
+    (tmp_path / "v.gif").mkdir()
+    (tmp_path / "s.png").mkdir()
     # a bad file name or strip argument was found after the video was drawn (minutes), and
     # neither file asked for was no error at all
     monkeypatch.setattr(jrender, "render", lambda *a, **k: pytest.fail("drew the video before checking the arguments"))
@@ -463,6 +465,9 @@ def test_render_directory_checks_its_arguments_before_drawing(result, tmp_path, 
         ({"out": tmp_path / "m.gif", "strip": tmp_path / "k.png", "layout": "grid"}, "layout must be 'side' or 'overlay'"),
         ({"out": tmp_path / "m.gif", "strip": tmp_path / "k.png", "spacing": "even"}, "spacing must be 'motion' or 'time'"),
         ({"out": tmp_path / "m.gif", "strip": tmp_path / "k.png", "keyframes": 1}, "at least 2 keyframes"),
+        # a folder failed in the write, after the drawing
+        ({"out": tmp_path / "v.gif"}, r"v\.gif: is a folder; expected the name of a file to write"),
+        ({"out": tmp_path / "m.gif", "strip": tmp_path / "s.png"}, r"s\.png: is a folder; expected the name of a file to write"),
     ):
         with pytest.raises(ValueError, match=match):
             jrender.render_directory(tmp_path, **kwargs)

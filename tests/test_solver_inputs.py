@@ -2,6 +2,7 @@
 anything compiles, with errors that name them; a problem Ipopt calls invalid is invalid for
 jtraj's solver too. Tiny knot problems (tests/test_ipm.py's double integrator)."""
 
+import re
 from types import SimpleNamespace
 
 import jax.numpy as jnp
@@ -237,3 +238,38 @@ def test_a_knot_nlp_locates_variables_and_rows():
     for kind, i, size in (("x", nlp.n, nlp.n), ("x", -1, nlp.n), ("g", nlp.m, nlp.m)):
         with pytest.raises(IndexError, match=rf"{kind}\[{i}\]: the NLP has {size} "):
             nlp.locate(kind, i)
+
+
+def test_solve_checks_out_before_building_anything(tmp_path, monkeypatch):
+    """out= a file (or a folder under one) failed in Result.save, after the compile and the
+    solve, and the result was lost; out="" wrote into the current folder. Checked first, by
+    the rule of ``jtraj solve --out``."""
+    import jtraj.solver
+
+    monkeypatch.setattr(jtraj.solver, "prepare", lambda *a, **k: pytest.fail("the NLP was built despite a bad out"))
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    for out, match in (
+        (str(afile), r"is a file; expected a folder \(existing or to be created\)"),
+        (str(afile / "sub"), rf"{afile} is a file; expected a folder"),
+        (afile, r"is a file; expected a folder"),
+        ("", r"expected a folder name"),
+    ):
+        with pytest.raises(ValueError, match=rf"^solve: out={re.escape(repr(out))}: {match}"):
+            jtraj.solver.solve("big_jump", out=out)
+
+
+def test_exact_hessian_refuses_another_hessian_option():
+    """exact_hessian=True dropped an explicit hessian_approximation='limited-memory' without a
+    word and solved with the exact Hessian; an agreeing option is taken."""
+    from jtraj.solver import solver_options
+
+    ipopt, jt = solvers.get("ipopt"), solvers.get("jtraj")
+    for backend, key, value in ((ipopt, "hessian_approximation", "limited-memory"), (ipopt, "hessian", "lbfgs"), (jt, "hessian", "lbfgs"), (jt, "hessian", "bfgs")):
+        with pytest.raises(ValueError, match=rf"^solve: {key}='{value}' with exact_hessian=True: expected {key}='exact' or exact_hessian=False$"):
+            solver_options(backend, None, {key: value}, True, 10)
+        with pytest.raises(ValueError, match="with exact_hessian=True"):
+            solver_options(backend, {key: value}, None, True, 10)
+    assert solver_options(ipopt, None, {"hessian_approximation": "exact"}, True, 10).hessian == "exact"
+    assert solver_options(jt, None, {"hessian": "exact"}, True, 10).hessian == "exact"
+    assert solver_options(ipopt, None, {"hessian_approximation": "limited-memory"}, False, 10).hessian == "lbfgs"

@@ -2,6 +2,7 @@
 name the field and what was expected."""
 
 import dataclasses
+import re
 import tomllib
 
 import numpy as np
@@ -80,6 +81,8 @@ def test_warm_start_ramp_reaches_full_turn_over_flight():
     "changes, match",
     [
         (dict(robot="atlas"), r"^robot: 'atlas': expected one of \['g1', 'go2', 'talos', 'talos_full'\]$"),
+        # the name is the run folders' (runs/NAME_PARAM): "../../x" wrote outside runs/
+        *[(dict(name=name), rf"^name: {re.escape(repr(name))}: expected a plain name for the run folders") for name in ("../../escaped", "a/b", "a\\b", ".", "..", ".hidden", "a\nb")],
         (dict(timestep=0.0), r"^timestep: 0.0: expected a positive number of seconds$"),
         (dict(timestep=-0.05), r"^timestep: -0.05: expected a positive"),
         (dict(phases=(Phase(FEET, 0.1), Phase((), -0.2), Phase(FEET, 0.1))), r"^phases\[1\].duration: -0.2: expected a positive"),
@@ -190,6 +193,7 @@ phases = [1]
         ("duration = 0.1", "duration = 0.33", r"phases\[1\].duration: 0.33: not a whole number of timesteps \(0.05 s\); expected a multiple such as 0.3 or 0.35 s"),
         ("[target]\n", "[target]\nrotation_rpy = 3\n", r"target.rotation_rpy: 3: expected a list of 3 numbers"),
         ('robot = "go2"', 'robot = "spot"', r"robot: 'spot': expected one of"),
+        ('name = "x"', 'name = "../../escaped"', r"name: '../../escaped': expected a plain name for the run folders \(e.g. my_jump\)"),
         ('robot = "go2"', 'robot = "go2"\nspeed = 3', r"speed: unknown field"),
     ],
 )
@@ -286,6 +290,9 @@ def test_task_files(tmp_path):
     assert t.n_knots == 5 and t.phases[0].contacts == FEET
     with pytest.raises(TaskError, match="does not exist"):
         tasks.load(str(tmp_path / "missing.toml"))
+    (tmp_path / "dir.toml").mkdir()  # was "does not exist"
+    with pytest.raises(TaskError, match=r"^task file: '.*dir.toml': is a folder; expected a .toml task file$"):
+        tasks.load(str(tmp_path / "dir.toml"))
     # a description written in Latin-1 ended in a UnicodeDecodeError from inside tomllib
     path.write_bytes(path.read_bytes() + 'description = "d\xe9part"\n'.encode("latin-1"))
     with pytest.raises(TaskError, match=r"^task file: '.*mine.toml': not UTF-8 text \(invalid continuation byte at byte \d+\); expected a TOML file in UTF-8$"):
