@@ -612,6 +612,9 @@ def _check_inputs(args: argparse.Namespace) -> None:
             from jtraj.experiments import check_noise_chart
 
             check_noise_chart(args.tasks_checked, _split(args.params), args.variables, args.noise_chart)
+        from jtraj.experiments import check_runs_file
+
+        check_runs_file(args.out, resume=not args.no_resume)  # (also before provenance.json)
     elif cmd == "wahba":
         _check_positive_int("--trials", args.trials, 1, WAHBA_MAX_TRIALS)
         _check_positive_int("--iterations", args.iterations, 1, WAHBA_MAX_ITERATIONS)

@@ -798,6 +798,7 @@ def test_a_runs_file_that_cannot_be_read_is_refused_before_anything_is_solved(tm
     for extra in ([], ["--no-resume"]):
         assert main(argv + extra) == EXIT_BAD_INPUT
         assert capsys.readouterr().err == f"jtraj robustness: {runs}: is a folder; {expected}\n"
+        assert not (out / "provenance.json").exists()  # checked with the command line's inputs
     with pytest.raises(FileFormatError, match=f"^{runs}: is a folder; "):
         robustness(["walk"], ["se3"], [0.1], replicates=1, out=out, progress=None)
     assert runs.is_dir() and not list(runs.iterdir()) and not (out / "table_iii.json").exists()
