@@ -120,7 +120,7 @@ def main(argv: list[str] | None = None) -> None:
     try:
         robots = _check_robots(args.robot)
         if robots:
-            _load_valid_task(args.task, robots)  # the task on the other robot passes its checks
+            _load_valid_task(args.task, robots, all_used=True)  # the task on the other robot passes its checks
     except (InputError, TaskError) as e:
         ap.error(str(e))
     changes = parse_changes(ap, args.set, args.variables)

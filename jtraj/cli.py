@@ -448,14 +448,16 @@ def _check_robots(items: list[str] | None) -> dict[str, str]:
     return robots
 
 
-def _load_valid_task(name: str, robots: dict[str, str] | None = None, all_used: bool = False):
+def _load_valid_task(name: str, robots: dict[str, str] | None = None, all_used: bool = False, on_robots: set[str] | None = None):
     """The task ``name`` (on the robot ``robots`` maps its robot to) with the checks that need
     its robot done; errors name its file. ``all_used`` (one task, `jtraj solve`): a mapping of
     a robot the task is not on is refused, as it would be ignored (a sweep's mapping may be for
-    some of its tasks only)."""
+    some of its tasks only, `_check_tasks`). ``on_robots`` collects the task's own robot."""
     from jtraj import task as tasks
 
     task = tasks.load(name)
+    if on_robots is not None:
+        on_robots.add(task.robot)
     unused = [f"{old}={new}" for old, new in (robots or {}).items() if old != task.robot]
     if all_used and unused:
         raise InputError("--robot", unused[0], f"task {task.name!r} is on robot {task.robot!r}; expected --robot {task.robot}=OTHER or no --robot")
@@ -475,7 +477,11 @@ def _check_tasks(field: str, text: str, robots: dict[str, str] | None = None) ->
     from jtraj.experiments import _refuse_repeats
 
     names = _check_names(field, text, tasks.available(), "tasks", allow_files=True)
-    checked = [_load_valid_task(name, robots) for name in names]
+    on_robots: set[str] = set()
+    checked = [_load_valid_task(name, robots, on_robots=on_robots) for name in names]
+    for old, new in (robots or {}).items():  # a mapping no task uses would be ignored
+        if old not in on_robots:
+            raise InputError("--robot", f"{old}={new}", f"no task of {field} is on robot {old!r}; expected a mapping of {', '.join(sorted(on_robots))}")
     _refuse_repeats(field, names, [t.name for t in checked], "task")  # walk and a .toml of walk, too
     return checked if robots else names
 

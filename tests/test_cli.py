@@ -90,6 +90,8 @@ def _run(argv, capsys):
         (["solve", "big_jump", "--robot", "talos=talos_full", "--robot", "go2=talos"], "jtraj solve: --robot: 'go2=talos': task 'big_jump' is on robot 'talos'"),
         (["solve", "big_jump", "--robot", "talos=talos_full", "--robot", "talos=g1"], "jtraj solve: --robot: 'talos=g1': robot 'talos' already mapped by --robot talos=talos_full; expected each robot once\n"),
         (["compare", "--tasks", "walk", "--robot", "talos=talos_full", "--robot", "talos=talos_full"], "jtraj compare: --robot: 'talos=talos_full': robot 'talos' already mapped"),
+        # a sweep's mapping may be for some of its tasks, not for none of them
+        (["compare", "--tasks", "walk,sideflip", "--robot", "g1=talos"], "jtraj compare: --robot: 'g1=talos': no task of --tasks is on robot 'g1'; expected a mapping of go2, talos\n"),
         # an empty --out wrote to the default folder (solve) or the current one (the sweeps)
         (["solve", "big_jump", "--out", ""], "jtraj solve: --out: '': expected a folder name (existing or to be created)\n"),
         (["compare", "--tasks", "walk", "--out", ""], "jtraj compare: --out: '': expected a folder name"),
