@@ -57,9 +57,17 @@ def vector_extension(cpuinfo: str) -> str | None:
     return None
 
 
+#: the checkout's folders whose files a run loads without their being tracked (the package,
+#: and the built-in tasks and robots, which are any .toml there)
+LOADED_FOLDERS = ("jtraj", "tasks", "robots")
+
+
 def source() -> dict | None:
-    """The git commit jtraj runs from and whether its tracked files differ from it (``dirty``),
-    when jtraj is imported from a git checkout (an editable install); None otherwise."""
+    """The git commit jtraj runs from and whether the run's code differs from it (``dirty``):
+    a tracked file changed, or a file that git does not ignore and does not track in one of
+    `LOADED_FOLDERS` (a new ``tasks/*.toml`` is a built-in task the commit lacks; it is named in
+    ``untracked``), when jtraj is imported from a git checkout (an editable install); None
+    otherwise."""
     root = Path(__file__).resolve().parent.parent
     if not (root / ".git").exists():
         return None
@@ -67,7 +75,12 @@ def source() -> dict | None:
         def git(*args: str) -> str:
             return subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True, timeout=20, check=True).stdout.strip()
 
-        return {"commit": git("rev-parse", "HEAD"), "dirty": bool(git("status", "--porcelain", "--untracked-files=no"))}
+        changed = bool(git("status", "--porcelain", "--untracked-files=no"))
+        untracked = git("ls-files", "--others", "--exclude-standard", "--", *LOADED_FOLDERS).splitlines()
+        record: dict = {"commit": git("rev-parse", "HEAD"), "dirty": changed or bool(untracked)}
+        if untracked:
+            record["untracked"] = untracked[:20] + ([f"... {len(untracked) - 20} more"] if len(untracked) > 20 else [])
+        return record
     except (OSError, subprocess.SubprocessError):
         return None
 
@@ -90,7 +103,7 @@ def provenance(argv: list[str] | None = None) -> dict:
 
     argv = sys.argv if argv is None else argv
     cpuinfo = _cpuinfo()
-    machine = {"cores": os.cpu_count(), "cpu": _cpu_model(cpuinfo), "vector_extension": vector_extension(cpuinfo), "system": f"{platform.system()} {platform.release()}", "python": platform.python_version()}
+    machine = {"cores": _usable_cores(), "cpu": _cpu_model(cpuinfo), "vector_extension": vector_extension(cpuinfo), "system": f"{platform.system()} {platform.release()}", "python": platform.python_version()}
     if os.environ.get("XLA_FLAGS"):
         machine["xla_flags"] = os.environ["XLA_FLAGS"]
     record = {
@@ -104,6 +117,15 @@ def provenance(argv: list[str] | None = None) -> dict:
     if src is not None:
         record["source"] = src
     return record
+
+
+def _usable_cores() -> int | None:
+    """The cores this process may run on (its CPU affinity, as ``taskset`` or a container's
+    cpuset sets it), else the machine's count."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # not on Linux
+        return os.cpu_count()
 
 
 def _now() -> str:

@@ -54,6 +54,42 @@ def test_source_is_none_outside_a_checkout(monkeypatch, tmp_path):
     assert prov.source() is None
 
 
+def test_dirty_names_a_changed_file_and_an_untracked_one_the_run_loads(monkeypatch, tmp_path):
+    """A checkout is dirty when a tracked file changed or when a task, robot or module file the
+    run loads is not tracked (``git status --untracked-files=no`` called a tree with a new
+    tasks/*.toml clean, though the commit cannot give that task); files git ignores, and
+    untracked files elsewhere, do not count."""
+    def git(*args):
+        subprocess.run(["git", "-C", str(tmp_path), *args], capture_output=True, check=True)
+
+    for name, text in (("jtraj/provenance.py", ""), ("tasks/walk.toml", "a"), (".gitignore", "runs/\n")):
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_text(text)
+    git("init", "-q")
+    git("add", ".")
+    git("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-q", "-m", "x")
+    monkeypatch.setattr(prov, "__file__", str(tmp_path / "jtraj" / "provenance.py"))
+    monkeypatch.delenv("GIT_DIR", raising=False)
+    clean = prov.source()
+    assert clean is not None and clean["dirty"] is False and "untracked" not in clean
+    (tmp_path / "runs").mkdir()
+    (tmp_path / "runs" / "result.json").write_text("{}")  # ignored
+    (tmp_path / "notes.md").write_text("")  # not loaded by a run
+    assert prov.source()["dirty"] is False
+    (tmp_path / "tasks" / "my_jump.toml").write_text("b")
+    assert prov.source() == {"commit": clean["commit"], "dirty": True, "untracked": ["tasks/my_jump.toml"]}
+    (tmp_path / "tasks" / "my_jump.toml").unlink()
+    (tmp_path / "tasks" / "walk.toml").write_text("changed")
+    assert prov.source() == {"commit": clean["commit"], "dirty": True}
+
+
+def test_cores_are_the_ones_this_process_may_use(monkeypatch):
+    """``machine.cores`` is the process's CPU affinity (``taskset -c 0`` recorded the machine's
+    2)."""
+    monkeypatch.setattr(prov.os, "sched_getaffinity", lambda pid: {0}, raising=False)
+    assert prov.provenance(["jtraj", "compare"])["machine"]["cores"] == 1
+
+
 @pytest.mark.parametrize("argv", [["jtraj", "compare"], ["python", "bench/solve.py", "walk"]])
 def test_command_keeps_its_program(argv):
     assert prov.provenance(argv)["command"] == " ".join(argv)
