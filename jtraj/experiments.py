@@ -19,7 +19,7 @@ import sys
 import zlib
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TextIO
 
 import jax
 import jax.numpy as jnp
@@ -169,16 +169,41 @@ def _compare_one(task, p, variables, exact_hessian, solver, out, progress=None) 
 
 
 def _write_table_iv(rows: list[dict], out: Path) -> None:
+    """Table IV of ``rows`` (`_row`, or the rows of a table_iv.json) as table_iv.json and
+    table_iv.md. The JSON holds a NaN or infinite number as null, so a number is formatted
+    alike from either (`_table_iv_number`): table_iv.md is the same whether rendered from the
+    rows in memory or from the JSON it wrote."""
     out.mkdir(parents=True, exist_ok=True)
     jio.write_json(out / "table_iv.json", rows)
     header = ("task", "parameterization", "status", "iterations (paper, SE(3))", "obj evals", "jac evals", "cost", "violation", "turns", "time (s)", "solver")
     cells = []
     for r in rows:
         paper = TABLE_IV_PAPER_SE3.get(r["task"]) if r["parameterization"] == "se3" else None
-        turns = "" if r["turns"] is None else f"{r['turns']:+.2f}"
         iterations = f"{r['iterations']}" + (f" ({paper})" if paper else "")
-        cells.append((r["task"], r["parameterization"], r["status"], iterations, r["obj_evals"], r["jac_evals"], f"{r['cost']:.3g}", f"{r['constraint_violation']:.1e}", turns, f"{r['time_s']:.1f}", r.get("solver", "ipopt")))
+        cells.append(
+            (
+                r["task"],
+                r["parameterization"],
+                r["status"],
+                iterations,
+                r["obj_evals"],
+                r["jac_evals"],
+                _table_iv_number(r["cost"], ".3g"),
+                _table_iv_number(r["constraint_violation"], ".1e"),
+                _table_iv_number(r["turns"], "+.2f", missing=""),
+                _table_iv_number(r["time_s"], ".1f"),
+                r.get("solver", "ipopt"),
+            )
+        )
     jio.write_text(out / "table_iv.md", markdown_table(header, cells))
+
+
+def _table_iv_number(x: float | None, spec: str, missing: str = "-") -> str:
+    """A number of Table IV formatted with ``spec``; ``missing`` for None and for a NaN or
+    infinite one (which table_iv.json holds as null), "-" as Table III writes a missing median.
+    Turns are blank (``missing=""``): the committed tables leave them blank for tasks with no
+    flip, whose rows hold null."""
+    return missing if x is None or not math.isfinite(x) else format(x, spec)
 
 
 def _progress_stream(progress: TextIO | bool | None) -> TextIO | None:
@@ -791,8 +816,13 @@ def _table_iii_markdown(summary: list[dict], sigmas: Sequence[float], iterations
 
 
 def plot_iterations(runs: list[dict], path: str | Path) -> None:
-    """Fig. 2: iterations to convergence against noise (median, 25-75th percentiles)."""
+    """Fig. 2: iterations to convergence against noise (median, 25-75th percentiles), a panel
+    per task. A setting's line and band break at a noise level where none of its runs converged
+    (drawn across, they would show data there); a setting with no converged run in a panel is
+    named in it ("Quaternion #1: no converged run", in its colour), and the figure's one legend
+    lists every setting, so that a failure is seen rather than left out."""
     import matplotlib
+    from matplotlib.lines import Line2D
 
     from jtraj.plots import _figure  # built without pyplot: a notebook's backend and figures are left alone
 
@@ -804,21 +834,29 @@ def plot_iterations(runs: list[dict], path: str | Path) -> None:
     cycle = matplotlib.rcParams["axes.prop_cycle"].by_key()["color"]
     markers = "osD^vP*X"
     style = {key: dict(color=cycle[i % len(cycle)], marker=markers[i % len(markers)]) for i, key in enumerate(settings)}
+    labels = {}
+    for r in summary:
+        p = r["parameterization"]
+        labels.setdefault((p, _setting(r)), setting_label(r, summary, PARAMETERIZATIONS[p].label if p in PARAMETERIZATIONS else p))
     positive = [r["sigma"] for r in summary if r["sigma"] > 0]
     fig = _figure(figsize=(4 * len(tasks), 3.4))
     axes = fig.subplots(1, len(tasks), squeeze=False)
-    legend: dict[str, Any] = {}
+
+    def column(rows: list[dict], key: str) -> np.ndarray:
+        return np.array([np.nan if r[key] is None else r[key] for r in rows], dtype=float)
+
     for ax, task in zip(axes[0], tasks):
-        for p, setting in settings:
-            rows = [r for r in summary if r["task"] == task and (r["parameterization"], _setting(r)) == (p, setting) and r["iterations_median"] is not None]
+        failed = []
+        for key in settings:
+            rows = [r for r in summary if r["task"] == task and (r["parameterization"], _setting(r)) == key]
             if not rows:
                 continue
-            s = np.array([r["sigma"] for r in rows])
-            med = np.array([r["iterations_median"] for r in rows])
-            label = setting_label(rows[0], summary, PARAMETERIZATIONS[p].label if p in PARAMETERIZATIONS else p)
-            (line,) = ax.plot(s, med, label=label, **style[(p, setting)])
-            legend.setdefault(label, line)
-            ax.fill_between(s, [r["iterations_p25"] for r in rows], [r["iterations_p75"] for r in rows], alpha=0.2, color=style[(p, setting)]["color"])
+            if all(r["iterations_median"] is None for r in rows):
+                failed.append(key)
+                continue
+            s = np.array([r["sigma"] for r in rows], dtype=float)
+            ax.plot(s, column(rows, "iterations_median"), label=labels[key], **style[key])
+            ax.fill_between(s, column(rows, "iterations_p25"), column(rows, "iterations_p75"), alpha=0.2, color=style[key]["color"])
         if len(positive) < len(summary):  # sigma 0 (no noise) has no place on a log axis
             ax.set_xscale("symlog", linthresh=min(positive, default=1.0))
         else:
@@ -826,9 +864,10 @@ def plot_iterations(runs: list[dict], path: str | Path) -> None:
         ax.set_title(task)
         ax.set_xlabel("warm-start noise sigma")
         ax.set_ylabel("iterations to convergence")
-        if not ax.lines:  # no cell of this task converged: say so rather than leave it blank
-            ax.text(0.5, 0.5, "no converged run", transform=ax.transAxes, ha="center", va="center")
-    if legend:
-        axes[0][0].legend(list(legend.values()), list(legend), fontsize=8)
+        for i, key in enumerate(failed):
+            ax.text(0.03, 0.97 - 0.08 * i, f"{labels[key]}: no converged run", transform=ax.transAxes, ha="left", va="top", fontsize=8, color=style[key]["color"])
+    handles = [Line2D([], [], label=labels[key], **style[key]) for key in settings]
+    if handles:
+        axes[0][0].legend(handles=handles, fontsize=8)
     fig.tight_layout()
     jio.save_figure(fig, path, dpi=120)

@@ -271,9 +271,11 @@ def test_summary_keeps_solvers_and_noise_charts_apart(tmp_path, monkeypatch):
     assert (tmp_path / "fig2.png").stat().st_size > 0 and len(figures) == 1
     (ax,) = figures[0].axes
     name = PARAMETERIZATIONS["quat1"].label
-    # one line per setting with a converged run (jtraj's has none); medians 30 and 22 at sigma 0.5
-    assert [t.get_text() for t in ax.get_legend().get_texts()] == [f"{name} (ipopt, noise in own chart)", f"{name} (ipopt, noise in se3)"]
+    # one line per setting with a converged run (jtraj's has none: named in the panel, and in the
+    # legend, which lists every setting); medians 30 and 22 at sigma 0.5
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == [f"{name} (ipopt, noise in own chart)", f"{name} (ipopt, noise in se3)", f"{name} (jtraj, noise in se3)"]
     assert [tuple(line.get_ydata()) for line in ax.get_lines()] == [(30.0,), (22.0,)]
+    assert [t.get_text() for t in ax.texts] == [f"{name} (jtraj, noise in se3): no converged run"]
     one = summarize_robustness(runs[:2])
     assert len(one) == 1 and setting_label(one[0], one) == "quat1" and "| walk | quat1 | 50% / 50% |" in _table_iii_markdown(one, [0.5])
     old = [{k: v for k, v in r.items() if k not in ("solver", "noise_chart")} for r in runs[:2]]  # rows of earlier files
@@ -301,7 +303,8 @@ def test_table_iii_counts_a_converged_run_only_when_it_is_feasible():
 def test_fig2_gives_each_setting_one_colour_in_every_panel(tmp_path, monkeypatch):
     """Fig. 2: a setting keeps its colour and marker across tasks even where another setting has
     no converged run (the colours used to follow each panel's own cycle); one legend lists every
-    setting drawn; sigma 0 is drawn (a symmetric log axis), not dropped off a log axis."""
+    setting (here all three are drawn on the walk); sigma 0 is drawn (a symmetric log axis), not
+    dropped off a log axis."""
     import jtraj.experiments as experiments
     from jtraj.experiments import plot_iterations
 
@@ -323,6 +326,45 @@ def test_fig2_gives_each_setting_one_colour_in_every_panel(tmp_path, monkeypatch
     assert [line.get_label() for line in backflip.get_lines()] == [walk.get_lines()[0].get_label(), walk.get_lines()[2].get_label()]
     assert [t.get_text() for t in walk.get_legend().get_texts()] == list(colour) and backflip.get_legend() is None
     assert walk.get_xscale() == "symlog" and list(walk.get_lines()[0].get_xdata()) == [0.0, 0.1]
+
+
+def test_fig2_shows_failed_settings_and_noise_levels(tmp_path, monkeypatch):
+    """Fig. 2 drew a setting with no converged run in a panel nowhere (not even in the legend),
+    and bridged a noise level where none converged with its line and band, as if it had data:
+    the line now breaks there (NaN) and the band with it, and the failed setting is named in the
+    panel in its own colour and in the legend with its colour and marker."""
+    import matplotlib.colors as mcolors
+
+    import jtraj.experiments as experiments
+    from jtraj.experiments import plot_iterations
+    from jtraj.parameterization import PARAMETERIZATIONS
+
+    sigmas = (1e-6, 1e-3, 0.1, 0.5)
+
+    def run(task, p, sigma, converged, r):
+        return dict(task=task, parameterization=p, sigma=sigma, replicate=r, converged=converged, constraint_violation=1e-9 if converged else 1.0, success=converged, iterations=50 + r)
+
+    # the walk: both converge everywhere; the back-flip: se3 not at sigma 0.1, quat1 nowhere
+    runs = [run("walk", p, s, True, r) for p in ("se3", "quat1") for s in sigmas for r in range(3)]
+    runs += [run("backflip", "se3", s, s != 0.1, r) for s in sigmas for r in range(3)] + [run("backflip", "quat1", s, False, r) for s in sigmas for r in range(3)]
+    figures = []
+    save = experiments.jio.save_figure
+    monkeypatch.setattr(experiments.jio, "save_figure", lambda fig, path, **k: (figures.append(fig), save(fig, path, **k))[1])
+    plot_iterations(runs, tmp_path / "fig2.png")
+    walk, backflip = figures[0].axes
+    se3, quat1 = PARAMETERIZATIONS["se3"].label, PARAMETERIZATIONS["quat1"].label
+    (line,) = backflip.get_lines()
+    assert line.get_label() == se3 and list(line.get_xdata()) == list(sigmas)
+    assert np.isnan(line.get_ydata()).tolist() == [False, False, True, False]
+    (band,) = backflip.collections
+    assert len(band.get_paths()) == 2  # 1e-6 to 1e-3, and 0.5 alone: nothing across 0.1
+    colour = {line.get_label(): (line.get_color(), line.get_marker()) for line in walk.get_lines()}
+    (note,) = backflip.texts
+    assert note.get_text() == f"{quat1}: no converged run" and mcolors.same_color(note.get_color(), colour[quat1][0])
+    legend = walk.get_legend()
+    assert [t.get_text() for t in legend.get_texts()] == [se3, quat1] and backflip.get_legend() is None
+    assert [(h.get_color(), h.get_marker()) for h in legend.legend_handles] == [colour[se3], colour[quat1]]
+    assert not walk.texts
 
 
 #: the result fields of a run that the tables read (`read_runs` sets aside rows without them)

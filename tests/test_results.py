@@ -152,6 +152,23 @@ def test_table_iv_is_rendered_from_its_json(tmp_path):
         assert path.with_suffix(".md").read_text() == (tmp_path / str(i) / "table_iv.md").read_text(), f"{path.with_suffix('.md')} was not rendered from its JSON"
 
 
+@pytest.mark.parametrize("missing", [float("nan"), float("inf"), None])
+def test_table_iv_writes_a_missing_number_as_its_json_renders_it(tmp_path, missing):
+    """A NaN cost or turns printed ``nan`` / ``+nan`` in table_iv.md, while table_iv.json holds
+    null, from which the table did not render at all (TypeError): a missing number (None, NaN,
+    infinite) is "-", and turns blank, alike from the rows and from the JSON they were written to."""
+    from jtraj.experiments import _write_table_iv
+
+    (row,) = [r for r in json.loads((ROOT / "results" / "table_iv" / "table_iv.json").read_text()) if (r["task"], r["parameterization"]) == ("backflip", "se3")]
+    assert row["turns"] is not None
+    rows = [row | {"cost": missing, "constraint_violation": missing, "turns": missing, "time_s": missing}]
+    _write_table_iv(rows, tmp_path / "rows")
+    _write_table_iv(json.loads((tmp_path / "rows" / "table_iv.json").read_text()), tmp_path / "json")
+    md = (tmp_path / "rows" / "table_iv.md").read_text()
+    assert md == (tmp_path / "json" / "table_iv.md").read_text()
+    assert md.splitlines()[-1].endswith("| - | - |  | - | ipopt |"), md
+
+
 def test_side_by_side_render_cells():
     render = bench_module("side_by_side").render
     rows = [
