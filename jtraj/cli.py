@@ -61,11 +61,16 @@ def _cmd_params(args: argparse.Namespace) -> int:
 
 
 def _cmd_solve(args: argparse.Namespace) -> int:
+    """``jtraj solve``: the solve's folder with its ``provenance.json`` (`jtraj.provenance`, as
+    the sweeps write it: unfinished until the result is saved; the record of an earlier solve
+    in the folder is kept under ``"earlier"`` only while its result is still there)."""
+    from jtraj.provenance import begin_run, end_run
     from jtraj.solver import solve
 
     # loaded, retargeted and checked by _check_inputs
     options, task = args.ipopt_checked, args.task_checked
     out = args.out_checked
+    run = begin_run(out, ["jtraj", *args.argv])
     result = solve(
         task,
         args.param,
@@ -80,12 +85,14 @@ def _cmd_solve(args: argparse.Namespace) -> int:
         out=out,
         progress_every=args.every,
     )
+    run.pop("earlier", None)  # the saved result replaced the earlier solve's
+    end_run(out, run)
     from jtraj.plots import plot_convergence, plot_result
     from jtraj.result import Outcome
 
     plot_result(result, f"{out}/trajectory.png")
     plot_convergence(result, f"{out}/convergence.png")
-    print(f"wrote {out}/result.json, {out}/trajectory.npz, {out}/trajectory.png, {out}/convergence.png")
+    print(f"wrote {out}/result.json, {out}/trajectory.npz, {out}/trajectory.png, {out}/convergence.png, {out}/provenance.json")
     code = 0 if result.success else EXIT_TASK_FAILED if result.status is Outcome.TASK_FAILED else EXIT_NOT_CONVERGED
     if args.render:
         from jtraj.render import render_directory
@@ -308,7 +315,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser(
         "solve",
-        help="solve a task (Ipopt by default) and write DIR/result.json and DIR/trajectory.npz",
+        help="solve a task (Ipopt by default) and write DIR/result.json, DIR/trajectory.npz and DIR/provenance.json",
         epilog=(
             f"exit status: 0 the task succeeded, {EXIT_BAD_INPUT} bad input, {EXIT_TASK_FAILED} converged but the motion does not do the task, {EXIT_NOT_CONVERGED} not converged, "
             f"1 the task succeeded but --render could not draw it (the solution is saved), {EXIT_INTERRUPTED} interrupted (Ctrl-C)"

@@ -834,7 +834,7 @@ def plot_iterations(runs: list[dict], path: str | Path) -> None:
     cycle = matplotlib.rcParams["axes.prop_cycle"].by_key()["color"]
     markers = "osD^vP*X"
     style = {key: dict(color=cycle[i % len(cycle)], marker=markers[i % len(markers)]) for i, key in enumerate(settings)}
-    labels = {}
+    labels: dict[tuple, str] = {}
     for r in summary:
         p = r["parameterization"]
         labels.setdefault((p, _setting(r)), setting_label(r, summary, PARAMETERIZATIONS[p].label if p in PARAMETERIZATIONS else p))

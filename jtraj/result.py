@@ -13,7 +13,14 @@ older one cannot be taken for this result's); `Result.load` reads them back and 
 is atomic, the pair is not: ``result.json`` records a digest of the trajectory file's arrays
 (``trajectory_sha256``, null without a trajectory), so that a save interrupted between the
 two files is refused by `Result.load` instead of pairing one solve's result with another's
-trajectory. Files written before the digest load as they are.
+trajectory. Files written before the digest load as they are. A save also removes the files
+that jtraj derives from a result into its folder (`DERIVED_FILES`: figures, video, keyframe
+strip), which would otherwise show an earlier solve beside this one.
+
+Strict JSON writes NaN and infinities as null, and a metric's null can also be meaningful (a
+``turns`` of None: not a flip task): ``result.json`` names the metrics that held non-finite
+numbers (``metrics_non_finite``), whose nulls `Result.load` reads back as NaN; in files written
+before that list, a metric's null stays None.
 
 This module imports neither MuJoCo nor the transcription: the trajectory's class is recorded
 by name in the NPZ file and imported when the file is loaded.
@@ -40,6 +47,12 @@ RESULT_FILE = "result.json"
 TRAJECTORY_FILE = "trajectory.npz"
 _KIND_KEY = "__trajectory_class__"
 _DIGEST_KEY = "trajectory_sha256"
+_NON_FINITE_KEY = "metrics_non_finite"
+#: The files jtraj writes into a result's folder from its result: `jtraj solve`'s figures
+#: (``trajectory.png``, ``convergence.png``), ``jtraj plot``'s (``solution.png``), ``jtraj
+#: attitude``'s (``plot.png``) and ``--render``'s video and strip (``motion.mp4``,
+#: ``keyframes.png``). `Result.save` removes them: they are of the result it replaces.
+DERIVED_FILES = ("trajectory.png", "convergence.png", "solution.png", "plot.png", "motion.mp4", "keyframes.png")
 
 
 class Outcome(MessageEnum):
@@ -243,13 +256,18 @@ class Result:
         return io.to_jsonable(out)
 
     def save(self, directory: str | Path) -> Path:
-        """Write ``result.json`` and ``trajectory.npz`` into ``directory`` (created); without
-        a trajectory, an older ``trajectory.npz`` there is removed."""
+        """Write ``result.json`` and ``trajectory.npz`` into ``directory`` (created). The
+        `DERIVED_FILES` of an earlier result there (its figures and video) are removed before
+        either file is written; without a trajectory, an older ``trajectory.npz`` is removed."""
         d = Path(directory)
         d.mkdir(parents=True, exist_ok=True)
         arrays = None if self.trajectory is None else _trajectory_arrays(self.trajectory)
+        data = self.to_json()
+        for name in DERIVED_FILES:
+            (d / name).unlink(missing_ok=True)
+        non_finite = [str(key) for key, value in self.metrics.items() if _has_non_finite(value)]
         # the two files are replaced one after the other: the digest ties them together
-        io.write_json(d / RESULT_FILE, {**self.to_json(), _DIGEST_KEY: None if arrays is None else _digest(arrays)})
+        io.write_json(d / RESULT_FILE, {**data, _NON_FINITE_KEY: non_finite, _DIGEST_KEY: None if arrays is None else _digest(arrays)})
         npz = d / TRAJECTORY_FILE
         if arrays is None:
             npz.unlink(missing_ok=True)
@@ -276,6 +294,7 @@ class Result:
             # the numbers of these tables are floats too (NaN for a failed group or iteration)
             fields["violation_by_group"] = _nan_for_null(fields["violation_by_group"])
             fields["history"] = [_nan_for_null(row) for row in fields["history"]] if isinstance(fields["history"], list) else fields["history"]
+            fields["metrics"] = _restore_metrics(fields["metrics"], data.get(_NON_FINITE_KEY))
         except KeyError as e:
             raise io.FileFormatError(f"{path}: missing field {e.args[0]!r}; not a jtraj result") from None
         except ValueError as e:
@@ -301,6 +320,41 @@ def _float_or_nan(field: dataclasses.Field, value: Any) -> Any:
 def _nan_for_null(table: Any) -> Any:
     """A table of floats as read back: its nulls (NaN and infinities when written) are NaN."""
     return {k: math.nan if v is None else v for k, v in table.items()} if isinstance(table, dict) else table
+
+
+def _has_non_finite(value: Any) -> bool:
+    """Whether ``value`` (a metric: a number, an array, or lists and dicts of them) holds a NaN
+    or an infinity, which strict JSON writes as null."""
+    if isinstance(value, (float, np.floating)):
+        return not math.isfinite(value)
+    if isinstance(value, dict):
+        return any(_has_non_finite(v) for v in value.values())
+    if isinstance(value, (list, tuple)):
+        return any(_has_non_finite(v) for v in value)
+    if isinstance(value, np.ndarray) or (hasattr(value, "__array__") and hasattr(value, "dtype")):
+        a = np.asarray(value)
+        return a.dtype.kind == "f" and not bool(np.isfinite(a).all())
+    return False
+
+
+def _all_nan_for_null(value: Any) -> Any:
+    """``value`` as read back with its nulls, at any depth, as NaN."""
+    if value is None:
+        return math.nan
+    if isinstance(value, dict):
+        return {k: _all_nan_for_null(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_all_nan_for_null(v) for v in value]
+    return value
+
+
+def _restore_metrics(metrics: Any, non_finite: Any) -> Any:
+    """The metrics as saved: the nulls of those named in ``non_finite`` (the saved list of
+    metrics that held NaN or infinities) are NaN; other nulls stay None (e.g. ``turns`` of a
+    task without a flip), as do all of them in a file written before that list."""
+    if not isinstance(metrics, dict) or not isinstance(non_finite, list):
+        return metrics
+    return {k: _all_nan_for_null(v) if k in non_finite else v for k, v in metrics.items()}
 
 
 def _member(enum_cls: Any, value: Any) -> Any:

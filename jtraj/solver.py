@@ -222,6 +222,8 @@ def solve(
         progress_every: print every this many iterations (default 1: each).
         out: directory to write ``result.json`` and ``trajectory.npz`` into: a folder (or none
             yet) this user can write in, checked before the compile (as ``jtraj solve --out``).
+            The result's ``options["warm_start"]`` records how the start was made: ``given``
+            (a ``warm_start`` array), ``noise``, ``seed``, ``replicate`` and ``noise_chart``.
         keep_trajectory: attach the solution's `jtraj.transcription.Trajectory` to the result (default
             True); False keeps only the figures of the solve (the sweeps' setting), and
             ``out`` then writes no ``trajectory.npz``.
@@ -283,7 +285,10 @@ def solve(
     solution = backend.solve(nlp, x0.reshape(-1), theta, opts, callback)
     compile_time += solution.time_compile  # the backend's own program (jtraj's solver)
     traj = tr.decode(solution.x, theta)
-    result = evaluate(tr, solution, traj, compile_time, {"solver": backend.name, **opts.as_dict(), "layout": dataclasses.asdict(tr.options)}, nlp.nnz_jac, nlp.violation_by_group(solution.x, theta), theta, backend.name)
+    # how the start was drawn (a seed that is not whole drew nothing: noise needs a whole one)
+    start = {"given": warm_start is not None, "noise": float(noise), "seed": int(seed) if is_whole(seed) else None, "replicate": None if replicate is None else int(replicate), "noise_chart": noise_chart}
+    settings = {"solver": backend.name, **opts.as_dict(), "layout": dataclasses.asdict(tr.options), "warm_start": start}
+    result = evaluate(tr, solution, traj, compile_time, settings, nlp.nnz_jac, nlp.violation_by_group(solution.x, theta), theta, backend.name)
     if not keep_trajectory:
         result.trajectory = None
     if say is not None:

@@ -314,8 +314,10 @@ def test_result_files_and_figure(tmp_path):
     np.testing.assert_array_equal(back.trajectory.U, r.trajectory.U)
     assert back.metrics == json.loads(json.dumps(r.metrics))
     for name in ("quadflip", "barrelroll", "satellite"):
-        fig = B.plot_benchmark(solve(name, "attitude"), tmp_path / f"{name}.png")
-        assert fig.axes and (tmp_path / f"{name}.png").read_bytes()[:4] == b"\x89PNG"
+        # with a path, the path (as Result.plot and jtraj.plots.plot_solution); without, the figure
+        assert B.plot_benchmark(solve(name, "attitude"), tmp_path / f"{name}.png") == tmp_path / f"{name}.png"
+        assert (tmp_path / f"{name}.png").read_bytes()[:4] == b"\x89PNG"
+        assert B.plot_benchmark(solve(name, "attitude")).axes
 
 
 @pytest.mark.slow

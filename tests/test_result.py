@@ -121,6 +121,56 @@ def test_non_finite_numbers_in_the_float_tables_come_back_as_nan(tmp_path):
     assert {k: loaded[k] for k in ("iter", "inf_du", "mu", "alpha_pr")} == {"iter": 3, "inf_du": 0.5, "mu": 0.1, "alpha_pr": 0.0}
 
 
+def test_nan_metrics_come_back_as_nan_and_none_stays_none(tmp_path):
+    """A flip's NaN turns was written as null and read back as None, the value of a task
+    without a flip, and the summary dropped it; a None metric stays None."""
+    r = make_result(None, metrics={"turns": float("nan"), "final_position_error": float("inf"), "target_errors_deg": {"goal@20": float("nan"), "top@10": 1.0}, "sun_angle_deg": np.array([1.0, np.nan]), "keep_out_deg": None, "task_check": "NaN poses"})
+    back = Result.load(r.save(tmp_path))
+    m = back.metrics
+    assert np.isnan(back.turns) and np.isnan(m["final_position_error"]) and "turns +nan" in back.summary()
+    assert np.isnan(m["target_errors_deg"]["goal@20"]) and m["target_errors_deg"]["top@10"] == 1.0
+    assert m["sun_angle_deg"][0] == 1.0 and np.isnan(m["sun_angle_deg"][1])
+    assert m["keep_out_deg"] is None and m["task_check"] == "NaN poses"
+    no_flip = Result.load(make_result(None, metrics={"turns": None, "final_position_error": 0.0}).save(tmp_path))
+    assert no_flip.turns is None and "turns" not in no_flip.summary()
+
+
+def test_results_saved_before_the_list_of_non_finite_metrics_still_load(tmp_path):
+    """Older files do not tell a NaN metric from a None one: their nulls stay None."""
+    import json
+
+    make_result(None, metrics={"turns": float("nan")}).save(tmp_path)
+    data = json.loads((tmp_path / "result.json").read_text())
+    del data["metrics_non_finite"]
+    (tmp_path / "result.json").write_text(json.dumps(data))
+    assert Result.load(tmp_path).turns is None
+
+
+@pytest.mark.parametrize("trajectory", [state_trajectory, lambda: None])
+def test_a_save_removes_the_files_derived_from_the_result_it_replaces(tmp_path, trajectory):
+    """A reused folder kept the earlier solve's video, keyframe strip and figures (jtraj render,
+    jtraj plot, jtraj solve's and jtraj attitude's figures) beside the new result; files jtraj
+    does not write there stay."""
+    make_result(state_trajectory()).save(tmp_path)
+    derived = ["motion.mp4", "keyframes.png", "solution.png", "trajectory.png", "convergence.png", "plot.png"]
+    for name in [*derived, "notes.txt", "comparison.png"]:
+        (tmp_path / name).write_bytes(b"of the earlier solve")
+    make_result(trajectory(), cost=2.0).save(tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["result.json", "notes.txt", "comparison.png"] + (["trajectory.npz"] if trajectory() is not None else []))
+    assert Result.load(tmp_path).cost == 2.0
+
+
+def test_plot_returns_the_path_for_every_kind_of_result(tmp_path):
+    """Result.plot(path) returned the path for a whole-body result but the Figure for an
+    attitude benchmark's (its own plot_result)."""
+    X = np.zeros((5, 13))
+    X[:, 3] = 1.0
+    r = make_result(StateTrajectory(t=np.linspace(0, 1, 5), X=X, U=np.zeros((4, 4))))
+    path = tmp_path / "plot.png"
+    assert r.plot(path) == path and path.read_bytes()[:4] == b"\x89PNG"
+    assert hasattr(r.plot(), "savefig")  # without a path, the figure
+
+
 @pytest.mark.parametrize("second", ["with_trajectory", "without_trajectory"])
 def test_a_save_interrupted_between_its_files_is_not_loaded_as_a_pair(tmp_path, monkeypatch, second):
     """save() replaces result.json, then trajectory.npz: killed in between, the folder held the
@@ -132,8 +182,16 @@ def test_a_save_interrupted_between_its_files_is_not_loaded_as_a_pair(tmp_path, 
     def killed(*args, **kwargs):
         raise KeyboardInterrupt
 
+    path_type = type(tmp_path / "x")
+    unlink = path_type.unlink
+
+    def killed_at_the_trajectory(path, *args, **kwargs):  # the earlier figures go before either file
+        if path.name == "trajectory.npz":
+            raise KeyboardInterrupt
+        return unlink(path, *args, **kwargs)
+
     monkeypatch.setattr(jtraj.io, "write_npz", killed)
-    monkeypatch.setattr(type(tmp_path / "x"), "unlink", killed)
+    monkeypatch.setattr(path_type, "unlink", killed_at_the_trajectory)
     other = StateTrajectory(t=np.linspace(0, 2, 3), X=np.ones((3, 13)), U=np.ones((2, 4)))
     with pytest.raises(KeyboardInterrupt):
         make_result(other if second == "with_trajectory" else None, cost=2.0).save(tmp_path)

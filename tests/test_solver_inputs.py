@@ -259,6 +259,24 @@ def test_solve_checks_out_before_building_anything(tmp_path, monkeypatch):
             jtraj.solver.solve("big_jump", out=out)
 
 
+def test_the_result_records_how_its_warm_start_was_made(tmp_path):
+    """A solve's result (and its result.json) named neither the noise nor the seed of its
+    warm start: a folder of ``jtraj solve --noise 0.5 --seed 3`` read as one from the task's
+    own start."""
+    from test_transcription import HOP
+
+    import jtraj.solver
+    from jtraj.result import Result
+
+    quick = {"progress": None, "ipopt_options": {"max_iter": 1}}
+    r = jtraj.solver.solve(HOP, noise=0.01, seed=3, out=str(tmp_path / "r"), **quick)
+    drawn = {"given": False, "noise": 0.01, "seed": 3, "replicate": None, "noise_chart": None}
+    assert r.options["warm_start"] == drawn
+    assert Result.load(tmp_path / "r").options["warm_start"] == drawn
+    given = jtraj.solver.solve(HOP, warm_start=jtraj.solver.prepare(HOP).transcription.warm_start(), **quick)
+    assert given.options["warm_start"] == {"given": True, "noise": 0.0, "seed": 0, "replicate": None, "noise_chart": None}
+
+
 def test_exact_hessian_refuses_another_hessian_option():
     """exact_hessian=True dropped an explicit hessian_approximation='limited-memory' without a
     word and solved with the exact Hessian; an agreeing option is taken."""

@@ -523,8 +523,9 @@ def get(name: str | Benchmark, n_knots: int | None = None, **kwargs: Any) -> Ben
 
 def plot_benchmark(result: Any, path: str | Path | None = None, ax: Any = None) -> Any:
     """The benchmark's telling curve (its class's `Benchmark.plot_curve`) of an attitude
-    `jtraj.result.Result`. Returns the matplotlib Figure (drawn into ``ax`` when given);
-    writes it to ``path`` when given."""
+    `jtraj.result.Result`: the matplotlib Figure (drawn into ``ax`` when given), or, when
+    ``path`` is given, the path it is written to (as `jtraj.plots.plot_solution` returns, so
+    that `jtraj.result.Result.plot` returns the same for both kinds of result)."""
     from matplotlib.figure import Figure
 
     if ax is None:
@@ -537,5 +538,5 @@ def plot_benchmark(result: Any, path: str | Path | None = None, ax: Any = None) 
     ax.grid(True, alpha=0.4)
     ax.legend(fontsize=8)
     if path is not None:
-        io.save_figure(fig, path, dpi=150, bbox_inches="tight")
+        return io.save_figure(fig, path, dpi=150, bbox_inches="tight")
     return fig
