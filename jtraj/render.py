@@ -174,9 +174,9 @@ def _renderer(model, width: int, height: int):
 # Scene
 
 
-def add_scenery(spec: mujoco.MjSpec, *, checker_size: float = 0.5, ground: bool = True) -> None:
-    """Adds a checker ground plane (squares of ``checker_size`` m; none if not ``ground``), a
-    sky and a light that casts shadows to a MuJoCo spec."""
+def add_scenery(spec: mujoco.MjSpec, *, checker_size: float = 0.5, ground: bool = True, ground_height: float = 0.0) -> None:
+    """Adds a checker ground plane (squares of ``checker_size`` m, at height ``ground_height``
+    m; none if not ``ground``), a sky and a light that casts shadows to a MuJoCo spec."""
     mujoco = _mujoco()
     spec.add_texture(
         name="jtraj_sky", type=mujoco.mjtTexture.mjTEXTURE_SKYBOX, builtin=mujoco.mjtBuiltin.mjBUILTIN_GRADIENT,
@@ -191,7 +191,7 @@ def add_scenery(spec: mujoco.MjSpec, *, checker_size: float = 0.5, ground: bool 
     # A plane of size 0 is drawn to the horizon.
     if ground:
         spec.worldbody.add_geom(
-            name="jtraj_ground", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 0.05], material="jtraj_ground",
+            name="jtraj_ground", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 0.05], pos=[0.0, 0.0, ground_height], material="jtraj_ground",
             contype=0, conaffinity=0, group=2,
         )
     spec.worldbody.add_light(
@@ -205,8 +205,9 @@ def add_scenery(spec: mujoco.MjSpec, *, checker_size: float = 0.5, ground: bool 
 
 
 @functools.lru_cache(maxsize=None)
-def scene_model(robot_name: str) -> mujoco.MjModel:
-    """The robot's render model (`jtraj.robot.load_render_model`) on a checker ground.
+def scene_model(robot_name: str, ground_height: float = 0.0) -> mujoco.MjModel:
+    """The robot's render model (`jtraj.robot.load_render_model`) on a checker ground at
+    ``ground_height`` m (the task's ``terrain_height``, where its feet touch).
 
     Collision meshes of bodies that also have visual meshes are hidden (group 3) so each body
     is drawn once; a body with only collision meshes shows those.
@@ -216,7 +217,7 @@ def scene_model(robot_name: str) -> mujoco.MjModel:
     _mujoco()
     robot = robots.load(robot_name)
     spec = robots.render_spec(robot)
-    add_scenery(spec)
+    add_scenery(spec, ground_height=ground_height)
     model = robots.compile_render_spec(robot, spec)
     visual_bodies = set(model.geom_bodyid[model.geom_group == 1])
     for g in range(model.ngeom):
@@ -323,11 +324,15 @@ class _Painter:
         self.arrow_width = 0.04 * scale
 
     @classmethod
-    def for_robot(cls, robot_name: str, options: RenderOptions) -> _Painter:
+    def for_result(cls, result: Result, options: RenderOptions) -> _Painter:
+        """The painter of ``result``'s robot on its task's ground (``terrain_height`` in the
+        result's options; 0 for results saved before it was recorded)."""
         from jtraj import robot as robots
 
+        robot_name = result.robot
         robot = robots.load(robot_name)
-        painter = cls(scene_model(robot_name), options, weight=robot.total_mass * robot.gravity, scale=float(robot.base_xyz_wxyz_standing[2]))
+        ground = float(result.options.get("terrain_height", 0.0) or 0.0)
+        painter = cls(scene_model(robot_name, ground), options, weight=robot.total_mass * robot.gravity, scale=float(robot.base_xyz_wxyz_standing[2]))
         painter.robot = robot
         return painter
 
@@ -498,7 +503,7 @@ def render(result: Result | str | Path, options: RenderOptions | Mapping[str, An
     duration = float(traj.t[-1] - traj.t[0])
     n = max(2, int(round(duration / options.speed * options.fps)) + 1)
     frames = interpolate(traj, np.linspace(traj.t[0], traj.t[-1], n))
-    painter = _Painter.for_robot(result.robot, options)
+    painter = _Painter.for_result(result, options)
     try:
         lookat, distance = _follow(frames, painter.robot)
         distance = options.distance or distance
@@ -569,7 +574,7 @@ def keyframe_strip(
     else:
         times = np.linspace(traj.t[0], traj.t[-1], n)
     frames = interpolate(traj, times)
-    painter = _Painter.for_robot(result.robot, options)
+    painter = _Painter.for_result(result, options)
     try:
         lookat, distance = _follow(frames, painter.robot)
         distance = options.distance or distance

@@ -287,7 +287,7 @@ def solve(
     traj = tr.decode(solution.x, theta)
     # how the start was drawn (a seed that is not whole drew nothing: noise needs a whole one)
     start = {"given": warm_start is not None, "noise": float(noise), "seed": int(seed) if is_whole(seed) else None, "replicate": None if replicate is None else int(replicate), "noise_chart": noise_chart}
-    settings = {"solver": backend.name, **opts.as_dict(), "layout": dataclasses.asdict(tr.options), "warm_start": start}
+    settings = {"solver": backend.name, **opts.as_dict(), "layout": dataclasses.asdict(tr.options), "warm_start": start, "terrain_height": float(tr.task.terrain_height)}
     result = evaluate(tr, solution, traj, compile_time, settings, nlp.nnz_jac, nlp.violation_by_group(solution.x, theta), theta, backend.name)
     if not keep_trajectory:
         result.trajectory = None

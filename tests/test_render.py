@@ -472,3 +472,21 @@ def test_render_directory_checks_its_arguments_before_drawing(result, tmp_path, 
         with pytest.raises(ValueError, match=match):
             jrender.render_directory(tmp_path, **kwargs)
     assert not (tmp_path / "m.gif").exists()
+
+
+def test_the_ground_is_drawn_at_the_tasks_terrain_height(result, monkeypatch):
+    """The ground plane is at the height the task's feet touch (``terrain_height``, which a
+    result records in its options); it was drawn at z = 0 whatever the task said. A result saved
+    before the height was recorded is drawn on z = 0."""
+    import jtraj.render as render_module
+
+    ground = render_module.scene_model("go2", 0.3)
+    plane = mujoco.mj_name2id(ground, mujoco.mjtObj.mjOBJ_GEOM, "jtraj_ground")
+    assert ground.geom_pos[plane][2] == pytest.approx(0.3)
+    assert render_module.scene_model("go2").geom_pos[plane][2] == 0.0
+    asked = []
+    real = render_module.scene_model
+    monkeypatch.setattr(render_module, "scene_model", lambda name, height=0.0: (asked.append((name, height)), real(name, height))[1])
+    render(dataclasses.replace(result, options={"terrain_height": 0.3}), SMALL, fps=2, label=False)
+    render(result, SMALL, fps=2, label=False)
+    assert asked == [("go2", 0.3), ("go2", 0.0)]

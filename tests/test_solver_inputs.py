@@ -273,6 +273,8 @@ def test_the_result_records_how_its_warm_start_was_made(tmp_path):
     drawn = {"given": False, "noise": 0.01, "seed": 3, "replicate": None, "noise_chart": None}
     assert r.options["warm_start"] == drawn
     assert Result.load(tmp_path / "r").options["warm_start"] == drawn
+    # and the ground its feet touch, where jtraj render draws it
+    assert r.options["terrain_height"] == HOP.terrain_height == Result.load(tmp_path / "r").options["terrain_height"]
     given = jtraj.solver.solve(HOP, warm_start=jtraj.solver.prepare(HOP).transcription.warm_start(), **quick)
     assert given.options["warm_start"] == {"given": True, "noise": 0.0, "seed": 0, "replicate": None, "noise_chart": None}
 
