@@ -351,6 +351,8 @@ def main(argv: list[str] | None = None) -> None:
     # every input is checked before anything is solved
     if args.peer and not (os.path.isfile(args.peer) and os.access(args.peer, os.X_OK)):
         ap.error(f"--peer: {args.peer!r}: expected the path of the paper code's executable runner, or --peer '' to skip it")
+    if not args.sigma and args.seeds != [0]:  # without noise one solve is made, seed 0's
+        ap.error(f"--seeds: {','.join(map(str, args.seeds))}: seeds of the noise draws; expected --sigma > 0 with them")
     names = [v for v in args.variables.split(",") if v]
     try:
         robots = _check_robots(args.robot)

@@ -252,6 +252,8 @@ def main(argv: list[str] | None = None) -> None:
     if extra.get("print_level", 3) < 3:
         ap.error(f"--ipopt print_level={extra['print_level']}: expected 3 or more (the default here is 3): Ipopt prints its timing statistics from level 3")
     peer = None if args.no_peer else args.peer
+    if peer is not None and args.param != "se3":  # its ratio would be of two parameterizations
+        ap.error(f"--param {args.param}: the public code solves with the SE(3) tangent only; pass --param se3, or --no-peer for jtraj's rows alone")
     if peer is not None and not (os.path.isfile(peer) and os.access(peer, os.X_OK)):
         ap.error(f"--peer: {peer!r}: expected the path of an executable runner (run as PEER TASK)")
     if peer is None and not args.no_peer:

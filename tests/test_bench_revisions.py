@@ -72,6 +72,21 @@ def test_bad_arguments_are_refused_before_any_work(revisions, monkeypatch, capsy
     refused(revisions.main, argv, capsys, message)
 
 
+def test_the_checkout_itself_is_refused_as_the_earlier_revision(revisions, monkeypatch, capsys):
+    """HEAD on a checkout without changes gave both columns one label, and the table took both
+    from the first revision's solves: 1.00x whatever was measured. A checkout whose only
+    change is an untracked file a run loads counts as changed (`jtraj.provenance.source`)."""
+    from conftest import refused
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("did work after a bad input")
+
+    monkeypatch.setattr(revisions, "run_child", no_work)
+    monkeypatch.setattr(revisions.tempfile, "TemporaryDirectory", no_work)
+    monkeypatch.setattr(revisions, "source", lambda: {"commit": "c", "dirty": False})
+    refused(revisions.main, ["HEAD", "walk"], capsys, "rev: 'HEAD': the checkout itself (")
+
+
 def test_a_task_file_is_given_to_both_trees_by_its_absolute_path(revisions, monkeypatch, tmp_path, capsys):
     """Each child runs in its tree (the earlier revision's is a temporary worktree): a task file
     named relative to where the benchmark was started was looked for inside that tree."""
@@ -91,6 +106,7 @@ def test_a_task_file_is_given_to_both_trees_by_its_absolute_path(revisions, monk
 
     monkeypatch.setattr(revisions.subprocess, "run", run)
     monkeypatch.setattr(revisions, "run_child", child)
+    monkeypatch.setattr(revisions, "source", lambda: {"commit": "c", "dirty": True})  # HEAD against the changes
     assert revisions.main(["HEAD", "mine.toml", "--repeats", "1"]) == 0
     assert seen == [str(tmp_path / "mine.toml")] * 2
     assert "| mine.toml | 10 / 10 |" in capsys.readouterr().out
@@ -119,6 +135,7 @@ def test_out_is_written_as_the_other_benchmarks_results_with_the_provenance_writ
     monkeypatch.setattr(pathlib.Path, "write_text", lambda self, *a, **k: written.append(self.name) or real_path_write_text(self, *a, **k))
     monkeypatch.setattr(revisions.subprocess, "run", run)
     monkeypatch.setattr(revisions, "run_child", child)
+    monkeypatch.setattr(revisions, "source", lambda: {"commit": "c", "dirty": True})
     out = tmp_path / "out"
     assert revisions.main(["HEAD", "walk", "--repeats", "1", "--out", str(out)]) == 0
     printed = capsys.readouterr().out

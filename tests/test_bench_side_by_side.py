@@ -85,6 +85,8 @@ def test_unparsable_peer_output_stops_with_one_line(sbs, tmp_path, body, printed
         (["--sigma", "0.5", "--seeds", "-1"], "argument --seeds: '-1': expected comma-separated seeds >= 0"),
         (["--sigma", "-1"], "argument --sigma: '-1': expected a noise level (standard deviation) >= 0"),
         (["--sigma", "nan"], "argument --sigma: 'nan': expected a noise level"),
+        # seeds without noise solved seed 0 alone, without a word
+        (["--seeds", "1,2,3"], "--seeds: 1,2,3: seeds of the noise draws; expected --sigma > 0 with them"),
         # a file: FileExistsError's traceback from mkdir
         (["--out", "README.md"], "argument --out: 'README.md': is a file; expected a folder"),
     ],

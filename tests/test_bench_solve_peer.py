@@ -152,6 +152,8 @@ def test_ipopt_options_may_raise_the_print_level(monkeypatch, extra, expected):
         (["--param", "bogus"], "argument --param: invalid choice: 'bogus'"),
         (["--repeat", "2"], "--repeat: 2: expected an odd count (at least 1), so that the median is one of the runs"),
         (["--repeat", "0"], "--repeat: 0: expected an odd count"),
+        # the peer solves with SE(3): its ratio to another parameterization's solve was printed as a speed-up
+        (["--param", "euler"], "--param euler: the public code solves with the SE(3) tangent only"),
     ],
 )
 def test_bad_options_are_refused_before_any_work(monkeypatch, capsys, tmp_path, argv, message):
