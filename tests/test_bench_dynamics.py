@@ -65,3 +65,15 @@ def test_table_says_each_row_median_count(capsys):
     assert lines[2] == "| tau at all knots | 2.000 | 1.000 | 2.00 | 0.50 | 30 |"
     assert lines[3] == "| jax.jacfwd through jtraj RNEA | 4.000 |  |  | 2.00 | 10 |"
     assert lines[-1] == "note"
+
+
+def test_a_disagreement_with_pinocchio_stops_the_benchmark():
+    """The cross-check with Pinocchio was printed and never enforced: wrong derivatives would
+    have been timed against Pinocchio's. Above the tolerance, or NaN, the run stops."""
+    import pytest
+
+    bench = bench_module("dynamics")
+    bench.refuse_disagreement(4.4e-16)  # the Go2's, measured
+    for err in (1e-6, float("nan")):
+        with pytest.raises(SystemExit, match="tau and Jacobians differ by"):
+            bench.refuse_disagreement(err)
