@@ -45,6 +45,17 @@ class _EachTaskOnce(argparse.Action):
         setattr(namespace, self.dest, values)
 
 
+def refuse_repeats(ap: argparse.ArgumentParser, field: str, names: Sequence[str], what: str) -> None:
+    """argparse's one-line error where a name of ``names`` (a comma-separated option's items)
+    is given twice: the benchmark would solve and table it twice."""
+    from jtraj.experiments import RepeatedValueError, _refuse_repeats
+
+    try:
+        _refuse_repeats(field, names, names, what)
+    except RepeatedValueError as e:
+        ap.error(str(e))
+
+
 def add_param(ap: argparse.ArgumentParser, default: str = "se3") -> None:
     """``--param``: one of jtraj's floating-base parameterizations."""
     from jtraj.parameterization import PARAMETERIZATIONS

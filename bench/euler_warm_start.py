@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
-from _args import add_out, add_tasks  # noqa: E402
+from _args import add_out, add_tasks, refuse_repeats  # noqa: E402
 
 VARIANTS = ("matrix", "angles", "angles-nudged", "angles-held")
 
@@ -92,6 +92,7 @@ def main(argv: list[str] | None = None) -> None:
     variants = [v.strip() for v in a.variants.split(",") if v.strip()]
     if not variants or any(v not in VARIANTS for v in variants):
         ap.error(f"--variants: expected some of {', '.join(VARIANTS)}, got {a.variants!r}")
+    refuse_repeats(ap, "--variants", variants, "variant")
     records = []
     for task in a.tasks:
         for variant in variants:

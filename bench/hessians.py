@@ -27,7 +27,7 @@ from jtraj.solvers.ipm import IpmOptions
 from jtraj.tables import markdown_table
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
-from _args import add_out, add_param, add_tasks, add_variables  # noqa: E402
+from _args import add_out, add_param, add_tasks, add_variables, refuse_repeats  # noqa: E402
 
 HESSIANS = ("lbfgs", "bfgs", "exact")
 
@@ -67,6 +67,7 @@ def main(argv: list[str] | None = None) -> None:
     hessians = [h for h in args.hessians.split(",") if h]
     if not hessians:
         ap.error(f"--hessians: {args.hessians!r}: expected some of {','.join(HESSIANS)}")
+    refuse_repeats(ap, "--hessians", hessians, "Hessian")
     for h in hessians:
         try:
             IpmOptions(hessian=h)  # an unknown name fails here, with the option's own message

@@ -29,7 +29,7 @@ import numpy as np
 from jtraj.experiments import ALL_TASKS
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
-from _args import add_out  # noqa: E402
+from _args import add_out, refuse_repeats  # noqa: E402
 
 
 def norms_of(tr, x: np.ndarray) -> np.ndarray:
@@ -93,6 +93,7 @@ def main(argv: list[str] | None = None) -> None:
     bad = [t for t in a.tasks if t not in ALL_TASKS]
     if bad:
         ap.error(f"unknown task(s) {bad}; expected some of {list(ALL_TASKS)}")
+    refuse_repeats(ap, "tasks", a.tasks, "task")
     records = []
     for task in a.tasks:
         for unit_norm in (False,) if a.no_norm_row_only else (False, True):

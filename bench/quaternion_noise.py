@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
-from _args import add_out, add_variables  # noqa: E402
+from _args import add_out, add_variables, refuse_repeats  # noqa: E402
 
 #: raw: the chart's own draws; unit: a quaternion chart's draws with each rho normalized; any
 #: other parameterization's name: that chart's draws (same seed), its noisy poses written in
@@ -200,6 +200,7 @@ def main(argv: list[str] | None = None) -> None:
     modes = tuple(a.modes.split(","))
     if not modes or set(modes) - set(MODES):
         ap.error(f"--modes {a.modes}: expected modes of {','.join(MODES)}")
+    refuse_repeats(ap, "--modes", modes, "mode")
     try:  # every (parameterization, mode) pair, before the first solve
         check_modes(a.task, params, a.variables, modes)
     except ValueError as e:

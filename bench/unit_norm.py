@@ -31,7 +31,7 @@ from pathlib import Path
 from jtraj.experiments import ALL_TASKS
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
-from _args import add_out, add_tasks  # noqa: E402
+from _args import add_out, add_tasks, refuse_repeats  # noqa: E402
 
 
 def run(task: str, param: str, unit_norm: bool, solver: str) -> dict:
@@ -69,6 +69,7 @@ def main(argv: list[str] | None = None) -> None:
     params = [p for p in a.params.split(",") if p]
     if not params or any(p not in ("quat1", "quat2", "quat3") for p in params):
         ap.error(f"--params: expected quaternion charts (quat1, quat2, quat3), got {a.params!r}")
+    refuse_repeats(ap, "--params", params, "chart")
     records = []
     for task in a.tasks:
         for param in params:

@@ -129,6 +129,12 @@ def test_tasks_parameterizations_and_variables_are_checked(monkeypatch, capsys, 
         ("quaternion_noise", ["--first", "-1"], "--first: -1: expected an integer >= 0"),
         ("quaternion_noise", ["--max-iter", "0"], "--max-iter: 0: expected an integer >= 1"),
         ("quaternion_noise", ["--sigma", "-1"], "--sigma: -1.0: expected a noise level (standard deviation) >= 0"),
+        # a name given twice was solved and tabled twice
+        ("quaternion_noise", ["--modes", "raw,unit,raw"], "--modes: 'raw' given 2 times; expected each mode once"),
+        ("hessians", ["walk", "--hessians", "lbfgs,lbfgs"], "--hessians: 'lbfgs' given 2 times; expected each Hessian once"),
+        ("unit_norm", ["--params", "quat3,quat3"], "--params: 'quat3' given 2 times; expected each chart once"),
+        ("euler_warm_start", ["--variants", "matrix,matrix"], "--variants: 'matrix' given 2 times; expected each variant once"),
+        ("quat3_norms", ["walk", "walk"], "tasks: 'walk' given 2 times; expected each task once"),
     ],
 )
 def test_lists_and_counts_are_checked(monkeypatch, capsys, script, argv, message):
