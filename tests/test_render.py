@@ -258,7 +258,7 @@ def test_nan_forces_are_refused_before_drawing_where_forces_are_drawn(result, mo
     broken = dataclasses.replace(result, trajectory=dataclasses.replace(result.trajectory, forces=forces))
     match = r"the contact forces are NaN or infinite at 2 knot\(s\), the first at knot 1 \(the solver's status: solved; RenderOptions\(forces=False\), or jtraj render --no-forces, draws the motion without them\); nothing to draw there"
     with monkeypatch.context() as m:
-        m.setattr(jrender._Painter, "for_robot", lambda *a, **k: pytest.fail("opened a renderer before checking the forces"))
+        m.setattr(jrender._Painter, "for_result", lambda *a, **k: pytest.fail("opened a renderer before checking the forces"))
         with pytest.raises(NotDrawable, match=match):
             render(broken, SMALL)
         for layout in ("side", "overlay"):
