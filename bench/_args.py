@@ -35,23 +35,19 @@ class _EachTaskOnce(argparse.Action):
     and table it twice, or (bench/revisions.py) pair the wrong records."""
 
     def __call__(self, parser, namespace, values, option_string=None):
-        from jtraj.experiments import RepeatedValueError, _refuse_repeats
-
         tasks = list(values or [])
-        try:
-            _refuse_repeats("tasks", tasks, [Path(t).resolve() if t.endswith(".toml") else t for t in tasks], "task")
-        except RepeatedValueError as e:
-            parser.error(str(e))
+        refuse_repeats(parser, "tasks", tasks, "task", keys=[Path(t).resolve() if t.endswith(".toml") else t for t in tasks])
         setattr(namespace, self.dest, values)
 
 
-def refuse_repeats(ap: argparse.ArgumentParser, field: str, names: Sequence[str], what: str) -> None:
-    """argparse's one-line error where a name of ``names`` (a comma-separated option's items)
-    is given twice: the benchmark would solve and table it twice."""
+def refuse_repeats(ap: argparse.ArgumentParser, field: str, names: Sequence[str], what: str, keys: Sequence | None = None) -> None:
+    """argparse's one-line error where a name of ``names`` (a comma-separated option's items,
+    or positional tasks) is given twice, or two have one of ``keys`` (default: the names
+    themselves): the benchmark would solve and table it twice."""
     from jtraj.experiments import RepeatedValueError, _refuse_repeats
 
     try:
-        _refuse_repeats(field, names, names, what)
+        _refuse_repeats(field, names, names if keys is None else keys, what)
     except RepeatedValueError as e:
         ap.error(str(e))
 

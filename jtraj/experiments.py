@@ -29,7 +29,7 @@ from jtraj import io as jio
 from jtraj import solvers
 from jtraj.deprecation import renamed_argument
 from jtraj.executors import WorkerLostError, check_executor_name, executor_for
-from jtraj.numbers import is_seed
+from jtraj.numbers import is_real, is_seed, is_whole
 from jtraj.parameterization import PARAMETERIZATIONS
 from jtraj.result import Outcome
 from jtraj.solver import evaluate, prepare, solve, solver_options, transcription_options, variables_label
@@ -396,36 +396,20 @@ def run_key(row: dict) -> tuple:
 _RUN_FIELDS = ("task", "converged", "constraint_violation", "success", "iterations")
 
 
-def _is_string(v) -> bool:
-    return isinstance(v, str)
-
-
-def _is_integer(v) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool)
-
-
-def _is_number(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool)
-
-
-def _is_bool(v) -> bool:
-    return isinstance(v, bool)
-
-
 #: the JSON kind of each field of `RUN_KEY` and `_RUN_FIELDS`, as the sweeps write them: a key
 #: field's value is hashed and compared (a list made `run_key` unhashable), a result field's
 #: is compared and counted by the tables (a string violation crashed Table III); null where
 #: the value can be unknown (the fields `_KEY_DEFAULTS` gives None, a NaN violation)
 _FIELD_KINDS = {
-    **{k: (_is_string, "a string") for k in ("task_hash", "parameterization", "layout", "hessian", "options_hash", "solver", "task")},
-    **{k: (lambda v: v is None or _is_string(v), "a string or null") for k in ("variables_hash", "noise_chart", "robot_hash")},
-    "seed": (_is_integer, "an integer"),
-    "sigma": (_is_number, "a number"),
-    "replicate": (_is_integer, "an integer"),
-    "converged": (_is_bool, "true or false"),
-    "constraint_violation": (lambda v: v is None or _is_number(v), "a number or null"),
-    "success": (_is_bool, "true or false"),
-    "iterations": (_is_integer, "an integer"),
+    **{k: (lambda v: isinstance(v, str), "a string") for k in ("task_hash", "parameterization", "layout", "hessian", "options_hash", "solver", "task")},
+    **{k: (lambda v: v is None or isinstance(v, str), "a string or null") for k in ("variables_hash", "noise_chart", "robot_hash")},
+    "seed": (is_whole, "an integer"),
+    "sigma": (is_real, "a number"),
+    "replicate": (is_whole, "an integer"),
+    "converged": (lambda v: isinstance(v, bool), "true or false"),
+    "constraint_violation": (lambda v: v is None or is_real(v), "a number or null"),
+    "success": (lambda v: isinstance(v, bool), "true or false"),
+    "iterations": (is_whole, "an integer"),
 }
 
 

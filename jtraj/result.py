@@ -318,8 +318,9 @@ def _float_or_nan(field: dataclasses.Field, value: Any) -> Any:
 
 
 def _nan_for_null(table: Any) -> Any:
-    """A table of floats as read back: its nulls (NaN and infinities when written) are NaN."""
-    return {k: math.nan if v is None else v for k, v in table.items()} if isinstance(table, dict) else table
+    """A table of floats as read back: its nulls (NaN and infinities when written) are NaN
+    (`_all_nan_for_null`); anything but a table as it is."""
+    return _all_nan_for_null(table) if isinstance(table, dict) else table
 
 
 def _has_non_finite(value: Any) -> bool:

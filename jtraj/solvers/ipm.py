@@ -1159,7 +1159,7 @@ class IPM:
         pairs = ((st.x - p.xl, st.zl, p.has_xl), (p.xu - st.x, st.zu, p.has_xu), (st.s - p.cl, st.vl, p.has_sl), (p.cu - st.s, st.vu, p.has_su))
         total = sum(jnp.sum(jnp.where(mask, d * z, 0.0)) for d, z, mask in pairs)
         smallest = jnp.min(jnp.stack([jnp.min(jnp.where(mask, d * z, jnp.inf)) for d, z, mask in pairs]))
-        count = sum(jnp.sum(mask) for _, _, mask in pairs)
+        count = self._n_bounds(p)
         return total / jnp.maximum(count, 1), jnp.where(count > 0, smallest, 0.0)
 
     def _update_mu(self, p: _Problem, st: _State, first, err):

@@ -185,10 +185,13 @@ def _check_file_option(name: str, path: str) -> None:
     """Refuse an ``output_file`` Ipopt could not open for writing, or an ``option_file_name``
     that is not a readable file."""
     if name == "output_file":
+        from jtraj.io import output_folder_problem
+
         folder = os.path.dirname(os.path.abspath(path))
         if os.path.isdir(path):
             raise IpoptOptionError(name, path, "a folder; expected a file path")
-        if not os.path.isdir(folder) or not os.access(folder, os.W_OK | os.X_OK):
+        # Ipopt creates no folder; writable by a real probe (permission bits do not tell root's)
+        if not os.path.isdir(folder) or output_folder_problem(folder) is not None:
             raise IpoptOptionError(name, path, f"expected a file path in an existing, writable folder ({folder} is not one)")
     elif not os.path.isfile(path) or not os.access(path, os.R_OK):
         raise IpoptOptionError(name, path, "expected a readable Ipopt options file (Ipopt skips one it cannot read)")
