@@ -35,8 +35,6 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
 from _args import add_out, add_param, add_tasks, add_variables  # noqa: E402
 
-from jtraj.provenance import source  # noqa: E402
-
 REPO = Path(__file__).resolve().parents[1]
 
 CHILD = """
@@ -113,7 +111,9 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"rev: {args.rev!r}: not a commit of this repository; expected a git revision such as HEAD~1 or a commit hash")
     head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True, text=True).stdout.strip()
     # changed as provenance counts it: a tracked file, or an untracked one a run loads
-    dirty = bool((source() or {}).get("dirty"))
+    from jtraj.provenance import source
+
+    dirty = bool((source(REPO) or {}).get("dirty"))
     labels = (sha.stdout.strip(), head + ("+changes" if dirty else ""))
     if labels[0] == labels[1]:  # the table's columns are found by label: both would be one run's
         ap.error(f"rev: {args.rev!r}: the checkout itself ({head}, no changes); expected an earlier revision, or changes in the checkout")

@@ -62,13 +62,14 @@ def vector_extension(cpuinfo: str) -> str | None:
 LOADED_FOLDERS = ("jtraj", "tasks", "robots")
 
 
-def source() -> dict | None:
-    """The git commit jtraj runs from and whether the run's code differs from it (``dirty``):
+def source(root: str | Path | None = None) -> dict | None:
+    """The git commit jtraj runs from (or the checkout at ``root``) and whether the run's code
+    differs from it (``dirty``):
     a tracked file changed, or a file that git does not ignore and does not track in one of
     `LOADED_FOLDERS` (a new ``tasks/*.toml`` is a built-in task the commit lacks; it is named in
     ``untracked``), when jtraj is imported from a git checkout (an editable install); None
     otherwise."""
-    root = Path(__file__).resolve().parent.parent
+    root = Path(__file__).resolve().parent.parent if root is None else Path(root)
     if not (root / ".git").exists():
         return None
     try:

@@ -83,7 +83,11 @@ def test_the_checkout_itself_is_refused_as_the_earlier_revision(revisions, monke
 
     monkeypatch.setattr(revisions, "run_child", no_work)
     monkeypatch.setattr(revisions.tempfile, "TemporaryDirectory", no_work)
-    monkeypatch.setattr(revisions, "source", lambda: {"commit": "c", "dirty": False})
+    def clean(root):  # the benchmark's own checkout, whichever jtraj this process imported
+        assert root == revisions.REPO
+        return {"commit": "c", "dirty": False}
+
+    monkeypatch.setattr("jtraj.provenance.source", clean)
     refused(revisions.main, ["HEAD", "walk"], capsys, "rev: 'HEAD': the checkout itself (")
 
 
@@ -106,7 +110,7 @@ def test_a_task_file_is_given_to_both_trees_by_its_absolute_path(revisions, monk
 
     monkeypatch.setattr(revisions.subprocess, "run", run)
     monkeypatch.setattr(revisions, "run_child", child)
-    monkeypatch.setattr(revisions, "source", lambda: {"commit": "c", "dirty": True})  # HEAD against the changes
+    monkeypatch.setattr("jtraj.provenance.source", lambda root=None: {"commit": "c", "dirty": True})  # HEAD against the changes
     assert revisions.main(["HEAD", "mine.toml", "--repeats", "1"]) == 0
     assert seen == [str(tmp_path / "mine.toml")] * 2
     assert "| mine.toml | 10 / 10 |" in capsys.readouterr().out
@@ -135,7 +139,7 @@ def test_out_is_written_as_the_other_benchmarks_results_with_the_provenance_writ
     monkeypatch.setattr(pathlib.Path, "write_text", lambda self, *a, **k: written.append(self.name) or real_path_write_text(self, *a, **k))
     monkeypatch.setattr(revisions.subprocess, "run", run)
     monkeypatch.setattr(revisions, "run_child", child)
-    monkeypatch.setattr(revisions, "source", lambda: {"commit": "c", "dirty": True})
+    monkeypatch.setattr("jtraj.provenance.source", lambda root=None: {"commit": "c", "dirty": True})
     out = tmp_path / "out"
     assert revisions.main(["HEAD", "walk", "--repeats", "1", "--out", str(out)]) == 0
     printed = capsys.readouterr().out
