@@ -61,16 +61,14 @@ def _cmd_params(args: argparse.Namespace) -> int:
 
 
 def _cmd_solve(args: argparse.Namespace) -> int:
-    """``jtraj solve``: the solve's folder with its ``provenance.json`` (`jtraj.provenance`, as
-    the sweeps write it: unfinished until the result is saved; the record of an earlier solve
-    in the folder is kept under ``"earlier"`` only while its result is still there)."""
-    from jtraj.provenance import begin_run, end_run
+    """``jtraj solve``: the solve's folder, with the ``provenance.json`` `jtraj.solve` writes
+    there (`jtraj.provenance`, as the sweeps write it: unfinished until the result is saved)
+    naming this command."""
     from jtraj.solver import solve
 
     # loaded, retargeted and checked by _check_inputs
     options, task = args.ipopt_checked, args.task_checked
     out = args.out_checked
-    run = begin_run(out, ["jtraj", *args.argv])
     result = solve(
         task,
         args.param,
@@ -84,9 +82,8 @@ def _cmd_solve(args: argparse.Namespace) -> int:
         noise_chart=args.noise_chart,
         out=out,
         progress_every=args.every,
+        command=["jtraj", *args.argv],
     )
-    run.pop("earlier", None)  # the saved result replaced the earlier solve's
-    end_run(out, run)
     from jtraj.plots import plot_convergence, plot_result
     from jtraj.result import Outcome
 

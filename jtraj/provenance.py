@@ -141,14 +141,15 @@ def write_provenance(out: str | Path, argv: list[str] | None = None) -> Path:
     return io.write_json(Path(out) / "provenance.json", provenance(argv))
 
 
-def begin_run(out: str | Path, argv: list[str] | None = None) -> dict:
-    """Write ``out/provenance.json`` as a sweep starts, marked ``"complete": false``; an earlier
-    record in the folder (of a run this one resumes or adds to) is kept under ``"earlier"``.
-    Returns the record for `end_run`."""
+def begin_run(out: str | Path, argv: list[str] | None = None, fields: dict | None = None) -> dict:
+    """Write ``out/provenance.json`` as a sweep starts, marked ``"complete": false``, with
+    ``fields`` added (e.g. `jtraj.solve`'s ``"call"``); an earlier record in the folder (of a
+    run this one resumes or adds to) is kept under ``"earlier"``. Returns the record for
+    `end_run`."""
     from jtraj import io
 
     path = Path(out) / "provenance.json"
-    record = provenance(argv)
+    record = {**provenance(argv), **(fields or {})}
     record["complete"] = False
     earlier: list = []
     if path.is_file():

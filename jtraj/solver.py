@@ -187,6 +187,7 @@ def solve(
     keep_trajectory: bool = True,
     theta: TaskParams | dict[str, Any] | None = None,
     layout: str | TranscriptionOptions | None = None,
+    command: list[str] | None = None,
 ) -> Result:
     """Solve a task with one of `jtraj.solvers.SOLVERS` (Ipopt by default).
 
@@ -224,6 +225,9 @@ def solve(
             yet) this user can write in, checked before the compile (as ``jtraj solve --out``).
             The result's ``options["warm_start"]`` records how the start was made: ``given``
             (a ``warm_start`` array), ``noise``, ``seed``, ``replicate`` and ``noise_chart``.
+            The folder's ``provenance.json`` (`jtraj.provenance.begin_run`: date, machine,
+            versions, source commit) is written before the compile, marked complete once the
+            result is saved; it names this call (``"call"``) and ``command``.
         keep_trajectory: attach the solution's `jtraj.transcription.Trajectory` to the result (default
             True); False keeps only the figures of the solve (the sweeps' setting), and
             ``out`` then writes no ``trajectory.npz``.
@@ -231,6 +235,8 @@ def solve(
             overriding some of them (``{"friction": 0.5, "timestep": 0.04}``); other values
             of theta reuse the compiled NLP.
         layout: the former name of ``variables`` (deprecated: warns).
+        command: the command line ``out``'s ``provenance.json`` records (``jtraj solve``
+            passes its own); default this process's (``sys.argv``).
     """
     variables = renamed_argument(variables, layout, "variables", "layout", "compact")
     # the arguments that need no model, checked before anything compiles
@@ -274,6 +280,12 @@ def solve(
         x0 = x0 + noise * np.random.default_rng(seed).standard_normal(x0.shape)
     compile_time = prep.time_compile
     prep.time_compile = 0.0  # counted once per process (by the first solve that gets this far)
+    run = None
+    if out is not None:  # the inputs are good: unfinished from here until the result is saved
+        from jtraj.provenance import begin_run
+
+        call = {"function": "jtraj.solve", "task": tr.task.name, "parameterization": tr.param.name, "solver": backend.name, "variables": dataclasses.asdict(tr.options), "theta_given": theta_given}
+        run = begin_run(out, command, {"call": call})
     opts = solver_options(backend, options, ipopt_options, exact_hessian, tr.task.max_iter)
     say = callback.write if isinstance(callback, solvers.PrintProgress) else None
     if say is not None:
@@ -305,7 +317,12 @@ def solve(
             worst = sorted(result.violation_by_group.items(), key=lambda kv: -kv[1])[:3]
             say("  largest violations: " + ", ".join(f"{k} {v:.2e}" for k, v in worst))
     if out is not None:
+        from jtraj.provenance import end_run
+
         result.save(out)
+        assert run is not None
+        run.pop("earlier", None)  # the saved result replaced the earlier solve's
+        end_run(out, run)
     return result
 
 

@@ -2,6 +2,7 @@
 anything compiles, with errors that name them; a problem Ipopt calls invalid is invalid for
 jtraj's solver too. Tiny knot problems (tests/test_ipm.py's double integrator)."""
 
+import json
 import re
 from types import SimpleNamespace
 
@@ -269,10 +270,18 @@ def test_the_result_records_how_its_warm_start_was_made(tmp_path):
     from jtraj.result import Result
 
     quick = {"progress": None, "ipopt_options": {"max_iter": 1}}
-    r = jtraj.solver.solve(HOP, noise=0.01, seed=3, out=str(tmp_path / "r"), **quick)
+    (tmp_path / "r").mkdir()
+    (tmp_path / "r" / "provenance.json").write_text(json.dumps({"command": "an earlier solve", "complete": True}))
+    r = jtraj.solver.solve(HOP, noise=0.01, seed=3, out=str(tmp_path / "r"), command=["jtraj", "solve", "hop"], **quick)
     drawn = {"given": False, "noise": 0.01, "seed": 3, "replicate": None, "noise_chart": None}
     assert r.options["warm_start"] == drawn
     assert Result.load(tmp_path / "r").options["warm_start"] == drawn
+    # the folder's provenance (none was written from Python): this call, the given command,
+    # complete, and not the record of the solve whose result this one replaced
+    prov = json.loads((tmp_path / "r" / "provenance.json").read_text())
+    assert prov["command"] == "jtraj solve hop" and prov["complete"] is True and "earlier" not in prov
+    assert prov["call"] == {"function": "jtraj.solve", "task": HOP.name, "parameterization": "se3", "solver": "ipopt", "variables": r.options["layout"], "theta_given": False}
+    assert {"date_utc", "date_end_utc", "versions", "machine"} <= prov.keys() and prov["versions"]["jtraj"]
     # and the ground its feet touch, where jtraj render draws it
     assert r.options["terrain_height"] == HOP.terrain_height == Result.load(tmp_path / "r").options["terrain_height"]
     given = jtraj.solver.solve(HOP, warm_start=jtraj.solver.prepare(HOP).transcription.warm_start(), **quick)
