@@ -48,7 +48,7 @@ ROBUSTNESS_TASKS = ("walk", "big_jump", "backflip", "sideflip")
 ROBUSTNESS_PARAMS = ("euler", "quat1", "quat2", "se3")
 SIGMAS = (1e-6, 1e-3, 0.1, 0.5)
 
-_ROW_KEYS = ("task", "parameterization", "solver", "status", "solver_status", "converged", "success", "turns", "iterations", "obj_evals", "grad_evals", "con_evals", "jac_evals", "cost", "constraint_violation", "time_s", "time_compile")
+_ROW_KEYS = ("task", "robot", "parameterization", "solver", "status", "solver_status", "converged", "success", "turns", "iterations", "obj_evals", "grad_evals", "con_evals", "jac_evals", "cost", "constraint_violation", "time_s", "time_compile")
 
 
 def _row(result) -> dict:
@@ -175,7 +175,9 @@ def _write_table_iv(rows: list[dict], out: Path) -> None:
     rows in memory or from the JSON it wrote."""
     out.mkdir(parents=True, exist_ok=True)
     jio.write_json(out / "table_iv.json", rows)
-    header = ("task", "parameterization", "status", "iterations (paper, SE(3))", "obj evals", "jac evals", "cost", "violation", "turns", "time (s)", "solver")
+    # the robot column where the rows name it (tables written before they did have none)
+    robots = any("robot" in r for r in rows)
+    header = ("task", *(("robot",) if robots else ()), "parameterization", "status", "iterations (paper, SE(3))", "obj evals", "jac evals", "cost", "violation", "turns", "time (s)", "solver")
     cells = []
     for r in rows:
         paper = TABLE_IV_PAPER_SE3.get(r["task"]) if r["parameterization"] == "se3" else None
@@ -183,6 +185,7 @@ def _write_table_iv(rows: list[dict], out: Path) -> None:
         cells.append(
             (
                 r["task"],
+                *((r.get("robot") or "-",) if robots else ()),
                 r["parameterization"],
                 r["status"],
                 iterations,

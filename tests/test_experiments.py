@@ -441,8 +441,10 @@ def test_compare_writes_table_iv_and_plots(tmp_path, capsys):
     assert rows[0]["task"] == "test_hop" and rows[0]["converged"]
     # the default progress prints to the sys.stdout of the call (capsys's), not of the import
     assert "jtraj: test_hop on go2" in capsys.readouterr().out
-    assert "| test_hop | se3 | solved |" in (tmp_path / "table_iv.md").read_text()
+    # the robot of each row (a task retargeted with --robot is solved on another)
+    assert rows[0]["robot"] == "go2" and "| test_hop | go2 | se3 | solved |" in (tmp_path / "table_iv.md").read_text()
     result = Result.load(tmp_path / "test_hop_se3")
+    assert json.loads((tmp_path / "test_hop_se3" / "provenance.json").read_text())["call"]["task"] == "test_hop"
     assert plot_result(result, tmp_path / "t.png").stat().st_size > 1000
     assert plot_convergence(result, tmp_path / "c.png").stat().st_size > 1000
 
@@ -619,10 +621,11 @@ def test_a_failed_cells_progress_line_says_why():
 
 def _fake_result(task, p):
     """What `jtraj.solve` returns, with the fields the sweeps' rows take."""
-    name = experiments.load_task(task).name
+    loaded = experiments.load_task(task)
+    name = loaded.name
     it = 10 + zlib.crc32(f"{name}{p}".encode()) % 20
     return types.SimpleNamespace(
-        task=name, parameterization=p, solver="ipopt", status=Outcome.SOLVED, solver_status=Status.SOLVED, converged=True, success=True, turns=None, iterations=it,
+        task=name, robot=loaded.robot, parameterization=p, solver="ipopt", status=Outcome.SOLVED, solver_status=Status.SOLVED, converged=True, success=True, turns=None, iterations=it,
         obj_evals=it + 1, grad_evals=it, con_evals=it, jac_evals=it, cost=1.0, constraint_violation=1e-9, time_s=0.01, time_compile=0.0, metrics={},
     )
 
