@@ -74,7 +74,7 @@ class AbstractParameterization(abc.ABC):
         size = self.nq if size is None else size
         value = jnp.asarray(value)
         if value.ndim == 0 or value.shape[-1] != size:
-            raise ValueError(f"{type(self).__name__}: {what} has {size} entries on its last axis ({self.label}), got shape {value.shape}")
+            raise ValueError(f"{type(self).__name__}: {what} must have {size} entries on its last axis ({self.label}), got shape {value.shape}")
         if value.ndim != 1:
             # the charts index single configurations (q[3:7]): a batch would be sliced along
             # its first axis and fail deep inside with a shape error naming neither

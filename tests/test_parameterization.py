@@ -281,7 +281,7 @@ def test_euler_warm_start_of_the_backflip_avoids_gimbal_lock():
 def test_wrong_sizes_are_refused_by_name(param):
     """A coordinate vector of another chart's size is refused, not read past its end (which
     JAX would clamp silently); integer coordinates are taken as floats."""
-    with pytest.raises(ValueError, match=rf"{type(param).__name__}: q has {param.nq} entries on its last axis"):
+    with pytest.raises(ValueError, match=rf"{type(param).__name__}: q must have {param.nq} entries on its last axis"):
         param.to_qpos(jnp.zeros(3))
     with pytest.raises(ValueError, match=r"V_b \(body twist\) has 6 entries"):
         param.integrate(param.from_pose(SE3.identity()), jnp.zeros(3), 0.1)
