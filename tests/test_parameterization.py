@@ -283,16 +283,16 @@ def test_wrong_sizes_are_refused_by_name(param):
     JAX would clamp silently); integer coordinates are taken as floats."""
     with pytest.raises(ValueError, match=rf"{type(param).__name__}: q must have {param.nq} entries on its last axis"):
         param.to_qpos(jnp.zeros(3))
-    with pytest.raises(ValueError, match=r"V_b \(body twist\) has 6 entries"):
+    with pytest.raises(ValueError, match=r"V_b \(body twist\) must have 6 entries"):
         param.integrate(param.from_pose(SE3.identity()), jnp.zeros(3), 0.1)
-    with pytest.raises(ValueError, match="q2 has"):
+    with pytest.raises(ValueError, match="q2 must have"):
         param.difference(param.from_pose(SE3.identity()), jnp.zeros(param.nq + 1))
-    with pytest.raises(ValueError, match=r"qpos \(xyz_wxyz\) has 7 entries"):
+    with pytest.raises(ValueError, match=r"qpos \(xyz_wxyz\) must have 7 entries"):
         param.from_qpos(jnp.zeros(6))
     # arguments given by name are checked too
-    with pytest.raises(ValueError, match="q has"):
+    with pytest.raises(ValueError, match="q must have"):
         param.to_pose(q=jnp.zeros(3))
-    with pytest.raises(ValueError, match=r"V_b \(body twist\) has 6 entries"):
+    with pytest.raises(ValueError, match=r"V_b \(body twist\) must have 6 entries"):
         param.integrate(param.from_pose(SE3.identity()), V_b=jnp.zeros(3), h=0.1)
     q = np.asarray(param.from_pose(SE3.identity())).round().astype(int)
     np.testing.assert_allclose(param.to_qpos(q), [0, 0, 0, 1, 0, 0, 0], atol=1e-15)
