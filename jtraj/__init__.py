@@ -25,7 +25,16 @@ _jax.config.update("jax_enable_x64", True)
 # `results/replicates_cpu_split/`).
 from jtraj import config as _config  # noqa: E402
 
-_config.split_cpu()
+try:
+    _config.split_cpu()
+except ValueError as _error:  # a bad JTRAJ_CPU_DEVICES
+    # The command line imports this package before its main() can catch anything: every
+    # command, --help too, ended in a traceback. It gets the one line of any bad input and
+    # exit status 2 (jtraj.cli.EXIT_BAD_INPUT); `import jtraj` from Python still raises.
+    if _config._runs_the_command_line():
+        print(f"jtraj: {_error}", file=_sys.stderr)
+        raise SystemExit(2) from None
+    raise
 del _config  # jtraj.config stays; help(jtraj) listed the alias as a submodule of its own
 
 from jtraj import euler, lie, parameterization, quaternion  # noqa: E402

@@ -1,11 +1,12 @@
 """Command line: ``jtraj <command>``; ``jtraj --help`` lists the commands.
 
 Exit status: 0 success; 2 a bad input (one line on stderr, ``jtraj CMD: FIELD: VALUE:
-EXPECTED``, before anything compiles or solves); ``jtraj solve`` and ``jtraj attitude`` also
-exit 3 when the solver converged to a feasible point but the motion does not do the task (e.g. a
-jump instead of a flip) and 4 when it did not return a feasible solution (the outcome
-``not_converged``, which includes a convergence to a point over the task check's violation
-tolerance). 1: the work itself failed after the inputs were accepted (``jtraj render`` or a
+EXPECTED``, before anything compiles or solves; for a bad ``JTRAJ_CPU_DEVICES``, which ``import
+jtraj`` reads before any command is parsed, ``jtraj: MESSAGE``); ``jtraj solve`` and ``jtraj
+attitude`` also exit 3 when the solver converged to a feasible point but the motion does not do
+the task (e.g. a jump instead of a flip) and 4 when it did not return a feasible solution (the
+outcome ``not_converged``, which includes a convergence to a point over the task check's
+violation tolerance). 1: the work itself failed after the inputs were accepted (``jtraj render`` or a
 successful solve's ``--render`` without a working OpenGL, the solution still saved; ``jtraj
 compare`` with no rows; a worker process of ``jtraj compare``/``jtraj robustness`` lost, e.g.
 killed when memory ran out; a failed ``jtraj params`` check). 130: interrupted (Ctrl-C); ``jtraj

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import sys
 import warnings
 from pathlib import Path
 
@@ -54,6 +55,17 @@ def split_cpu(count: int | None = None) -> int | None:
     except RuntimeError:  # JAX computed before jtraj was imported: its devices are fixed
         return None
     return int(count)
+
+
+def _runs_the_command_line() -> bool:
+    """Whether this process is jtraj's command line: the ``jtraj`` console script (its
+    ``__main__`` imports jtraj.cli) or ``python -m jtraj.cli`` (``sys.argv[0]`` is ``-m``
+    while the package is imported)."""
+    if sys.argv[:1] == ["-m"]:
+        argv = getattr(sys, "orig_argv", [])
+        return any(a == "-m" and b == "jtraj.cli" for a, b in zip(argv, argv[1:]))
+    path = getattr(sys.modules.get("__main__"), "__file__", None)
+    return path is not None and Path(path).name in ("jtraj", "jtraj-script.py", "jtraj.exe")
 
 
 def default_cache_dir() -> Path:

@@ -653,13 +653,11 @@ def _require(config: Mapping, key: str, kind: type, source: pathlib.Path, where:
 
 
 def _vector(value: Any, n: int, source: pathlib.Path, what: str) -> np.ndarray:
-    try:
-        array = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        array = None
-    if array is None or array.shape != (n,) or not np.all(np.isfinite(array)):
+    """``value`` as ``n`` floats; each element a number (np.asarray took true as 1.0 and "1" as 1.0)."""
+    items = list(value) if isinstance(value, (list, tuple, np.ndarray)) else None
+    if items is None or len(items) != n or not all(is_real(x) and np.isfinite(x) for x in items):
         raise RobotLoadError(f"{source}: {what} must be {n} finite numbers, got {value!r}")
-    return array
+    return np.array(items, dtype=np.float64)
 
 
 #: The keys a robot file may have, at its top level and in its tables.
@@ -795,9 +793,13 @@ def _assemble(config, source, name, urdf_path, urdf, locked) -> Robot:
     _check_keys(standing, "standing.", source)
     base_xyz = _vector(standing.get("base_xyz", [0.0, 0.0, 0.0]), 3, source, "standing.base_xyz")
     base_wxyz = _vector(standing.get("base_wxyz", [1.0, 0.0, 0.0, 0.0]), 4, source, "standing.base_wxyz")
-    if not np.linalg.norm(base_wxyz) > 1e-6:
-        raise RobotLoadError(f"{source}: standing.base_wxyz must be a nonzero quaternion (w, x, y, z), got {base_wxyz.tolist()}")
-    base_wxyz = base_wxyz / np.linalg.norm(base_wxyz)
+    # its norm scaled by the largest component first: [1e200, 1e200, 0, 0] had the norm inf,
+    # and normalized to zeros
+    scale = float(np.max(np.abs(base_wxyz)))
+    norm = scale * float(np.linalg.norm(base_wxyz / scale)) if scale > 0 else 0.0
+    if not 1e-6 < norm < np.inf:
+        raise RobotLoadError(f"{source}: standing.base_wxyz must be a nonzero quaternion (w, x, y, z) of finite norm, got {base_wxyz.tolist()}")
+    base_wxyz = (base_wxyz / scale) / (norm / scale)
     q_standing = np.zeros(len(joint_names))
     joints_table = standing.get("joints", {})
     if not isinstance(joints_table, Mapping):

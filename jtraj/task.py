@@ -51,6 +51,7 @@ import enum
 import functools
 import importlib.resources
 import math
+import sys
 import tomllib
 import warnings
 from pathlib import Path
@@ -60,7 +61,15 @@ import numpy as np
 
 from jtraj.deprecation import warn_renamed
 
-__all__ = ["TaskError", "Phase", "Profile", "RotationRule", "JointRule", "Task", "Schedule", "load", "from_file", "from_dict", "available", "retarget", "task_argument"]
+__all__ = ["TaskError", "Phase", "Profile", "RotationRule", "JointRule", "Task", "Schedule", "load", "from_file", "from_dict", "available", "retarget", "task_argument", "MAX_KNOTS", "MAX_ITER"]
+
+#: The most knots a task may have (the largest built-in task has 121): every knot's variables,
+#: rows and Jacobian blocks are allocated, and a timestep of 1e-7 s (23 million knots) ran
+#: out of memory
+MAX_KNOTS = 100_000
+#: The largest iteration limit: Ipopt's max_iter is a C int, and a larger one passed the task
+#: check to fail inside Ipopt's option check
+MAX_ITER = 2**31 - 1
 
 
 class TaskError(ValueError):
@@ -223,7 +232,7 @@ class Task:
             else:
                 for p in rule.phases:
                     angles[starts[p] : starts[p + 1]] = rule.angle
-            out.append((np.asarray(rule.axis, float) / np.linalg.norm(rule.axis), angles))
+            out.append((_unit(rule.axis), angles))
         return out
 
     # -------------------------------------------------------------- validation
@@ -325,6 +334,10 @@ def _real(value: Any, field: str, expected: str = "expected a number", positive:
 
 
 def _vector(value: Any, field: str, n: int = 3, nonzero: bool = False) -> tuple[float, ...]:
+    """``value`` as ``n`` floats; ``nonzero``: an axis, whose length must be nonzero and finite
+    where it is computed without scaling (np.linalg.norm, as `jtraj.success` does): [1e-200, 0, 0]
+    has the length 0 there, [1e200, 1e200, 0] an infinite one, and dividing by it gave NaN or a
+    zero axis."""
     expected = f"expected a list of {n} numbers" + (", not all zero" if nonzero else "")
     shown = _Raw(repr(list(value)) if isinstance(value, (tuple, np.ndarray)) else repr(value))
     if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != n or not all(_is_real(x) for x in value):
@@ -332,7 +345,17 @@ def _vector(value: Any, field: str, n: int = 3, nonzero: bool = False) -> tuple[
     out = tuple(float(x) for x in value)
     if nonzero and not any(out):
         raise TaskError(field, shown, expected)
+    if nonzero and not sys.float_info.min <= sum(x * x for x in out) < math.inf:
+        raise TaskError(field, shown, "expected an axis of length between 1e-150 and 1e150, e.g. [1, 0, 0] (its length does not matter, only its direction)")
     return out
+
+
+def _unit(axis: tuple[float, ...]) -> np.ndarray:
+    """The unit vector along a nonzero ``axis``, scaled by its largest component first (no
+    underflow or overflow in the squares)."""
+    a = np.asarray(axis, float)
+    a = a / np.max(np.abs(a))
+    return a / np.linalg.norm(a)
 
 
 def _indices(value: Any, field: str, n_phases: int) -> tuple[int, ...]:
@@ -379,6 +402,11 @@ def _check_and_normalize(t: Task) -> None:
         knots = duration / t.timestep
         if knots < 1 - 1e-6:
             raise TaskError(f"phases[{i}].duration", duration, f"shorter than one knot (timestep {t.timestep:g} s); expected at least {t.timestep:g} s")
+        # (before rounding: a timestep of 5e-324 s made the count infinite, and round() failed)
+        if not knots < MAX_KNOTS:
+            raise TaskError(
+                f"phases[{i}].duration", duration, f"{knots:.3g} knots at the timestep {t.timestep:g} s; expected at most {MAX_KNOTS} knots in a task (a longer timestep or a shorter phase)"
+            )
         # a phase is a whole number of knot intervals: rounding 0.12 s to 0.1 s at 0.05 s
         # would silently change the motion (a shorter flight) from what the file says
         if abs(knots - round(knots)) > 1e-6 * max(1.0, knots):
@@ -386,6 +414,10 @@ def _check_and_normalize(t: Task) -> None:
             raise TaskError(f"phases[{i}].duration", duration, f"not a whole number of timesteps ({t.timestep:g} s); expected a multiple such as {below:.6g} or {above:.6g} s")
         checked.append(Phase(tuple(contacts), duration))
     put("phases", tuple(checked))
+    n_knots = sum(round(p.duration / t.timestep) for p in checked) + 1
+    if n_knots > MAX_KNOTS:
+        total = math.fsum(p.duration for p in checked)
+        raise TaskError("timestep", t.timestep, f"{n_knots} knots over the phases' {total:g} s; expected at most {MAX_KNOTS} knots in a task (a longer timestep or shorter phases)")
     if not checked[0].contacts:
         raise TaskError("phases[0].contacts", _Raw("[]"), "expected the task to start in contact (it starts at rest)")
     if not checked[-1].contacts:
@@ -450,8 +482,8 @@ def _check_and_normalize(t: Task) -> None:
             raise TaskError("flip_turns", t.flip_turns, "expected a nonzero signed number of turns (a task without a flip has no flip_axis)")
     elif t.flip_turns is not None:
         raise TaskError("flip_turns", t.flip_turns, "expected no flip_turns without a flip_axis")
-    if isinstance(t.max_iter, bool) or not isinstance(t.max_iter, (int, np.integer)) or t.max_iter < 1:
-        raise TaskError("max_iter", t.max_iter, "expected a positive whole number of iterations")
+    if isinstance(t.max_iter, bool) or not isinstance(t.max_iter, (int, np.integer)) or not 1 <= t.max_iter <= MAX_ITER:
+        raise TaskError("max_iter", t.max_iter, f"expected a positive whole number of iterations, at most {MAX_ITER} (Ipopt's limit)")
     put("max_iter", int(t.max_iter))
     put("terrain_height", _real(t.terrain_height, "terrain_height", "expected a height in m"))
     if not isinstance(t.description, str):

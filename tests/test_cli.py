@@ -656,3 +656,17 @@ def test_solve_on_another_robot_has_its_own_default_folder(monkeypatch, tmp_path
     assert cli.main(["solve", "big_jump", "--robot", "talos=talos_full"]) == 0
     assert cli.main(["solve", "sideflip", "--robot", "talos=talos_full"]) == cli.EXIT_BAD_INPUT  # a Go2 task: the mapping would be ignored
     assert outs == ["runs/big_jump_se3", "runs/big_jump_se3_talos_full"]
+
+
+def test_a_task_whose_first_knot_is_below_the_terrain_is_one_line_before_the_solve(tmp_path, capsys):
+    """A task starting on Talos's hands put its feet 0.74 m below the ground at the fixed first
+    knot and went to the solver, which could only fail; it is refused when its NLP is built."""
+    import importlib.resources
+
+    text = (importlib.resources.files("jtraj.tasks") / "big_jump.toml").read_text()
+    path = tmp_path / "hands.toml"
+    path.write_text(text.replace('contacts = ["left_foot", "right_foot"]', 'contacts = ["left_hand", "right_hand"]', 1))
+    code, err = _run(["solve", str(path), "--out", str(tmp_path / "run")], capsys)
+    assert code == cli.EXIT_BAD_INPUT and err.count("\n") == 1
+    assert err.startswith(f"jtraj solve: {path}: phases[0].contacts: ['left_hand', 'right_hand']: the standing pose of 'talos' lowered until these touch the terrain puts left_foot_")
+    assert not (tmp_path / "run").exists()

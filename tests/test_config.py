@@ -3,6 +3,7 @@
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import jax
 import numpy as np
@@ -11,12 +12,24 @@ import pytest
 from jtraj import config
 
 
+def _environment(env: dict[str, str]) -> dict[str, str]:
+    """This process's environment without its CPU device count, plus ``env``."""
+    clean = {k: v for k, v in os.environ.items() if k not in ("JTRAJ_CPU_DEVICES", "JAX_NUM_CPU_DEVICES")}
+    clean["XLA_FLAGS"] = " ".join(f for f in clean.get("XLA_FLAGS", "").split() if "device_count" not in f)
+    return {**clean, **env}
+
+
 def _devices_after_import(env: dict[str, str], before: str = "") -> subprocess.CompletedProcess:
     """A fresh interpreter imports jtraj (after ``before``) and prints its CPU device count."""
     code = f"import jax\n{before}\nimport jtraj\nprint(len(jax.devices('cpu')))"
-    clean = {k: v for k, v in os.environ.items() if k not in ("JTRAJ_CPU_DEVICES", "JAX_NUM_CPU_DEVICES")}
-    clean["XLA_FLAGS"] = " ".join(f for f in clean.get("XLA_FLAGS", "").split() if "device_count" not in f)
-    return subprocess.run([sys.executable, "-c", code], env={**clean, **env}, capture_output=True, text=True, timeout=120)
+    return subprocess.run([sys.executable, "-c", code], env=_environment(env), capture_output=True, text=True, timeout=120)
+
+
+def _command_lines() -> list[list[str]]:
+    """The ways to run jtraj's command line: the console script where it is installed beside
+    this interpreter, and ``python -m jtraj.cli``."""
+    script = Path(sys.executable).with_name("jtraj")
+    return ([[str(script)]] if script.is_file() else []) + [[sys.executable, "-m", "jtraj.cli"]]
 
 
 def test_import_gives_one_cpu_device_per_core():
@@ -46,12 +59,26 @@ def test_cpu_devices_follow_the_environment(env, before, expected):
 
 
 def test_a_bad_device_count_says_what_is_expected():
+    # `import jtraj` from Python raises the ValueError
     out = _devices_after_import({"JTRAJ_CPU_DEVICES": "two"})
-    assert out.returncode != 0 and "JTRAJ_CPU_DEVICES='two': expected a positive whole number" in out.stderr
-    # the message names the variable that gave the count, not only the count
-    for value in ("0", "-2"):
-        out = _devices_after_import({"JTRAJ_CPU_DEVICES": value})
-        assert out.returncode != 0 and f"JTRAJ_CPU_DEVICES='{value}': {value} CPU devices; expected a positive count" in out.stderr
+    assert out.returncode != 0 and "ValueError: JTRAJ_CPU_DEVICES='two': expected a positive whole number of CPU devices\n" in out.stderr
+
+
+@pytest.mark.parametrize(
+    "value, line",
+    [
+        ("two", "JTRAJ_CPU_DEVICES='two': expected a positive whole number of CPU devices"),
+        # the message names the variable that gave the count, not only the count
+        ("0", "JTRAJ_CPU_DEVICES='0': 0 CPU devices; expected a positive count (unset JTRAJ_CPU_DEVICES for one device per core)"),
+        ("-2", "JTRAJ_CPU_DEVICES='-2': -2 CPU devices; expected a positive count (unset JTRAJ_CPU_DEVICES for one device per core)"),
+    ],
+)
+def test_a_bad_device_count_is_one_line_of_the_command_line(value, line):
+    # every command, --help too, ended in an 8-line traceback from `import jtraj`
+    runs = [[*command, *argv] for command in _command_lines() for argv in (["--help"], ["solve", "big_jump"])] if value == "two" else [[*_command_lines()[0], "--help"]]
+    for argv in runs:
+        out = subprocess.run(argv, env=_environment({"JTRAJ_CPU_DEVICES": value}), capture_output=True, text=True, timeout=120)
+        assert (out.returncode, out.stderr, out.stdout) == (2, f"jtraj: {line}\n", ""), argv
 
 
 def test_split_cpu_leaves_a_started_jax_alone():

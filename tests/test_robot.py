@@ -241,6 +241,8 @@ def _write_toml(path, config):
     """Minimal TOML writer for the robot format (tomllib only reads)."""
 
     def value(v):
+        if isinstance(v, bool):
+            return "true" if v else "false"
         if isinstance(v, str):
             return f'"{v}"'
         if isinstance(v, (list, tuple)):
@@ -318,6 +320,13 @@ def test_unknown_robot_lists_choices():
         (lambda c: c.update(locked_joints="gripper_left_joint"), "'locked_joints' must be a list of names, got 'gripper_left_joint'"),
         (lambda c: c["groups"].update(left_foot="left_sole"), "group 'left_foot' must be a list of names"),
         (lambda c: c["standing"]["joints"].update(leg_left_4_joint="0.7x"), "standing.joints.leg_left_4_joint must be a finite number (rad), got '0.7x'"),
+        # booleans and strings were read as numbers (true as 1.0, "1" as 1.0), as standing.joints does not
+        (lambda c: c["contact"][0].update(offset=[True, False, True]), "contact[0].offset must be 3 finite numbers, got [True, False, True]"),
+        (lambda c: c["contact"][0].update(offset=["0", "0", "-0.1"]), "contact[0].offset must be 3 finite numbers, got ['0', '0', '-0.1']"),
+        (lambda c: c["standing"].update(base_xyz=[False, False, True]), "standing.base_xyz must be 3 finite numbers, got [False, False, True]"),
+        (lambda c: c["standing"].update(base_wxyz=[True, False, False, False]), "standing.base_wxyz must be 4 finite numbers, got [True, False, False, False]"),
+        # a norm past the largest float: normalized to zeros
+        (lambda c: c["standing"].update(base_wxyz=[1.5e308, 1.5e308, 0.0, 0.0]), "standing.base_wxyz must be a nonzero quaternion (w, x, y, z) of finite norm, got [1.5e+308, 1.5e+308, 0.0, 0.0]"),
     ],
 )
 def test_invalid_definitions_raise_with_the_offending_value(tmp_path, edit, fragment):
@@ -327,6 +336,14 @@ def test_invalid_definitions_raise_with_the_offending_value(tmp_path, edit, frag
     with pytest.raises(robot_lib.RobotLoadError, match=r"bad\.toml") as err:
         robot_lib.load_file(path)
     assert fragment in str(err.value)
+
+
+def test_a_huge_standing_quaternion_is_normalized_without_overflow(tmp_path):
+    # its norm overflowed to inf, and the standing attitude became [0, 0, 0, 0]
+    config = _talos_config()
+    config["standing"]["base_wxyz"] = [1e200, 0.0, 1e200, 0.0]
+    robot = robot_lib.load_file(_write_toml(tmp_path / "huge.toml", config))
+    np.testing.assert_allclose(robot.base_xyz_wxyz_standing[3:], [np.sqrt(0.5), 0.0, np.sqrt(0.5), 0.0], rtol=1e-15)
 
 
 def test_model_that_mujoco_cannot_load_names_the_file(tmp_path):

@@ -323,3 +323,65 @@ def test_benchmarks_refuse_an_unknown_task_when_parsing(bench, capsys):
     assert exit.value.code == 2
     assert "argument task" in (err := capsys.readouterr().err) and "'moonwalk': unknown task; expected one of ['backflip'" in err
     assert tasks.task_argument("big_jump") == "big_jump"
+
+
+@pytest.mark.parametrize(
+    "old, new, match",
+    [
+        # the count was infinite, and round() raised OverflowError from inside the loader
+        ("timestep = 0.05", "timestep = 5e-324", r"phases\[0\].duration: 0.2: inf knots at the timestep 4.94066e-324 s; expected at most 100000 knots in a task \(a longer timestep or a shorter phase\)$"),
+        # 4 million knots (1e-7 s: 23 million for big_jump, which ran out of memory)
+        ("timestep = 0.05", "timestep = 1e-7", r"phases\[0\].duration: 0.2: 2e\+06 knots at the timestep 1e-07 s; expected at most 100000 knots"),
+        # accepted, then schedule() raised OverflowError
+        ("duration = 0.1", "duration = 1e300", r"phases\[1\].duration: 1e\+300: 2e\+301 knots at the timestep 0.05 s; expected at most 100000 knots"),
+        # every phase under the cap, the task over it: 40000 + 20000 + 40000 intervals
+        ("timestep = 0.05", "timestep = 5e-6", r"timestep: 5e-06: 100001 knots over the phases' 0.5 s; expected at most 100000 knots in a task \(a longer timestep or shorter phases\)$"),
+    ],
+)
+def test_knot_counts_over_the_cap_are_refused_when_loaded(tmp_path, old, new, match):
+    path = tmp_path / "mine.toml"
+    path.write_text(_GOOD.replace(old, new, 1))
+    with pytest.raises(TaskError, match=rf"^{re.escape(str(path))}: {match}") as e:
+        tasks.load(str(path))
+    assert "\n" not in str(e.value)
+
+
+def test_the_knot_cap_is_on_the_task_s_knots():
+    with pytest.raises(TaskError, match=r"^phases\[0\].duration: 100000.0: 1e\+05 knots at the timestep 1 s; expected at most 100000 knots"):
+        small_task(timestep=1.0, phases=(Phase(FEET, 100_000.0),))
+    with pytest.raises(TaskError, match=r"^timestep: 1.0: 100001 knots over the phases' 100000 s; expected at most 100000 knots"):
+        small_task(timestep=1.0, phases=(Phase(FEET, 50_000.0), Phase(FEET, 50_000.0)))
+    assert small_task(timestep=1.0, phases=(Phase(FEET, 99_999.0),)).n_knots == tasks.MAX_KNOTS == 100_000
+    assert max(tasks.load(name).n_knots for name in tasks.available()) < tasks.MAX_KNOTS
+
+
+def test_max_iter_is_bounded_by_ipopt_s_limit(tmp_path):
+    # 2**63 - 1 loaded, then failed inside Ipopt's option check with a traceback
+    with pytest.raises(TaskError, match=r"^max_iter: 2147483648: expected a positive whole number of iterations, at most 2147483647 \(Ipopt's limit\)$"):
+        small_task(max_iter=2**31)
+    assert small_task(max_iter=2**31 - 1).max_iter == tasks.MAX_ITER == 2**31 - 1
+    path = tmp_path / "mine.toml"
+    path.write_text(_GOOD.replace('robot = "go2"', 'robot = "go2"\nmax_iter = 9223372036854775807', 1))
+    with pytest.raises(TaskError, match=rf"^{re.escape(str(path))}: max_iter: 9223372036854775807: expected a positive whole number of iterations, at most 2147483647"):
+        tasks.load(str(path))
+
+
+@pytest.mark.parametrize("axis", [(1e-200, 0.0, 0.0), (1e200, 1e200, 0.0)])
+def test_axes_whose_length_underflows_or_overflows_are_refused(tmp_path, axis):
+    # they were accepted: the warm start's axis came out NaN ([1e-200, 0, 0]) or zero, and so did
+    # the flip check's (jtraj.success divides by np.linalg.norm)
+    shown = re.escape(repr(list(axis)))
+    expected = r"expected an axis of length between 1e-150 and 1e150, e.g. \[1, 0, 0\] \(its length does not matter, only its direction\)$"
+    with pytest.raises(TaskError, match=rf"^flip_axis: {shown}: {expected}"):
+        small_task(flip_axis=axis, flip_turns=1)
+    path = tmp_path / "mine.toml"
+    path.write_text(_GOOD.replace("axis = [0.0, 1.0, 0.0]", f"axis = [{', '.join(map(repr, axis))}]", 1))
+    with pytest.raises(TaskError, match=rf"^{re.escape(str(path))}: warm_start_rules\[0\].axis: {shown}: {expected}"):
+        tasks.load(str(path))
+
+
+def test_short_and_long_axes_within_range_give_unit_warm_start_axes():
+    for axis in ((0.0, 1e-150, 0.0), (0.0, 3e150, 4e150)):
+        rule = tasks.RotationRule(tasks.Profile.RAMP, axis, 1.0, (1,))
+        ((unit, _),) = small_task(warm_start_rules=(rule,)).warm_start_angles()
+        np.testing.assert_allclose(unit, np.asarray(axis) / np.hypot(axis[1], axis[2]), rtol=1e-15)
