@@ -62,7 +62,7 @@ from jtraj.constants import GRAVITY
 from jtraj.deprecation import warn_renamed
 from jtraj.nlp import ConstraintGroup, CostGroup, Dep, KnotNLP, KnotStructure, Layout
 from jtraj.parameterization import AbstractParameterization
-from jtraj.task import Task
+from jtraj.task import Task, TaskError, _Raw
 
 __all__ = [
     "Transcription",
@@ -191,6 +191,10 @@ PAPER_VARIABLES = TranscriptionOptions(position_step="stepped", liftoff_force_ra
 COMPACT_VARIABLES = TranscriptionOptions(contact_variables=False, acceleration_variables=True)
 #: Contact positions and accelerations substituted: (q, v, f) at every knot.
 LEAN_VARIABLES = TranscriptionOptions(contact_variables=False, acceleration_variables=False)
+
+#: How far (m) a point may be off the terrain where the first or last knot, fixed, puts it
+#: (beyond the stance's own spread at the first knot): a check of the task, not a solver tolerance.
+HEIGHT_TOLERANCE = 1e-6
 
 _FORMER_NAMES = {"PAPER_LAYOUT": "PAPER_VARIABLES", "COMPACT_LAYOUT": "COMPACT_VARIABLES", "LEAN_LAYOUT": "LEAN_VARIABLES"}
 
@@ -473,12 +477,61 @@ class Transcription:
                 f"the standing pose of {robot.name!r} does not put the contact points of phase 0 on flat "
                 f"ground (heights differ by {spread * 1000:.1f} mm)"
             )
-        return np.asarray(self._host["initial"](self.default_theta()))
+        x0 = np.asarray(self._host["initial"](self.default_theta()))
+        # the first knot is fixed at x0, and the points in the air keep above the terrain: a point
+        # lower than phase 0's contacts in the standing pose (the feet, for a task that starts on
+        # the hands) made a problem no solver could solve
+        z = p[:, 2] + (x0[2] - float(robot.base_xyz_wxyz_standing[2]))  # heights at x0
+        h = self.task.terrain_height
+        below = np.flatnonzero(~self.schedule.in_contact[0] & (z < h - HEIGHT_TOLERANCE))
+        if below.size:
+            i = below[np.argmin(z[below])]
+            raise self._task_error(
+                "phases[0].contacts", list(self.task.phases[0].contacts),
+                f"the standing pose of {robot.name!r} lowered until these touch the terrain puts {self.contact_names[i]} {h - z[i]:.3g} m below it at the first knot; "
+                "expected the contacts of phase 0 to be the lowest points of the standing pose",
+            )
+        return x0
 
     @cached_property
     def target_xyz_wxyz(self) -> np.ndarray:
         """Target base pose: the task's displacement and rotation applied to the initial pose."""
-        return self.target_xyz_wxyz_of(None)
+        x = self.target_xyz_wxyz_of(None)
+        self._check_last_knot(x)
+        return x
+
+    def _check_last_knot(self, target: np.ndarray) -> None:
+        """Refuse a target pose (with the target joints) that puts a point touching in the last
+        phase off the terrain, or another point below it: the last knot is fixed there, so no
+        solver could meet the contact or clearance rows (a target roll lifted the feet)."""
+        task, host = self.task, self._host
+        standing = np.asarray(self.robot.q_joints_standing, float)
+        qj = standing if task.target_joints is None else np.asarray(task.target_joints, float)
+        z = np.asarray(host["fk"](host["coords"](target[None], qj[None])))[0, :, 2]
+        # the stance's own error at the first knot (the spread of phase 0's contacts) is allowed
+        z0 = np.asarray(host["fk"](host["coords"](self.initial_xyz_wxyz[None], standing[None])))[0, :, 2]
+        h = task.terrain_height
+        tol = HEIGHT_TOLERANCE + float(np.max(np.abs(z0[self.schedule.in_contact[0]] - h)))
+        touching = self.schedule.in_contact[-1]
+        off = np.where(touching, np.abs(z - h), h - z)  # distance from the terrain (touching), depth below it (others)
+        if not np.any(off > tol):
+            return
+        i = int(np.argmax(off))
+        where = "above" if z[i] > h else "below"
+        said = f"puts {self.contact_names[i]} {abs(z[i] - h):.3g} m {where} the terrain at the last knot" + (f", where phase {len(task.phases) - 1} touches it" if touching[i] else "")
+        if any(task.target_rotation_rpy):
+            field, value = "target_rotation_rpy", list(task.target_rotation_rpy)
+        elif task.target_joints is not None:
+            field, value = "target_joints", _Raw(f"{len(task.target_joints)} joint angles")
+        else:
+            field, value = "target_translation", list(task.target_translation)
+        raise self._task_error(field, value, f"{said}; expected a target whose touching points rest on the terrain and others above it (the last knot is fixed at the target)")
+
+    def _task_error(self, field: str, value: Any, expected: str) -> TaskError:
+        """A `TaskError` naming the task's file where it came from one (as `Task.validate`)."""
+        error = TaskError(field, value, expected)
+        source = getattr(self.task, "_source", None)
+        return error if source is None else error.with_source(source)
 
     def target_xyz_wxyz_of(self, theta: TaskParams | None) -> np.ndarray:
         """Target base pose (7,) for parameters ``theta`` (None: the task's)."""
@@ -550,6 +603,7 @@ class Transcription:
         """The NLP of the task: the groups of ``stages`` (default `CONSTRAINT_STAGES`, in
         that row order), `cost_terms`, the variable `bounds`, parameters `default_theta`."""
         _ = self.initial_xyz_wxyz  # checks that the standing pose stands on the terrain
+        _ = self.target_xyz_wxyz  # and that the target pose does
         groups = [g for stage in (CONSTRAINT_STAGES if stages is None else stages) for g in stage(self)]
         return KnotNLP(
             self.layout, self.N + 1, cost_terms(self), groups,

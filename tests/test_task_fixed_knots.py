@@ -1,0 +1,87 @@
+"""The first and last knots are fixed (the standing pose lowered onto the terrain, the target
+pose): a task that puts a contact point below the terrain there, or a touching point off it, is
+refused before the NLP is built, naming the task's key. No solve: the checks take the forward
+kinematics of the two poses."""
+
+import importlib.resources
+import re
+
+import numpy as np
+import pytest
+
+from jtraj import parameterization
+from jtraj import robot as robot_lib
+from jtraj import task as tasks
+from jtraj.task import TaskError
+from jtraj.transcription import Transcription
+
+HANDS_FIRST = 'contacts = ["left_hand", "right_hand"]'
+
+
+def _transcription(task: tasks.Task) -> Transcription:
+    return Transcription(robot_lib.load(task.robot), task, parameterization.get("se3"))
+
+
+def _file(tmp_path, old: str, new: str) -> str:
+    """big_jump as a task file, with ``old`` replaced by ``new``."""
+    text = (importlib.resources.files("jtraj.tasks") / "big_jump.toml").read_text()
+    assert old in text
+    path = tmp_path / "mine.toml"
+    path.write_text(text.replace(old, new, 1))
+    return str(path)
+
+
+@pytest.mark.parametrize(
+    "name, robot",
+    [(name, None) for name in tasks.available()] + [(name, "talos_full") for name in tasks.available() if tasks.load(name).robot == "talos"],
+)
+def test_builtin_tasks_stand_on_the_terrain_at_both_ends(name, robot):
+    task = tasks.load(name) if robot is None else tasks.retarget(tasks.load(name), {"talos": robot})
+    tr = _transcription(task)
+    assert tr.initial_xyz_wxyz.shape == tr.target_xyz_wxyz.shape == (7,)  # neither raises
+
+
+def test_a_first_phase_on_the_hands_is_refused(tmp_path):
+    # the base was lowered until the hands touched, the feet 0.74 m below the ground at the
+    # fixed first knot: accepted, and no solve could succeed
+    path = _file(tmp_path, 'contacts = ["left_foot", "right_foot"]', HANDS_FIRST)
+    tr = _transcription(tasks.load(path))
+    expected = (
+        rf"^{re.escape(path)}: phases\[0\].contacts: \['left_hand', 'right_hand'\]: the standing pose of 'talos' lowered until these touch the terrain "
+        r"puts left_foot_\w+ 0.74 m below it at the first knot; expected the contacts of phase 0 to be the lowest points of the standing pose$"
+    )
+    with pytest.raises(TaskError, match=expected):
+        tr.build_nlp()  # before anything is built
+    with pytest.raises(TaskError, match=expected):
+        tr.warm_start()
+
+
+def test_a_first_phase_on_one_foot_is_accepted():
+    # the other foot is as low, not lower: it stays on the terrain, where clearance allows it
+    task = tasks.load("big_jump")
+    task = task.replace(phases=(tasks.Phase(("left_foot",), 1.0), *task.phases[1:]))
+    z = _transcription(task).initial_xyz_wxyz[2]
+    assert abs(z - _transcription(tasks.load("big_jump")).initial_xyz_wxyz[2]) < 1e-9
+
+
+@pytest.mark.parametrize(
+    "old, new, match",
+    [
+        # a pitch lifted the feet 0.18 m while the last phase stands on them
+        ("translation = [1.0, 0.0, 0.0]", "translation = [1.0, 0.0, 0.0]\nrotation_rpy = [0.0, 0.5, 0.0]", r"target.rotation_rpy: \[0.0, 0.5, 0.0\]: puts left_foot_\w+ 0.178 m above the terrain at the last knot, where phase 2 touches it"),
+        ("translation = [1.0, 0.0, 0.0]", "translation = [1.0, 0.0, 0.1]", r"target.translation: \[1.0, 0.0, 0.1\]: puts left_foot_\w+ 0.1 m above the terrain at the last knot, where phase 2 touches it"),
+        ("translation = [1.0, 0.0, 0.0]", "translation = [1.0, 0.0, -0.1]", r"target.translation: \[1.0, 0.0, -0.1\]: puts left_foot_\w+ 0.1 m below the terrain at the last knot, where phase 2 touches it"),
+    ],
+)
+def test_a_target_that_lifts_the_last_contacts_off_the_terrain_is_refused(tmp_path, old, new, match):
+    path = _file(tmp_path, old, new)
+    tr = _transcription(tasks.load(path))
+    with pytest.raises(TaskError, match=rf"^{re.escape(path)}: {match}; expected a target whose touching points rest on the terrain and others above it \(the last knot is fixed at the target\)$"):
+        tr.build_nlp()
+
+
+@pytest.mark.parametrize("rpy", [(0.0, 0.0, 0.5), (2 * np.pi, 0.0, 0.0), (0.0, -2 * np.pi, 0.0)])
+def test_targets_that_keep_the_feet_on_the_terrain_are_accepted(rpy):
+    # a turn about the vertical, and whole turns (a flip's target attitude is its start's)
+    tr = _transcription(tasks.load("big_jump").replace(target_rotation_rpy=rpy))
+    assert np.all(np.isfinite(tr.target_xyz_wxyz))
