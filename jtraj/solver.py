@@ -265,6 +265,8 @@ def solve(
     tr, nlp = prep.transcription, prep.nlp
     theta_given = theta is not None
     theta = tr.resolve_theta(theta)
+    if theta_given:
+        tr.check_boundaries(theta)  # a standing pose or target that no solver could meet
     # a given warm start as one of the NLP's guess shapes, named in the error: flattened first, a
     # transposed (nz, n_knots) guess had the right size and was solved from scrambled knots
     x0 = tr.warm_start(theta) if warm_start is None else initial_guess(nlp, warm_start, "warm_start")

@@ -219,7 +219,8 @@ class TaskParams:
         force_limit_factor: () |f_i| <= factor * (sum of body_masses) * g per component.
         max_delta_force: () N per knot and component; inf (and no rows) for a task without.
         configuration_weight, acceleration_weight: () cost weights.
-        body_masses: (nbody,) kg, one per MuJoCo body, world first (`dynamics.model_masses`).
+        body_masses: (nbody,) kg, one per MuJoCo body, world first (`dynamics.model_masses`;
+            the world's must be 0: no dynamics has it).
         base_xyz_wxyz_standing: (7,) standing base pose (before it is lowered so the first
             phase's contact points touch the terrain).
         q_joints_standing: (nj,) standing joint positions (rad), also the configuration
@@ -276,7 +277,9 @@ class TaskParams:
             "max_delta_force": ("a positive force (N), or inf for none", lambda v: v > 0),
             "configuration_weight": ("a weight >= 0", nonnegative),
             "acceleration_weight": ("a weight >= 0", nonnegative),
-            "body_masses": ("masses >= 0 (kg)", nonnegative),
+            # the world body's (first) is in no subtree: inverse dynamics ignores it, while the
+            # force bound and the warm start's weight summed it
+            "body_masses": ("masses >= 0 (kg), the first (the world body's) 0", lambda v: nonnegative(v) & ((np.arange(v.size) > 0) | (v == 0))),
             # a quaternion of another norm is written into the boundary knots' coordinates as
             # it is (a chart of unit quaternions, or NaN from a zero quaternion)
             "base_xyz_wxyz_standing": (
@@ -390,6 +393,28 @@ class Transcription:
             raise ValueError(f"task {self.task.name!r} sets no max_delta_force, so it has no force-rate rows to bound; set it in the task")
         return self._within_joint_limits(default.replace(**overrides).check())
 
+    #: the fields that place the fixed first and last knots
+    _BOUNDARY_FIELDS = ("base_xyz_wxyz_standing", "q_joints_standing", "target_translation", "target_rotation_rpy")
+
+    def check_boundaries(self, theta: TaskParams) -> None:
+        """Refuse a theta (`resolve_theta`'s) whose fixed first or last knot is off the terrain
+        where the task's phases touch it (`_boundary_problem`; a changed standing pose or
+        target): no solver could meet those knots' rows. `jtraj.solve` checks a given theta so;
+        values being traced are not looked at, and the task's own values are checked by
+        `initial_xyz_wxyz`. (Not part of `resolve_theta`: a pose of such a theta can still be
+        asked for, e.g. `target_xyz_wxyz_of`.)"""
+        values = [getattr(theta, name) for name in self._BOUNDARY_FIELDS]
+        if any(isinstance(v, jax.core.Tracer) for v in values):
+            return
+        default = self.default_theta()
+        if all(np.array_equal(np.asarray(v), np.asarray(getattr(default, name))) for v, name in zip(values, self._BOUNDARY_FIELDS)):
+            return
+        problem = self._boundary_problem(theta)
+        if problem is not None:
+            kind, said = problem
+            fields = "theta.q_joints_standing and theta.base_xyz_wxyz_standing" if kind != "last" else "theta.target_translation and theta.target_rotation_rpy"
+            raise ValueError(f"{fields}: the pose they give {said}; expected the fixed {'last' if kind == 'last' else 'first'} knot to touch the terrain as the task's phases do")
+
     def _within_joint_limits(self, theta: TaskParams) -> TaskParams:
         """Refuse standing joint positions outside the robot's limits (values being traced are
         not looked at): the first knot is fixed at them while every other knot keeps within the
@@ -465,67 +490,69 @@ class Transcription:
             return jnp.asarray(self.task.target_joints, float)
         return theta.q_joints_standing
 
+    def _boundary_problem(self, theta: TaskParams) -> tuple[str, str] | None:
+        """What keeps the fixed first or last knot of ``theta`` (concrete values) off the
+        terrain the task's phases put them on, or None: ``("stance", said)`` phase 0's contact
+        points more than 5 mm apart in height in the standing pose; ``("first", said)`` another
+        point below the terrain at the first knot (the stance lowered onto the terrain); ``("last",
+        said)`` a point touching in the last phase off the terrain at the target pose (with the
+        target joints), or another one below it. No solver could meet those knots' contact or
+        clearance rows (the heights are the fixed knots' alone)."""
+        host, task = self._host, self.task
+        x0 = np.asarray(host["initial"](theta))
+        xN = np.asarray(host["target"](x0, theta))
+        qj0 = np.asarray(theta.q_joints_standing, float)
+        qjN = qj0 if task.target_joints is None else np.asarray(task.target_joints, float)
+        z = np.asarray(host["fk"](host["coords"](np.stack([x0, xN]), np.stack([qj0, qjN]))))[:, :, 2]
+        h = task.terrain_height
+        first, last = self.schedule.in_contact[0], self.schedule.in_contact[-1]
+        spread = float(np.ptp(z[0, first]))
+        if spread > 5e-3:
+            return "stance", f"puts the contact points of phase 0 {spread * 1000:.1f} mm apart in height (on flat ground: within 5 mm)"
+        below = np.flatnonzero(~first & (z[0] < h - HEIGHT_TOLERANCE))
+        if below.size:
+            i = below[np.argmin(z[0, below])]
+            return "first", f"lowered until phase 0's contacts touch the terrain puts {self.contact_names[i]} {h - z[0, i]:.3g} m below it at the first knot"
+        # the stance's own error at the first knot (the spread of phase 0's contacts) is allowed
+        tol = HEIGHT_TOLERANCE + float(np.max(np.abs(z[0, first] - h)))
+        off = np.where(last, np.abs(z[1] - h), h - z[1])  # distance from the terrain (touching), depth below it (others)
+        if np.any(off > tol):
+            i = int(np.argmax(off))
+            where = "above" if z[1, i] > h else "below"
+            return "last", f"puts {self.contact_names[i]} {abs(z[1, i] - h):.3g} m {where} the terrain at the last knot" + (f", where phase {len(task.phases) - 1} touches it" if last[i] else "")
+        return None
+
     @cached_property
     def initial_xyz_wxyz(self) -> np.ndarray:
-        """Standing base pose, lowered/raised so the first phase's contact points touch the terrain."""
-        robot = self.robot
-        q = self._host["coords"](np.asarray(robot.base_xyz_wxyz_standing, float)[None], np.asarray(robot.q_joints_standing)[None])
-        p = np.asarray(self._host["fk"](q))[0]
-        spread = float(np.ptp(p[self.schedule.in_contact[0], 2]))
-        if spread > 5e-3:
-            raise ValueError(
-                f"the standing pose of {robot.name!r} does not put the contact points of phase 0 on flat "
-                f"ground (heights differ by {spread * 1000:.1f} mm)"
-            )
-        x0 = np.asarray(self._host["initial"](self.default_theta()))
-        # the first knot is fixed at x0, and the points in the air keep above the terrain: a point
-        # lower than phase 0's contacts in the standing pose (the feet, for a task that starts on
-        # the hands) made a problem no solver could solve
-        z = p[:, 2] + (x0[2] - float(robot.base_xyz_wxyz_standing[2]))  # heights at x0
-        h = self.task.terrain_height
-        below = np.flatnonzero(~self.schedule.in_contact[0] & (z < h - HEIGHT_TOLERANCE))
-        if below.size:
-            i = below[np.argmin(z[below])]
-            raise self._task_error(
-                "phases[0].contacts", list(self.task.phases[0].contacts),
-                f"the standing pose of {robot.name!r} lowered until these touch the terrain puts {self.contact_names[i]} {h - z[i]:.3g} m below it at the first knot; "
-                "expected the contacts of phase 0 to be the lowest points of the standing pose",
-            )
-        return x0
+        """Standing base pose, lowered/raised so the first phase's contact points touch the
+        terrain. Checks the task's fixed first and last knots (`_boundary_problem`), naming the
+        robot or the task file's key."""
+        problem = self._boundary_problem(self.default_theta())
+        if problem is not None:
+            kind, said = problem
+            task = self.task
+            if kind == "stance":
+                raise ValueError(f"the standing pose of {self.robot.name!r} {said}")
+            if kind == "first":
+                # a point lower than phase 0's contacts in the standing pose (the feet, for a
+                # task that starts on the hands)
+                raise self._task_error(
+                    "phases[0].contacts", list(task.phases[0].contacts),
+                    f"the standing pose of {self.robot.name!r} {said}; expected the contacts of phase 0 to be the lowest points of the standing pose",
+                )
+            if any(task.target_rotation_rpy):
+                field, value = "target_rotation_rpy", list(task.target_rotation_rpy)
+            elif task.target_joints is not None:
+                field, value = "target_joints", _Raw(f"{len(task.target_joints)} joint angles")
+            else:
+                field, value = "target_translation", list(task.target_translation)
+            raise self._task_error(field, value, f"{said}; expected a target whose touching points rest on the terrain and others above it (the last knot is fixed at the target)")
+        return np.asarray(self._host["initial"](self.default_theta()))
 
     @cached_property
     def target_xyz_wxyz(self) -> np.ndarray:
         """Target base pose: the task's displacement and rotation applied to the initial pose."""
-        x = self.target_xyz_wxyz_of(None)
-        self._check_last_knot(x)
-        return x
-
-    def _check_last_knot(self, target: np.ndarray) -> None:
-        """Refuse a target pose (with the target joints) that puts a point touching in the last
-        phase off the terrain, or another point below it: the last knot is fixed there, so no
-        solver could meet the contact or clearance rows (a target roll lifted the feet)."""
-        task, host = self.task, self._host
-        standing = np.asarray(self.robot.q_joints_standing, float)
-        qj = standing if task.target_joints is None else np.asarray(task.target_joints, float)
-        z = np.asarray(host["fk"](host["coords"](target[None], qj[None])))[0, :, 2]
-        # the stance's own error at the first knot (the spread of phase 0's contacts) is allowed
-        z0 = np.asarray(host["fk"](host["coords"](self.initial_xyz_wxyz[None], standing[None])))[0, :, 2]
-        h = task.terrain_height
-        tol = HEIGHT_TOLERANCE + float(np.max(np.abs(z0[self.schedule.in_contact[0]] - h)))
-        touching = self.schedule.in_contact[-1]
-        off = np.where(touching, np.abs(z - h), h - z)  # distance from the terrain (touching), depth below it (others)
-        if not np.any(off > tol):
-            return
-        i = int(np.argmax(off))
-        where = "above" if z[i] > h else "below"
-        said = f"puts {self.contact_names[i]} {abs(z[i] - h):.3g} m {where} the terrain at the last knot" + (f", where phase {len(task.phases) - 1} touches it" if touching[i] else "")
-        if any(task.target_rotation_rpy):
-            field, value = "target_rotation_rpy", list(task.target_rotation_rpy)
-        elif task.target_joints is not None:
-            field, value = "target_joints", _Raw(f"{len(task.target_joints)} joint angles")
-        else:
-            field, value = "target_translation", list(task.target_translation)
-        raise self._task_error(field, value, f"{said}; expected a target whose touching points rest on the terrain and others above it (the last knot is fixed at the target)")
+        return self.target_xyz_wxyz_of(None)
 
     def _task_error(self, field: str, value: Any, expected: str) -> TaskError:
         """A `TaskError` naming the task's file where it came from one (as `Task.validate`)."""
@@ -602,8 +629,7 @@ class Transcription:
     def build_nlp(self, stages: tuple[Callable[[Transcription], list[ConstraintGroup]], ...] | None = None) -> KnotNLP:
         """The NLP of the task: the groups of ``stages`` (default `CONSTRAINT_STAGES`, in
         that row order), `cost_terms`, the variable `bounds`, parameters `default_theta`."""
-        _ = self.initial_xyz_wxyz  # checks that the standing pose stands on the terrain
-        _ = self.target_xyz_wxyz  # and that the target pose does
+        _ = self.initial_xyz_wxyz  # checks that the standing pose and the target stand on the terrain
         groups = [g for stage in (CONSTRAINT_STAGES if stages is None else stages) for g in stage(self)]
         return KnotNLP(
             self.layout, self.N + 1, cost_terms(self), groups,
@@ -696,7 +722,7 @@ class Transcription:
         Z[:, L.slice("q")] = q
         n_touch = contact.sum(axis=1)
         f = np.zeros((n_knots, P, 3))
-        weight = float(np.sum(np.asarray(theta.body_masses))) * GRAVITY  # robot.total_mass g for the default
+        weight = float(np.sum(np.asarray(theta.body_masses)[1:])) * GRAVITY  # robot.total_mass g for the default (the world's, first, is 0)
         f[:, :, 2] = np.where(contact, weight / np.maximum(n_touch, 1)[:, None], 0.0)
         Z[:, L.slice("f")] = f.reshape(n_knots, -1)
         if self.options.contact_variables:
@@ -934,7 +960,7 @@ def friction_stage(tr: Transcription) -> list[ConstraintGroup]:
 def force_limit(theta: TaskParams) -> jax.Array:
     """F = force_limit_factor m g (N): the largest contact force of a point (its components'
     bound, or with `TranscriptionOptions.force_limits` ``"rows"`` its norm's)."""
-    return theta.force_limit_factor * jnp.sum(theta.body_masses) * GRAVITY
+    return theta.force_limit_factor * jnp.sum(theta.body_masses[1:]) * GRAVITY  # the world body (first) weighs nothing
 
 
 def force_limit_stage(tr: Transcription) -> list[ConstraintGroup]:

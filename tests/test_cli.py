@@ -668,5 +668,5 @@ def test_a_task_whose_first_knot_is_below_the_terrain_is_one_line_before_the_sol
     path.write_text(text.replace('contacts = ["left_foot", "right_foot"]', 'contacts = ["left_hand", "right_hand"]', 1))
     code, err = _run(["solve", str(path), "--out", str(tmp_path / "run")], capsys)
     assert code == cli.EXIT_BAD_INPUT and err.count("\n") == 1
-    assert err.startswith(f"jtraj solve: {path}: phases[0].contacts: ['left_hand', 'right_hand']: the standing pose of 'talos' lowered until these touch the terrain puts left_foot_")
+    assert err.startswith(f"jtraj solve: {path}: phases[0].contacts: ['left_hand', 'right_hand']: the standing pose of 'talos' lowered until phase 0's contacts touch the terrain puts left_foot_")
     assert not (tmp_path / "run").exists()

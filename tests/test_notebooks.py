@@ -15,7 +15,7 @@ NOTEBOOKS = sorted((Path(__file__).parent.parent / "notebooks").glob("*.ipynb"))
 #: displays, and text its outputs must contain.
 PRODUCES = {
     "attitude": dict(files=(), images=2, text=("small mode", "final median error", "satellite: minimum camera-sun angle", "quadrotor:")),
-    "comparison": dict(files=("compare_small/table_iv.json", "compare_small/table_iv.md", "comparison.png"), images=1, text=("| hop | se3 | solved |", "| hop | euler | solved |", "hop ['hop_se3', 'hop_euler']")),
+    "comparison": dict(files=("compare_small/table_iv.json", "compare_small/table_iv.md", "comparison.png"), images=1, text=("| hop | go2 | se3 | solved |", "| hop | go2 | euler | solved |", "hop ['hop_se3', 'hop_euler']")),
     "design": dict(files=(), images=2, text=("degenerate:",)),
     "quickstart": dict(files=("trajectory.png",), images=1, text=("hop [", "] solved: ", "se3    solved ", "euler  solved ")),
     "robustness": dict(files=("robustness_small/runs.jsonl", "fig2.png"), images=1, text=("runs", "| task | parameterization | sigma=0.001 | sigma=0.1 |", "| hop | se3 | ")),

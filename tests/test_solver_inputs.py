@@ -302,3 +302,18 @@ def test_exact_hessian_refuses_another_hessian_option():
     assert solver_options(ipopt, None, {"hessian_approximation": "exact"}, True, 10).hessian == "exact"
     assert solver_options(jt, None, {"hessian": "exact"}, True, 10).hessian == "exact"
     assert solver_options(ipopt, None, {"hessian_approximation": "limited-memory"}, False, 10).hessian == "lbfgs"
+
+
+def test_solve_refuses_a_theta_whose_fixed_knots_cannot_touch_the_terrain(monkeypatch):
+    """A theta that raises the target (or tilts the standing pose) fixes the last (first) knot
+    off the terrain its phases stand on: no solver could meet those rows, and the solve ran to
+    its iteration limit. Refused after the NLP is built and before the solver runs."""
+    from test_transcription import HOP
+
+    import jtraj.solver
+
+    prep = jtraj.solver.prepare(HOP)
+    monkeypatch.setattr(type(jtraj.solvers.get("ipopt")), "solve", lambda *a, **k: pytest.fail("solved a theta no solver could meet"))
+    with pytest.raises(ValueError, match=r"^theta.target_translation and theta.target_rotation_rpy: the pose they give puts \w+ 0.1 m above the terrain at the last knot"):
+        jtraj.solver.solve(HOP, theta={"target_translation": [0.04, 0.0, 0.1]}, progress=None)
+    assert prep.nlp is jtraj.solver.prepare(HOP).nlp

@@ -47,7 +47,7 @@ def test_a_first_phase_on_the_hands_is_refused(tmp_path):
     path = _file(tmp_path, 'contacts = ["left_foot", "right_foot"]', HANDS_FIRST)
     tr = _transcription(tasks.load(path))
     expected = (
-        rf"^{re.escape(path)}: phases\[0\].contacts: \['left_hand', 'right_hand'\]: the standing pose of 'talos' lowered until these touch the terrain "
+        rf"^{re.escape(path)}: phases\[0\].contacts: \['left_hand', 'right_hand'\]: the standing pose of 'talos' lowered until phase 0's contacts touch the terrain "
         r"puts left_foot_\w+ 0.74 m below it at the first knot; expected the contacts of phase 0 to be the lowest points of the standing pose$"
     )
     with pytest.raises(TaskError, match=expected):

@@ -284,8 +284,27 @@ def test_theta_values_no_task_can_have_are_refused():
         tr.resolve_theta({"q_joints_standing": outside})
     with pytest.raises(ValueError, match=message):
         tr.resolve_theta(tr.default_theta().replace(q_joints_standing=outside))
+    # the fixed first and last knots must touch the terrain as the phases say: a lowered calf
+    # or a rolled base lifted some feet at the first knot, a raised target at the last (only
+    # the standing joints' limits were checked); and the world body's mass, which no dynamics
+    # has, moved the force bound and the warm start
+    calf = np.array(tr.default_theta().q_joints_standing)
+    calf[tr.robot.joint_names.index("FL_calf_joint")] -= 0.3
+    roll = [0.0, 0.0, 0.3, float(np.cos(0.05)), float(np.sin(0.05)), 0.0, 0.0]
+    masses = np.array(tr.default_theta().body_masses)
+    masses[0] = 100.0
+    for bad, message in (
+        ({"q_joints_standing": calf}, r"^theta.q_joints_standing and theta.base_xyz_wxyz_standing: the pose they give puts the contact points of phase 0 5\d.\d mm apart in height"),
+        ({"base_xyz_wxyz_standing": roll}, r"^theta.q_joints_standing and theta.base_xyz_wxyz_standing: the pose they give puts the contact points of phase 0 \d+.\d mm apart"),
+        ({"target_translation": [0.3, 0.0, 0.1]}, r"^theta.target_translation and theta.target_rotation_rpy: the pose they give puts \w+ 0.1 m above the terrain at the last knot, where phase \d touches it; expected the fixed last knot"),
+    ):
+        with pytest.raises(ValueError, match=message):
+            tr.check_boundaries(tr.resolve_theta(bad))
+    with pytest.raises(ValueError, match=r"theta.body_masses=.*: expected masses >= 0 \(kg\), the first \(the world body's\) 0"):
+        tr.resolve_theta({"body_masses": masses})
     theta = tr.resolve_theta({"friction": 0.5, "max_delta_force": float("inf")})
     assert float(theta.friction) == 0.5
+    tr.check_boundaries(tr.resolve_theta({"target_translation": [0.5, 0.1, 0.0]}))  # another place on the ground
     half_turn = tr.resolve_theta({"base_xyz_wxyz_standing": [0.0, 0.0, 0.3, 0.0, 0.0, 0.0, 1.0]})
     assert float(half_turn.base_xyz_wxyz_standing[6]) == 1.0
     # under jit the values are tracers: the check lets them through, and the program runs
@@ -467,7 +486,10 @@ def test_warm_start_is_built_from_the_theta_it_is_given():
     tr = Transcription(robots.load("go2"), HOP, get("se3"), PAPER_VARIABLES)
     np.testing.assert_array_equal(tr.warm_start(), tr.warm_start(tr.default_theta()))
     default = tr.default_theta()
-    crouch = np.asarray(default.q_joints_standing) + 0.1
+    # every thigh and calf moved alike, the feet stay level (the hips' abduction, mirrored left
+    # and right, would tilt the stance: refused, as its fixed first knot cannot touch the terrain)
+    legs = np.array([not name.endswith("hip_joint") for name in tr.robot.joint_names])
+    crouch = np.asarray(default.q_joints_standing) + 0.1 * legs
     theta = default.replace(q_joints_standing=crouch, body_masses=2.0 * np.asarray(default.body_masses))
     Z, Z0 = tr.warm_start(theta), tr.warm_start()
     L, nqb = tr.layout, tr.param.nq
