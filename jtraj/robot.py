@@ -288,7 +288,9 @@ def load(name: str) -> Robot:
     """
     # checked before the cache, which cannot hash a list
     if isinstance(name, os.PathLike) or (isinstance(name, str) and (name.endswith(".toml") or "/" in name)):
-        raise RobotLoadError(f"unknown robot {name!r}; expected one of: {', '.join(available())} (for a robot file use jtraj.robot.load_file)")
+        raise RobotLoadError(
+            f"unknown robot {name!r}; expected one of: {', '.join(available())} (a robot file saved in the checkout's robots/ folder is the robot of its stem; jtraj.robot.load_file reads one)"
+        )
     if not isinstance(name, str):
         raise RobotLoadError(f"unknown robot {name!r}; expected one of: {', '.join(available())} (a robot's name, a string)")
     return _load_named(name)
@@ -823,6 +825,11 @@ def _assemble(config, source, name, urdf_path, urdf, locked) -> Robot:
             raise RobotLoadError(
                 f"{source}: joint {jname!r} of {urdf_path} has limit velocity={velocity[j]:g}, effort={effort[j]:g}; both must be >= 0"
             )
+        # every task fixes its first knot at the standing joints and keeps all knots within the
+        # limits: such a robot could solve nothing (a joint the file does not state stands at 0)
+        if not lower[j] <= q_standing[j] <= upper[j]:
+            said = f"standing.joints.{jname} = {q_standing[j]:g}" if jname in joints_table else f"standing joint {jname!r} (not in standing.joints: 0)"
+            raise RobotLoadError(f"{source}: {said} is outside its limits [{lower[j]:g}, {upper[j]:g}] rad in {urdf_path}")
     return Robot(
         name=name,
         source=source,

@@ -293,7 +293,7 @@ def test_unknown_robot_lists_choices():
     with pytest.raises(robot_lib.RobotLoadError, match="talos"):
         robot_lib.load("atlas")
     for path in (Path("robots/go2.toml"), "robots/go2.toml", "go2.toml"):
-        with pytest.raises(robot_lib.RobotLoadError, match=r"for a robot file use jtraj\.robot\.load_file"):
+        with pytest.raises(robot_lib.RobotLoadError, match=r"a robot file saved in the checkout's robots/ folder is the robot of its stem; jtraj\.robot\.load_file reads one"):
             robot_lib.load(path)
     # a list (a name in a list by mistake) reached the cache, which raised TypeError: unhashable
     with pytest.raises(robot_lib.RobotLoadError, match=r"unknown robot \['go2'\]; .*a robot's name, a string"):
@@ -325,6 +325,9 @@ def test_unknown_robot_lists_choices():
         (lambda c: c["contact"][0].update(offset=["0", "0", "-0.1"]), "contact[0].offset must be 3 finite numbers, got ['0', '0', '-0.1']"),
         (lambda c: c["standing"].update(base_xyz=[False, False, True]), "standing.base_xyz must be 3 finite numbers, got [False, False, True]"),
         (lambda c: c["standing"].update(base_wxyz=[True, False, False, False]), "standing.base_wxyz must be 4 finite numbers, got [True, False, False, False]"),
+        # a standing pose outside the joint limits: loaded, and every solve on it refused later
+        # by a message that named theta, not the file
+        (lambda c: c["standing"]["joints"].update(leg_left_4_joint=-0.5), "standing.joints.leg_left_4_joint = -0.5 is outside its limits [0, "),
         # a norm past the largest float: normalized to zeros
         (lambda c: c["standing"].update(base_wxyz=[1.5e308, 1.5e308, 0.0, 0.0]), "standing.base_wxyz must be a nonzero quaternion (w, x, y, z) of finite norm, got [1.5e+308, 1.5e+308, 0.0, 0.0]"),
     ],
