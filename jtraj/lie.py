@@ -72,7 +72,7 @@ def _tangent(group: type, tangent: ArrayLike) -> jax.Array:
     tangent = jnp.asarray(tangent)
     dim = getattr(group, "tangent_dim", None)
     if dim is not None and (tangent.ndim == 0 or tangent.shape[-1] != dim):
-        raise ValueError(f"a {group.__name__} tangent has {dim} entries on its last axis, got shape {tangent.shape}")
+        raise ValueError(f"a {group.__name__} tangent must have {dim} entries on its last axis, got shape {tangent.shape}")
     if not jnp.issubdtype(tangent.dtype, jnp.floating):
         tangent = tangent.astype(float)
     return tangent

@@ -51,7 +51,6 @@ import enum
 import functools
 import importlib.resources
 import math
-import sys
 import tomllib
 import warnings
 from pathlib import Path
@@ -63,7 +62,7 @@ from jtraj.deprecation import warn_renamed
 
 __all__ = ["TaskError", "Phase", "Profile", "RotationRule", "JointRule", "Task", "Schedule", "load", "from_file", "from_dict", "available", "retarget", "task_argument", "MAX_KNOTS", "MAX_ITER"]
 
-#: The most knots a task may have (the largest built-in task has 121): every knot's variables,
+#: The most knots a task may have (the largest built-in task, the walk, has 125): every knot's variables,
 #: rows and Jacobian blocks are allocated, and a timestep of 1e-7 s (23 million knots) ran
 #: out of memory
 MAX_KNOTS = 100_000
@@ -84,6 +83,11 @@ class TaskError(ValueError):
     def __init__(self, field: str, value: Any, expected: str, source: str | None = None):
         self.field, self.value, self.expected, self.source = field, value, expected, source
         super().__init__(self._line())
+
+    def __reduce__(self):
+        # rebuilt from its fields (pickled from a worker process: the default rebuilt it from
+        # the one-line message alone, which __init__ does not take)
+        return (type(self), (self.field, self.value, self.expected, self.source))
 
     def _line(self) -> str:
         value = self.value if isinstance(self.value, _Raw) else repr(self.value)
@@ -345,7 +349,7 @@ def _vector(value: Any, field: str, n: int = 3, nonzero: bool = False) -> tuple[
     out = tuple(float(x) for x in value)
     if nonzero and not any(out):
         raise TaskError(field, shown, expected)
-    if nonzero and not sys.float_info.min <= sum(x * x for x in out) < math.inf:
+    if nonzero and not 1e-300 <= sum(x * x for x in out) <= 1e300:  # a length in [1e-150, 1e150]
         raise TaskError(field, shown, "expected an axis of length between 1e-150 and 1e150, e.g. [1, 0, 0] (its length does not matter, only its direction)")
     return out
 
@@ -403,9 +407,9 @@ def _check_and_normalize(t: Task) -> None:
         if knots < 1 - 1e-6:
             raise TaskError(f"phases[{i}].duration", duration, f"shorter than one knot (timestep {t.timestep:g} s); expected at least {t.timestep:g} s")
         # (before rounding: a timestep of 5e-324 s made the count infinite, and round() failed)
-        if not knots < MAX_KNOTS:
+        if not knots + 1 <= MAX_KNOTS:  # (the phase's knots: its intervals and one end)
             raise TaskError(
-                f"phases[{i}].duration", duration, f"{knots:.3g} knots at the timestep {t.timestep:g} s; expected at most {MAX_KNOTS} knots in a task (a longer timestep or a shorter phase)"
+                f"phases[{i}].duration", duration, f"{knots + 1:.6g} knots at the timestep {t.timestep:g} s; expected at most {MAX_KNOTS} knots in a task (a longer timestep or a shorter phase)"
             )
         # a phase is a whole number of knot intervals: rounding 0.12 s to 0.1 s at 0.05 s
         # would silently change the motion (a shorter flight) from what the file says
@@ -647,7 +651,12 @@ def retarget(task: Task, robots: dict[str, str]) -> Task:
     key comes back as it is. Only the robot changes (the content hash with it), so the new
     robot needs the task's contact groups and joints: `Task.validate` checks them."""
     new = robots.get(task.robot, task.robot)
-    return task if new == task.robot else dataclasses.replace(task, robot=new)
+    if new == task.robot:
+        return task
+    moved = dataclasses.replace(task, robot=new)
+    if (source := getattr(task, "_source", None)) is not None:  # its errors still name its file
+        object.__setattr__(moved, "_source", source)
+    return moved
 
 
 def available() -> list[str]:

@@ -216,8 +216,8 @@ def test_accumulated_rotation_counts_full_turns():
 
 def test_tangents_of_the_wrong_size_are_refused_and_integers_taken_as_floats():
     for fn in (lambda t: lie.exp(lie.SE3, t), lambda t: lie.left_jacobian(lie.SE3, t), lambda t: lie.right_jacobian_inv(lie.SE3, t)):
-        with pytest.raises(ValueError, match=r"a SE3 tangent has 6 entries on its last axis, got shape \(3,\)"):
+        with pytest.raises(ValueError, match=r"a SE3 tangent must have 6 entries on its last axis, got shape \(3,\)"):
             fn(jnp.zeros(3))
-    with pytest.raises(ValueError, match=r"a SO3 tangent has 3 entries on its last axis, got shape \(6,\)"):
+    with pytest.raises(ValueError, match=r"a SO3 tangent must have 3 entries on its last axis, got shape \(6,\)"):
         lie.exp(lie.SO3, jnp.zeros(6))
     np.testing.assert_array_equal(lie.exp(lie.SE3, np.array([0, 0, 1, 0, 0, 0])).translation(), [0.0, 0.0, 1.0])

@@ -2,6 +2,7 @@
 name the field and what was expected."""
 
 import dataclasses
+import importlib.resources
 import re
 import tomllib
 
@@ -347,7 +348,7 @@ def test_knot_counts_over_the_cap_are_refused_when_loaded(tmp_path, old, new, ma
 
 
 def test_the_knot_cap_is_on_the_task_s_knots():
-    with pytest.raises(TaskError, match=r"^phases\[0\].duration: 100000.0: 1e\+05 knots at the timestep 1 s; expected at most 100000 knots"):
+    with pytest.raises(TaskError, match=r"^phases\[0\].duration: 100000.0: 100001 knots at the timestep 1 s; expected at most 100000 knots"):
         small_task(timestep=1.0, phases=(Phase(FEET, 100_000.0),))
     with pytest.raises(TaskError, match=r"^timestep: 1.0: 100001 knots over the phases' 100000 s; expected at most 100000 knots"):
         small_task(timestep=1.0, phases=(Phase(FEET, 50_000.0), Phase(FEET, 50_000.0)))
@@ -366,7 +367,7 @@ def test_max_iter_is_bounded_by_ipopt_s_limit(tmp_path):
         tasks.load(str(path))
 
 
-@pytest.mark.parametrize("axis", [(1e-200, 0.0, 0.0), (1e200, 1e200, 0.0)])
+@pytest.mark.parametrize("axis", [(1e-200, 0.0, 0.0), (1e200, 1e200, 0.0), (0.0, 3e150, 4e150), (0.0, 9e-151, 0.0)])
 def test_axes_whose_length_underflows_or_overflows_are_refused(tmp_path, axis):
     # they were accepted: the warm start's axis came out NaN ([1e-200, 0, 0]) or zero, and so did
     # the flip check's (jtraj.success divides by np.linalg.norm)
@@ -381,7 +382,30 @@ def test_axes_whose_length_underflows_or_overflows_are_refused(tmp_path, axis):
 
 
 def test_short_and_long_axes_within_range_give_unit_warm_start_axes():
-    for axis in ((0.0, 1e-150, 0.0), (0.0, 3e150, 4e150)):
+    for axis in ((0.0, 1e-150, 0.0), (0.0, 3e149, 4e149)):
         rule = tasks.RotationRule(tasks.Profile.RAMP, axis, 1.0, (1,))
         ((unit, _),) = small_task(warm_start_rules=(rule,)).warm_start_angles()
         np.testing.assert_allclose(unit, np.asarray(axis) / np.hypot(axis[1], axis[2]), rtol=1e-15)
+
+
+def test_a_task_error_survives_a_worker_process():
+    """A TaskError raised in a worker of a sweep is pickled back to the parent: it was rebuilt
+    from its one-line message alone, which __init__ does not take (a TypeError, which the
+    process pool reports as a lost worker)."""
+    import pickle
+
+    error = TaskError("phases[0].contacts", tasks._Raw("['left_hand']"), "expected the lowest points", "mine.toml")
+    back = pickle.loads(pickle.dumps(error))
+    assert type(back) is TaskError and str(back) == str(error) == "mine.toml: phases[0].contacts: ['left_hand']: expected the lowest points"
+    assert (back.field, back.value, back.expected, back.source) == (error.field, error.value, error.expected, error.source)
+
+
+def test_a_retargeted_task_file_keeps_its_file_for_its_errors(tmp_path):
+    """`--robot talos=talos_full` moved a task file to another model and lost its file name:
+    the errors found later (its fixed knots) named no file."""
+    path = tmp_path / "mine.toml"
+    path.write_text((importlib.resources.files("jtraj.tasks") / "big_jump.toml").read_text())
+    task = tasks.load(str(path))
+    moved = tasks.retarget(task, {"talos": "talos_full"})
+    assert moved.robot == "talos_full" and moved._source == task._source == str(path)
+    assert tasks.retarget(task, {"go2": "g1"}) is task
