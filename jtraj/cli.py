@@ -473,6 +473,22 @@ def _load_valid_task(name: str, robots: dict[str, str] | None = None, all_used: 
         raise e.with_source(name if name.endswith(".toml") else f"tasks/{name}.toml") from None
 
 
+def _check_fixed_knots(name: str, task) -> None:
+    """A sweep's task whose fixed first or last knot is off the terrain its phases stand on
+    (`jtraj.transcription.Transcription.initial_xyz_wxyz`), refused before the sweep starts:
+    `jtraj solve` finds it before compiling, a sweep found it when the task's cells began,
+    after the cells before them had solved. Its forward kinematics only (no NLP)."""
+    from jtraj import robot as robot_lib
+    from jtraj import task as tasks
+    from jtraj.parameterization import get
+    from jtraj.transcription import Transcription
+
+    try:
+        _ = Transcription(robot_lib.load(task.robot), task, get("se3")).initial_xyz_wxyz
+    except tasks.TaskError as e:
+        raise (e if e.source else e.with_source(name if name.endswith(".toml") else f"tasks/{name}.toml")) from None
+
+
 def _check_tasks(field: str, text: str, robots: dict[str, str] | None = None) -> list:
     """Every task named loads and passes the checks that need its robot, before any solve.
 
@@ -484,6 +500,8 @@ def _check_tasks(field: str, text: str, robots: dict[str, str] | None = None) ->
     names = _check_names(field, text, tasks.available(), "tasks", allow_files=True)
     on_robots: set[str] = set()
     checked = [_load_valid_task(name, robots, on_robots=on_robots) for name in names]
+    for name, task in zip(names, checked):
+        _check_fixed_knots(name, task)
     for old, new in (robots or {}).items():  # a mapping no task uses would be ignored
         if old not in on_robots:
             raise InputError("--robot", f"{old}={new}", f"no task of {field} is on robot {old!r}; expected a mapping of {', '.join(sorted(on_robots))}")

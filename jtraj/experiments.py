@@ -97,7 +97,10 @@ def compare(
     names = [load_task(t).name for t in tasks]
     _refuse_repeats("compare: tasks", tasks, names, "task")
     _refuse_repeats("compare: params", params, params, "parameterization")
-    jobs = [(task, p, variables, exact_hessian, solver, str(out / f"{name}_{p}") if save_trajectories else None) for task, name in zip(tasks, names) for p in params]
+    # each cell folder's provenance.json names this process's command (a worker's, a Ray
+    # worker's above all, is not the sweep's)
+    command = list(sys.argv)
+    jobs = [(task, p, variables, exact_hessian, solver, str(out / f"{name}_{p}") if save_trajectories else None, command) for task, name in zip(tasks, names) for p in params]
     in_process = executor == "local" and workers <= 1
     cells = ((i, _compare_one(*job, progress=progress)) for i, job in enumerate(jobs)) if in_process else executor_for(executor, workers, ray_address).map(_compare_one, jobs)
     done: dict[int, dict] = {}
@@ -163,9 +166,10 @@ def _why(row: dict) -> str:
     return ""
 
 
-def _compare_one(task, p, variables, exact_hessian, solver, out, progress=None) -> dict:
-    """One cell of Table IV (a module-level function: executors ship it to other processes)."""
-    return _row(solve(task, p, variables=variables, solver=solver, exact_hessian=exact_hessian, progress=progress, progress_every=10, out=out))
+def _compare_one(task, p, variables, exact_hessian, solver, out, command=None, progress=None) -> dict:
+    """One cell of Table IV (a module-level function: executors ship it to other processes);
+    ``command``: what its folder's provenance.json names (the sweep's)."""
+    return _row(solve(task, p, variables=variables, solver=solver, exact_hessian=exact_hessian, progress=progress, progress_every=10, out=out, command=command))
 
 
 def _write_table_iv(rows: list[dict], out: Path) -> None:

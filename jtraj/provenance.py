@@ -1,7 +1,8 @@
 """Where a table came from: the command, the date, the machine and the software versions.
 
-`jtraj compare` and `jtraj robustness` write ``provenance.json`` beside their tables so that a
-number quoted from ``results/`` can be traced to the run that produced it: when the run starts
+`jtraj compare` and `jtraj robustness` write ``provenance.json`` beside their tables, and
+`jtraj.solve` (``jtraj solve``) in its ``out`` folder, so that a number quoted from ``results/``
+can be traced to the run that produced it: when the run starts
 (``"complete": false``, so a table left by a stopped run is not taken for a finished one's) and
 again when it ends. A run that resumes a folder keeps the folder's earlier records under
 ``"earlier"``, oldest first: its tables may hold their runs.

@@ -289,7 +289,7 @@ def load(name: str) -> Robot:
     # checked before the cache, which cannot hash a list
     if isinstance(name, os.PathLike) or (isinstance(name, str) and (name.endswith(".toml") or "/" in name)):
         raise RobotLoadError(
-            f"unknown robot {name!r}; expected one of: {', '.join(available())} (a robot file saved in the checkout's robots/ folder is the robot of its stem; jtraj.robot.load_file reads one)"
+            f"unknown robot {name!r}; expected one of: {', '.join(available())} (with the editable install, a robot file saved in the checkout's robots/ folder is the robot of its stem; jtraj.robot.load_file reads one)"
         )
     if not isinstance(name, str):
         raise RobotLoadError(f"unknown robot {name!r}; expected one of: {', '.join(available())} (a robot's name, a string)")

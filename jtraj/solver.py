@@ -233,7 +233,9 @@ def solve(
             ``out`` then writes no ``trajectory.npz``.
         theta: the task's parameters (`jtraj.transcription.TaskParams`), or a dict
             overriding some of them (``{"friction": 0.5, "timestep": 0.04}``); other values
-            of theta reuse the compiled NLP.
+            of theta reuse the compiled NLP. A standing pose or target that puts the fixed
+            first or last knot off the terrain its phases stand on is refused before the
+            solver runs (`Transcription.check_boundaries`).
         layout: the former name of ``variables`` (deprecated: warns).
         command: the command line ``out``'s ``provenance.json`` records (``jtraj solve``
             passes its own); default this process's (``sys.argv``).

@@ -193,7 +193,8 @@ COMPACT_VARIABLES = TranscriptionOptions(contact_variables=False, acceleration_v
 LEAN_VARIABLES = TranscriptionOptions(contact_variables=False, acceleration_variables=False)
 
 #: How far (m) a point may be off the terrain where the first or last knot, fixed, puts it
-#: (beyond the stance's own spread at the first knot): a check of the task, not a solver tolerance.
+#: (beyond the stance's own error at the first knot, where phase 0's contacts touch the terrain
+#: on average): a check of the task, not a solver tolerance.
 HEIGHT_TOLERANCE = 1e-6
 
 _FORMER_NAMES = {"PAPER_LAYOUT": "PAPER_VARIABLES", "COMPACT_LAYOUT": "COMPACT_VARIABLES", "LEAN_LAYOUT": "LEAN_VARIABLES"}
@@ -261,8 +262,9 @@ class TaskParams:
 
     def check(self) -> "TaskParams":
         """Raise ValueError for values no task can have (the task file's rules: a positive
-        timestep, friction, force factor and force-rate bound, weights >= 0, masses >= 0, all
-        finite but an absent force-rate bound, inf; and a unit standing quaternion). Values being traced (under ``jit``,
+        timestep, friction, force factor and force-rate bound, weights >= 0, masses >= 0 and
+        the world body's (the first) 0, all finite but an absent force-rate bound, inf; and a
+        unit standing quaternion). Values being traced (under ``jit``,
         ``grad`` or ``vmap``) are not looked at. Returns self."""
         def positive(v):
             return np.isfinite(v) & (v > 0)
@@ -412,7 +414,8 @@ class Transcription:
         problem = self._boundary_problem(theta)
         if problem is not None:
             kind, said = problem
-            fields = "theta.q_joints_standing and theta.base_xyz_wxyz_standing" if kind != "last" else "theta.target_translation and theta.target_rotation_rpy"
+            # the last knot's pose is the standing one moved by the target, so all four place it
+            fields = "theta.q_joints_standing and theta.base_xyz_wxyz_standing" + ("" if kind != "last" else ", theta.target_translation and theta.target_rotation_rpy")
             raise ValueError(f"{fields}: the pose they give {said}; expected the fixed {'last' if kind == 'last' else 'first'} knot to touch the terrain as the task's phases do")
 
     def _within_joint_limits(self, theta: TaskParams) -> TaskParams:
@@ -509,12 +512,13 @@ class Transcription:
         spread = float(np.ptp(z[0, first]))
         if spread > 5e-3:
             return "stance", f"puts the contact points of phase 0 {spread * 1000:.1f} mm apart in height (on flat ground: within 5 mm)"
-        below = np.flatnonzero(~first & (z[0] < h - HEIGHT_TOLERANCE))
+        # the stance's own error at the first knot (its contacts touch the terrain on average,
+        # within their spread) is allowed at both ends
+        tol = HEIGHT_TOLERANCE + float(np.max(np.abs(z[0, first] - h)))
+        below = np.flatnonzero(~first & (z[0] < h - tol))
         if below.size:
             i = below[np.argmin(z[0, below])]
             return "first", f"lowered until phase 0's contacts touch the terrain puts {self.contact_names[i]} {h - z[0, i]:.3g} m below it at the first knot"
-        # the stance's own error at the first knot (the spread of phase 0's contacts) is allowed
-        tol = HEIGHT_TOLERANCE + float(np.max(np.abs(z[0, first] - h)))
         off = np.where(last, np.abs(z[1] - h), h - z[1])  # distance from the terrain (touching), depth below it (others)
         if np.any(off > tol):
             i = int(np.argmax(off))
@@ -540,7 +544,10 @@ class Transcription:
                     "phases[0].contacts", list(task.phases[0].contacts),
                     f"the standing pose of {self.robot.name!r} {said}; expected the contacts of phase 0 to be the lowest points of the standing pose",
                 )
-            if any(task.target_rotation_rpy):
+            # the key most likely at fault: a height, else a rotation, else the target joints
+            if task.target_translation[2] != 0:
+                field, value = "target_translation", list(task.target_translation)
+            elif any(task.target_rotation_rpy):
                 field, value = "target_rotation_rpy", list(task.target_rotation_rpy)
             elif task.target_joints is not None:
                 field, value = "target_joints", _Raw(f"{len(task.target_joints)} joint angles")

@@ -670,3 +670,11 @@ def test_a_task_whose_first_knot_is_below_the_terrain_is_one_line_before_the_sol
     assert code == cli.EXIT_BAD_INPUT and err.count("\n") == 1
     assert err.startswith(f"jtraj solve: {path}: phases[0].contacts: ['left_hand', 'right_hand']: the standing pose of 'talos' lowered until phase 0's contacts touch the terrain puts left_foot_")
     assert not (tmp_path / "run").exists()
+    # a sweep refuses it with its other inputs, not when its cells begin (after the cells
+    # before them had solved, with OUT/provenance.json written), on another robot model too
+    for command in (["compare", "--params", "se3"], ["robustness", "--params", "se3", "--sigmas", "0.1", "--replicates", "1"]):
+        for robot in ([], ["--robot", "talos=talos_full"]):
+            code, err = _run([*command, "--tasks", f"big_jump,{path}", *robot, "--out", str(tmp_path / "sweep")], capsys)
+            assert code == cli.EXIT_BAD_INPUT and err.count("\n") == 1, err
+            assert err.startswith(f"jtraj {command[0]}: {path}: phases[0].contacts: ['left_hand', 'right_hand']: the standing pose of 'talos")
+            assert not (tmp_path / "sweep").exists()

@@ -293,7 +293,7 @@ def test_unknown_robot_lists_choices():
     with pytest.raises(robot_lib.RobotLoadError, match="talos"):
         robot_lib.load("atlas")
     for path in (Path("robots/go2.toml"), "robots/go2.toml", "go2.toml"):
-        with pytest.raises(robot_lib.RobotLoadError, match=r"a robot file saved in the checkout's robots/ folder is the robot of its stem; jtraj\.robot\.load_file reads one"):
+        with pytest.raises(robot_lib.RobotLoadError, match=r"with the editable install, a robot file saved in the checkout's robots/ folder is the robot of its stem; jtraj\.robot\.load_file reads one"):
             robot_lib.load(path)
     # a list (a name in a list by mistake) reached the cache, which raised TypeError: unhashable
     with pytest.raises(robot_lib.RobotLoadError, match=r"unknown robot \['go2'\]; .*a robot's name, a string"):

@@ -314,6 +314,9 @@ def test_solve_refuses_a_theta_whose_fixed_knots_cannot_touch_the_terrain(monkey
 
     prep = jtraj.solver.prepare(HOP)
     monkeypatch.setattr(type(jtraj.solvers.get("ipopt")), "solve", lambda *a, **k: pytest.fail("solved a theta no solver could meet"))
-    with pytest.raises(ValueError, match=r"^theta.target_translation and theta.target_rotation_rpy: the pose they give puts \w+ 0.1 m above the terrain at the last knot"):
+    with pytest.raises(ValueError, match=r"^theta.q_joints_standing and theta.base_xyz_wxyz_standing, theta.target_translation and theta.target_rotation_rpy: the pose they give puts \w+ 0.1 m above the terrain at the last knot"):
         jtraj.solver.solve(HOP, theta={"target_translation": [0.04, 0.0, 0.1]}, progress=None)
+    tilted = [0.0, 0.0, 0.3, float(np.cos(0.05)), float(np.sin(0.05)), 0.0, 0.0]  # a roll of 0.1 rad
+    with pytest.raises(ValueError, match=r"^theta.q_joints_standing and theta.base_xyz_wxyz_standing: the pose they give puts the contact points of phase 0 \d+.\d mm apart in height"):
+        jtraj.solver.solve(HOP, theta={"base_xyz_wxyz_standing": tilted}, progress=None)
     assert prep.nlp is jtraj.solver.prepare(HOP).nlp

@@ -296,7 +296,7 @@ def test_theta_values_no_task_can_have_are_refused():
     for bad, message in (
         ({"q_joints_standing": calf}, r"^theta.q_joints_standing and theta.base_xyz_wxyz_standing: the pose they give puts the contact points of phase 0 5\d.\d mm apart in height"),
         ({"base_xyz_wxyz_standing": roll}, r"^theta.q_joints_standing and theta.base_xyz_wxyz_standing: the pose they give puts the contact points of phase 0 \d+.\d mm apart"),
-        ({"target_translation": [0.3, 0.0, 0.1]}, r"^theta.target_translation and theta.target_rotation_rpy: the pose they give puts \w+ 0.1 m above the terrain at the last knot, where phase \d touches it; expected the fixed last knot"),
+        ({"target_translation": [0.3, 0.0, 0.1]}, r"^theta.q_joints_standing and theta.base_xyz_wxyz_standing, theta.target_translation and theta.target_rotation_rpy: the pose they give puts \w+ 0.1 m above the terrain at the last knot, where phase \d touches it; expected the fixed last knot"),
     ):
         with pytest.raises(ValueError, match=message):
             tr.check_boundaries(tr.resolve_theta(bad))
@@ -487,7 +487,7 @@ def test_warm_start_is_built_from_the_theta_it_is_given():
     np.testing.assert_array_equal(tr.warm_start(), tr.warm_start(tr.default_theta()))
     default = tr.default_theta()
     # every thigh and calf moved alike, the feet stay level (the hips' abduction, mirrored left
-    # and right, would tilt the stance: refused, as its fixed first knot cannot touch the terrain)
+    # and right, would tilt the stance, which jtraj.solve refuses: see check_boundaries)
     legs = np.array([not name.endswith("hip_joint") for name in tr.robot.joint_names])
     crouch = np.asarray(default.q_joints_standing) + 0.1 * legs
     theta = default.replace(q_joints_standing=crouch, body_masses=2.0 * np.asarray(default.body_masses))
