@@ -729,7 +729,10 @@ class Transcription:
         Z[:, L.slice("q")] = q
         n_touch = contact.sum(axis=1)
         f = np.zeros((n_knots, P, 3))
-        weight = float(np.sum(np.asarray(theta.body_masses)[1:])) * GRAVITY  # robot.total_mass g for the default (the world's, first, is 0)
+        # less the world body's (first; 0 when checked): the whole sum first, as before the
+        # world's was left out, for the same rounding (the side-flip's iterations follow it)
+        masses = np.asarray(theta.body_masses)
+        weight = float(np.sum(masses) - masses[0]) * GRAVITY  # robot.total_mass g for the default
         f[:, :, 2] = np.where(contact, weight / np.maximum(n_touch, 1)[:, None], 0.0)
         Z[:, L.slice("f")] = f.reshape(n_knots, -1)
         if self.options.contact_variables:
@@ -967,7 +970,8 @@ def friction_stage(tr: Transcription) -> list[ConstraintGroup]:
 def force_limit(theta: TaskParams) -> jax.Array:
     """F = force_limit_factor m g (N): the largest contact force of a point (its components'
     bound, or with `TranscriptionOptions.force_limits` ``"rows"`` its norm's)."""
-    return theta.force_limit_factor * jnp.sum(theta.body_masses[1:]) * GRAVITY  # the world body (first) weighs nothing
+    # less the world body's (first; 0 when checked), summed as before it was left out (same rounding)
+    return theta.force_limit_factor * (jnp.sum(theta.body_masses) - theta.body_masses[0]) * GRAVITY
 
 
 def force_limit_stage(tr: Transcription) -> list[ConstraintGroup]:
