@@ -760,6 +760,8 @@ def _assemble(config, source, name, urdf_path, urdf, locked) -> Robot:
         cname = _require(entry, "name", str, source, where)
         link = _require(entry, "link", str, source, where)
         offset = _vector(entry.get("offset", [0.0, 0.0, 0.0]), 3, source, f"{where}offset")
+        if not cname.strip():
+            raise RobotLoadError(f"{source}: {where}name is empty; expected the contact point's name (groups and messages use it)")
         if cname in (c.name for c in contacts):
             raise RobotLoadError(f"{source}: duplicate contact point name {cname!r}")
         body_id, R_bl, p_bl = _link_in_body(urdf, locked, model, link, source, f"contact point {cname!r}")
@@ -787,7 +789,13 @@ def _assemble(config, source, name, urdf_path, urdf, locked) -> Robot:
                     f"{source}: group {gname!r} names contact point {member!r}, which is not declared; "
                     f"expected one of: {', '.join(contact_names)}"
                 )
+            if contact_names.index(member) in indices:
+                raise RobotLoadError(f"{source}: group {gname!r} names contact point {member!r} twice; expected each point once")
             indices.append(contact_names.index(member))
+        # a phase touching with an empty group passed the task's "starts in contact" check
+        # with no point on the ground
+        if not indices:
+            raise RobotLoadError(f"{source}: group {gname!r} names no contact point; expected one or more of: {', '.join(contact_names)}")
         groups[gname] = tuple(indices)
 
     # Standing pose.

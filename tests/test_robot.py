@@ -328,6 +328,11 @@ def test_unknown_robot_lists_choices():
         # a standing pose outside the joint limits: loaded, and every solve on it refused later
         # by a message that named theta, not the file
         (lambda c: c["standing"]["joints"].update(leg_left_4_joint=-0.5), "standing.joints.leg_left_4_joint = -0.5 is outside its limits [0, "),
+        # an empty group let a phase "touch" with no point on the ground; a point named twice
+        # or a nameless point
+        (lambda c: c["groups"].update(left_foot=[]), "group 'left_foot' names no contact point; expected one or more of: "),
+        (lambda c: c["groups"].update(left_foot=["left_foot_front_left", "left_foot_front_left"]), "group 'left_foot' names contact point 'left_foot_front_left' twice"),
+        (lambda c: c["contact"][0].update(name=""), "contact[0].name is empty"),
         # a norm past the largest float: normalized to zeros
         (lambda c: c["standing"].update(base_wxyz=[1.5e308, 1.5e308, 0.0, 0.0]), "standing.base_wxyz must be a nonzero quaternion (w, x, y, z) of finite norm, got [1.5e+308, 1.5e+308, 0.0, 0.0]"),
     ],
