@@ -470,7 +470,12 @@ def _load_valid_task(name: str, robots: dict[str, str] | None = None, all_used: 
     try:
         return task.validate()
     except tasks.TaskError as e:
-        raise e.with_source(name if name.endswith(".toml") else f"tasks/{name}.toml") from None
+        raise e.with_source(_task_file(name)) from None
+
+
+def _task_file(name: str) -> str:
+    """The file a task argument names, for its errors: the .toml given, or the built-in's."""
+    return name if name.endswith(".toml") else f"tasks/{name}.toml"
 
 
 def _check_fixed_knots(name: str, task) -> None:
@@ -486,7 +491,7 @@ def _check_fixed_knots(name: str, task) -> None:
     try:
         _ = Transcription(robot_lib.load(task.robot), task, get("se3")).initial_xyz_wxyz
     except tasks.TaskError as e:
-        raise (e if e.source else e.with_source(name if name.endswith(".toml") else f"tasks/{name}.toml")) from None
+        raise (e if e.source else e.with_source(_task_file(name))) from None
 
 
 def _check_tasks(field: str, text: str, robots: dict[str, str] | None = None) -> list:

@@ -1,4 +1,4 @@
-"""What counts as a number in an argument check.
+"""What counts as a number in an argument check, and the length of a user's vector.
 
 Python's ``bool`` is an ``int``, so ``isinstance(True, int)`` holds; every check of a user's
 count, size, rate or angle refuses it, and takes numpy's scalars as Python's.
@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["is_real", "is_whole", "is_seed"]
+__all__ = ["is_real", "is_whole", "is_seed", "unit_and_length"]
 
 
 def is_real(value: Any) -> bool:
@@ -27,3 +27,17 @@ def is_seed(value: Any) -> bool:
     """A whole number that JAX's ``PRNGKey`` takes: 64 bits, below 2**63 in magnitude (a larger
     one raises OverflowError where the noise is drawn, after the NLP has compiled)."""
     return is_whole(value) and -(2**63) <= value < 2**63
+
+
+def unit_and_length(vector: Any) -> tuple[np.ndarray, float]:
+    """``vector / |vector|`` and ``|vector|`` of finite numbers, both computed from the vector
+    scaled by its largest component, so that the squares neither overflow ([1e200, 1e200, 0]:
+    an infinite length unscaled) nor underflow ([1e-200, 0, 0]: 0); ``(vector, 0.0)`` for a
+    zero vector."""
+    a = np.asarray(vector, float)
+    scale = float(np.max(np.abs(a))) if a.size else 0.0
+    if scale == 0.0:
+        return a, 0.0
+    a = a / scale
+    norm = float(np.linalg.norm(a))
+    return a / norm, scale * norm

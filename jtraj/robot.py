@@ -44,7 +44,7 @@ from jaxlie import SE3, SO3
 
 from jtraj import euler
 from jtraj.constants import GRAVITY
-from jtraj.numbers import is_real, is_whole
+from jtraj.numbers import is_real, is_whole, unit_and_length
 
 # MJX prints "Failed to import warp" (its optional GPU backend) on import: keep the command line
 # clean and pass on anything else it prints.
@@ -803,13 +803,11 @@ def _assemble(config, source, name, urdf_path, urdf, locked) -> Robot:
     _check_keys(standing, "standing.", source)
     base_xyz = _vector(standing.get("base_xyz", [0.0, 0.0, 0.0]), 3, source, "standing.base_xyz")
     base_wxyz = _vector(standing.get("base_wxyz", [1.0, 0.0, 0.0, 0.0]), 4, source, "standing.base_wxyz")
-    # its norm scaled by the largest component first: [1e200, 1e200, 0, 0] had the norm inf,
-    # and normalized to zeros
-    scale = float(np.max(np.abs(base_wxyz)))
-    norm = scale * float(np.linalg.norm(base_wxyz / scale)) if scale > 0 else 0.0
+    # its norm computed scaled: [1e200, 1e200, 0, 0] had the norm inf, and normalized to zeros
+    unit, norm = unit_and_length(base_wxyz)
     if not 1e-6 < norm < np.inf:
         raise RobotLoadError(f"{source}: standing.base_wxyz must be a nonzero quaternion (w, x, y, z) of finite norm, got {base_wxyz.tolist()}")
-    base_wxyz = (base_wxyz / scale) / (norm / scale)
+    base_wxyz = unit
     q_standing = np.zeros(len(joint_names))
     joints_table = standing.get("joints", {})
     if not isinstance(joints_table, Mapping):

@@ -59,6 +59,7 @@ from typing import Any
 import numpy as np
 
 from jtraj.deprecation import warn_renamed
+from jtraj.numbers import unit_and_length
 
 __all__ = ["TaskError", "Phase", "Profile", "RotationRule", "JointRule", "Task", "Schedule", "load", "from_file", "from_dict", "available", "retarget", "task_argument", "MAX_KNOTS", "MAX_ITER"]
 
@@ -236,7 +237,7 @@ class Task:
             else:
                 for p in rule.phases:
                     angles[starts[p] : starts[p + 1]] = rule.angle
-            out.append((_unit(rule.axis), angles))
+            out.append((unit_and_length(rule.axis)[0], angles))
         return out
 
     # -------------------------------------------------------------- validation
@@ -352,14 +353,6 @@ def _vector(value: Any, field: str, n: int = 3, nonzero: bool = False) -> tuple[
     if nonzero and not 1e-300 <= sum(x * x for x in out) <= 1e300:  # a length in [1e-150, 1e150]
         raise TaskError(field, shown, "expected an axis of length between 1e-150 and 1e150, e.g. [1, 0, 0] (its length does not matter, only its direction)")
     return out
-
-
-def _unit(axis: tuple[float, ...]) -> np.ndarray:
-    """The unit vector along a nonzero ``axis``, scaled by its largest component first (no
-    underflow or overflow in the squares)."""
-    a = np.asarray(axis, float)
-    a = a / np.max(np.abs(a))
-    return a / np.linalg.norm(a)
 
 
 def _indices(value: Any, field: str, n_phases: int) -> tuple[int, ...]:

@@ -402,14 +402,9 @@ class Transcription:
         """Refuse a theta (`resolve_theta`'s) whose fixed first or last knot is off the terrain
         where the task's phases touch it (`_boundary_problem`; a changed standing pose or
         target): no solver could meet those knots' rows. `jtraj.solve` checks a given theta so;
-        values being traced are not looked at, and the task's own values are checked by
-        `initial_xyz_wxyz`. (Not part of `resolve_theta`: a pose of such a theta can still be
-        asked for, e.g. `target_xyz_wxyz_of`.)"""
-        values = [getattr(theta, name) for name in self._BOUNDARY_FIELDS]
-        if any(isinstance(v, jax.core.Tracer) for v in values):
-            return
-        default = self.default_theta()
-        if all(np.array_equal(np.asarray(v), np.asarray(getattr(default, name))) for v, name in zip(values, self._BOUNDARY_FIELDS)):
+        values being traced are not looked at. (Not part of `resolve_theta`: a pose of such a
+        theta can still be asked for, e.g. `target_xyz_wxyz_of`.)"""
+        if any(isinstance(getattr(theta, name), jax.core.Tracer) for name in self._BOUNDARY_FIELDS):
             return
         problem = self._boundary_problem(theta)
         if problem is not None:
@@ -729,10 +724,7 @@ class Transcription:
         Z[:, L.slice("q")] = q
         n_touch = contact.sum(axis=1)
         f = np.zeros((n_knots, P, 3))
-        # less the world body's (first; 0 when checked): the whole sum first, as before the
-        # world's was left out, for the same rounding (the side-flip's iterations follow it)
-        masses = np.asarray(theta.body_masses)
-        weight = float(np.sum(masses) - masses[0]) * GRAVITY  # robot.total_mass g for the default
+        weight = float(robot_mass(np.asarray(theta.body_masses))) * GRAVITY  # robot.total_mass g for the default
         f[:, :, 2] = np.where(contact, weight / np.maximum(n_touch, 1)[:, None], 0.0)
         Z[:, L.slice("f")] = f.reshape(n_knots, -1)
         if self.options.contact_variables:
@@ -967,11 +959,18 @@ def friction_stage(tr: Transcription) -> list[ConstraintGroup]:
     ]
 
 
+def robot_mass(body_masses):
+    """The robot's mass m from ``body_masses`` (numpy's on the host, JAX's in the NLP): the
+    bodies' sum less the world body's (first; 0 when checked: no dynamics has it). The whole sum
+    first, as before the world's was left out: the sum of the others rounds differently
+    (16.085000000000004 against 16.085 kg on the Go2), and the side-flip's iterations follow it."""
+    return body_masses.sum() - body_masses[0]
+
+
 def force_limit(theta: TaskParams) -> jax.Array:
     """F = force_limit_factor m g (N): the largest contact force of a point (its components'
     bound, or with `TranscriptionOptions.force_limits` ``"rows"`` its norm's)."""
-    # less the world body's (first; 0 when checked), summed as before it was left out (same rounding)
-    return theta.force_limit_factor * (jnp.sum(theta.body_masses) - theta.body_masses[0]) * GRAVITY
+    return theta.force_limit_factor * robot_mass(theta.body_masses) * GRAVITY
 
 
 def force_limit_stage(tr: Transcription) -> list[ConstraintGroup]:
