@@ -9,8 +9,10 @@ runner script, which prints one JSON line), then ``jtraj.solve(task, "se3", vari
 each choice of variables. Iterations are what is compared: on a shared machine the times are noisy. Writes
 ``DIR/side_by_side.json`` (one row per solve), ``DIR/side_by_side.md`` (the table the README
 quotes) and ``DIR/provenance.json``. Rows already in the JSON are kept (resume), except the
-solves that failed (rows with status ``error``): they run again. The exit status is nonzero when
-a solve failed.
+solves that failed (rows with status ``error``) and the paper code's rows of another runner
+or other sources (each names its runner's path, ``runner``, and a noisy flip's the sources it
+ran, ``peer_src``; a row without them is from before the fields): they run again, and the new
+row replaces the old. The exit status is nonzero when a solve failed.
 
 The noise of the paper's runner is numpy's ``default_rng(seed)`` on its own variable vector,
 jtraj's is ``numpy default_rng(seed)`` on jtraj's: same distribution, not the same draws (the
@@ -377,8 +379,20 @@ def main(argv: list[str] | None = None) -> None:
     # provenance.json says from the start that a run is writing this folder: a run stopped
     # half-way (Ctrl-C, a crash) left its rows beside the provenance of the run before it
     record = begin_run(out, ["python", "bench/side_by_side.py", *(sys.argv[1:] if argv is None else argv)])
-    # a failed solve (an error row) is not done: it runs again, and its new row replaces the old
-    done = {(r["code"], r["task"], r["sigma"], r["seed"]) for r in rows if r.get("status") != "error"}
+    # a failed solve (an error row) is not done, nor is the paper code's row of another runner
+    # (`--peer`): it runs again, and its new row replaces the old
+    runner = os.path.abspath(args.peer) if args.peer else None
+
+    def peer_fields(task: str) -> dict:
+        """What a paper code's row of ``task`` names of the code that solved it."""
+        checked = args.sigma and builtin_task(task).flip_axis is not None
+        return dict(runner=runner, **({"peer_src": str(args.peer_src)} if checked else {}))
+
+    done = {
+        (r["code"], r["task"], r["sigma"], r["seed"])
+        for r in rows
+        if r["task"] in tasks and r.get("status") != "error" and (r["code"] != "paper" or all(r.get(k) == v for k, v in peer_fields(r["task"]).items()))
+    }
     failed: list[str] = []
     seeds = args.seeds if args.sigma else [0]
     for task in tasks:
@@ -402,6 +416,8 @@ def main(argv: list[str] | None = None) -> None:
                     row = job()
                 except Exception as e:  # a solve that raised (jtraj's, or the public code's through its driver): an error row; the other solves still run
                     row = _error_row(task, args.sigma, seed, _error_text(e), code)
+                if code == "paper":
+                    row.update(peer_fields(task))
                 print(json.dumps(row), flush=True)
                 old = [i for i, r in enumerate(rows) if (r["code"], r["task"], r["sigma"], r["seed"]) == key]  # a failed one
                 if old:

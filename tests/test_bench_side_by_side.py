@@ -33,13 +33,31 @@ def test_a_failed_peer_solve_is_retried_and_exits_nonzero(sbs, monkeypatch, tmp_
     assert exc.value.code == "bench/side_by_side.py: 1 solve(s) failed, their rows say error in " + f"{out / 'side_by_side.json'}; run again to retry them: paper on walk (sigma 0, seed 0)"
     assert "paper on walk (sigma 0, seed 0) failed: boom" in capsys.readouterr().err
     assert [(r["task"], r["status"]) for r in _rows(out)] == [("walk", "error"), ("big_jump", 0)]
-    # the next run solves walk again (big_jump is done), and its row replaces the error row in place
-    ok = fake_peer(tmp_path, 'echo "$1" >> "$(dirname "$0")/calls"\necho \'{"status": 0, "iterations": 14, "time_s": 1.0}\'', name="ok")
+    # the next run, the same runner fixed, solves walk again (big_jump is done), and its row
+    # replaces the error row in place
+    ok = fake_peer(tmp_path, 'echo "$1" >> "$(dirname "$0")/calls"\necho \'{"status": 0, "iterations": 14, "time_s": 1.0}\'')
+    assert ok == flaky
     sbs.main([*argv, "--peer", str(ok)])
     calls = (tmp_path / "calls").read_text().split()
     assert calls == ["walk"]
     assert [(r["task"], r["status"], r["iterations"]) for r in _rows(out)] == [("walk", 0, 14), ("big_jump", 0, 11)]
     assert "| walk | 0 | 14 | 14 |" in (out / "side_by_side.md").read_text()
+
+
+def test_the_paper_codes_rows_of_another_runner_are_solved_again(sbs, monkeypatch, tmp_path):
+    """The rows of the paper's code were resumed whatever runner made them: a run with another
+    ``--peer`` (a changed copy of the code) kept the first runner's iterations under its name."""
+    monkeypatch.setattr(sbs, "run_jtraj", _no_solve)
+    out = tmp_path / "out"
+    argv = ["--tasks", "walk", "--variables", "", "--out", str(out)]
+    first = fake_peer(tmp_path, 'echo \'{"status": 0, "iterations": 11, "time_s": 2.0}\'', name="first")
+    sbs.main([*argv, "--peer", str(first)])
+    assert [(r["iterations"], r["runner"]) for r in _rows(out)] == [(11, str(first))]
+    sbs.main([*argv, "--peer", str(first)])  # the same runner: resumed, not solved again
+    assert len(_rows(out)) == 1
+    other = fake_peer(tmp_path, 'echo \'{"status": 0, "iterations": 17, "time_s": 2.0}\'', name="other")
+    sbs.main([*argv, "--peer", str(other)])
+    assert [(r["iterations"], r["runner"]) for r in _rows(out)] == [(17, str(other))]
 
 
 def test_a_jtraj_solve_that_raises_is_an_error_row_and_the_others_run(sbs, monkeypatch, tmp_path, capsys):
