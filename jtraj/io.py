@@ -152,6 +152,10 @@ def read_json(path: str | Path) -> Any:
         raise FileFormatError(f"{path}: file does not exist") from None
     except IsADirectoryError:
         raise FileFormatError(f"{path}: is a folder; expected a JSON file") from None
+    except NotADirectoryError:
+        raise FileFormatError(f"{path}: file does not exist (a folder on its path is a file)") from None
+    except PermissionError:
+        raise FileFormatError(f"{path}: not readable (permission denied)") from None
     except UnicodeDecodeError:
         raise FileFormatError(f"{path}: not UTF-8 text; expected a JSON file") from None
     if not text.strip():

@@ -17,10 +17,15 @@ trajectory. Files written before the digest load as they are. A save also remove
 that jtraj derives from a result into its folder (`DERIVED_FILES`: figures, video, keyframe
 strip), which would otherwise show an earlier solve beside this one.
 
-Strict JSON writes NaN and infinities as null, and a metric's null can also be meaningful (a
-``turns`` of None: not a flip task): ``result.json`` names the metrics that held non-finite
-numbers (``metrics_non_finite``), whose nulls `Result.load` reads back as NaN; in files written
-before that list, a metric's null stays None.
+Strict JSON writes NaN and infinities as null, and a null can also be meaningful (a ``turns``
+of None: not a flip task): ``result.json`` lists where the metrics and options held non-finite
+numbers and which (``non_finite_values``: a path of keys and indices, and ``"nan"``, ``"inf"``
+or ``"-inf"``; e.g. a theta's infinite ``max_delta_force``), and `Result.load` puts them back.
+Files written before that list name only the metrics that held one (``metrics_non_finite``),
+whose nulls are read back as NaN; in files written before either, a null stays None.
+
+A save also removes a ``provenance.json`` from the folder: it records the run that wrote the
+earlier result (`jtraj.solve` with ``out`` writes its own after saving).
 
 This module imports neither MuJoCo nor the transcription: the trajectory's class is recorded
 by name in the NPZ file and imported when the file is loaded.
@@ -48,6 +53,10 @@ TRAJECTORY_FILE = "trajectory.npz"
 _KIND_KEY = "__trajectory_class__"
 _DIGEST_KEY = "trajectory_sha256"
 _NON_FINITE_KEY = "metrics_non_finite"
+_NON_FINITE_VALUES_KEY = "non_finite_values"
+#: The fields whose non-finite numbers `Result.save` lists where they are (`_non_finite_values`).
+_EXACT_FIELDS = ("metrics", "options")
+PROVENANCE_FILE = "provenance.json"
 #: The files jtraj writes into a result's folder from its result: `jtraj solve`'s figures
 #: (``trajectory.png``, ``convergence.png``), ``jtraj plot``'s (``solution.png``), ``jtraj
 #: attitude``'s (``plot.png``) and ``--render``'s video and strip (``motion.mp4``,
@@ -257,17 +266,22 @@ class Result:
 
     def save(self, directory: str | Path) -> Path:
         """Write ``result.json`` and ``trajectory.npz`` into ``directory`` (created). The
-        `DERIVED_FILES` of an earlier result there (its figures and video) are removed before
-        either file is written; without a trajectory, an older ``trajectory.npz`` is removed."""
+        `DERIVED_FILES` of an earlier result there (its figures and video) and its
+        ``provenance.json`` (the record of the run that wrote it) are removed before either
+        file is written; without a trajectory, an older ``trajectory.npz`` is removed."""
         d = Path(directory)
         d.mkdir(parents=True, exist_ok=True)
         arrays = None if self.trajectory is None else _trajectory_arrays(self.trajectory)
         data = self.to_json()
-        for name in DERIVED_FILES:
+        for name in (*DERIVED_FILES, PROVENANCE_FILE):
             (d / name).unlink(missing_ok=True)
         non_finite = [str(key) for key, value in self.metrics.items() if _has_non_finite(value)]
+        exact = [[[name, *path], text] for name in _EXACT_FIELDS for path, text in _non_finite_values(getattr(self, name))]
         # the two files are replaced one after the other: the digest ties them together
-        io.write_json(d / RESULT_FILE, {**data, _NON_FINITE_KEY: non_finite, _DIGEST_KEY: None if arrays is None else _digest(arrays)})
+        io.write_json(
+            d / RESULT_FILE,
+            {**data, _NON_FINITE_KEY: non_finite, _NON_FINITE_VALUES_KEY: exact, _DIGEST_KEY: None if arrays is None else _digest(arrays)},
+        )
         npz = d / TRAJECTORY_FILE
         if arrays is None:
             npz.unlink(missing_ok=True)
@@ -277,11 +291,14 @@ class Result:
 
     @classmethod
     def load(cls, directory: str | Path) -> Result:
-        """Read a result saved by `save`; `jtraj.io.FileFormatError` names the file that is
-        missing, empty or corrupt."""
+        """Read a result saved by `save` from its folder (or its ``result.json`` or
+        ``trajectory.npz``); `jtraj.io.FileFormatError` names the file that is missing, empty
+        or corrupt."""
         d = Path(directory)
-        if d.name == RESULT_FILE and d.is_file():  # the result's own file named instead of its folder
-            d = d.parent
+        if d.is_file():
+            if d.name not in (RESULT_FILE, TRAJECTORY_FILE):
+                raise io.FileFormatError(f"{d}: is a file; expected a result's folder (with {RESULT_FILE})")
+            d = d.parent  # one of the result's own files named instead of its folder
         path = d / RESULT_FILE
         data = io.read_json(path)
         if not isinstance(data, dict):
@@ -295,6 +312,7 @@ class Result:
             fields["violation_by_group"] = _nan_for_null(fields["violation_by_group"])
             fields["history"] = [_nan_for_null(row) for row in fields["history"]] if isinstance(fields["history"], list) else fields["history"]
             fields["metrics"] = _restore_metrics(fields["metrics"], data.get(_NON_FINITE_KEY))
+            _restore_non_finite(fields, data.get(_NON_FINITE_VALUES_KEY))
         except KeyError as e:
             raise io.FileFormatError(f"{path}: missing field {e.args[0]!r}; not a jtraj result") from None
         except ValueError as e:
@@ -336,6 +354,47 @@ def _has_non_finite(value: Any) -> bool:
         a = np.asarray(value)
         return a.dtype.kind == "f" and not bool(np.isfinite(a).all())
     return False
+
+
+def _non_finite_values(value: Any, path: tuple = ()) -> list[tuple[list, str]]:
+    """Where ``value`` (numbers, arrays, and dicts, lists and dataclasses of them, as
+    `jtraj.io.to_jsonable` writes them) holds NaN or infinities: (path of keys and indices,
+    ``"nan"``, ``"inf"`` or ``"-inf"``) for each."""
+    if isinstance(value, (float, np.floating)):
+        x = float(value)
+        return [] if math.isfinite(x) else [(list(path), "nan" if math.isnan(x) else ("inf" if x > 0 else "-inf"))]
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        value = {f.name: getattr(value, f.name) for f in dataclasses.fields(value)}
+    if isinstance(value, dict):
+        return [hit for k, v in value.items() for hit in _non_finite_values(v, (*path, str(k)))]
+    if isinstance(value, (list, tuple)):
+        return [hit for i, v in enumerate(value) for hit in _non_finite_values(v, (*path, i))]
+    if isinstance(value, np.ndarray) or (hasattr(value, "__array__") and hasattr(value, "dtype")):
+        a = np.asarray(value)
+        return _non_finite_values(a.tolist(), path) if a.dtype.kind == "f" else []
+    return []
+
+
+def _restore_non_finite(fields: dict[str, Any], entries: Any) -> None:
+    """Put the non-finite numbers ``entries`` lists (`Result.save`'s ``non_finite_values``)
+    back in place of their nulls in ``fields``; ValueError for an entry that names no null."""
+    if entries is None:  # a file written before the list
+        return
+    if not isinstance(entries, list):
+        raise ValueError(f"{_NON_FINITE_VALUES_KEY}: expected a list, got {type(entries).__name__}")
+    values = {"nan": math.nan, "inf": math.inf, "-inf": -math.inf}
+    for entry in entries:
+        try:
+            (name, *keys, last), text = entry
+            assert name in _EXACT_FIELDS and text in values
+            parent = fields[name]
+            for key in keys:
+                parent = parent[key]
+            if parent[last] is not None and not (isinstance(parent[last], float) and math.isnan(parent[last])):
+                raise TypeError
+            parent[last] = values[text]
+        except (AssertionError, KeyError, IndexError, TypeError, ValueError):
+            raise ValueError(f"{_NON_FINITE_VALUES_KEY}: {entry!r} names no null of the result") from None
 
 
 def _all_nan_for_null(value: Any) -> Any:

@@ -53,6 +53,22 @@ def test_read_json_names_the_file(tmp_path, content, expected):
     assert str(path) in msg and expected in msg and "\n" not in msg
 
 
+def test_read_json_of_a_path_under_a_file_or_unreadable_names_the_file(tmp_path, monkeypatch):
+    """A path through a file and an unreadable file were raw OSErrors, not FileFormatError."""
+    (tmp_path / "a.npz").write_text("x")
+    with pytest.raises(io.FileFormatError, match=r"a\.npz/result\.json: file does not exist \(a folder on its path is a file\)$"):
+        io.read_json(tmp_path / "a.npz" / "result.json")
+    locked = tmp_path / "locked.json"
+    locked.write_text("{}")
+
+    def denied(self, *args, **kwargs):  # a file's mode does not stop root, who runs CI
+        raise PermissionError(13, "Permission denied", str(self))
+
+    monkeypatch.setattr(type(locked), "read_text", denied)
+    with pytest.raises(io.FileFormatError, match=r"locked\.json: not readable \(permission denied\)$"):
+        io.read_json(locked)
+
+
 def test_jsonl_append_and_torn_last_line(tmp_path):
     path = tmp_path / "runs.jsonl"
     for i in range(3):

@@ -127,7 +127,7 @@ def test_nan_metrics_come_back_as_nan_and_none_stays_none(tmp_path):
     r = make_result(None, metrics={"turns": float("nan"), "final_position_error": float("inf"), "target_errors_deg": {"goal@20": float("nan"), "top@10": 1.0}, "sun_angle_deg": np.array([1.0, np.nan]), "keep_out_deg": None, "task_check": "NaN poses"})
     back = Result.load(r.save(tmp_path))
     m = back.metrics
-    assert np.isnan(back.turns) and np.isnan(m["final_position_error"]) and "turns +nan" in back.summary()
+    assert np.isnan(back.turns) and m["final_position_error"] == float("inf") and "turns +nan" in back.summary()
     assert np.isnan(m["target_errors_deg"]["goal@20"]) and m["target_errors_deg"]["top@10"] == 1.0
     assert m["sun_angle_deg"][0] == 1.0 and np.isnan(m["sun_angle_deg"][1])
     assert m["keep_out_deg"] is None and m["task_check"] == "NaN poses"
@@ -135,15 +135,60 @@ def test_nan_metrics_come_back_as_nan_and_none_stays_none(tmp_path):
     assert no_flip.turns is None and "turns" not in no_flip.summary()
 
 
+def test_infinities_in_the_options_and_metrics_come_back_as_they_were(tmp_path):
+    """A theta's infinite max_delta_force (walk, hopscotch, side-flip) was read back as None,
+    not a float, and an infinite metric as NaN."""
+    theta = {"friction": [0.7], "max_delta_force": [float("inf")], "bounds": [[-float("inf"), 1.0], [float("nan"), 2.0]]}
+    r = make_result(None, options={"tol": 1e-3, "theta": theta}, metrics={"turns": None, "margin": -float("inf"), "gap": np.array([0.5, np.inf])})
+    back = Result.load(r.save(tmp_path))
+    th = back.options["theta"]
+    assert th["max_delta_force"] == [float("inf")] and th["friction"] == [0.7] and back.options["tol"] == 1e-3
+    assert th["bounds"][0] == [-float("inf"), 1.0] and np.isnan(th["bounds"][1][0]) and th["bounds"][1][1] == 2.0
+    assert back.metrics["margin"] == -float("inf") and back.metrics["gap"] == [0.5, float("inf")] and back.metrics["turns"] is None
+
+
+def test_a_list_of_non_finite_values_naming_no_null_is_refused(tmp_path):
+    import json
+
+    make_result(None, options={"theta": {"max_delta_force": [float("inf")]}}).save(tmp_path)
+    data = json.loads((tmp_path / "result.json").read_text())
+    data["non_finite_values"] = [[["options", "tol"], "inf"]]
+    (tmp_path / "result.json").write_text(json.dumps(data))
+    with pytest.raises(FileFormatError, match=r"result\.json: non_finite_values: \[\['options', 'tol'\], 'inf'\] names no null of the result"):
+        Result.load(tmp_path)
+
+
 def test_results_saved_before_the_list_of_non_finite_metrics_still_load(tmp_path):
     """Older files do not tell a NaN metric from a None one: their nulls stay None."""
     import json
 
-    make_result(None, metrics={"turns": float("nan")}).save(tmp_path)
+    make_result(None, metrics={"turns": float("nan")}, options={"theta": {"max_delta_force": [float("inf")]}}).save(tmp_path)
     data = json.loads((tmp_path / "result.json").read_text())
-    del data["metrics_non_finite"]
+    del data["metrics_non_finite"], data["non_finite_values"]
     (tmp_path / "result.json").write_text(json.dumps(data))
-    assert Result.load(tmp_path).turns is None
+    back = Result.load(tmp_path)
+    assert back.turns is None and back.options["theta"]["max_delta_force"] == [None]
+
+
+def test_a_save_removes_the_provenance_of_the_run_that_wrote_the_earlier_result(tmp_path):
+    """A result saved into a folder from jtraj solve kept that run's provenance.json beside it,
+    which then claimed a complete run of another command for the new result."""
+    (tmp_path / "provenance.json").write_text('{"command": "jtraj solve hop.toml", "complete": true}')
+    make_result(None).save(tmp_path)
+    assert not (tmp_path / "provenance.json").exists()
+
+
+@pytest.mark.parametrize("name", ["result.json", "trajectory.npz", "notes.txt"])
+def test_load_given_a_file(tmp_path, name):
+    """A result's files load their folder; another file is one line naming it (it was a raw
+    NotADirectoryError from a path under the file)."""
+    make_result(state_trajectory(), cost=3.0).save(tmp_path)
+    (tmp_path / "notes.txt").write_text("mine")
+    if name == "notes.txt":
+        with pytest.raises(FileFormatError, match=r"notes\.txt: is a file; expected a result's folder \(with result\.json\)$"):
+            Result.load(tmp_path / name)
+    else:
+        assert Result.load(tmp_path / name).cost == 3.0
 
 
 @pytest.mark.parametrize("trajectory", [state_trajectory, lambda: None])
