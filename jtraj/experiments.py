@@ -85,7 +85,9 @@ def compare(
     that many worker processes), ``"ray"`` one Ray task per solve on the cluster at
     ``ray_address``. Rows keep the order of ``tasks`` x ``params`` whatever the executor.
     table_iv.{json,md} are written again as each cell finishes; a cell that raises, or an
-    interrupt, stops the other cells, and the tables hold the cells finished before it.
+    interrupt, stops the other cells, and the tables hold the cells finished before it. An
+    earlier table's figure (``comparison.png``, from ``jtraj plot OUT``) is removed as the
+    sweep starts.
     """
     variables = renamed_argument(variables, layout, "variables", "layout", "paper")
     progress = _progress_stream(progress)
@@ -101,6 +103,8 @@ def compare(
     # worker's above all, is not the sweep's)
     command = list(sys.argv)
     jobs = [(task, p, variables, exact_hessian, solver, str(out / f"{name}_{p}") if save_trajectories else None, command) for task, name in zip(tasks, names) for p in params]
+    # `jtraj plot OUT`'s figure of an earlier table: this call writes another table_iv.json
+    (out / "comparison.png").unlink(missing_ok=True)
     in_process = executor == "local" and workers <= 1
     cells = ((i, _compare_one(*job, progress=progress)) for i, job in enumerate(jobs)) if in_process else executor_for(executor, workers, ray_address).map(_compare_one, jobs)
     done: dict[int, dict] = {}

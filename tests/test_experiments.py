@@ -671,6 +671,15 @@ def test_compare_keeps_the_finished_cells_when_a_worker_is_lost(tmp_path, monkey
     assert executor.closed
 
 
+def test_compare_removes_the_figure_of_the_table_it_replaces(tmp_path, monkeypatch, fake_solves):
+    """jtraj plot OUT's comparison.png of an earlier table stayed beside the new table_iv.json,
+    showing parameterizations the new table does not hold."""
+    (tmp_path / "comparison.png").write_bytes(b"the earlier table's")
+    (tmp_path / "notes.txt").write_text("mine")
+    compare(["walk"], ["euler"], out=tmp_path, progress=None, save_trajectories=False)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt", "table_iv.json", "table_iv.md"]
+
+
 def test_compare_keeps_a_cell_whose_progress_line_failed(tmp_path, monkeypatch, fake_solves):
     """A cell that arrives as the progress stream breaks (a Ctrl-C that ended the `tee` of
     `jtraj compare | tee log`) is in the table: it was finished."""
