@@ -208,7 +208,9 @@ def _render_after_solve(command: str, draw, out: str) -> bool:
 
 
 def _check_render_args(args: argparse.Namespace) -> None:
-    """``jtraj render``'s values, checked before anything is drawn."""
+    """``jtraj render``'s values, checked before anything is drawn; last, the writer of an
+    .mp4 ``--out`` (imageio-ffmpeg: a `jtraj.render.RenderError`, exit status 1 as without
+    OpenGL), which was found missing only after the frames were drawn."""
     if args.out is None and args.strip is None:
         raise InputError("--out, --strip", "neither given", "expected --out FILE.mp4|FILE.gif and/or --strip FILE.png", verbatim=True)
     if not (Path(args.dir) / "trajectory.npz").is_file():
@@ -232,16 +234,20 @@ def _check_render_args(args: argparse.Namespace) -> None:
             if Path(value).is_dir():
                 raise InputError(field, value, f"is a folder; expected a file name, e.g. {Path(value) / example}")
             _check_out(str(Path(value).parent), field, shown=value)
+    if args.out is not None:
+        from jtraj.render import _check_video_writer
+
+        _check_video_writer(args.out)
 
 
 def _cmd_render(args: argparse.Namespace) -> int:
     from jtraj.io import FileFormatError
     from jtraj.render import NotDrawable, RenderError, render_directory
 
-    _check_render_args(args)
     try:
+        _check_render_args(args)
         paths = render_directory(args.dir, args.out, args.strip, keyframes=args.keyframes, layout=args.layout, spacing=args.spacing, options=_render_options(args))
-    except RenderError as e:  # no OpenGL here: the message says what to install
+    except RenderError as e:  # no OpenGL or no .mp4 writer here: the message says what to install
         raise SystemExit(f"jtraj render: {e}") from None
     except (NotDrawable, FileFormatError) as e:  # a folder that is not a whole-body solution
         raise InputError("DIR", args.dir, str(e)) from None

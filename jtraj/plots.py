@@ -11,7 +11,7 @@ from jtraj import io as jio
 from jtraj.lie import accumulated_rotation
 from jtraj.result import Result
 
-__all__ = ["plot_result", "plot_convergence", "plot_solution", "plot_comparison", "plot_directory", "friction_cone_ratio"]
+__all__ = ["plot_result", "plot_convergence", "plot_solution", "plot_comparison", "plot_directory", "friction_pyramid_ratio"]
 
 
 def _figure(**kwargs):
@@ -99,22 +99,50 @@ def _task_friction(task_name: str) -> float | None:
     return float(tasks.load(task_name).friction)  # a built-in task that fails to load says why
 
 
-def friction_cone_ratio(forces: np.ndarray, friction: float) -> np.ndarray:
-    """``|f_t| / (mu f_z)`` of world-frame contact forces (..., 3) on flat ground: at most 1
-    inside the friction cone; NaN where ``f_z`` is not positive (no contact)."""
+def friction_pyramid_ratio(forces: np.ndarray, friction: float) -> np.ndarray:
+    """``max(|f_x|, |f_y|) / (mu f_z)`` of world-frame contact forces (..., 3) on flat ground:
+    at most 1 inside the 4-facet friction pyramid ``|f_x|, |f_y| <= mu f_z`` that the NLP
+    enforces (`jtraj.transcription.friction_stage`, on the same world-frame forces); NaN where
+    ``f_z`` is not positive (no contact). The circular cone's ``|f_t| / (mu f_z)`` put a
+    feasible force at the pyramid's corner at sqrt(2), over the limit."""
     forces = np.asarray(forces, float)
-    tangential = np.linalg.norm(forces[..., :2], axis=-1)
+    tangential = np.max(np.abs(forces[..., :2]), axis=-1)
     fz = forces[..., 2]
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(fz > 1e-9, tangential / (friction * fz), np.nan)
+
+
+def __getattr__(name: str):
+    if name == "friction_cone_ratio":  # its former name, when it measured the circular cone the NLP does not enforce
+        from jtraj.deprecation import warn_renamed
+
+        warn_renamed("jtraj.plots.friction_cone_ratio", "jtraj.plots.friction_pyramid_ratio (max(|f_x|, |f_y|) / (mu f_z), the NLP's pyramid)")
+        return friction_pyramid_ratio
+    raise AttributeError(f"module 'jtraj.plots' has no attribute {name!r}")
+
+
+def _weight(result: Result, robot) -> float:
+    """The weight (N) of the robot that ``result`` was solved for: its body masses as solved at
+    (``options["theta"]["body_masses"]``, recorded by `jtraj.solve`; the world body's, first,
+    left out as `jtraj.transcription.robot_mass` does); the robot model's total mass where
+    they are not recorded (results saved before) or do not sum to a positive mass."""
+    masses = (result.options.get("theta") or {}).get("body_masses")
+    if masses is not None:
+        from jtraj.transcription import robot_mass
+
+        mass = float(robot_mass(np.asarray(masses, float)))
+        if np.isfinite(mass) and mass > 0:
+            return mass * robot.gravity
+    return robot.total_mass * robot.gravity
 
 
 def plot_solution(result: Result, path: str | Path | None = None, *, friction: float | None = None):
     """Six panels against time, contact phases shaded (grey: flight): base position; base
     rotation (world-axis angles, accumulated, deg); joint angles and joint torques as fractions
     of their limits (0..1 is the range for angles, joints without limits left out;
-    |tau| / tau_max <= 1 for torques); vertical contact forces (N); and the friction-cone use
-    ``|f_t| / (mu f_z)`` (<= 1 inside the cone).
+    |tau| / tau_max <= 1 for torques); vertical contact forces (N) against the robot's weight
+    at the body masses it was solved at (`_weight`); and the use of the friction pyramid the NLP
+    enforces, ``max(|f_x|, |f_y|) / (mu f_z)`` (<= 1 inside it, `friction_pyramid_ratio`).
 
     ``friction`` (mu) defaults to the friction the result was solved at (its
     ``options["theta"]``, recorded by `jtraj.solve`), else the built-in task's of the result's
@@ -162,19 +190,19 @@ def plot_solution(result: Result, path: str | Path | None = None, *, friction: f
     ax = axes[2, 0]
     for j, name in enumerate(labels):
         ax.plot(t.t, t.forces[:, j, 2], lw=0.8, label=name)
-    ax.axhline(robot.total_mass * robot.gravity, color="k", ls=":", lw=0.8, label="weight")
+    ax.axhline(_weight(result, robot), color="k", ls=":", lw=0.8, label="weight")
     ax.set_ylabel("contact force z (N)")
     ax.set_xlabel("time (s)")
     ax.legend(fontsize=6, ncol=2)
 
     ax = axes[2, 1]
-    cone = friction_cone_ratio(t.forces, mu)
+    pyramid = friction_pyramid_ratio(t.forces, mu)
     for j, name in enumerate(labels):
-        ax.plot(t.t, cone[:, j], lw=0.8, label=name)
+        ax.plot(t.t, pyramid[:, j], lw=0.8, label=name)
     ax.axhline(1.0, color="k", ls="--", lw=0.8)
-    ax.set_ylabel(f"|f_t| / (mu f_z), mu = {mu:g}")
+    ax.set_ylabel(f"max(|f_x|, |f_y|) / (mu f_z), mu = {mu:g}")
     ax.set_xlabel("time (s)")
-    ax.set_title(mu_note, fontsize=8)
+    ax.set_title(f"the NLP's friction pyramid |f_x|, |f_y| <= mu f_z{mu_note}", fontsize=8)
 
     turns = "" if result.turns is None else f", {result.turns:+.2f} turns"
     fig.suptitle(
@@ -269,7 +297,9 @@ def plot_directory(directory: str | Path, out: str | Path | None = None) -> list
     ``solution.png`` (`jtraj.result.Result.plot`: `plot_solution`, or an attitude benchmark's
     own figure) and ``convergence.png``; for a ``jtraj compare`` folder
     (``table_iv.json``), ``comparison.png`` (`plot_comparison`). Written into ``out``
-    (default ``directory``); returns the paths."""
+    (default ``directory``); returns the paths. A ``result.json`` saved without a trajectory
+    raises `jtraj.io.FileFormatError` (``jtraj plot``: one line, exit status 2), which says
+    when the ``trajectory.npz`` beside it is an earlier solve's."""
     directory = Path(directory)
     out = Path(out) if out is not None else directory
     if (directory / "table_iv.json").is_file():
@@ -278,7 +308,9 @@ def plot_directory(directory: str | Path, out: str | Path | None = None) -> list
         raise FileNotFoundError(f"{directory}: neither result.json (a `jtraj solve` folder) nor table_iv.json (a `jtraj compare` folder)")
     result = Result.load(directory)
     if result.trajectory is None:
-        raise FileNotFoundError(f"{directory}: result.json without trajectory.npz; nothing to plot against time")
+        # Result.load leaves out a trajectory file beside a result saved without one
+        stale = "; the trajectory.npz beside it is an earlier solve's" if (directory / "trajectory.npz").exists() else ""
+        raise jio.FileFormatError(f"{directory / 'result.json'}: saved without a trajectory, nothing to plot against time{stale}")
     # Result.plot: the whole-body figure, or an attitude benchmark's own
     solution = out / "solution.png"
     result.plot(solution)

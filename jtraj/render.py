@@ -7,8 +7,8 @@ motion, side by side or overlaid (the paper's Fig. 1); `write_video` / `write_im
 
 Between knots the base pose is interpolated on SE(3) (``T_k Exp(s Log(T_k^-1 T_k+1))``) and
 the joints linearly. The scene has a checker ground, contact forces drawn as arrows (a force
-equal to the robot's weight twice as long as the base's standing height), a label that marks the
-flight phases, and a camera that follows the base.
+equal to the robot's weight, at the body masses it was solved at, twice as long as the base's
+standing height), a label that marks the flight phases, and a camera that follows the base.
 
 Headless machines: MuJoCo picks its OpenGL backend when it is imported, from ``MUJOCO_GL``.
 ``import jtraj`` sets ``MUJOCO_GL=egl`` when the variable is unset and there is no display, so
@@ -326,13 +326,16 @@ class _Painter:
     @classmethod
     def for_result(cls, result: Result, options: RenderOptions) -> _Painter:
         """The painter of ``result``'s robot on its task's ground (``terrain_height`` in the
-        result's options; 0 for results saved before it was recorded)."""
+        result's options; 0 for results saved before it was recorded), its arrows scaled by
+        the weight of the body masses solved at (`jtraj.plots._weight`), which the forces
+        carried, not the model's."""
         from jtraj import robot as robots
+        from jtraj.plots import _weight
 
         robot_name = result.robot
         robot = robots.load(robot_name)
         ground = float(result.options.get("terrain_height", 0.0) or 0.0)
-        painter = cls(scene_model(robot_name, ground), options, weight=robot.total_mass * robot.gravity, scale=float(robot.base_xyz_wxyz_standing[2]))
+        painter = cls(scene_model(robot_name, ground), options, weight=_weight(result, robot), scale=float(robot.base_xyz_wxyz_standing[2]))
         painter.robot = robot
         return painter
 
@@ -432,7 +435,11 @@ def _as_result(result) -> Result:
     from jtraj.result import Result
 
     if isinstance(result, (str, Path)):
-        result = Result.load(result)
+        folder = Path(result)
+        result = Result.load(folder)
+        folder = folder.parent if folder.is_file() else folder  # the result's own file named instead, as Result.load takes
+        if result.trajectory is None and (folder / "trajectory.npz").exists():  # left out by Result.load
+            raise NotDrawable(f"{folder / 'result.json'}: saved without a trajectory, nothing to draw; the trajectory.npz beside it is an earlier solve's")
     elif not isinstance(result, Result):
         raise TypeError(f"render takes a Result or the folder `jtraj solve` wrote, got a {type(result).__name__} (pass the Result itself, not its trajectory)")
     if result.trajectory is None:
@@ -704,10 +711,12 @@ def render_rigid_body(
 def render_benchmark(result, out_dir: str | Path, *, options: RenderOptions | None = None, keyframes: int = 8) -> list[Path]:
     """``jtraj attitude ... --render``: ``motion.mp4`` and ``keyframes.png`` in ``out_dir`` (the
     result's folder) of an attitude benchmark `jtraj.result.Result` (its ``problem`` and its
-    trajectory's ``t`` and states ``X``, whose first 7 columns are position and wxyz attitude)."""
+    trajectory's ``t`` and states ``X``, whose first 7 columns are position and wxyz attitude).
+    Without imageio-ffmpeg, which writes the .mp4, a RenderError comes before anything is drawn."""
     shape = BENCHMARK_SHAPES.get(result.problem)
     if shape is None:
         raise ValueError(f"no body to draw for benchmark {result.problem!r}; expected one of: {', '.join(BENCHMARK_SHAPES)}")
+    _check_video_writer(Path(out_dir) / "motion.mp4")  # before the frames are drawn
     options = options or RenderOptions()
     t, X = np.asarray(result.trajectory.t), np.asarray(result.trajectory.X)
     # the satellite slews for minutes: show it faster than real time
@@ -764,6 +773,23 @@ def write_video(frames: np.ndarray, path: str | Path, fps: float = 30.0) -> Path
     return final
 
 
+def _imageio_ffmpeg() -> types.ModuleType:
+    """imageio-ffmpeg, which writes .mp4, or a RenderError that says how to install it."""
+    try:
+        import imageio_ffmpeg
+    except ImportError:
+        raise RenderError("writing .mp4 needs imageio-ffmpeg: pip install 'jtraj[render]' (or write a .gif)") from None
+    return imageio_ffmpeg
+
+
+def _check_video_writer(path: str | Path) -> None:
+    """The writer that `write_video` needs for ``path``'s suffix, checked before the frames are
+    drawn (it was found missing only when they were written, minutes later): a RenderError for
+    an .mp4 without imageio-ffmpeg. A .gif needs Pillow, which matplotlib brings."""
+    if Path(path).suffix.lower() == ".mp4":
+        _imageio_ffmpeg()
+
+
 def _encode_video(frames: np.ndarray, path: Path, suffix: str, fps: float) -> None:
     if suffix == ".gif":
         from PIL import Image
@@ -776,10 +802,7 @@ def _encode_video(frames: np.ndarray, path: Path, suffix: str, fps: float) -> No
         durations = (10 * np.diff(ends, prepend=0)).tolist()
         images[0].save(path, save_all=True, append_images=images[1:], duration=durations, loop=0)
     elif suffix == ".mp4":
-        try:
-            import imageio_ffmpeg
-        except ImportError:
-            raise RenderError("writing .mp4 needs imageio-ffmpeg: pip install 'jtraj[render]' (or write a .gif)") from None
+        imageio_ffmpeg = _imageio_ffmpeg()
         # H.264 in yuv420p wants even sizes.
         h, w = frames.shape[1] // 2 * 2, frames.shape[2] // 2 * 2
         writer = imageio_ffmpeg.write_frames(str(path), (w, h), fps=fps, codec="libx264", pix_fmt_out="yuv420p", quality=7, macro_block_size=1)
@@ -848,12 +871,15 @@ def render_directory(
     """``jtraj render``: the video (``out``) and/or the keyframe strip (``strip``) of the
     solution in ``directory`` (its ``result.json`` and ``trajectory.npz``); returns the paths.
     The strip's panels are ``options``' size capped at 480 x 480 pixels each (a 640 x 480
-    video gets 480 x 480 panels). A path that is a folder is refused before anything is drawn."""
+    video gets 480 x 480 panels). A path that is a folder, and an .mp4 without its writer
+    (imageio-ffmpeg: a RenderError), are refused before anything is drawn."""
     # what would fail after minutes of drawing, checked first
     if out is None and strip is None:
         raise ValueError("nothing to write: give out (a .mp4 or .gif file) and/or strip (a .png or .jpg file)")
     if out is not None and Path(out).suffix.lower() not in _VIDEO_SUFFIXES:
         raise ValueError(f"{out}: expected a .mp4 or .gif file name")
+    if out is not None:
+        _check_video_writer(out)
     if strip is not None:
         if Path(strip).suffix.lower() not in _IMAGE_FORMATS:
             raise ValueError(f"{strip}: expected a .png, .jpg or .jpeg file name")

@@ -239,7 +239,7 @@ class Result:
     def plot(self, path: str | Path | None = None, **kwargs: Any) -> Any:
         """The result's figure: the trajectory's own ``plot_result(result, path)`` where it has
         one (the attitude benchmarks), else `jtraj.plots.plot_solution` (base pose, joints and
-        torques against their limits, contact forces, friction-cone use). Returns the figure,
+        torques against their limits, contact forces, friction-pyramid use). Returns the figure,
         or the path when ``path`` is given."""
         own = getattr(self.trajectory, "plot_result", None)
         if own is not None:

@@ -371,7 +371,7 @@ def evaluate(tr: Transcription, solution: solvers.Solution, traj, compile_time: 
     target = tr.target_xyz_wxyz[:3] if theta is None else tr.target_xyz_wxyz_of(theta)[:3]
     check = check_motion(traj.base_xyz_wxyz, task.flip_axis, task.flip_turns)
     metrics: dict[str, Any] = {"final_position_error": float(np.linalg.norm(traj.base_xyz_wxyz[-1, :3] - target)), "turns": check.turns, "task_check": check.reason}
-    if theta is not None:  # the parameters solved at (a plot's friction cone reads theta's friction)
+    if theta is not None:  # the parameters solved at (a plot's friction pyramid and weight read theta's friction and masses)
         options = {**options, "theta": {f.name: np.asarray(getattr(theta, f.name), float).tolist() for f in dataclasses.fields(theta)}}
     return Result.from_solution(
         solution,

@@ -88,13 +88,51 @@ def test_flight_shading_stays_within_the_motion(result):
             assert (ax.dataLim.x0, ax.dataLim.x1) == pytest.approx((t[0], t[-1]), abs=1e-12)
 
 
-def test_friction_cone_panel_uses_the_friction_solved_at(result):
-    """A solve at another friction (theta) records it in options["theta"]; the cone panel used
-    the built-in task's (or 0.9) whatever the solve's friction was."""
-    assert plot_solution(result).axes[5].get_ylabel() == "|f_t| / (mu f_z), mu = 0.9"
+def test_friction_panel_uses_the_friction_solved_at(result):
+    """A solve at another friction (theta) records it in options["theta"]; the friction panel
+    used the built-in task's (or 0.9) whatever the solve's friction was."""
+    assert plot_solution(result).axes[5].get_ylabel() == "max(|f_x|, |f_y|) / (mu f_z), mu = 0.9"
     at_half = dataclasses.replace(result, options={**result.options, "theta": {"friction": 0.5}})
-    assert plot_solution(at_half).axes[5].get_ylabel() == "|f_t| / (mu f_z), mu = 0.5"
-    assert plot_solution(at_half, friction=0.3).axes[5].get_ylabel() == "|f_t| / (mu f_z), mu = 0.3"
+    assert plot_solution(at_half).axes[5].get_ylabel() == "max(|f_x|, |f_y|) / (mu f_z), mu = 0.5"
+    assert plot_solution(at_half, friction=0.3).axes[5].get_ylabel() == "max(|f_x|, |f_y|) / (mu f_z), mu = 0.3"
+
+
+def test_friction_panel_measures_the_pyramid_the_nlp_enforces(result):
+    """The NLP keeps touching points in the 4-facet pyramid ``|f_x|, |f_y| <= mu f_z``
+    (`jtraj.transcription.friction_stage`); the panel measured the circular cone ``|f_t| /
+    (mu f_z)``, which put a feasible force at the pyramid's corner at sqrt(2), over the dashed
+    limit."""
+    from jtraj import plots
+
+    mu = 0.5
+    forces = np.array(result.trajectory.forces)
+    fz = forces[:3, :, 2:3]
+    forces[:3, :, :2] = mu * fz * np.array([1.0, -1.0])  # the pyramid's corner: both facets active
+    corner = dataclasses.replace(result, options={"theta": {"friction": mu}}, trajectory=dataclasses.replace(result.trajectory, forces=forces))
+    panel = plot_solution(corner).axes[5]
+    drawn = np.concatenate([line.get_ydata() for line in panel.get_lines() if line.get_label() in corner.trajectory.contact_names])
+    np.testing.assert_allclose(np.nanmax(drawn), 1.0)
+    assert "pyramid" in panel.get_title()
+    # the former name, which measured the circular cone, still answers, with a warning
+    with pytest.warns(DeprecationWarning, match="friction_cone_ratio is deprecated: it is now called jtraj.plots.friction_pyramid_ratio"):
+        assert plots.friction_cone_ratio is plots.friction_pyramid_ratio
+
+
+def test_weight_line_is_the_weight_of_the_masses_solved_at(result):
+    """A solve at other body masses (theta) records them in options["theta"]; the weight line
+    was the model's mass whatever the solve's masses were. The world body (first) is left out,
+    as `jtraj.transcription.robot_mass` does."""
+    from jtraj.dynamics import model_masses
+
+    go2 = robots.load("go2")
+
+    def weight_line(r):
+        (line,) = [line for line in plot_solution(r).axes[4].get_lines() if line.get_label() == "weight"]
+        return line.get_ydata()[0]
+
+    assert weight_line(result) == pytest.approx(go2.total_mass * go2.gravity)
+    heavier = dataclasses.replace(result, options={"theta": {"friction": 0.9, "body_masses": (1.5 * model_masses(go2)).tolist()}})
+    assert weight_line(heavier) == pytest.approx(1.5 * go2.total_mass * go2.gravity)
 
 
 def test_friction_of_a_result_without_theta_is_its_builtin_tasks(monkeypatch):

@@ -13,7 +13,7 @@ from jaxlie import SE3
 from jtraj import robot as robots
 from jtraj.cli import main
 from jtraj.io import FileFormatError
-from jtraj.plots import friction_cone_ratio, plot_comparison, plot_directory, plot_solution
+from jtraj.plots import plot_comparison, plot_directory, plot_solution
 from jtraj.render import NotDrawable, RenderOptions, interpolate, keyframe_strip, keyframe_times, render, write_image, write_video
 from jtraj.result import Outcome, Result
 from jtraj.solvers import Stats
@@ -308,10 +308,13 @@ def test_collada_visuals_are_converted_for_every_go2_body():
     assert len(base_colors) > 1
 
 
-def test_friction_cone_ratio():
-    f = np.array([[3.0, 4.0, 10.0], [0.0, 0.0, 5.0], [1.0, 0.0, 0.0]])
-    np.testing.assert_allclose(friction_cone_ratio(f, 0.5)[:2], [1.0, 0.0])
-    assert np.isnan(friction_cone_ratio(f, 0.5)[2])
+def test_friction_pyramid_ratio():
+    from jtraj.plots import friction_pyramid_ratio
+
+    # the pyramid's corner |f_x| = |f_y| = mu f_z is on it (the circular cone's ratio was sqrt(2))
+    f = np.array([[3.0, -3.0, 6.0], [3.0, 4.0, 10.0], [0.0, 0.0, 5.0], [1.0, 0.0, 0.0]])
+    np.testing.assert_allclose(friction_pyramid_ratio(f, 0.5)[:3], [1.0, 0.8, 0.0])
+    assert np.isnan(friction_pyramid_ratio(f, 0.5)[3])  # no contact
 
 
 def test_plots_are_written(result, tmp_path):
@@ -490,3 +493,75 @@ def test_the_ground_is_drawn_at_the_tasks_terrain_height(result, monkeypatch):
     render(dataclasses.replace(result, options={"terrain_height": 0.3}), SMALL, fps=2, label=False)
     render(result, SMALL, fps=2, label=False)
     assert asked == [("go2", 0.3), ("go2", 0.0)]
+
+
+def test_a_result_saved_without_a_trajectory_beside_an_earlier_one(result, tmp_path, capsys):
+    """A result saved without a trajectory (result.json's digest null) beside an earlier solve's
+    trajectory.npz, which `Result.load` leaves out: `jtraj plot` ended in a FileNotFoundError's
+    traceback saying "result.json without trajectory.npz" with the file there, and `jtraj render`
+    said to load a folder with trajectory.npz. Both say which file is whose, in one line (exit 2)."""
+    import shutil
+
+    result.save(tmp_path / "full")
+    dataclasses.replace(result, trajectory=None).save(tmp_path / "run")
+    shutil.copy(tmp_path / "full" / "trajectory.npz", tmp_path / "run" / "trajectory.npz")
+    said = r"saved without a trajectory, nothing to (plot against time|draw); the trajectory\.npz beside it is an earlier solve's"
+    with pytest.raises(FileFormatError, match=rf"run/result\.json: {said}"):
+        plot_directory(tmp_path / "run")
+    with pytest.raises(NotDrawable, match=rf"run/result\.json: {said}"):
+        render(tmp_path / "run", SMALL)
+    capsys.readouterr()
+    assert main(["plot", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("jtraj plot: DIR:") and "earlier solve's" in err and err.count("\n") == 1
+    assert main(["render", str(tmp_path / "run"), "--strip", str(tmp_path / "k.png")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("jtraj render: DIR:") and "earlier solve's" in err and err.count("\n") == 1
+    assert sorted(p.name for p in (tmp_path / "run").iterdir()) == ["result.json", "trajectory.npz"]
+    # without the earlier file, no word of one
+    (tmp_path / "run" / "trajectory.npz").unlink()
+    with pytest.raises(FileFormatError, match=r"saved without a trajectory, nothing to plot against time$"):
+        plot_directory(tmp_path / "run")
+
+
+def test_mp4_without_its_writer_is_refused_before_anything_is_drawn(result, tmp_path, monkeypatch):
+    """Without imageio-ffmpeg, an .mp4 failed only when it was written, after every frame was
+    drawn (minutes), and the keyframe strip asked for with it was not written at all."""
+    import sys
+    from types import SimpleNamespace
+
+    import jtraj.render as jrender
+
+    result.save(tmp_path / "run")
+    monkeypatch.setitem(sys.modules, "imageio_ffmpeg", None)  # not installed
+    monkeypatch.setattr(jrender._Painter, "draw", lambda *a, **k: pytest.fail("drew a frame before checking the video writer"))
+    said = r"writing \.mp4 needs imageio-ffmpeg: pip install 'jtraj\[render\]' \(or write a \.gif\)"
+    with pytest.raises(jrender.RenderError, match=said):
+        jrender.render_directory(tmp_path / "run", tmp_path / "m.mp4", tmp_path / "k.png", options=SMALL)
+    # jtraj render: the same line, exit status 1 (as without OpenGL)
+    with pytest.raises(SystemExit, match=rf"^jtraj render: {said}$"):
+        main(["render", str(tmp_path / "run"), "--out", str(tmp_path / "m.mp4"), "--strip", str(tmp_path / "k.png"), "--width", str(W), "--height", str(H)])
+    # jtraj attitude --render's motion.mp4
+    t = np.linspace(0.0, 1.0, 3)
+    X = np.concatenate([np.zeros((3, 3)), np.tile([1.0, 0.0, 0.0, 0.0], (3, 1)), np.zeros((3, 6))], axis=1)
+    quadflip = SimpleNamespace(problem="quadflip", variant="attitude", trajectory=SimpleNamespace(t=t, X=X))
+    with pytest.raises(jrender.RenderError, match=said):
+        jrender.render_benchmark(quadflip, tmp_path / "att", options=SMALL)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
+    jrender._check_video_writer(tmp_path / "m.gif")  # Pillow writes GIF
+
+
+def test_force_arrows_are_scaled_by_the_weight_of_the_masses_solved_at(result):
+    """A force equal to the robot's weight is drawn 2 standing heights long: the weight of the
+    body masses the solve used (options["theta"]), not the model's, whose forces they carried."""
+    from jtraj.dynamics import model_masses
+    from jtraj.render import _Painter
+
+    go2 = robots.load("go2")
+    heavier = dataclasses.replace(result, options={"theta": {"friction": 0.9, "body_masses": (1.5 * model_masses(go2)).tolist()}})
+    for r, scale in ((result, 1.0), (heavier, 1.5)):
+        painter = _Painter.for_result(r, SMALL)
+        try:
+            assert painter.weight == pytest.approx(scale * go2.total_mass * go2.gravity)
+        finally:
+            painter.close()
