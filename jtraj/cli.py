@@ -207,6 +207,18 @@ def _render_after_solve(command: str, draw, out: str) -> bool:
     return True
 
 
+def _check_render_writer(command: str) -> None:
+    """``--render``'s writer of ``motion.mp4`` (imageio-ffmpeg), checked before the solve: it
+    was found missing after the solve, when the drawing was written. Exit status 1, as
+    `jtraj render` without it."""
+    from jtraj.render import RenderError, _check_video_writer
+
+    try:
+        _check_video_writer("motion.mp4")
+    except RenderError as e:
+        raise SystemExit(f"jtraj {command}: --render: {e}; nothing was solved") from None
+
+
 def _check_render_args(args: argparse.Namespace) -> None:
     """``jtraj render``'s values, checked before anything is drawn; last, the writer of an
     .mp4 ``--out`` (imageio-ffmpeg: a `jtraj.render.RenderError`, exit status 1 as without
@@ -589,6 +601,8 @@ def _check_inputs(args: argparse.Namespace) -> None:
         args.variables = _check_variable_changes(args.variables, args.variable_changes)
     if cmd == "params":
         _check_seed(args.seed)
+    if cmd in ("solve", "attitude") and args.render:
+        _check_render_writer(cmd)
     if cmd == "solve":
         args.task_checked = _load_valid_task(args.task, args.robots_checked, all_used=True)
         args.out_checked = _solve_out(args)

@@ -549,6 +549,16 @@ def test_mp4_without_its_writer_is_refused_before_anything_is_drawn(result, tmp_
         jrender.render_benchmark(quadflip, tmp_path / "att", options=SMALL)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
     jrender._check_video_writer(tmp_path / "m.gif")  # Pillow writes GIF
+    # jtraj solve --render and jtraj attitude --render: before the solve
+    import jtraj.attitude.cli
+    import jtraj.solver
+
+    monkeypatch.setattr(jtraj.solver, "solve", lambda *a, **k: pytest.fail("solved before checking the video writer"))
+    monkeypatch.setattr(jtraj.attitude.cli, "main", lambda *a, **k: pytest.fail("solved before checking the video writer"))
+    for argv in (["solve", "big_jump", "--out", str(tmp_path / "s"), "--render"], ["attitude", "quadflip", "--out", str(tmp_path / "a"), "--render"]):
+        with pytest.raises(SystemExit, match=rf"^jtraj {argv[0]}: --render: {said}; nothing was solved$"):
+            main(argv)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
 
 
 def test_force_arrows_are_scaled_by_the_weight_of_the_masses_solved_at(result):
