@@ -290,11 +290,16 @@ def test_theta_values_no_task_can_have_are_refused():
     # has, moved the force bound and the warm start
     calf = np.array(tr.default_theta().q_joints_standing)
     calf[tr.robot.joint_names.index("FL_calf_joint")] -= 0.3
+    # a calf 1 mrad off: 0.15 mm of spread, which Ipopt's solve left at its iteration limit
+    # (violation 1.15e-4) and the 5 mm rule let through
+    nudged = np.array(tr.default_theta().q_joints_standing)
+    nudged[tr.robot.joint_names.index("FL_calf_joint")] += 1e-3
     roll = [0.0, 0.0, 0.3, float(np.cos(0.05)), float(np.sin(0.05)), 0.0, 0.0]
     masses = np.array(tr.default_theta().body_masses)
     masses[0] = 100.0
     for bad, message in (
         ({"q_joints_standing": calf}, r"^theta.q_joints_standing and theta.base_xyz_wxyz_standing: the pose they give puts the contact points of phase 0 5\d.\d mm apart in height"),
+        ({"q_joints_standing": nudged}, r"^theta.q_joints_standing and theta.base_xyz_wxyz_standing: the pose they give puts the contact points of phase 0 0.1\d+ mm apart in height \(on flat ground: within 0.1 mm, which the fixed first knot's contact rows allow\)"),
         ({"base_xyz_wxyz_standing": roll}, r"^theta.q_joints_standing and theta.base_xyz_wxyz_standing: the pose they give puts the contact points of phase 0 \d+.\d mm apart"),
         ({"target_translation": [0.3, 0.0, 0.1]}, r"^theta.q_joints_standing and theta.base_xyz_wxyz_standing, theta.target_translation and theta.target_rotation_rpy: the pose they give puts \w+ 0.1 m above the terrain at the last knot, where phase \d touches it; expected the fixed last knot"),
     ):
