@@ -30,7 +30,9 @@ The sparse constraint Jacobian:
   dependency columns) thinned to the entries that are nonzero at random probe points (random
   variables, and parameters perturbed randomly from the default so that an entry scaled by a
   parameter that is zero by default, a weight say, stays in the structure); the COO (row,
-  col) arrays then follow from the knot indices and the slot offsets;
+  col) arrays then follow from the knot indices and the slot offsets. A group whose
+  derivative is zero on the probes and not elsewhere (piecewise: a clip, ``maximum``) sets
+  ``dense=True``;
 - values: one jitted function evaluates every group's block Jacobian at every knot
   (``vmap(jacfwd)`` or the group's own batched Jacobian) and gathers the nonzeros in COO
   order.
@@ -141,7 +143,11 @@ class ConstraintGroup:
         data: per-knot data pytree with leading axis K.
         batched_jacobian: optional ``(theta, data, *deps) -> (K, n_rows, sum dep sizes)``
             with leading knot axes, replacing ``vmap(jacfwd(fn))``.
-        dense: skip probing, keep the full dependency block in the structure.
+        dense: skip probing, keep the full dependency block in the structure. Needed by a
+            function whose derivative can vanish at every probe point (entries of magnitude
+            0.2 to 1, either sign) and not elsewhere: a clip, ``maximum``, ``where`` (``y +
+            max(x - 1.5, 0)`` lost its x column, and both solvers stopped "solved" at a wrong
+            optimum).
     """
 
     name: str
@@ -154,6 +160,15 @@ class ConstraintGroup:
     data: Any = None
     batched_jacobian: Callable[..., jax.Array] | None = None
     dense: bool = False
+
+    def __post_init__(self):
+        self.knots = _knot_indices(self.name, self.knots)
+        active = np.asarray(self.active)
+        # a 0/1 integer mask indexed rows by number where it was taken for a mask (a wrong
+        # Jacobian), and a float one failed deep in the build
+        if active.dtype != bool and not (active.dtype.kind in "iu" and np.isin(active, (0, 1)).all()):
+            raise ValueError(f"group {self.name}: active has dtype {active.dtype}; expected a boolean (K, rows) mask (or 0/1 integers)")
+        self.active = active.astype(bool)
 
     @property
     def n_rows(self) -> int:
@@ -176,6 +191,20 @@ class CostGroup:
     fn: Callable[..., jax.Array]
     knots: np.ndarray
     data: Any = None
+
+    def __post_init__(self):
+        self.knots = _knot_indices(self.name, self.knots)
+
+
+def _knot_indices(name: str, knots: Any) -> np.ndarray:
+    """A group's ``knots`` as a 1-D integer array (a list was an AttributeError in the build;
+    floats would index by truncation)."""
+    k = np.asarray(knots)
+    if k.size == 0:
+        return k.reshape(0).astype(int)
+    if k.ndim != 1 or k.dtype.kind not in "iu":
+        raise ValueError(f"group {name}: knots has shape {k.shape} and dtype {k.dtype}; expected a 1-D array of knot indices (integers)")
+    return k
 
 
 @dataclasses.dataclass(frozen=True)
@@ -380,6 +409,8 @@ class KnotNLP:
                 if not callable(b) and np.shape(b) != g.active.shape:
                     raise ValueError(f"group {g.name}: {name} has shape {np.shape(b)}; expected the shape of active {g.active.shape} (K, rows)")
 
+        for g in every:
+            self._check_shapes(g, theta)
         self._build_rows()
         self.bounds = jax.jit(self._bounds)
         self.x_lower, self.x_upper, self.g_lower, self.g_upper = (np.asarray(b) for b in self.bounds(theta))
@@ -387,6 +418,41 @@ class KnotNLP:
         self._build_jacobian_structure(probe_seed, n_probes)
         self._hessian_built = False
         self._compile()
+
+    def _check_shapes(self, g: CostGroup | ConstraintGroup, theta: Any) -> None:
+        """Refuse a group whose functions return the wrong shape or a non-float dtype at one
+        knot (`jax.eval_shape`: traced, not run). Before, fewer rows than ``active`` has were
+        read past their end (a gather clamps), an integer ``fn`` truncated its values and its
+        Jacobian to zero, and more rows failed in numpy's broadcasting, naming no group."""
+        if not g.knots.size:
+            return
+        dep_shapes = [jax.ShapeDtypeStruct((self.layout.size(d.slot),), jnp.zeros(0).dtype) for d in g.deps]
+        data = None if g.data is None else jax.tree.map(lambda a: a[0], g.data)
+        got = jax.eval_shape(g.fn, theta, data, *dep_shapes)
+        rows = () if isinstance(g, CostGroup) else (g.n_rows,)
+        ok_shapes = [()] if isinstance(g, CostGroup) else [rows] + ([()] if rows == (1,) else [])
+        shape, dtype = getattr(got, "shape", None), getattr(got, "dtype", None)
+        if shape not in ok_shapes or dtype is None or not jnp.issubdtype(dtype, jnp.floating):
+            what = "a scalar cost per knot" if isinstance(g, CostGroup) else f"{rows} (one value per row of active)"
+            raise ValueError(f"group {g.name}: fn returns {got} per knot; expected {what}, of floats")
+        if isinstance(g, CostGroup):
+            return
+        K = g.knots.size
+        if g.batched_jacobian is not None:
+            batched = [jax.ShapeDtypeStruct((K, *d.shape), d.dtype) for d in dep_shapes]
+            jac = jax.eval_shape(g.batched_jacobian, theta, g.data, *batched)
+            expected = (K, g.n_rows, sum(d.shape[0] for d in dep_shapes))
+            if getattr(jac, "shape", None) != expected:
+                raise ValueError(f"group {g.name}: batched_jacobian returns {jac}; expected shape {expected} (knots, rows, dependency columns)")
+        for name in ("lower", "upper"):
+            b = getattr(g, name)
+            if callable(b):
+                shape = getattr(jax.eval_shape(b, theta), "shape", ())
+                try:
+                    if np.broadcast_shapes(shape, g.active.shape) != g.active.shape:
+                        raise ValueError
+                except ValueError:
+                    raise ValueError(f"group {g.name}: {name}(theta) has shape {shape}; expected one that broadcasts to the shape of active {g.active.shape} (K, rows)") from None
 
     # ------------------------------------------------------------------ rows and bounds
     def _build_rows(self) -> None:
@@ -423,21 +489,21 @@ class KnotNLP:
         return f"group {g.name} at knot {g.knots[knot]}, row {row}"
 
     def _check_bounds(self) -> None:
-        """Raise ValueError where a lower bound is above its upper bound (or either is NaN) at
-        the default theta, naming the variable or the group's row (`locate`), as the task is
+        """Raise ValueError where a lower bound is above its upper bound (or either is NaN, or
+        a lower bound is +inf or an upper one -inf, which nothing meets) at the default theta, naming the variable or the group's row (`locate`), as the task is
         built: a solver reports such a problem only as invalid, at the theta it solves at."""
-        bad = np.flatnonzero(~(self.x_lower <= self.x_upper))
+        bad = np.flatnonzero(~(self.x_lower <= self.x_upper) | (self.x_lower == np.inf) | (self.x_upper == -np.inf))
         if bad.size:
             i = int(bad[0])
             raise ValueError(
-                f"variable bounds: {bad.size} with lower > upper (or NaN), the first at {self.locate('x', i)}: "
+                f"variable bounds: {bad.size} with lower > upper (or NaN, or a lower bound of +inf or an upper one of -inf), the first at {self.locate('x', i)}: "
                 f"lower {self.x_lower[i]:g}, upper {self.x_upper[i]:g}"
             )
-        bad = np.flatnonzero(~(self.g_lower <= self.g_upper))
+        bad = np.flatnonzero(~(self.g_lower <= self.g_upper) | (self.g_lower == np.inf) | (self.g_upper == -np.inf))
         if bad.size:
             i = int(bad[0])
             raise ValueError(
-                f"constraint bounds: {bad.size} rows with lower > upper (or NaN), the first in {self.locate('g', i)}: "
+                f"constraint bounds: {bad.size} rows with lower > upper (or NaN, or a lower bound of +inf or an upper one of -inf), the first in {self.locate('g', i)}: "
                 f"lower {self.g_lower[i]:g}, upper {self.g_upper[i]:g}"
             )
 

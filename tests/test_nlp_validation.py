@@ -34,19 +34,21 @@ def test_layout_refuses_repeated_names_and_bad_sizes(slots, message):
 N = 3  # knots
 
 
-def _nlp(cost_knots=None, step_knots=None, active=None, lower=None, upper=None, row_lower=None):
+def _nlp(cost_knots=None, step_knots=None, active=None, lower=None, upper=None, row_lower=None, step_fn=None, cost_fn=None, row_upper=None, batched_jacobian=None):
     """x_{k+1} = x_k at the knots ``step_knots`` (default 0 to N - 2), cost |u_k|^2 at
-    ``cost_knots`` (default all), variables within [lower, upper] (default [-1, 1])."""
+    ``cost_knots`` (default all), variables within [lower, upper] (default [-1, 1]);
+    ``step_fn``, ``cost_fn``, ``row_upper`` and ``batched_jacobian`` replace the groups' own."""
     cost_knots = np.arange(N) if cost_knots is None else cost_knots
     step_knots = np.arange(N - 1) if step_knots is None else step_knots
     lower = np.full((N, 3), -1.0) if lower is None else lower
     upper = np.full((N, 3), 1.0) if upper is None else upper
-    K = step_knots.size
+    K = len(step_knots)
     step = ConstraintGroup(
-        "step", (Dep("x"), Dep("x", 1)), lambda theta, data, x, x1: x1 - x, step_knots,
-        np.zeros((K, 2)) if row_lower is None else row_lower, lambda theta: 0.0, np.ones((K, 2), bool) if active is None else active,
+        "step", (Dep("x"), Dep("x", 1)), step_fn or (lambda theta, data, x, x1: x1 - x), step_knots,
+        np.zeros((K, 2)) if row_lower is None else row_lower, row_upper or (lambda theta: 0.0), np.ones((K, 2), bool) if active is None else active,
+        batched_jacobian=batched_jacobian,
     )
-    effort = CostGroup("effort", (Dep("u"),), lambda theta, data, u: jnp.sum(u**2), cost_knots)
+    effort = CostGroup("effort", (Dep("u"),), cost_fn or (lambda theta, data, u: jnp.sum(u**2)), cost_knots)
     return KnotNLP(LAYOUT, N, [effort], [step], lower, upper)
 
 
@@ -79,7 +81,7 @@ def test_bounds_with_lower_above_upper_are_refused():
     it was built, and a solver reports such a problem only as infeasible or invalid."""
     lower = np.full((N, 3), -1.0)
     lower[1, 2] = 2.0  # knot 1, slot u, entry 0
-    with pytest.raises(ValueError, match=r"variable bounds: 1 with lower > upper \(or NaN\), the first at knot 1, slot 'u' entry 0: lower 2, upper 1"):
+    with pytest.raises(ValueError, match=r"variable bounds: 1 with lower > upper \(or NaN, or a lower bound of \+inf or an upper one of -inf\), the first at knot 1, slot 'u' entry 0: lower 2, upper 1"):
         _nlp(lower=lower)
     upper = np.full((N, 3), 1.0)
     upper[2, 1] = np.nan
@@ -87,12 +89,81 @@ def test_bounds_with_lower_above_upper_are_refused():
         _nlp(upper=upper)
     row_lower = np.zeros((N - 1, 2))
     row_lower[1, 1] = 0.5  # the rows' upper bound is 0
-    with pytest.raises(ValueError, match=r"constraint bounds: 1 rows with lower > upper \(or NaN\), the first in group step at knot 1, row 1: lower 0.5, upper 0"):
+    with pytest.raises(ValueError, match=r"constraint bounds: 1 rows with lower > upper \(or NaN, or a lower bound of \+inf or an upper one of -inf\), the first in group step at knot 1, row 1: lower 0.5, upper 0"):
         _nlp(row_lower=row_lower)
     # a dropped row's bounds are not looked at
     active = np.ones((N - 1, 2), bool)
     active[1, 1] = False
     assert _nlp(row_lower=row_lower, active=active).m == 3
+
+
+def test_bounds_that_nothing_meets_are_refused():
+    """A lower bound of +inf (or an upper one of -inf) passed `lower <= upper`: jtraj's solver
+    then reported the problem solved, Ipopt a numerical error."""
+    lower = np.full((N, 3), -1.0)
+    lower[2, 0] = np.inf
+    upper = np.full((N, 3), np.inf)
+    with pytest.raises(ValueError, match=r"variable bounds: 1 with .*, the first at knot 2, slot 'x' entry 0: lower inf, upper inf$"):
+        _nlp(lower=lower, upper=upper)
+    row_lower = np.zeros((N - 1, 2))
+    row_lower[0, 1] = np.inf
+    with pytest.raises(ValueError, match=r"constraint bounds: 1 rows with .*, the first in group step at knot 0, row 1: lower inf, upper inf$"):
+        _nlp(row_lower=row_lower, row_upper=lambda theta: np.inf)
+    upper = np.full((N, 3), 1.0)
+    upper[0, 2] = -np.inf
+    with pytest.raises(ValueError, match=r"the first at knot 0, slot 'u' entry 0: lower -1, upper -inf$"):
+        _nlp(upper=upper)
+
+
+def test_a_solvers_bound_check_refuses_infinite_bounds_nothing_meets():
+    """The backends' check of the bounds at the theta they solve at (a traced or other theta
+    than the NLP's default) let a +inf lower bound through."""
+    from jtraj.solvers.base import BoundNLP
+
+    def bound(**changes):
+        fields = dict(x_lower=np.full(2, -1.0), x_upper=np.full(2, 1.0), g_lower=np.zeros(1), g_upper=np.zeros(1))
+        return BoundNLP(None, None, None, None, None, **{**fields, **changes})
+
+    assert bound().inconsistent() is None
+    assert bound(x_upper=np.array([1.0, np.inf])).inconsistent() is None
+    assert bound(g_lower=np.array([np.inf]), g_upper=np.array([np.inf])).inconsistent() == "inconsistent bounds: g_lower[0]=inf and g_upper[0]=inf (1 such g bound(s))"
+    assert bound(x_upper=np.array([1.0, -np.inf])).inconsistent() == "inconsistent bounds: x_lower[1]=-1.0 > x_upper[1]=-inf (1 such x bound(s))"
+    assert bound(x_lower=np.array([2.0, -1.0])).inconsistent() == "inconsistent bounds: x_lower[0]=2.0 > x_upper[0]=1.0 (1 such x bound(s))"
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        # one row where active has two: the gather clamped its indices and read garbage rows
+        (dict(step_fn=lambda theta, data, x, x1: (x1 - x)[:1]), r"group step: fn returns ShapeDtypeStruct\(shape=\(1,\), dtype=float64\) per knot; expected \(2,\) \(one value per row of active\), of floats$"),
+        # three rows: numpy's broadcasting error, naming no group
+        (dict(step_fn=lambda theta, data, x, x1: jnp.concatenate([x1 - x, x[:1]])), r"group step: fn returns .*shape=\(3,\).*; expected \(2,\)"),
+        (dict(step_fn=lambda theta, data, x, x1: (x1 - x)[:, None]), r"group step: fn returns .*shape=\(2, 1\).*; expected \(2,\)"),
+        # integers truncated the values and made the Jacobian zero
+        (dict(step_fn=lambda theta, data, x, x1: (x1 - x).astype(jnp.int32)), r"group step: fn returns .*dtype=int32.*; expected \(2,\) \(one value per row of active\), of floats$"),
+        # a vector cost was summed without a word
+        (dict(cost_fn=lambda theta, data, u: u**2), r"group effort: fn returns .*shape=\(1,\).*; expected a scalar cost per knot, of floats$"),
+        (dict(batched_jacobian=lambda theta, data, x, x1: jnp.zeros((2, 4))), r"group step: batched_jacobian returns .*shape=\(2, 4\).*; expected shape \(2, 2, 4\) \(knots, rows, dependency columns\)$"),
+        (dict(row_upper=lambda theta: jnp.zeros(3)), r"group step: upper\(theta\) has shape \(3,\); expected one that broadcasts to the shape of active \(2, 2\) \(K, rows\)$"),
+        # a float mask failed deep in the build; a 0/1 integer one indexed rows by number
+        (dict(active=np.ones((N - 1, 2))), r"group step: active has dtype float64; expected a boolean \(K, rows\) mask \(or 0/1 integers\)$"),
+        (dict(active=np.full((N - 1, 2), 2)), r"group step: active has dtype int64"),
+        (dict(step_knots=np.array([0.0, 1.0])), r"group step: knots has shape \(2,\) and dtype float64; expected a 1-D array of knot indices \(integers\)$"),
+    ],
+)
+def test_groups_whose_functions_return_the_wrong_shape_are_refused(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        _nlp(**kwargs)
+
+
+def test_a_01_integer_mask_and_a_list_of_knots_are_taken():
+    """A 0/1 integer mask was used as row numbers (a wrong Jacobian); a list of knots raised an
+    AttributeError."""
+    import jax
+
+    nlp = _nlp(active=np.ones((N - 1, 2), int), step_knots=[0, 1])
+    x = jnp.asarray(np.random.default_rng(0).normal(size=nlp.n))
+    assert nlp.m == 4 and np.allclose(nlp.dense_jacobian(x), jax.jacfwd(lambda y: nlp.constraints(y, None))(x))
 
 
 def test_violation_of_a_nan_point_is_nan():

@@ -420,15 +420,18 @@ class BoundNLP:
         return f" (at {self.locate(kind, i)})" if self.locate is not None else ""
 
     def inconsistent(self) -> str | None:
-        """What is wrong when a lower bound exceeds its upper one (the first such bound,
-        variables before constraint rows, with its place where the NLP tells it), else None:
-        Ipopt's INVALID_PROBLEM."""
+        """What is wrong when a lower bound exceeds its upper one, or is +inf (or an upper one
+        -inf), the first such bound (variables before constraint rows, with its place where
+        the NLP tells it), else None: Ipopt's INVALID_PROBLEM."""
         for name, lower, upper in (("x", self.x_lower, self.x_upper), ("g", self.g_lower, self.g_upper)):
-            bad = np.flatnonzero(lower > upper)
+            # a lower bound of +inf (or an upper one of -inf) is met by nothing: jtraj's solver
+            # reported such a row solved, Ipopt a numerical error
+            bad = np.flatnonzero((lower > upper) | (lower == np.inf) | (upper == -np.inf))
             if bad.size:
                 i = int(bad[0])
+                relation = ">" if lower[i] > upper[i] else "and"
                 return (
-                    f"inconsistent bounds: {name}_lower[{i}]={float(lower[i])!r} > {name}_upper[{i}]={float(upper[i])!r}"
+                    f"inconsistent bounds: {name}_lower[{i}]={float(lower[i])!r} {relation} {name}_upper[{i}]={float(upper[i])!r}"
                     f"{self.where(name, i)} ({bad.size} such {name} bound(s))"
                 )
         return None
