@@ -22,7 +22,18 @@ What is differentiated and what is not:
   set does not change, and it is exact there;
 - at a degenerate solution (a limit reached with a zero multiplier: strict complementarity
   fails) the solution is only one-sidedly differentiable; the weakly active limits are
-  treated as inactive, and ``OptimalMotion.degenerate`` is True;
+  treated as inactive, and ``OptimalMotion.degenerate`` is True. The value is then the
+  derivative of the problem without those limits: a one-sided derivative only where its
+  tangent keeps every one of them satisfied, which it need not (on a Go2 hop with 6 weakly
+  active friction rows, the tangent along ``max_delta_force`` broke some for a step up and
+  others for a step down, and dx differed from both one-sided differences by 0.64);
+- the standing pose and the target place the fixed first and last knots, whose contact points
+  must stay on the terrain (`jtraj.solve` refuses a theta that lifts them, and so does
+  ``f``). A direction of theta that moves such a point (one standing joint alone, a target
+  height) leaves the problem infeasible on both sides, so it has no derivative; the value
+  ``f`` gives for it is that of the problem without those knots' contact rows, which the
+  fixed knots' bounds already meet at theta. Directions that keep the points on the terrain
+  (a target in the ground's plane, a yaw) are differentiable;
 - derivatives are first order (no Hessians through the solver).
 
 A unique solution is needed for derivatives to exist: with four feet on the ground the
@@ -145,6 +156,9 @@ class DifferentiableTask:
             # derivatives came back wrong without a word (a zero acceleration weight on the
             # Go2 hop: d cost / d target x 0.025 against 0.037 by re-solving)
             _check_weights(tr.task.name, float(theta.configuration_weight), float(theta.acceleration_weight), "theta sets")
+            # as jtraj.solve refuses it (here values, also under jax.jit): a standing pose or a
+            # target off the terrain ran the solver to an infeasible stop
+            tr.check_boundaries(theta)
             x0 = tr.warm_start(theta).reshape(-1) if self._x_warm is None else self._x_warm
             return theta, x0
 
@@ -224,8 +238,10 @@ class DifferentiableTask:
     def __call__(self, theta: TaskParams | dict[str, Any] | None = None) -> OptimalMotion:
         """The optimal motion at ``theta``: a `TaskParams`, a mapping of overrides of ``self.theta``'s
         fields (``{"friction": 0.6}``) or None (``self.theta``). Values are checked as
-        `jtraj.solve` checks them (shapes always; values unless traced), and the cost weights
-        must stay > 0 (`differentiable`; a ValueError). Raises `SolveError`
+        `jtraj.solve` checks them (shapes always; values unless traced; the fixed first and
+        last knots on the terrain, `Transcription.check_boundaries`, as the forward solve
+        starts, also under ``jax.jit``), and the cost weights must stay > 0 (`differentiable`;
+        a ValueError). Raises `SolveError`
         when the forward solve does not converge (inside ``jax.jit`` that comes as JAX's
         runtime error, whose message ends with the SolveError's), and warns (RuntimeWarning)
         when it converged only to the acceptable level (`jtraj.solvers.Status.ACCEPTABLE`)."""

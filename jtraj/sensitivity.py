@@ -41,8 +41,13 @@ multipliers; `KKTSystem.solve` regularizes and refines so that dx is exact.
 
 What is not differentiated: the active set itself. Where strict complementarity fails (a
 constraint or bound at its limit with a multiplier of about zero: weakly active) the solution
-is only one-sidedly differentiable; the weakly active rows are treated as inactive (the
-derivative for perturbations that keep them slack) and the system reports ``degenerate``.
+is only one-sidedly differentiable; the weakly active rows are treated as inactive and the
+system reports ``degenerate``. The derivative is then that of the problem without those rows,
+a one-sided derivative only where its tangent keeps each of them satisfied (checked by no
+one here: a tangent can break some for a step up and others for a step down). Active rows
+that involve only variables at their bounds are dropped (`active_set`'s ``dropped_rows``):
+the bounds meet them at the solution, and a theta that moves them apart makes the problem
+infeasible, a direction with no derivative at all.
 """
 
 from __future__ import annotations

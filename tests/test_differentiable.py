@@ -240,6 +240,19 @@ def test_theta_with_a_zero_cost_weight_is_refused(hop):
     assert hop.last_solution is solves  # refused before a solve
 
 
+def test_a_target_off_the_terrain_is_refused_before_a_solve(hop):
+    """jtraj.solve refuses a target that lifts the last knot's feet; the differentiable task
+    ran the solver to an infeasible stop (33 iterations) instead, also under jax.grad."""
+    solves = hop.last_solution
+    raised = hop.theta.replace(target_translation=jnp.asarray(hop.theta.target_translation) + jnp.array([0.0, 0.0, 0.3]))
+    said = r"theta.target_translation and theta.target_rotation_rpy: the pose they give puts \w+ 0.3 m above the terrain at the last knot"
+    with pytest.raises(ValueError, match=said):
+        hop(raised)
+    with pytest.raises(ValueError, match=said):
+        jax.grad(lambda th: hop(th).cost)(raised)
+    assert hop.last_solution is solves
+
+
 def test_a_solve_stopped_at_the_acceptable_level_warns(hop):
     """Ipopt's acceptable level (violation and complementarity up to 1e-2) is "converged" to
     the Status, but the derivatives at such a point may be wrong: it warns, not silently
