@@ -11,6 +11,8 @@ successful solve's ``--render`` without a working OpenGL, the solution still sav
 compare`` with no rows; a worker process of ``jtraj compare``/``jtraj robustness`` lost, e.g.
 killed when memory ran out; a failed ``jtraj params`` check). 130: interrupted (Ctrl-C); ``jtraj
 robustness`` resumes from the runs finished, ``jtraj compare``'s tables hold the cells finished.
+143: terminated (SIGTERM, e.g. by a job scheduler), which stops a command as Ctrl-C does (its
+worker processes too) and keeps what Ctrl-C keeps.
 """
 
 from __future__ import annotations
@@ -29,6 +31,8 @@ EXIT_TASK_FAILED = 3
 EXIT_NOT_CONVERGED = 4
 #: exit status of a command interrupted by Ctrl-C (SIGINT), as the shell gives it
 EXIT_INTERRUPTED = 130
+#: exit status of a command stopped by SIGTERM (128 + 15, as the shell gives a process it kills)
+EXIT_TERMINATED = 143
 #: `jtraj wahba`'s largest --trials and --iterations: its arrays grow with both (about 13 kB a
 #: trial at 12 iterations), and counts far past them ended in JAX's errors or out of memory
 WAHBA_MAX_TRIALS = 100_000
@@ -747,6 +751,8 @@ def main(argv: list[str] | None = None) -> int:
     # one handler for every input error, wherever it is found: one line, exit status 2
     from jtraj.executors import WorkerLostError
 
+    terminated: list[int] = []
+    restore = _sigterm_as_interrupt(terminated)
     try:
         _check_inputs(args)
         return int(args.func(args) or 0)
@@ -757,8 +763,34 @@ def main(argv: list[str] | None = None) -> int:
         print(f"jtraj {args.command}: {e}", file=sys.stderr)
         return 1
     except KeyboardInterrupt as e:
-        print(f"jtraj {args.command}: interrupted{_kept(args, e)}", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        print(f"jtraj {args.command}: {'terminated (SIGTERM)' if terminated else 'interrupted'}{_kept(args, e)}", file=sys.stderr)
+        return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
+    finally:
+        restore()
+
+
+def _sigterm_as_interrupt(terminated: list[int]):
+    """Make SIGTERM raise KeyboardInterrupt, as Ctrl-C does, so that a command stopped by it (a
+    job scheduler's, ``kill``) runs the cleanup of Ctrl-C: the sweeps' worker processes are
+    stopped (Python's default ends the process at once, and ``--workers`` processes went on
+    solving, then waited forever) and the message says what was kept. The first SIGTERM raises
+    and is recorded in ``terminated``; later ones are ignored while that cleanup runs. Returns
+    what puts the handler it replaced back, for `main` to call as it returns (outside the main
+    thread, where Python takes no handler, nothing is changed)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return lambda: None
+
+    def handler(signum, frame):
+        if not terminated:
+            terminated.append(signum)
+            raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, handler)
+    # None: a handler not set from Python, which cannot be put back; the default then
+    return lambda: signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
 
 
 def _kept(args: argparse.Namespace, interrupt: KeyboardInterrupt) -> str:
@@ -766,7 +798,9 @@ def _kept(args: argparse.Namespace, interrupt: KeyboardInterrupt) -> str:
     how many cells its table holds, or none, where an earlier run's table may still lie;
     an interrupt outside compare() is told by how far `_cmd_compare` got)."""
     if args.command == "robustness":
-        return f"; the runs finished are kept in {Path(args.out) / 'runs.jsonl'}, and the same command again resumes from them"
+        # with --no-resume the same command would move them aside again and solve every run
+        again = "the same command without --no-resume resumes" if args.no_resume else "the same command again resumes"
+        return f"; the runs finished are kept in {Path(args.out) / 'runs.jsonl'}, and {again} from them"
     if args.command == "compare":
         out = Path(args.out)
         if interrupt.args:

@@ -11,17 +11,28 @@ finish, in completion order, so the caller can checkpoint each group's rows as i
 ``fn`` must be importable (a module-level function) and its arguments and results picklable:
 both executors ship them to other processes.
 
-A group that raises, an interrupt (Ctrl-C) or a caller that stops iterating (an exception in its
-loop, ``close()``) ends the sweep: groups not started are cancelled, those running are stopped
-(their worker processes terminated, their Ray tasks cancelled), and the exception goes on to
-the caller. A local worker killed from outside (e.g. by the kernel, out of memory) ends it with
-`WorkerLostError`.
+``stream(fn, arg_list)`` is the same for a generator function ``fn``: it yields ``(index, item)``
+for every item a group yields, so that the caller can keep each item (a solve of the group) as
+it comes: a Ray task hands each back as it is yielded (a streaming generator task), local worker
+processes hand back a group's items when the group ends (a group that must keep its items
+sooner writes them itself, as `jtraj.experiments.robustness` does).
+
+A group that raises, an interrupt (Ctrl-C, or SIGTERM, which the command line turns into one)
+or a caller that stops iterating (an exception in its loop, ``close()``) ends the sweep: groups
+not started are cancelled, those running are stopped (their worker processes terminated, their
+Ray tasks cancelled), and the exception goes on to the caller. A worker that ends without
+handing back its group (a local worker process that failed to start or was killed from outside,
+e.g. by the kernel when memory ran out; a Ray worker that crashed or was killed, by Ray's memory
+monitor too, or whose node died) ends it with `WorkerLostError`. A local worker process dies
+with its caller on Linux (a parent-death signal), also when the caller is killed without
+running its cleanup.
 
 - `LocalExecutor`: ``workers`` fresh Python processes (spawn: JAX is not fork-safe); with
   ``workers <= 1`` the groups run in this process, one after the other.
 - `RayExecutor`: one Ray task per group on the cluster ``ray.init(address=...)`` connects to
-  (``None`` starts a local Ray instance, ``"auto"`` joins the cluster of this node). Needs the
-  optional extra ``pip install "jtraj[ray]"``.
+  (``None`` starts a fresh local Ray instance, even where a cluster runs on this machine or
+  ``RAY_ADDRESS`` is set; ``"auto"`` joins the cluster of this node). Needs the optional extra
+  ``pip install "jtraj[ray]"``.
 """
 
 from __future__ import annotations
@@ -29,7 +40,9 @@ from __future__ import annotations
 import abc
 import contextlib
 import dataclasses
-from collections.abc import Callable, Generator, Sequence
+import os
+import sys
+from collections.abc import Callable, Generator, Iterator, Sequence
 from typing import Any
 
 __all__ = ["AbstractExecutor", "LocalExecutor", "RayExecutor", "EXECUTORS", "ExecutorUnavailableError", "WorkerLostError", "check_executor_name", "executor_for"]
@@ -44,8 +57,10 @@ class ExecutorUnavailableError(RuntimeError):
 
 
 class WorkerLostError(RuntimeError):
-    """A worker process ended without handing back its group (killed from outside, e.g. by the
-    kernel when memory ran out); the sweep's other groups were stopped."""
+    """A worker ended without handing back its group: a local worker process failed to start or
+    was killed from outside (e.g. by the kernel when memory ran out), or a Ray worker crashed or
+    was killed (by Ray's memory monitor too) or its node died; the sweep's other groups were
+    stopped."""
 
 
 class AbstractExecutor(abc.ABC):
@@ -55,6 +70,12 @@ class AbstractExecutor(abc.ABC):
     def map(self, fn: Callable[..., Any], arg_list: Sequence[tuple]) -> Generator[tuple[int, Any], None, None]:
         """Yield ``(i, fn(*arg_list[i]))`` for every i, in the order the groups finish; closing
         the generator (``contextlib.closing``) stops the groups left."""
+
+    @abc.abstractmethod
+    def stream(self, fn: Callable[..., Iterator[Any]], arg_list: Sequence[tuple]) -> Generator[tuple[int, Any], None, None]:
+        """Yield ``(i, item)`` for every item of every generator ``fn(*arg_list[i])``, each
+        group's in its order (see the module docstring for when each comes back); closing the
+        generator stops the groups left."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,14 +94,17 @@ class LocalExecutor(AbstractExecutor):
         from concurrent.futures.process import BrokenProcessPool
 
         # JAX is not fork-safe: workers start fresh interpreters
-        pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"), initializer=_ignore_interrupt)
+        pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"), initializer=_start_worker)
         try:
             futures = {pool.submit(fn, *args): i for i, args in enumerate(arg_list)}
             for f in as_completed(futures):
                 try:
                     result = f.result()
                 except BrokenProcessPool as e:
-                    raise WorkerLostError("a worker process ended without finishing its group (killed from outside, e.g. by the kernel when memory ran out; fewer workers need less)") from e
+                    raise WorkerLostError(
+                        "a worker process ended without finishing its group: it failed to start (see its output above) or was killed "
+                        "from outside, e.g. by the kernel when memory ran out (fewer workers need less)"
+                    ) from e
                 yield futures[f], result
         except BaseException:
             # the pool's own exit (a with block) waits for every queued group: minutes to hours
@@ -89,15 +113,34 @@ class LocalExecutor(AbstractExecutor):
             raise
         pool.shutdown()
 
+    def stream(self, fn, arg_list):
+        if self.workers <= 1 or len(arg_list) <= 1:
+            for i, args in enumerate(arg_list):
+                for item in fn(*args):
+                    yield i, item
+            return
+        # a generator does not cross processes: a worker hands back its group's items at its end
+        groups = self.map(_collect, [(fn, *args) for args in arg_list])
+        with contextlib.closing(groups):
+            for i, items in groups:
+                for item in items:
+                    yield i, item
+
+
+def _collect(fn: Callable[..., Iterator[Any]], *args) -> list:
+    """The items of ``fn(*args)``, in a local worker process (`LocalExecutor.stream`)."""
+    return list(fn(*args))
+
 
 @dataclasses.dataclass(frozen=True)
 class RayExecutor(AbstractExecutor):
     """One Ray task per group.
 
     Attributes:
-        address: passed to ``ray.init``: ``None`` starts a local instance (or reuses the one
-            this process already started), ``"auto"`` joins a running cluster, or
-            ``"ray://host:10001"`` connects a client to a remote cluster.
+        address: passed to ``ray.init``: ``None`` starts a fresh local instance (or reuses the
+            one this process already started; ``ray.init(address="local")``, so a cluster
+            running on this machine or ``RAY_ADDRESS`` is not joined), ``"auto"`` joins a
+            running cluster, or ``"ray://host:10001"`` connects a client to a remote cluster.
         num_cpus: CPUs each group reserves on the cluster (its JAX evaluation and Ipopt run
             mostly on one core).
     """
@@ -122,8 +165,12 @@ class RayExecutor(AbstractExecutor):
                 kwargs["_system_config"] = {"worker_niceness": 0}
             _reachable(self.address)
             try:
-                ray.init(address=self.address, **kwargs)
+                # None: a fresh instance. ray.init(address=None) joined a cluster running on this
+                # machine (or RAY_ADDRESS's), which refuses _system_config: "could not connect at None"
+                ray.init(address="local" if self.address is None else self.address, **kwargs)
             except (ConnectionError, ValueError) as e:  # no cluster there, or a malformed address
+                if self.address is None:
+                    raise ExecutorUnavailableError(f"Ray could not start a local instance: {e} (give the address of a running cluster with --ray-address, or use --executor local)") from None
                 raise ExecutorUnavailableError(
                     f"Ray could not connect to a cluster at {self.address!r}: {e} (give the address of a running cluster, "
                     "e.g. --ray-address auto on one of its nodes or ray://HOST:10001, or leave it out to start a local instance)"
@@ -138,18 +185,101 @@ class RayExecutor(AbstractExecutor):
             while pending:
                 ready, _ = ray.wait(list(pending), num_returns=1)
                 for ref in ready:
-                    yield pending.pop(ref), ray.get(ref)
+                    i = pending.pop(ref)
+                    with _lost_as_worker_lost(ray):
+                        result = ray.get(ref)
+                    yield i, result
         except BaseException:
-            for ref in pending:  # queued tasks are dropped, running ones' workers killed
-                with contextlib.suppress(Exception):
-                    ray.cancel(ref, force=True)
+            _cancel(ray, pending)
+            raise
+
+    def stream(self, fn, arg_list):
+        """One streaming generator task per group: each item comes back as the task yields it."""
+        ray = self.connect()
+        remote = ray.remote(num_cpus=self.num_cpus, max_retries=0, num_returns="streaming")(fn)
+        pending = {remote.remote(*args): i for i, args in enumerate(arg_list)}
+        try:
+            while pending:
+                # a generator is ready when its next item has come, or its task has ended
+                ready, _ = ray.wait(list(pending), num_returns=1)
+                for gen in ready:
+                    with _lost_as_worker_lost(ray):
+                        try:
+                            item = ray.get(next(gen))  # a group's error, or its worker's loss, comes as an item
+                        except StopIteration:
+                            del pending[gen]
+                            continue
+                    yield pending[gen], item
+        except BaseException:
+            _cancel(ray, pending)
             raise
 
 
+def _cancel(ray, pending) -> None:
+    """Cancel the Ray tasks (object refs or streaming generators) left: queued tasks are
+    dropped, running ones' workers killed."""
+    for ref in pending:
+        with contextlib.suppress(Exception):
+            ray.cancel(ref, force=True)
+
+
+#: Ray's errors of a task whose worker ended without finishing it: its process crashed or was
+#: killed (by Ray's memory monitor: OutOfMemoryError), its node died, or its result was lost
+#: with the node that held it
+_RAY_LOST = ("WorkerCrashedError", "OutOfMemoryError", "NodeDiedError", "ObjectLostError")
+
+
+@contextlib.contextmanager
+def _lost_as_worker_lost(ray):
+    """Raise Ray's errors of a lost worker (`_RAY_LOST`) as `WorkerLostError` (the command line
+    says it in one line and the sweeps say what they kept), with the first line of Ray's
+    message; they were raw tracebacks of Ray's own."""
+    exceptions = getattr(ray, "exceptions", None)
+    lost = tuple(error for name in _RAY_LOST if isinstance(error := getattr(exceptions, name, None), type))
+    try:
+        yield
+    except lost as e:
+        said = next((line.strip() for line in str(e).splitlines() if line.strip()), type(e).__name__)
+        raise WorkerLostError(
+            f"a Ray worker ended without finishing its group: its process crashed or was killed (e.g. by Ray when the node's memory ran out) "
+            f"or its node died (Ray's {type(e).__name__}: {said})"
+        ) from e
+
+
+def _start_worker() -> None:
+    """A local worker process's start: Ctrl-C is the caller's (`_ignore_interrupt`), and the
+    worker dies with the caller (`_die_with_parent`)."""
+    _ignore_interrupt()
+    _die_with_parent()
+
+
+def _die_with_parent() -> None:
+    """On Linux, have the kernel kill this worker process when the thread that started it (the
+    caller's, which submitted the groups) ends (``prctl(PR_SET_PDEATHSIG, SIGKILL)``): a caller
+    killed without running its cleanup (SIGKILL, a crash) left its workers solving groups
+    nobody collects, then waiting forever. Elsewhere, or where prctl cannot be called, nothing
+    is done."""
+    if not sys.platform.startswith("linux"):
+        return
+    import ctypes
+    import multiprocessing
+    import signal
+
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        if libc.prctl(1, int(signal.SIGKILL), 0, 0, 0) != 0:  # 1: PR_SET_PDEATHSIG
+            return
+    except (OSError, AttributeError):
+        return
+    parent = multiprocessing.parent_process()
+    if parent is not None and os.getppid() != parent.pid:  # the caller ended before prctl
+        os._exit(1)
+
+
 def _ignore_interrupt() -> None:
-    """A worker process's start: Ctrl-C reaches every process of the terminal's process group,
-    and each worker printed its own KeyboardInterrupt traceback; the caller alone handles it,
-    and stops the workers (`_stop`)."""
+    """Part of a worker process's start: Ctrl-C reaches every process of the terminal's
+    process group, and each worker printed its own KeyboardInterrupt traceback; the caller
+    alone handles it, and stops the workers (`_stop`)."""
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)

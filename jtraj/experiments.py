@@ -15,9 +15,10 @@ import hashlib
 import json
 import math
 import os
+import shutil
 import sys
 import zlib
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import TextIO
 
@@ -30,7 +31,7 @@ from jtraj import solvers
 from jtraj.deprecation import renamed_argument
 from jtraj.executors import WorkerLostError, check_executor_name, executor_for
 from jtraj.numbers import is_real, is_seed, is_whole
-from jtraj.parameterization import PARAMETERIZATIONS
+from jtraj.parameterization import PARAMETERIZATIONS, AbstractParameterization
 from jtraj.result import Outcome
 from jtraj.solver import evaluate, prepare, solve, solver_options, transcription_options, variables_label
 from jtraj.success import FEASIBILITY_TOL
@@ -61,7 +62,7 @@ def _row(result) -> dict:
 
 def compare(
     tasks: Sequence[str | Task] = ALL_TASKS,
-    params: Sequence[str] = tuple(PARAMETERIZATIONS),
+    params: Sequence[str | AbstractParameterization] = tuple(PARAMETERIZATIONS),
     out: str | Path = "runs/table_iv",
     variables: str | TranscriptionOptions = "paper",
     exact_hessian: bool = False,
@@ -75,7 +76,9 @@ def compare(
 ) -> list[dict]:
     """Table IV: solve every task with every parameterization; write table_iv.{json,md}.
 
-    ``solver``: the backend of every cell (`jtraj.solvers.SOLVERS`; each row records it).
+    ``params``: names of `PARAMETERIZATIONS` (or the parameterization objects of those names).
+    ``solver``: the backend of every cell (a name of `jtraj.solvers.SOLVERS`, or such a solver
+    or its class; each row records its name).
     ``variables``: the variables per knot (a `jtraj.solver.VARIABLES` name, default the study's,
     or a `TranscriptionOptions`, e.g. `jtraj.solver.with_changes("paper", {...})`);
     ``layout`` is its deprecated former name. ``progress``: True (default) prints to the
@@ -83,7 +86,12 @@ def compare(
 
     ``executor`` (`jtraj.executors`): ``"local"`` solves in this process (``workers`` > 1: in
     that many worker processes), ``"ray"`` one Ray task per solve on the cluster at
-    ``ray_address``. Rows keep the order of ``tasks`` x ``params`` whatever the executor.
+    ``ray_address`` (``ray_address`` is for ``"ray"`` only, ``workers`` > 1 for ``"local"``
+    only: each is refused with the other). Rows keep the order of ``tasks`` x ``params``
+    whatever the executor. Each cell is given its task as loaded here and its folder as an
+    absolute path, so a worker in another folder (a Ray cluster's) solves the same task into
+    ``out``; on a cluster of several machines the cell folders are written on the machine
+    that solved the cell (the tables are written here).
     table_iv.{json,md} are written again as each cell finishes; a cell that raises, or an
     interrupt, stops the other cells, and the tables hold the cells finished before it. An
     earlier table's figure (``comparison.png``, from ``jtraj plot OUT``) is removed as the
@@ -92,17 +100,21 @@ def compare(
     variables = renamed_argument(variables, layout, "variables", "layout", "paper")
     progress = _progress_stream(progress)
     out = Path(out)
-    solvers.get(solver)  # an unknown name fails here, before the first solve
-    _check_executor("compare", executor, workers)
+    solver = _solver_name("compare", solver)  # an unknown name fails here, before the first solve
+    _check_executor("compare", executor, workers, ray_address)
+    params = _parameterization_names("compare", params)
+    # the tasks loaded here are the ones solved: a Ray worker runs in another folder (or on
+    # another machine), where a relative .toml path names another file or none
+    loaded = [load_task(t) for t in tasks]
     # a cell's folder is named after its task (a .toml path's file name need not be), as its
     # rows are and as `jtraj.plots.plot_comparison` looks for it: OUT/{task}_{parameterization}
-    names = [load_task(t).name for t in tasks]
-    _refuse_repeats("compare: tasks", tasks, names, "task")
+    _refuse_repeats("compare: tasks", tasks, [t.name for t in loaded], "task")
     _refuse_repeats("compare: params", params, params, "parameterization")
     # each cell folder's provenance.json names this process's command (a worker's, a Ray
     # worker's above all, is not the sweep's)
     command = list(sys.argv)
-    jobs = [(task, p, variables, exact_hessian, solver, str(out / f"{name}_{p}") if save_trajectories else None, command) for task, name in zip(tasks, names) for p in params]
+    folder = out.absolute()  # not relative to a Ray worker's own folder
+    jobs = [(task, p, variables, exact_hessian, solver, str(folder / f"{task.name}_{p}") if save_trajectories else None, command) for task in loaded for p in params]
     # `jtraj plot OUT`'s figure of an earlier table: this call writes another table_iv.json
     (out / "comparison.png").unlink(missing_ok=True)
     in_process = executor == "local" and workers <= 1
@@ -151,12 +163,42 @@ def _refuse_repeats(where: str, given: Sequence, keys: Sequence, what: str) -> N
         raise RepeatedValueError(f"{where}: {'; '.join(found)}; expected each {what} once")
 
 
-def _check_executor(function: str, executor: str, workers: int) -> None:
-    """A ValueError for an unknown executor or a worker count below 1, before anything is
-    written (the executor itself is made once the runs file is set up)."""
+def _check_executor(function: str, executor: str, workers: int, ray_address: str | None = None) -> None:
+    """A ValueError for an unknown executor, a worker count below 1, or an option of the other
+    executor (``ray_address`` without ``"ray"``, ``workers`` > 1 with it), which would be
+    ignored without a word (the command line refuses them in its own words), before anything
+    is written (the executor itself is made once the runs file is set up)."""
     check_executor_name(executor, function)
     if workers < 1:
         raise ValueError(f"{function}: workers={workers!r}: expected an integer >= 1")
+    if ray_address is not None and executor != "ray":
+        raise ValueError(f"{function}: ray_address={ray_address!r}: needs executor='ray' (the local executor does not use a cluster)")
+    if workers > 1 and executor != "local":
+        raise ValueError(f"{function}: workers={workers!r}: is for executor='local'; with executor={executor!r} each group is a Ray task and the cluster runs as many at once as it has CPUs")
+
+
+def _parameterization_names(function: str, params: Sequence) -> list[str]:
+    """The names of ``params`` (names, or parameterization objects: each stands for its name,
+    which rows record and runs are keyed by), each one of `PARAMETERIZATIONS`: a ValueError
+    naming the first that is not, before anything compiles. Keyed by the object, a robustness
+    run was never found again (its row records the name), so nothing resumed."""
+    names = [p if isinstance(p, str) else getattr(p, "name", p) for p in params]
+    for given, name in zip(params, names):
+        if name not in PARAMETERIZATIONS:
+            raise ValueError(f"{function}: params: {given if isinstance(given, str) else str(given)!r}: unknown parameterization; expected some of {', '.join(PARAMETERIZATIONS)}")
+    return names
+
+
+def _solver_name(function: str, solver) -> str:
+    """The registry name of ``solver`` (a name of `jtraj.solvers.SOLVERS`, or such a solver or
+    its class), which rows record and runs are keyed by; a ValueError for an unknown one,
+    before anything compiles."""
+    try:
+        name = solvers.get(solver).name
+        solvers.get(name)  # a backend outside the registry: a worker could not find it by name
+    except ValueError as e:
+        raise ValueError(f"{function}: {e}") from None
+    return name
 
 
 def _why(row: dict) -> str:
@@ -459,12 +501,17 @@ def _lines(numbers: list[int]) -> str:
     return f"{numbers[:5]}" + (f" and {len(numbers) - 5} more" if len(numbers) > 5 else "")
 
 
-def _move_aside(path: Path, why: str) -> Path:
-    """Rename ``path`` to ``path.why-N`` with the first N not taken; returns the new name."""
+def _aside_name(path: Path, why: str) -> Path:
+    """``path.why-N`` with the first N not taken."""
     n = 1
     while path.with_name(f"{path.name}.{why}-{n}").exists():
         n += 1
-    aside = path.with_name(f"{path.name}.{why}-{n}")
+    return path.with_name(f"{path.name}.{why}-{n}")
+
+
+def _move_aside(path: Path, why: str) -> Path:
+    """Rename ``path`` to ``path.why-N`` with the first N not taken; returns the new name."""
+    aside = _aside_name(path, why)
     os.replace(path, aside)
     return aside
 
@@ -473,17 +520,21 @@ def read_runs(path: str | Path, progress: TextIO | None = None) -> list[dict]:
     """Runs of a runs.jsonl file, first of each key kept. A file with lines that do not parse
     (a kill during a write, damage) or are not runs (not a JSON object, or without a field of a
     run's key or one the tables read, or with one of another kind than the sweeps write:
-    `_not_a_run`) is moved aside to ``runs.jsonl.corrupt-N`` with a warning
-    on ``progress`` (None: the ``sys.stderr`` of the call), and the lines that are runs are
-    written back (the runs of the others are solved again). A folder or a file that cannot be
-    read there raises `jtraj.io.FileFormatError` naming it (a missing file holds no runs)."""
+    `_not_a_run`) is copied aside to ``runs.jsonl.corrupt-N`` with a warning
+    on ``progress`` (None: the ``sys.stderr`` of the call), and replaced, atomically, by the
+    lines that are runs (the runs of the others are solved again). A folder or a file that
+    cannot be read there raises `jtraj.io.FileFormatError` naming it (a missing file holds no
+    runs)."""
     path = Path(path)
     numbered, bad = jio.read_jsonl_lines(path)
     checked = [(line, r, _not_a_run(r)) for line, r in numbered]
     records = [r for _, r, why in checked if why is None]
     odd = [(line, why) for line, _, why in checked if why is not None]
     if bad or odd:
-        aside = _move_aside(path, "corrupt")
+        # copied, then replaced whole: a kill in between leaves the file as it was (moved aside
+        # first, a kill before the rewrite left no runs file, and the next call solved every run)
+        aside = _aside_name(path, "corrupt")
+        shutil.copy2(path, aside)
         jio.write_text(path, "".join(jio.dumps(r, indent=None) + "\n" for r in records))
         found = [f"line(s) {_lines(bad)} did not parse"] if bad else []
         if odd:
@@ -496,18 +547,28 @@ def read_runs(path: str | Path, progress: TextIO | None = None) -> list[dict]:
 
 
 def _robustness_group(task, p, sigmas, replicates, seed, variables, exact_hessian, options, solver, noise_chart, done, runs_path, progress=None) -> int:
+    """One (task, parameterization) of the study (`_robustness_rows`), each run appended to
+    ``runs_path`` as soon as it is solved (also from a worker process: a kill loses only the
+    solves in flight). Returns the number solved."""
+    solved = 0
+    for row in _robustness_rows(task, p, sigmas, replicates, seed, variables, exact_hessian, options, solver, noise_chart, done, progress):
+        jio.append_jsonl(runs_path, row)
+        solved += 1
+    return solved
+
+
+def _robustness_rows(task, p, sigmas, replicates, seed, variables, exact_hessian, options, solver, noise_chart, done, progress=None) -> Iterator[dict]:
     """One (task, parameterization) of the study: one compile, then every noisy replicate whose
-    key is not in ``done``, appended to ``runs_path`` as soon as it is solved (also from a
-    worker process: a kill loses only the solves in flight). A backend with ``solve_batch``
-    (jtraj's interior point) solves each sigma's missing replicates in one batched call (one
-    vmapped program on an accelerator, the one-problem program on every core of a CPU), with
-    one compile per group; Ipopt solves them one by one. ``noise_chart`` as in `robustness`.
-    Returns the number solved."""
+    key is not in ``done``, each run's row yielded as soon as it is solved (a progress line
+    comes after its rows are taken). A backend with ``solve_batch`` (jtraj's interior point)
+    solves each sigma's missing replicates in one batched call (one vmapped program on an
+    accelerator, the one-problem program on every core of a CPU), with one compile per group;
+    Ipopt solves them one by one. ``noise_chart`` as in `robustness`."""
     task = load_task(task)
     base = _group_key(task, p, variables, exact_hessian, options, seed, solver, noise_chart)
     todo = [(s, r) for s in sigmas for r in range(replicates) if run_key(base | {"sigma": float(s), "replicate": r}) not in done]
     if not todo:
-        return 0
+        return
     prep = prepare(task, p, variables)
     # each sigma's missing replicates, drawn at once (a replicate's draw does not depend on
     # which others are drawn with it: `noise_key`)
@@ -518,22 +579,26 @@ def _robustness_group(task, p, sigmas, replicates, seed, variables, exact_hessia
         starts[sigma][r] = draws[levels.index(sigma), numbers.index(r)]
     if hasattr(solvers.get(solver), "solve_batch"):
         for sigma, members in starts.items():
-            _robustness_batch(prep, sigma, list(members), np.stack(list(members.values())), replicates, exact_hessian, options, solver, base, runs_path, progress)
-        return len(todo)
+            yield from _robustness_batch(prep, sigma, list(members), np.stack(list(members.values())), replicates, exact_hessian, options, solver, base, progress)
+        return
     for sigma, r in todo:
         start = starts[sigma][r]
         res = solve(task, p, variables=variables, solver=solver, warm_start=start, exact_hessian=exact_hessian, ipopt_options=dict(options or {}), progress=None, keep_trajectory=False)
         row = base | {"sigma": float(sigma), "replicate": r} | _row(res) | {"batch": 1}
-        jio.append_jsonl(runs_path, row)
+        yield row
         if progress is not None:
-            print(f"{task.name:10s} {p:6s} sigma={sigma:<7g} #{r}: {res.status.value:26s} {res.iterations:4d} it  {res.time_s:6.1f} s{_why(row)}", file=progress, flush=True)
-    return len(todo)
+            print(_run_line(row), file=progress, flush=True)
 
 
-def _robustness_batch(prep, sigma: float, reps: list[int], starts: np.ndarray, replicates: int, exact_hessian: bool, options, solver: str, base: dict, runs_path: Path, progress) -> None:
+def _run_line(row: dict) -> str:
+    """A run's progress line, from its row."""
+    return f"{row['task']:10s} {row['parameterization']:6s} sigma={row['sigma']:<7g} #{row['replicate']}: {row['status']:26s} {row['iterations']:4d} it  {row['time_s']:6.1f} s{_why(row)}"
+
+
+def _robustness_batch(prep, sigma: float, reps: list[int], starts: np.ndarray, replicates: int, exact_hessian: bool, options, solver: str, base: dict, progress) -> Iterator[dict]:
     """Replicates ``reps`` of one sigma, from the warm starts ``starts``, in one call of ``solver``'s ``solve_batch``, compiled
     for ``replicates`` members (a resumed group's shorter batch is padded, so every sigma and
-    every resume reuses one program). Each replicate's row has the fields of a one-by-one
+    every resume reuses one program); yields their rows. Each replicate's row has the fields of a one-by-one
     solve's (through `jtraj.solver.evaluate`, as `solve` makes them); its ``time_s`` is the
     batched call's wall time over the replicates, ``batch`` the number solved in that call."""
     tr, nlp = prep.transcription, prep.nlp
@@ -550,7 +615,7 @@ def _robustness_batch(prep, sigma: float, reps: list[int], starts: np.ndarray, r
         compile_time = 0.0  # the first row carries the compile
         res.trajectory = None
         results.append(res)
-        jio.append_jsonl(runs_path, base | {"sigma": float(sigma), "replicate": r} | _row(res) | {"batch": len(reps)})
+        yield base | {"sigma": float(sigma), "replicate": r} | _row(res) | {"batch": len(reps)}
     if progress is not None:
         converged = sum(res.converged for res in results)
         iterations = np.mean([res.iterations for res in results])
@@ -565,20 +630,16 @@ def _robustness_group_in_worker(*args) -> int:
     return _robustness_group(*args, progress=sys.stdout if verbose else None)
 
 
-def _robustness_group_rows(*args) -> list[dict]:
-    """`_robustness_group` on a machine that may not see the study's folder (a Ray node): it
-    solves into a file of its own and returns the rows, which the caller appends to runs.jsonl."""
-    import tempfile
-
-    with tempfile.TemporaryDirectory() as folder:
-        path = Path(folder) / RUNS_FILE
-        _robustness_group(*args, runs_path=path, progress=None)
-        return jio.read_jsonl(path)[0] if path.exists() else []
+def _robustness_group_rows(*args) -> Iterator[dict]:
+    """`_robustness_rows` on a machine that may not see the study's folder (a Ray node): a
+    streaming task (`jtraj.executors.RayExecutor.stream`) that hands back each run's row as
+    it is solved, which the caller appends to runs.jsonl; it prints nothing (the caller does)."""
+    yield from _robustness_rows(*args, progress=None)
 
 
 def robustness(
     tasks: Sequence[str | Task] = ROBUSTNESS_TASKS,
-    params: Sequence[str] = ROBUSTNESS_PARAMS,
+    params: Sequence[str | AbstractParameterization] = ROBUSTNESS_PARAMS,
     sigmas: Sequence[float] = SIGMAS,
     replicates: int = 10,
     seed: int = 0,
@@ -607,13 +668,18 @@ def robustness(
 
     ``workers > 1`` solves (task, parameterization) groups in that many processes, each
     appending to the same file. ``executor="ray"`` makes each group a Ray task on the cluster
-    at ``ray_address`` (`jtraj.executors`); its rows come back when the group finishes and are
-    appended here, under the same keys and resume rules. A group that raises, or an interrupt,
-    stops the groups running and queued (`jtraj.executors`); the runs they finished stay in the
-    file. Returns this call's runs; writes table_iii.{json,md} and fig2.png.
-    ``progress`` as in `compare`; ``layout`` is the deprecated former name of ``variables``.
+    at ``ray_address`` (`jtraj.executors`; ``ray_address`` is for it only, ``workers`` > 1 for
+    the local executor only: each is refused with the other); each run's row comes back as it
+    is solved (a streaming task) and is appended here, under the same keys and resume rules,
+    and its progress line printed here. A group that raises, or an interrupt, stops the groups
+    running and queued (`jtraj.executors`); the runs they finished stay in the file (of a Ray
+    group: those whose rows had come back). Returns this call's runs; writes
+    table_iii.{json,md} and fig2.png. ``progress`` as in `compare`; ``layout`` is the
+    deprecated former name of ``variables``. ``params`` are names of `PARAMETERIZATIONS` (or
+    the parameterization objects of those names: runs are keyed by the name).
 
-    ``solver`` (`jtraj.solvers.SOLVERS`): ``"ipopt"`` solves the replicates one by one;
+    ``solver`` (`jtraj.solvers.SOLVERS`, a name or such a solver or its class: runs are keyed
+    by its name): ``"ipopt"`` solves the replicates one by one;
     ``"jtraj"`` solves each (task, parameterization, sigma) group's replicates in one batched
     call of its interior point (`JtrajSolver.solve_batch`: vmapped on an accelerator, member by
     member on every core of a CPU; one compiled program per task and parameterization, compiled
@@ -633,18 +699,21 @@ def robustness(
             raise ValueError(f"robustness: sigma={s!r}: expected noise levels (standard deviations) >= 0")
     if not is_seed(seed):
         raise ValueError(f"robustness: seed={seed!r}: expected a 64-bit integer (below 2**63 in magnitude)")
+    # names, as rows record them and runs are keyed: a solver or parameterization object in
+    # the key matched no row, so nothing resumed (and the call returned none of its runs)
+    params = _parameterization_names("robustness", params)
+    solver = _solver_name("robustness", solver)  # an unknown name fails here, before the first solve
     loaded = [load_task(t) for t in tasks]
     _refuse_repeats("robustness: tasks", tasks, [t.name for t in loaded], "task")
     tasks = loaded
     _refuse_repeats("robustness: params", params, params, "parameterization")
     _refuse_repeats("robustness: sigmas", sigmas, sigmas, "noise level")
-    _check_executor("robustness", executor, workers)
+    _check_executor("robustness", executor, workers, ray_address)
     progress = _progress_stream(progress)
     out = Path(out)
     check_runs_file(out, resume)
     out.mkdir(parents=True, exist_ok=True)
     runs_path = out / RUNS_FILE
-    solvers.get(solver)  # an unknown name fails here, before the first solve
     if not tasks or not params or not sigmas or replicates < 1:
         raise ValueError("robustness: no runs (empty tasks, parameterizations or sigmas, or replicates < 1)")
     if noise_chart is not None and progress is not None:
@@ -671,20 +740,26 @@ def robustness(
             # a checkpoint: the table of every group so far, should the study stop here
             runs = read_runs(runs_path, progress)
             _write_robustness_outputs([r for b in args[: k + 1] for r in _select(runs, *b[:10])], sigmas, out, figure=False)
-    elif executor == "local":
-        groups = executor_for("local", workers).map(_robustness_group_in_worker, [(*a, progress is not None) for a in args])
-        try:
-            with contextlib.closing(groups):
-                for _ in groups:
-                    pass
-        except WorkerLostError as e:
-            raise WorkerLostError(f"{e}; the runs finished before it are kept in {runs_path}, and the same call again resumes from them") from e.__cause__
     else:
-        groups = executor_for(executor, workers, ray_address).map(_robustness_group_rows, [a[:-1] for a in args])
-        with contextlib.closing(groups):
-            for _, rows in groups:
-                for row in rows:
-                    jio.append_jsonl(runs_path, row)
+        try:
+            if executor == "local":
+                groups = executor_for("local", workers).map(_robustness_group_in_worker, [(*a, progress is not None) for a in args])
+                with contextlib.closing(groups):
+                    for _ in groups:
+                        pass
+            else:
+                # each row as it is solved on the cluster: an interrupt or a failing group keeps
+                # the runs that came back (they came only at a group's end, and were lost with it)
+                rows = executor_for(executor, workers, ray_address).stream(_robustness_group_rows, [a[:-1] for a in args])
+                with contextlib.closing(rows):
+                    for _, row in rows:
+                        jio.append_jsonl(runs_path, row)
+                        if progress is not None:
+                            print(_run_line(row), file=progress, flush=True)
+        except WorkerLostError as e:
+            # without resume this call moved the earlier file aside: the same call again would too
+            again = "the same call again resumes from them" if resume else "the same call with resume=True (jtraj robustness without --no-resume) resumes from them"
+            raise WorkerLostError(f"{e}; the runs finished before it are kept in {runs_path}, and {again}") from e.__cause__
     runs = [r for a in args for r in _select(read_runs(runs_path, progress), *a[:10])]
     _write_robustness_outputs(runs, sigmas, out)
     return runs

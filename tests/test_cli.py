@@ -270,7 +270,7 @@ def test_solve_exit_status_says_what_happened(converged, status, code, monkeypat
 
 
 def test_exit_statuses_are_distinct():
-    assert len({0, 1, cli.EXIT_BAD_INPUT, cli.EXIT_TASK_FAILED, cli.EXIT_NOT_CONVERGED, cli.EXIT_INTERRUPTED}) == 6
+    assert len({0, 1, cli.EXIT_BAD_INPUT, cli.EXIT_TASK_FAILED, cli.EXIT_NOT_CONVERGED, cli.EXIT_INTERRUPTED, cli.EXIT_TERMINATED}) == 7
 
 
 @pytest.mark.parametrize("command, default", [(["solve", "big_jump"], "compact"), (["compare"], "paper"), (["robustness"], "paper")])
@@ -330,14 +330,15 @@ def test_solve_writes_its_provenance_and_its_warm_start_options(monkeypatch, tmp
 @pytest.mark.parametrize("solver", ["ipopt", "jtraj"])
 def test_compare_passes_the_solver_to_every_cell(solver, monkeypatch, tmp_path, capsys):
     """`jtraj compare --solver S` runs the real `experiments.compare`; each of its cells' solves
-    (faked here) gets S, and the table it prints names S in every row."""
+    (faked here) gets S (and its task as the sweep loaded it), and the table it prints names S
+    in every row."""
     import jtraj.experiments
 
     cells = []
 
     def fake_solve(task, p, **kwargs):
-        cells.append((task, p, kwargs["solver"]))
-        return task, p, kwargs["solver"]
+        cells.append((task.name, p, kwargs["solver"]))
+        return task.name, p, kwargs["solver"]
 
     def fake_row(result):
         task, p, used = result
@@ -534,6 +535,59 @@ def test_ctrl_c_is_one_line_saying_what_was_kept(command, kept, monkeypatch, tmp
     code, err = _run(argv, capsys)
     assert code == cli.EXIT_INTERRUPTED == 130
     assert err.startswith(f"jtraj {command}: interrupted{kept.format(out=out)}") and err.count("\n") == 1, err
+
+
+def test_ctrl_c_after_no_resume_says_to_run_without_it(monkeypatch, tmp_path, capsys):
+    """With --no-resume the same command moves the runs aside again and solves every run: the
+    interrupt said that the same command again resumes from them."""
+    import jtraj.experiments
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(jtraj.experiments, "robustness", interrupted)
+    out = tmp_path / "out"
+    code, err = _run(["robustness", "--tasks", "big_jump", "--params", "se3", "--no-resume", "--out", str(out)], capsys)
+    assert code == cli.EXIT_INTERRUPTED
+    assert err == f"jtraj robustness: interrupted; the runs finished are kept in {out}/runs.jsonl, and the same command without --no-resume resumes from them\n"
+
+
+def test_sigterm_stops_a_command_as_ctrl_c_does(monkeypatch, tmp_path, capsys):
+    """SIGTERM (a job scheduler's, ``kill``) ended the process at once, without the cleanup of
+    Ctrl-C: --workers processes went on solving, then waited forever. It takes Ctrl-C's way
+    (the executors stop their workers, the message says what was kept), exit status 143, and
+    the handler before the command is put back."""
+    import os
+    import signal
+    import threading
+    import time
+
+    import jtraj.experiments
+
+    if threading.current_thread() is not threading.main_thread():
+        pytest.skip("signal handlers are the main thread's")
+
+    class Sentinel(Exception):
+        """Raised by the SIGTERM handler in place before the command (the old default killed pytest)."""
+
+    def sentinel(signum, frame):
+        raise Sentinel
+
+    def terminated(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(10)  # the signal's handler runs before this ends
+        raise AssertionError("SIGTERM did not stop the command")
+
+    monkeypatch.setattr(jtraj.experiments, "robustness", terminated)
+    out = tmp_path / "out"
+    previous = signal.signal(signal.SIGTERM, sentinel)
+    try:
+        code, err = _run(["robustness", "--tasks", "big_jump", "--params", "se3", "--out", str(out)], capsys)
+        assert signal.getsignal(signal.SIGTERM) is sentinel
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert code == cli.EXIT_TERMINATED == 143
+    assert err == f"jtraj robustness: terminated (SIGTERM); the runs finished are kept in {out}/runs.jsonl, and the same command again resumes from them\n"
 
 
 @pytest.mark.parametrize(

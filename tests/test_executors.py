@@ -1,8 +1,9 @@
 """Executors of sweeps: every group runs once, results come back with their index.
 
 The Ray executor's dispatch is checked against a stand-in `ray` module (init / remote / wait /
-get with Ray's semantics, completion out of submission order), and a tiny sweep runs on a real
-local Ray instance when Ray is installed (the ``ray`` extra, part of the ``test`` extra).
+get / cancel with Ray's semantics, completion out of submission order, streaming generator
+tasks, a worker's loss raised by get), and a tiny sweep runs on a real local Ray instance when
+Ray is installed (the ``ray`` extra, part of the ``test`` extra).
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ from __future__ import annotations
 import operator
 import os
 import signal
+import subprocess
 import sys
 import time
 import types
@@ -82,29 +84,130 @@ def test_local_workers_stop_when_the_caller_is_interrupted(tmp_path):
 
 
 def test_a_killed_local_worker_is_one_clear_error(tmp_path):
-    with pytest.raises(WorkerLostError, match=r"a worker process ended without finishing its group \(killed from outside"):
+    """A worker that ends without its group, killed or failing to start (a worker process's
+    traceback, e.g. of a script without ``if __name__ == "__main__":``, comes before it): the
+    message said only "killed from outside"."""
+    with pytest.raises(WorkerLostError, match=r"a worker process ended without finishing its group: it failed to start \(see its output above\) or was killed from outside"):
         list(LocalExecutor(workers=2).map(_group, [(0, str(tmp_path), "die"), (1, str(tmp_path), "sleep")]))
     assert _workers_ended(tmp_path)
 
 
+_ORPHANED = """
+import sys
+sys.path.insert(0, {tests!r})
+from test_executors import _group
+from jtraj.executors import LocalExecutor
+if __name__ == "__main__":
+    for i, r in LocalExecutor(workers=2).map(_group, [(0, {folder!r}, "sleep"), (1, {folder!r}, "sleep")]):
+        pass
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the parent-death signal is Linux's")
+def test_local_workers_die_with_a_killed_caller(tmp_path):
+    """A caller killed without its cleanup (SIGKILL; SIGTERM before the command line turned it
+    into an interrupt) left its worker processes solving, then waiting forever: they now die
+    with it (a parent-death signal)."""
+    script = tmp_path / "caller.py"
+    script.write_text(_ORPHANED.format(tests=str(Path(__file__).parent), folder=str(tmp_path)))
+    caller = subprocess.Popen([sys.executable, str(script)])
+    try:
+        deadline = time.monotonic() + 120
+        while not all((tmp_path / f"started-{i}").exists() for i in (0, 1)):
+            assert caller.poll() is None and time.monotonic() < deadline, "the workers did not start"
+            time.sleep(0.1)
+    finally:
+        caller.kill()
+        caller.wait()
+    pids = [int((tmp_path / f"started-{i}").read_text()) for i in (0, 1)]
+    deadline = time.monotonic() + 20
+    while any(map(_running, pids)) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    alive = [pid for pid in pids if _running(pid)]
+    for pid in alive:  # the old behaviour: do not leave them sleeping after the test
+        os.kill(pid, signal.SIGKILL)
+    assert not alive, "the workers outlived their killed caller"
+
+
+def _running(pid: int) -> bool:
+    """Whether process ``pid`` runs (an orphan that ended may wait, a zombie, for a reaper)."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (FileNotFoundError, ProcessLookupError):
+        return False
+    return state not in ("Z", "X")
+
+
+def _items(i: int, n: int, fail_at: int | None = None):
+    """A streaming group: yields (i, 0), (i, 1), ... (i, n - 1), raising at ``fail_at``."""
+    for k in range(n):
+        if k == fail_at:
+            raise RuntimeError(f"group {i} failed at item {k}")
+        yield i, k
+
+
+def test_local_stream_hands_back_every_item():
+    assert list(LocalExecutor(workers=1).stream(_items, [(0, 2), (1, 3)])) == [(0, (0, 0)), (0, (0, 1)), (1, (1, 0)), (1, (1, 1)), (1, (1, 2))]
+    out = list(LocalExecutor(workers=2).stream(_items, [(0, 2), (1, 3)]))
+    assert sorted(out) == [(0, (0, 0)), (0, (0, 1)), (1, (1, 0)), (1, (1, 1)), (1, (1, 2))]
+    assert [item for i, item in out if i == 1] == [(1, 0), (1, 1), (1, 2)]  # each group's in its order
+
+
+class _RayCrash(Exception):
+    """Stands for Ray's errors of a lost worker in `_fake_ray`'s ``exceptions``."""
+
+
 def _fake_ray(calls: dict) -> types.ModuleType:
-    """A `ray` stand-in: tasks run when submitted, ``wait`` hands them back last-first."""
+    """A `ray` stand-in: tasks run when submitted, ``wait`` hands them back last-first, and
+    ``get`` raises a task's error, as Ray's does. A streaming task (``num_returns="streaming"``)
+    is a generator of refs that runs its function one item per ``next``; one that raised hands
+    back a ref of its error, then ends. ``ray.exceptions`` holds Ray's errors of a lost worker
+    (`_RayCrash` subclasses, raised by a task to stand for its worker's loss)."""
     ray = types.ModuleType("ray")
     state = {"initialized": False}
 
     class Ref:
-        def __init__(self, value):
-            self.value = value
+        def __init__(self, value=None, error=None):
+            self.value, self.error = value, error
+
+    class Stream:
+        def __init__(self, items, args):
+            self.items, self.ended = items, False
+            self.value = args  # what cancel records
+
+        def __iter__(self):
+            return self
+
+        def __next__(self):
+            if self.ended:
+                raise StopIteration
+            try:
+                return Ref(next(self.items))
+            except StopIteration:
+                self.ended = True
+                raise
+            except Exception as e:
+                self.ended = True
+                return Ref(error=e)
+
+    def run(fn, *args):
+        try:
+            return Ref(fn(*args))
+        except Exception as e:
+            return Ref(error=e)
 
     def init(address=None, **kwargs):
         calls["address"] = address
+        calls["init"] = kwargs
         state["initialized"] = True
 
     def remote(**options):
         calls["options"] = options
 
         def wrap(fn):
-            return types.SimpleNamespace(remote=lambda *args: Ref(fn(*args)))
+            if options.get("num_returns") == "streaming":
+                return types.SimpleNamespace(remote=lambda *args: Stream(fn(*args), args))
+            return types.SimpleNamespace(remote=lambda *args: run(fn, *args))
 
         return wrap
 
@@ -114,13 +217,108 @@ def _fake_ray(calls: dict) -> types.ModuleType:
     def cancel(ref, force=False):
         calls.setdefault("cancelled", []).append((ref.value, force))
 
+    def get(ref):
+        if ref.error is not None:
+            raise ref.error
+        return ref.value
+
     ray.init = init
     ray.cancel = cancel
     ray.is_initialized = lambda: state["initialized"]
     ray.remote = remote
     ray.wait = wait
-    ray.get = lambda ref: ref.value
+    ray.get = get
+    ray.exceptions = types.SimpleNamespace(**{name: type(name, (_RayCrash,), {}) for name in ("WorkerCrashedError", "OutOfMemoryError", "NodeDiedError", "ObjectLostError")})
     return ray
+
+
+def _lost_worker(ray, name: str, message: str):
+    """A group whose Ray worker is lost: Ray's error ``name`` comes back in its place."""
+
+    def group(*args):
+        raise getattr(ray.exceptions, name)(message)
+
+    return group
+
+
+@pytest.mark.parametrize(
+    "name, message",
+    [
+        ("WorkerCrashedError", "The worker died unexpectedly while executing this task. Check python-core-worker-*.log files for more information."),
+        ("OutOfMemoryError", "Task was killed due to the node running low on memory.\nMemory on the node (IP: 10.0.0.2) was 7.5GB / 8GB"),
+        ("NodeDiedError", "\nThe node with node id: 3f40b3 has been marked dead"),
+    ],
+)
+@pytest.mark.parametrize("how", ["map", "stream"])
+def test_a_lost_ray_worker_is_worker_lost_error(monkeypatch, name, message, how):
+    """A Ray worker that crashed, was killed when memory ran out, or whose node died raised
+    Ray's own error through the sweep (a traceback; compare's note of the cells its table
+    holds was never made): it is `WorkerLostError`, saying what happened with Ray's first
+    line, and the groups left are cancelled."""
+    calls: dict = {}
+    ray = _fake_ray(calls)
+    monkeypatch.setitem(sys.modules, "ray", ray)
+    if how == "map":
+        groups = RayExecutor().map(_lost_worker(ray, name, message), [(1,), (2,)])
+    else:
+        lost = _lost_worker(ray, name, message)
+
+        def stream(i):
+            yield i
+            lost()
+
+        groups = RayExecutor().stream(stream, [(1,), (2,)])
+        assert next(groups) == (1, 2)  # the last submitted comes first; its first item
+    with pytest.raises(WorkerLostError) as info:
+        list(groups)
+    first = next(line for line in message.splitlines() if line)
+    assert str(info.value) == (
+        "a Ray worker ended without finishing its group: its process crashed or was killed (e.g. by Ray when the node's memory ran out) "
+        f"or its node died (Ray's {name}: {first})"
+    )
+    assert type(info.value.__cause__) is getattr(ray.exceptions, name)
+    assert len(calls["cancelled"]) == (2 if how == "stream" else 1)  # the groups not handed back (a streaming one still open)
+
+
+def test_cli_lost_ray_worker_is_one_line_and_exit_1(monkeypatch, tmp_path, capsys):
+    """`jtraj compare --executor ray` with a cell whose Ray worker crashed: one line saying so
+    and how many cells the table holds, exit status 1 (a traceback of Ray's error before)."""
+    import json
+
+    from jtraj import cli
+
+    ray = _fake_ray({})
+    monkeypatch.setitem(sys.modules, "ray", ray)
+    crash = _lost_worker(ray, "WorkerCrashedError", "The worker died unexpectedly while executing this task.")
+
+    def cell(task, p, *args, **kwargs):
+        if p == "se3":  # the stand-in hands the last task submitted back first: euler's cell finishes
+            crash()
+        row = dict(task=getattr(task, "name", task), parameterization=p, solver="ipopt", status="solved", solver_status="solved", converged=True, success=True, turns=None)
+        return row | dict(iterations=3, obj_evals=4, grad_evals=3, con_evals=3, jac_evals=3, cost=0.0, constraint_violation=0.0, time_s=0.1, time_compile=0.0, task_check=None)
+
+    monkeypatch.setattr("jtraj.experiments._compare_one", cell)
+    out = tmp_path / "out"
+    rc = cli.main(["compare", "--tasks", "big_jump", "--params", "se3,euler", "--executor", "ray", "--no-trajectories", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert rc == 1 and err.count("\n") == 1, err
+    assert err.startswith("jtraj compare: a Ray worker ended without finishing its group: its process crashed or was killed")
+    assert err.endswith(f"(Ray's WorkerCrashedError: The worker died unexpectedly while executing this task.); {out / 'table_iv.json'} holds the 1 of 2 cells finished before it\n")
+    assert [r["parameterization"] for r in json.loads((out / "table_iv.json").read_text())] == ["euler"]
+
+
+def test_ray_stream_hands_back_each_item_as_it_comes(monkeypatch):
+    """`RayExecutor.stream`: one streaming generator task per group, each item handed back as
+    the task yields it (a group's items came only when it ended, and were lost with it when it
+    failed or the caller stopped); a group's error comes after the items it yielded."""
+    calls: dict = {}
+    monkeypatch.setitem(sys.modules, "ray", _fake_ray(calls))
+    items = RayExecutor().stream(_items, [(0, 2), (1, 3, 2)])
+    assert [next(items), next(items)] == [(1, (1, 0)), (1, (1, 1))]  # before the group's error
+    assert calls["options"] == {"num_cpus": 1.0, "max_retries": 0, "num_returns": "streaming"}
+    with pytest.raises(RuntimeError, match="group 1 failed at item 2"):
+        next(items)
+    assert sorted(calls["cancelled"]) == [((0, 2), True), ((1, 3, 2), True)]  # group 0 not started (group 1's ended: harmless, as in Ray)
 
 
 def test_ray_executor_submits_one_task_per_group(monkeypatch):
@@ -186,6 +384,21 @@ def test_cli_unreachable_ray_cluster_exits_2_with_one_line(monkeypatch, tmp_path
     err = capsys.readouterr().err
     assert rc == cli.EXIT_BAD_INPUT
     assert err.count("\n") == 1 and err.startswith("jtraj compare: Ray could not connect to a cluster at 'head:1'"), err
+
+
+def test_no_address_starts_a_fresh_local_instance(monkeypatch):
+    """No address: a fresh local instance (``address="local"``), as the help promises.
+    ``ray.init(address=None)`` joined a cluster already running on this machine (or
+    RAY_ADDRESS's), which refused the local instance's settings, reported as a failure to
+    connect 'at None'."""
+    calls: dict = {}
+    monkeypatch.setitem(sys.modules, "ray", _fake_ray(calls))
+    monkeypatch.setenv("RAY_ADDRESS", "10.0.0.2:6379")
+    RayExecutor().connect()
+    assert calls["address"] == "local" and calls["init"]["_system_config"] == {"worker_niceness": 0}
+    monkeypatch.setitem(sys.modules, "ray", _refusing_ray({}, ValueError("When connecting to an existing cluster, _system_config must not be provided.")))
+    with pytest.raises(ExecutorUnavailableError, match=r"^Ray could not start a local instance: When connecting to an existing cluster, _system_config must not be provided. \(give the address"):
+        RayExecutor().connect()
 
 
 def test_an_address_nothing_answers_at_is_refused_before_ray_init(monkeypatch):

@@ -5,6 +5,7 @@ import dataclasses
 import io
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -661,6 +662,16 @@ class _StoppingExecutor:
         finally:
             self.closed = True
 
+    def stream(self, fn, arg_list):
+        try:
+            for i in range(self.finished):
+                for item in fn(*arg_list[i]):
+                    yield i, item
+            if self.lost:
+                raise WorkerLostError("a worker process ended without finishing its group")
+        finally:
+            self.closed = True
+
 
 def test_compare_keeps_the_finished_cells_when_a_worker_is_lost(tmp_path, monkeypatch, fake_solves):
     executor = _StoppingExecutor(2)
@@ -698,12 +709,124 @@ def test_compare_keeps_a_cell_whose_progress_line_failed(tmp_path, monkeypatch, 
     assert executor.closed
 
 
-def test_robustness_says_where_the_runs_are_when_a_worker_is_lost(tmp_path, monkeypatch, fake_solves):
-    executor = _StoppingExecutor(1)
-    monkeypatch.setattr(experiments, "executor_for", lambda *args: executor)
-    with pytest.raises(WorkerLostError, match=r"ended without finishing its group; the runs finished before it are kept in .*runs.jsonl, and the same call again resumes from them$"):
-        robustness(["walk"], ["se3", "euler"], sigmas=[0.1], replicates=2, out=tmp_path, progress=None, workers=2)
-    assert len(read_runs(tmp_path / RUNS_FILE)) == 2 and executor.closed
+@pytest.mark.parametrize("executor", ["local", "ray"])
+@pytest.mark.parametrize("resume", [True, False])
+def test_robustness_says_where_the_runs_are_when_a_worker_is_lost(tmp_path, monkeypatch, fake_solves, executor, resume):
+    """A lost worker's message says where the finished runs are and how to resume them, with
+    either executor (a lost Ray worker's was not extended); without resume the same call would
+    move them aside again: it says to resume (it said the same call again resumes)."""
+    stopping = _StoppingExecutor(1)
+    monkeypatch.setattr(experiments, "executor_for", lambda *args: stopping)
+    again = "the same call again resumes from them" if resume else "the same call with resume=True (jtraj robustness without --no-resume) resumes from them"
+    with pytest.raises(WorkerLostError, match=r"ended without finishing its group; the runs finished before it are kept in .*runs.jsonl, and " + re.escape(again) + "$"):
+        robustness(["walk"], ["se3", "euler"], sigmas=[0.1], replicates=2, out=tmp_path, progress=None, resume=resume, executor=executor, workers=2 if executor == "local" else 1)
+    assert len(read_runs(tmp_path / RUNS_FILE)) == 2 and stopping.closed
+
+
+@pytest.mark.parametrize("stop", [RuntimeError("boom"), KeyboardInterrupt()])
+def test_robustness_on_ray_keeps_each_run_as_it_comes(tmp_path, monkeypatch, fake_solves, stop):
+    """With the Ray executor each run's row comes back as it is solved (a streaming task), is
+    appended to runs.jsonl and its progress line printed here: a group that fails, or an
+    interrupt, keeps the runs solved before it. Rows came only when a group ended (a failing
+    group's, or an interrupted one's, were lost, though the interrupt said they were kept), and
+    nothing was printed."""
+    from test_executors import _fake_ray
+
+    monkeypatch.setitem(sys.modules, "ray", _fake_ray({}))
+    solve = experiments.solve
+
+    def stops_at_the_third(task, p, **kwargs):
+        if len(fake_solves) == 2:
+            raise stop
+        return solve(task, p, **kwargs)
+
+    monkeypatch.setattr(experiments, "solve", stops_at_the_third)
+    stream = io.StringIO()
+    with pytest.raises(type(stop)):
+        robustness(["walk"], ["se3"], sigmas=[0.1], replicates=3, out=tmp_path, progress=stream, executor="ray")
+    assert [r["replicate"] for r in read_runs(tmp_path / RUNS_FILE)] == [0, 1]
+    it = _fake_result("walk", "se3").iterations
+    assert stream.getvalue().splitlines() == [f"walk       se3    sigma=0.1     #{r}: {'solved':26s} {it:4d} it     0.0 s" for r in (0, 1)]
+
+
+def test_robustness_keys_runs_by_the_names_of_solver_and_parameterization_objects(tmp_path, fake_solves):
+    """A solver or parameterization object (or class) keyed the runs by the object while rows
+    record the name: nothing was found again (no resume) and the call returned none of its
+    runs. Each stands for its name; an unknown name is refused before anything is solved."""
+    from jtraj.parameterization import PARAMETERIZATIONS
+    from jtraj.solvers import IpoptSolver
+
+    kw = dict(sigmas=[0.1], replicates=2, out=tmp_path, progress=None)
+    first = robustness(["walk"], [PARAMETERIZATIONS["se3"]], solver=IpoptSolver, **kw)
+    assert [(r["parameterization"], r["solver"], r["replicate"]) for r in first] == [("se3", "ipopt", 0), ("se3", "ipopt", 1)] and len(fake_solves) == 2
+    assert robustness(["walk"], ["se3"], solver=IpoptSolver(), **kw) == first and len(fake_solves) == 2  # resumed
+    with pytest.raises(ValueError, match=r"^robustness: params: 'quat9': unknown parameterization; expected some of se3, quat1, quat2, quat3, euler$"):
+        robustness(["walk"], ["se3", "quat9"], **(kw | {"out": tmp_path / "other"}))
+    with pytest.raises(ValueError, match=r"^robustness: params: 'se3' given 2 times; expected each parameterization once$"):
+        robustness(["walk"], ["se3", PARAMETERIZATIONS["se3"]], **(kw | {"out": tmp_path / "other"}))
+    assert len(fake_solves) == 2 and not (tmp_path / "other").exists()
+
+
+def test_a_kill_while_a_damaged_runs_file_is_rewritten_keeps_it(tmp_path, monkeypatch, fake_solves):
+    """read_runs moved a damaged runs.jsonl aside, then wrote its good lines back: a kill in
+    between left no runs.jsonl, and the next call solved every run again. It copies the file
+    aside and replaces it whole."""
+    kw = dict(sigmas=[0.1], replicates=2, out=tmp_path, progress=None)
+    robustness(["walk"], ["se3"], **kw)
+    path = tmp_path / RUNS_FILE
+    damaged = path.read_text() + '{"torn": \n'
+    path.write_text(damaged)
+    write_text = experiments.jio.write_text
+
+    def killed(target, text):
+        if Path(target) == path:
+            raise KeyboardInterrupt  # the process killed as it writes the good lines back
+        return write_text(target, text)
+
+    monkeypatch.setattr(experiments.jio, "write_text", killed)
+    with pytest.raises(KeyboardInterrupt):
+        read_runs(path, io.StringIO())
+    assert path.read_text() == damaged and (tmp_path / f"{RUNS_FILE}.corrupt-1").read_text() == damaged
+    monkeypatch.setattr(experiments.jio, "write_text", write_text)
+    fake_solves.clear()
+    assert len(robustness(["walk"], ["se3"], **kw)) == 2 and not fake_solves  # nothing solved again
+
+
+def test_compare_gives_each_cell_its_loaded_task_and_an_absolute_folder(tmp_path, monkeypatch, fake_solves):
+    """A Ray worker runs in a folder of its own (a cluster started elsewhere): a relative task
+    path and a relative out were resolved there (another file or none; cell folders outside
+    OUT). Each cell gets its task as loaded by the sweep and its folder as an absolute path;
+    a parameterization object stands for its name."""
+    from importlib.resources import files
+
+    from jtraj.parameterization import PARAMETERIZATIONS
+    from jtraj.task import Task
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "mywalk.toml").write_text(files("jtraj.tasks").joinpath("walk.toml").read_text())
+    elsewhere = tmp_path / "worker"
+    elsewhere.mkdir()
+
+    class Elsewhere:
+        """Runs each cell in the folder ``elsewhere``, as a Ray worker runs in its own."""
+
+        def map(self, fn, arg_list):
+            for i, args in enumerate(arg_list):
+                here = os.getcwd()
+                os.chdir(elsewhere)
+                try:
+                    result = fn(*args)
+                finally:
+                    os.chdir(here)
+                yield i, result
+
+    monkeypatch.setattr(experiments, "executor_for", lambda *args: Elsewhere())
+    rows = compare(["mine/mywalk.toml"], [PARAMETERIZATIONS["se3"]], out="table", progress=None, executor="ray")
+    assert [(r["task"], r["parameterization"]) for r in rows] == [("walk", "se3")]
+    [(task, p, folder)] = fake_solves
+    assert isinstance(task, Task) and (task.name, p, folder) == ("walk", "se3", str(tmp_path / "table" / "walk_se3"))
+    assert (tmp_path / "table" / "table_iv.json").exists() and not list(elsewhere.iterdir())
 
 
 def test_robustness_checkpoint_table_holds_every_group_so_far(tmp_path, monkeypatch, fake_solves):
@@ -868,16 +991,27 @@ def test_a_runs_file_that_cannot_be_read_is_refused_before_anything_is_solved(tm
     assert not fake_solves and not (out / "table_iii.json").exists() and runs.read_text() == ""
 
 
-@pytest.mark.parametrize("kwargs, message", [(dict(executor="dask"), "executor='dask': expected one of local, ray"), (dict(workers=0), "workers=0: expected an integer >= 1")])
-def test_an_unknown_executor_is_refused_before_the_runs_file_is_touched(tmp_path, fake_solves, kwargs, message):
-    """robustness(resume=False) moved runs.jsonl aside, then found the executor unknown; and
-    workers=0 solved in this process as if 1 had been given."""
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        (dict(executor="dask"), "executor='dask': expected one of local, ray"),
+        (dict(workers=0), "workers=0: expected an integer >= 1"),
+        (dict(ray_address="auto"), "ray_address='auto': needs executor='ray' (the local executor does not use a cluster)"),
+        (dict(executor="ray", workers=2), "workers=2: is for executor='local'; with executor='ray' each group is a Ray task and the cluster runs as many at once as it has CPUs"),
+    ],
+)
+def test_an_unknown_executor_is_refused_before_the_runs_file_is_touched(tmp_path, fake_solves, monkeypatch, kwargs, message):
+    """robustness(resume=False) moved runs.jsonl aside, then found the executor unknown;
+    workers=0 solved in this process as if 1 had been given; and an option of the other
+    executor (ray_address with the local one, workers with Ray), which the command line
+    refuses, was ignored without a word."""
+    monkeypatch.setitem(sys.modules, "ray", None)  # no Ray instance started, whatever happens
     study = tmp_path / "study"
     study.mkdir()
     (study / "runs.jsonl").write_text("{}\n")
-    with pytest.raises(ValueError, match=f"^robustness: {message}$"):
+    with pytest.raises(ValueError, match=f"^robustness: {re.escape(message)}$"):
         robustness(["walk"], ["se3"], [0.1], replicates=1, out=study, progress=None, resume=False, **kwargs)
-    with pytest.raises(ValueError, match=f"^compare: {message}$"):
+    with pytest.raises(ValueError, match=f"^compare: {re.escape(message)}$"):
         compare(["walk"], ["se3"], out=tmp_path / "table", progress=None, **kwargs)
     assert sorted(p.name for p in study.iterdir()) == ["runs.jsonl"] and not fake_solves and not (tmp_path / "table").exists()
 
