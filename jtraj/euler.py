@@ -10,6 +10,8 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from jtraj.numbers import shaped
+
 __all__ = ["GIMBAL_MARGIN", "rotation_matrix", "from_rotation_matrix", "rate_matrix", "away_from_gimbal_lock"]
 
 #: Smallest distance (rad) of a pitch from +-pi/2 that `away_from_gimbal_lock` allows: there
@@ -34,6 +36,7 @@ def _rz(a: jax.Array) -> jax.Array:
 
 def rotation_matrix(rpy: jax.Array) -> jax.Array:
     """``Rz(psi) Ry(theta) Rx(phi)`` (eq. 5); (3,) -> (3, 3)."""
+    rpy = shaped(rpy, (3,), "rpy (roll, pitch, yaw)")
     return _rz(rpy[2]) @ _ry(rpy[1]) @ _rx(rpy[0])
 
 
@@ -48,6 +51,7 @@ def from_rotation_matrix(Rm: jax.Array) -> jax.Array:
     there the roll is read as elsewhere and the yaw is computed from it, so that
     ``rotation_matrix(from_rotation_matrix(Rm)) == Rm`` holds at the lock too.
     """
+    Rm = shaped(Rm, (3, 3), "Rm (a rotation matrix)")
     roll = jnp.arctan2(Rm[2, 1], Rm[2, 2])
     cos_pitch = jnp.sqrt(Rm[2, 1] ** 2 + Rm[2, 2] ** 2)
     pitch = jnp.arctan2(-Rm[2, 0], cos_pitch)
@@ -64,6 +68,7 @@ def from_rotation_matrix(Rm: jax.Array) -> jax.Array:
 
 def rate_matrix(rpy: jax.Array) -> jax.Array:
     """``W(theta)`` of eq. 6, mapping the body angular velocity to ``d rpy / dt``; (3,) -> (3, 3)."""
+    rpy = shaped(rpy, (3,), "rpy (roll, pitch, yaw)")
     phi, theta = rpy[0], rpy[1]
     sp, cp = jnp.sin(phi), jnp.cos(phi)
     tt, ct = jnp.tan(theta), jnp.cos(theta)
@@ -79,5 +84,6 @@ def rate_matrix(rpy: jax.Array) -> jax.Array:
 def away_from_gimbal_lock(rpy: jax.Array, margin: float = GIMBAL_MARGIN) -> jax.Array:
     """``rpy`` with the pitch (in [-pi/2, pi/2], as `from_rotation_matrix` returns it) clipped
     to [-pi/2 + margin, pi/2 - margin]; a rotation at most ``margin`` rad away."""
+    rpy = shaped(rpy, (3,), "rpy (roll, pitch, yaw)")
     half = jnp.pi / 2 - margin
     return rpy.at[1].set(jnp.clip(rpy[1], -half, half))

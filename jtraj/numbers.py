@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["is_real", "is_whole", "is_seed", "unit_and_length"]
+__all__ = ["is_real", "is_whole", "is_seed", "unit_and_length", "shaped"]
 
 
 def is_real(value: Any) -> bool:
@@ -41,3 +41,18 @@ def unit_and_length(vector: Any) -> tuple[np.ndarray, float]:
     a = a / scale
     norm = float(np.linalg.norm(a))
     return a / norm, scale * norm
+
+
+def shaped(value: Any, shape: tuple[int, ...], what: str) -> Any:
+    """``value`` as a JAX float array of exactly ``shape`` (one quaternion, one 3-vector...),
+    else a ValueError naming ``what``: the quaternion and Euler-angle functions index their
+    arguments (``q[0]``, ``rpy[2]``), and JAX clamps an index past the end without a word (a
+    2-vector of angles gave a rotation with yaw = pitch). Shapes are static under ``jit``,
+    so the check costs nothing there; batches go through ``jax.vmap``."""
+    import jax.numpy as jnp
+
+    array = jnp.asarray(value)
+    if array.shape != shape:
+        batch = " (one at a time: use jax.vmap for batches)" if array.ndim > len(shape) and array.shape[-len(shape) :] == shape else ""
+        raise ValueError(f"{what} must have shape {shape}, got {array.shape}{batch}")
+    return array if jnp.issubdtype(array.dtype, jnp.floating) else array.astype(float)

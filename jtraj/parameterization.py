@@ -145,6 +145,12 @@ def _with_checked_arguments(method: Any, checked: tuple[tuple[str, str, int | No
     return wrapped
 
 
+# the base class's own methods, which charts without a constraint (SE(3) tangent, Euler)
+# inherit: `__init_subclass__` wraps only what a chart defines
+for _method in ("constraint",):
+    setattr(AbstractParameterization, _method, _with_checked_arguments(getattr(AbstractParameterization, _method), _CHECKED_ARGUMENTS[_method]))
+
+
 #: Smallest quaternion norm the charts divide by. Noise on a warm start (or a wild iterate)
 #: can drive rho to zero, where rho / |rho| and its derivatives are NaN; below the floor the
 #: quaternion is first moved by ``QUATERNION_FLOOR`` along its scalar part (away from zero, so

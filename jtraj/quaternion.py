@@ -21,6 +21,7 @@ import jax
 import jax.numpy as jnp
 
 from jtraj.lie import skew
+from jtraj.numbers import shaped
 
 __all__ = [
     "H",
@@ -54,6 +55,7 @@ T = jnp.diag(jnp.array([1.0, -1.0, -1.0, -1.0]))
 
 def L(q: jax.Array) -> jax.Array:
     """Left-multiplication matrix (eq. 2): ``q (x) p = L(q) p``; (4,) -> (4, 4)."""
+    q = shaped(q, (4,), "q (a quaternion)")
     s, v = q[0], q[1:]
     top = jnp.concatenate([s[None], -v])[None, :]
     bottom = jnp.concatenate([v[:, None], s * jnp.eye(3) + skew(v)], axis=1)
@@ -62,6 +64,7 @@ def L(q: jax.Array) -> jax.Array:
 
 def R(q: jax.Array) -> jax.Array:
     """Right-multiplication matrix (eq. 3): ``p (x) q = R(q) p``; (4,) -> (4, 4)."""
+    q = shaped(q, (4,), "q (a quaternion)")
     s, v = q[0], q[1:]
     top = jnp.concatenate([s[None], -v])[None, :]
     bottom = jnp.concatenate([v[:, None], s * jnp.eye(3) - skew(v)], axis=1)
@@ -70,12 +73,12 @@ def R(q: jax.Array) -> jax.Array:
 
 def multiply(q1: jax.Array, q2: jax.Array) -> jax.Array:
     """Hamilton product ``q1 (x) q2 = L(q1) q2`` (eq. 1)."""
-    return L(q1) @ q2
+    return L(q1) @ shaped(q2, (4,), "q2 (a quaternion)")
 
 
 def conjugate(q: jax.Array) -> jax.Array:
     """``q* = T q``, the inverse of a unit quaternion (eq. 5)."""
-    return T @ q
+    return T @ shaped(q, (4,), "q (a quaternion)")
 
 
 def rotation_matrix(q: jax.Array) -> jax.Array:
@@ -85,7 +88,7 @@ def rotation_matrix(q: jax.Array) -> jax.Array:
 
 def rotate(q: jax.Array, r: jax.Array) -> jax.Array:
     """``A(q) r``, the rotation of the 3-vector r."""
-    return rotation_matrix(q) @ r
+    return rotation_matrix(q) @ shaped(r, (3,), "r (a 3-vector)")
 
 
 def attitude_jacobian(q: jax.Array) -> jax.Array:
@@ -98,16 +101,19 @@ def attitude_jacobian(q: jax.Array) -> jax.Array:
 
 def cayley(phi: jax.Array) -> jax.Array:
     """Cayley map (eq. 11): Rodrigues parameters to a unit quaternion, ``[1; phi] / sqrt(1+|phi|^2)``."""
+    phi = shaped(phi, (3,), "phi (Rodrigues parameters)")
     return jnp.concatenate([jnp.ones(1, phi.dtype), phi]) / jnp.sqrt(1.0 + phi @ phi)
 
 
 def cayley_inv(q: jax.Array) -> jax.Array:
     """Inverse Cayley map (eq. 12): ``q_v / q_s``; singular at rotation angle pi (q_s = 0)."""
+    q = shaped(q, (4,), "q (a quaternion)")
     return q[1:] / q[0]
 
 
 def cayley_inv_jacobian(q: jax.Array) -> jax.Array:
     """``D(q) = d cayley_inv / dq`` (eq. 38) ``= [-q_v / q_s^2, I3 / q_s]``; (4,) -> (3, 4)."""
+    q = shaped(q, (4,), "q (a quaternion)")
     s = q[0]
     return jnp.concatenate([-q[1:, None] / s**2, jnp.eye(3) / s], axis=1)
 
@@ -146,21 +152,27 @@ def quaternion_jacobian_correction(df_dq: jax.Array, q: jax.Array, q_out: jax.Ar
 
 
 def error_state_jacobian(x: jax.Array) -> jax.Array:
-    """Error-state Jacobian ``E(x)`` (eq. 25) of a rigid-body state ``x = [r, q, v, omega]``.
+    """Error-state Jacobian ``E(x)`` (eq. 25) of a rigid-body state ``x = [r, q, rest]``.
 
-    Shape (13,) -> (13, 12): ``blockdiag(I3, G(q), I3, I3)``, so that ``E^T (df/dx) E``
-    is a Jacobian in the 12-dimensional error state ``[dr, phi, dv, domega]``.
+    Shape (nx,) -> (nx, nx - 1): ``blockdiag(I3, G(q), I)``, so that ``E^T (df/dx) E`` is a
+    Jacobian in the error state ``[dr, phi, d rest]``; for ``x = [r, q, v, omega]`` (13,) ->
+    (13, 12). (It was (13, 12) for every state, also a 23-state spacecraft's.)
     """
+    x = jnp.asarray(x)
+    if x.ndim != 1 or x.shape[0] < 7:
+        raise ValueError(f"x (a state [r, q, ...]) must have shape (nx,) with nx >= 7, got {x.shape} (one at a time: use jax.vmap for batches)")
+    nx = x.shape[0]
     q = x[3:7]
-    E = jnp.zeros((13, 12), x.dtype)
+    E = jnp.zeros((nx, nx - 1), x.dtype if jnp.issubdtype(x.dtype, jnp.floating) else float)
     E = E.at[0:3, 0:3].set(jnp.eye(3))
     E = E.at[3:7, 3:6].set(attitude_jacobian(q))
-    E = E.at[7:13, 6:12].set(jnp.eye(6))
+    E = E.at[7:, 6:].set(jnp.eye(nx - 7))
     return E
 
 
 def geodesic_cost(q: jax.Array, q_goal: jax.Array) -> jax.Array:
     """Geodesic attitude cost ``1 - |q_g^T q|`` (eq. 40), invariant under ``q -> -q``."""
+    q, q_goal = shaped(q, (4,), "q (a quaternion)"), shaped(q_goal, (4,), "q_goal (a quaternion)")
     return 1.0 - jnp.abs(q_goal @ q)
 
 
@@ -172,6 +184,7 @@ def geodesic_cost_gradient(q: jax.Array, q_goal: jax.Array) -> jax.Array:
     sign is taken as +1 as JAX's derivative of ``abs`` takes it: ``sign(0) = 0`` would give a
     zero gradient there, a stationary point for a gradient method at the worst attitude.
     """
+    q, q_goal = shaped(q, (4,), "q (a quaternion)"), shaped(q_goal, (4,), "q_goal (a quaternion)")
     sign = jnp.where(q_goal @ q >= 0, 1.0, -1.0)
     return -sign * (q_goal @ attitude_jacobian(q))
 
@@ -181,4 +194,5 @@ def geodesic_cost_hessian(q: jax.Array, q_goal: jax.Array) -> jax.Array:
 
     Equals ``jax.hessian(lambda phi: geodesic_cost(L(q) @ cayley(phi), q_goal))(zeros(3))``.
     """
+    q, q_goal = shaped(q, (4,), "q (a quaternion)"), shaped(q_goal, (4,), "q_goal (a quaternion)")
     return jnp.abs(q_goal @ q) * jnp.eye(3)

@@ -43,3 +43,16 @@ def test_regression_from_rotation_matrix_at_gimbal_lock_keeps_the_rotation():
             T = lie.SE3.from_rotation_and_translation(R, jnp.zeros(3))
             moved = float(jnp.linalg.norm(lie.minus(chart.to_pose(chart.from_pose(T)), T)))
             assert moved <= euler.GIMBAL_MARGIN * (1 + 1e-9), (pitch, roll, yaw, moved)
+
+
+def test_angles_of_the_wrong_shape_are_refused():
+    """A 2-vector of angles gave a rotation with yaw = pitch (JAX clamps the index past its
+    end); integer angles are taken as floats."""
+    import pytest
+
+    for f in (euler.rotation_matrix, euler.rate_matrix, euler.away_from_gimbal_lock):
+        with pytest.raises(ValueError, match=r"rpy \(roll, pitch, yaw\) must have shape \(3,\), got \(2,\)$"):
+            f(jnp.array([0.1, 0.2]))
+    with pytest.raises(ValueError, match=r"Rm \(a rotation matrix\) must have shape \(3, 3\), got \(2, 2\)$"):
+        euler.from_rotation_matrix(jnp.eye(2))
+    np.testing.assert_allclose(euler.rotation_matrix(np.array([0, 0, 0])), np.eye(3))

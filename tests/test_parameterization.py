@@ -289,6 +289,11 @@ def test_wrong_sizes_are_refused_by_name(param):
         param.difference(param.from_pose(SE3.identity()), jnp.zeros(param.nq + 1))
     with pytest.raises(ValueError, match=r"qpos \(xyz_wxyz\) must have 7 entries"):
         param.from_qpos(jnp.zeros(6))
+    # also by the charts without a constraint, which inherit the base class's (it gave (0,)
+    # for any size, and a list was an AttributeError)
+    with pytest.raises(ValueError, match=rf"{type(param).__name__}: q must have {param.nq} entries on its last axis"):
+        param.constraint(jnp.zeros(3))
+    assert param.constraint(np.asarray(param.from_pose(SE3.identity())).tolist()).shape == (param.ncon,)
     # arguments given by name are checked too
     with pytest.raises(ValueError, match="q must have"):
         param.to_pose(q=jnp.zeros(3))

@@ -116,6 +116,39 @@ def test_error_state_jacobian_eq25(rng):
     np.testing.assert_allclose(E, jax.jacfwd(retract)(jnp.zeros(12)), atol=1e-14)
 
 
+def test_error_state_jacobian_of_a_longer_state_is_that_of_its_error_state(rng):
+    """The 23-state spacecraft's E(x) was (13, 12), not E(x_ref)^T of its error state's
+    Jacobian, (22, 23), as `jtraj.attitude.models.error_state` says it is."""
+    from jtraj.attitude.models import error_state
+
+    q = random_quaternions(rng, 1)[0]
+    x = jnp.concatenate([jnp.asarray(rng.normal(size=3)), q, jnp.asarray(rng.normal(size=16))])
+    E = Q.error_state_jacobian(x)
+    assert E.shape == (23, 22)
+    np.testing.assert_allclose(E.T, jax.jacfwd(lambda y: error_state(y, x))(x), atol=1e-13)
+    with pytest.raises(ValueError, match=r"x \(a state \[r, q, ...\]\) must have shape \(nx,\) with nx >= 7, got \(5,\)"):
+        Q.error_state_jacobian(jnp.zeros(5))
+
+
+@pytest.mark.parametrize(
+    "call, message",
+    [
+        # each of these read past the end of a short argument (JAX clamps) or ignored a long one
+        (lambda: Q.cayley_inv(jnp.ones(3)), r"q \(a quaternion\) must have shape \(4,\), got \(3,\)$"),
+        (lambda: Q.cayley(jnp.ones(4)), r"phi \(Rodrigues parameters\) must have shape \(3,\), got \(4,\)$"),
+        (lambda: Q.geodesic_cost(jnp.ones(3), jnp.ones(3)), r"q \(a quaternion\) must have shape \(4,\), got \(3,\)$"),
+        (lambda: Q.geodesic_cost_gradient(jnp.ones(4), jnp.ones(3)), r"q_goal \(a quaternion\) must have shape \(4,\)"),
+        (lambda: Q.rotate(jnp.ones(4), jnp.ones(4)), r"r \(a 3-vector\) must have shape \(3,\), got \(4,\)$"),
+        (lambda: Q.multiply(jnp.ones(4), jnp.ones(5)), r"q2 \(a quaternion\) must have shape \(4,\)"),
+        (lambda: Q.L(jnp.ones((2, 4))), r"q \(a quaternion\) must have shape \(4,\), got \(2, 4\) \(one at a time: use jax.vmap for batches\)$"),
+        (lambda: Q.cayley_inv_jacobian(jnp.ones(5)), r"q \(a quaternion\) must have shape \(4,\)"),
+    ],
+)
+def test_arguments_of_the_wrong_shape_are_refused(call, message):
+    with pytest.raises(ValueError, match=message):
+        call()
+
+
 @pytest.mark.parametrize("flip", [1.0, -1.0])
 def test_geodesic_cost_eq40_42(rng, flip):
     q, qg = random_quaternions(rng, 2)
