@@ -203,7 +203,8 @@ def test_outputs_written(result, tmp_path):
     m = loaded["methods"]
     assert abs(m["multiplicative"]["median_order_estimate"] - 1.0) < 0.2
     assert m["newton"]["median_order_estimate"] > 1.8
-    assert m["projected"]["median_order_estimate"] is None
+    assert m["projected"]["median_order_estimate"] is None and m["projected"]["median_order_note"] == "stalled"
+    assert m["newton"]["median_order_note"] is None
     W.plot_wahba(result, tmp_path / "w.png")
     assert (tmp_path / "w.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
@@ -233,3 +234,12 @@ def test_bad_arguments_are_rejected(kwargs, match):
 def test_one_vector_is_not_a_wahba_problem():
     with pytest.raises(ValueError, match="n_vectors must be an integer >= 2"):
         W.generate_problem(jax.random.PRNGKey(0), n_vectors=1)
+
+
+def test_a_run_too_short_for_an_order_does_not_say_stalled(tmp_path, capsys):
+    """One iteration gives two errors per trial, too few for an order estimate; the summary
+    said every method had stalled."""
+    summary = W.main_wahba(tmp_path, trials=1, iterations=1)
+    out = capsys.readouterr().out
+    assert "stalled" not in out and out.count("order n/a (fewer than three errors above 1e-13)") == len(summary["methods"])
+    assert {m["median_order_note"] for m in summary["methods"].values()} == {"fewer than three errors above 1e-13"}

@@ -406,6 +406,14 @@ def convergence_order(errors: np.ndarray, floor: float = 1e-13) -> np.ndarray:
     return out
 
 
+def _no_order_note(errors: np.ndarray, floor: float) -> str:
+    """Why `convergence_order` estimated no trial's order: fewer than three errors above the
+    floor in every trial (too few iterations, or converged at once), else the errors stopped
+    decreasing (a stall)."""
+    above = np.cumprod(np.atleast_2d(errors) > floor, axis=1).sum(axis=1)  # leading run of each trial
+    return f"fewer than three errors above {floor:g}" if np.all(above < 3) else "stalled"
+
+
 def summarize(result: WahbaResult, floor: float = 1e-13) -> dict:
     """Medians per iteration, final median / max errors and convergence-order estimates."""
     summary: dict = {
@@ -429,6 +437,8 @@ def summarize(result: WahbaResult, floor: float = 1e-13) -> dict:
             "final_median": float(np.median(e[:, -1])),
             "final_max": float(np.max(e[:, -1])),
             "median_order_estimate": float(np.nanmedian(order)) if np.any(np.isfinite(order)) else None,
+            # why there is no estimate: "stalled" was printed also for a run too short to have one
+            "median_order_note": None if np.any(np.isfinite(order)) else _no_order_note(e, floor),
             "median_error_ratio": float(np.median(ratio[ok])) if np.any(ok) else None,
             # e_{k+1} / e_k^2 over errors above the floor: bounded for quadratic convergence.
             "max_quadratic_constant": float(np.max(ratio[ok] / e[:, :-1][ok])) if np.any(ok) else None,
@@ -513,7 +523,7 @@ def main_wahba(out_dir: str | Path, trials: int = 100, iterations: int = 12, see
     for name, s in summary["methods"].items():
         med = " ".join(f"{x:.1e}" for x in s["median_per_iteration"])
         order = s["median_order_estimate"]
-        order_text = "n/a (stalled)" if order is None else f"{order:.2f}"
+        order_text = f"n/a ({s['median_order_note']})" if order is None else f"{order:.2f}"
         print(f"  {name:22s} {med}")
         print(f"  {'':22s} final median {s['final_median']:.2e}, order {order_text}")
         if "paper_fig2_mean_deg" in s:
