@@ -557,9 +557,25 @@ def _check_ipopt(items: list[str] | None, solver: str = "ipopt", field: str = "-
             raise InputError(field, item, f"expected NAME=VALUE, e.g. {field} max_iter=50")
         options[key] = _parse_value(value)
     if options and solver == "ipopt":
-        from jtraj.solvers.ipopt_catalog import check_all
+        from jtraj.solvers import InvalidOptionError, IpoptOptions
+        from jtraj.solvers.ipopt_catalog import catalog, check_all
 
         options = check_all(options)
+        # Ipopt takes its strings in any case; its own spelling (lower case) here, as the
+        # options object reads them (--ipopt nlp_scaling_method=NONE passed this check, then
+        # the solve refused it with a traceback) and --exact-hessian compares them
+        specs = catalog()
+        options = {k: v.lower() if isinstance(v, str) and specs[k].values else v for k, v in options.items()}
+        # as the solve builds them: what only the options object refuses, the bad item named
+        for key, value in options.items():
+            try:
+                IpoptOptions.from_dict({key: value})
+            except InvalidOptionError as err:
+                raise InputError(field, f"{key}={value}", str(err)) from None
+        try:
+            IpoptOptions.from_dict(options)
+        except InvalidOptionError as err:  # values that only clash together
+            raise InputError(field, " ".join(items or []), str(err)) from None
     elif options:
         from jtraj import solvers
 
@@ -709,10 +725,12 @@ def _check_variable_changes(variables: str, items: list[str] | None):
 def _input_errors() -> tuple[type[BaseException], ...]:
     from jtraj.executors import ExecutorUnavailableError
     from jtraj.io import FileFormatError
+    from jtraj.solvers.base import InvalidOptionError
     from jtraj.solvers.ipopt_catalog import IpoptOptionError
     from jtraj.task import TaskError
 
-    errors: tuple[type[BaseException], ...] = (InputError, TaskError, IpoptOptionError, FileFormatError, ExecutorUnavailableError)
+    # InvalidOptionError: an option the options object refuses past the command line's checks
+    errors: tuple[type[BaseException], ...] = (InputError, TaskError, IpoptOptionError, InvalidOptionError, FileFormatError, ExecutorUnavailableError)
     # jtraj.experiments imports MuJoCo (and its refusal of MUJOCO_GL) with the robot models: a
     # command that has not imported it (jtraj params, wahba) cannot have raised its errors
     if experiments := sys.modules.get("jtraj.experiments"):

@@ -216,6 +216,41 @@ def test_real_options_accept_integers():
     assert type(options["tol"]) is float and type(options["max_iter"]) is int
 
 
+def test_ipopt_string_values_in_any_case_are_ipopts_own(monkeypatch, tmp_path):
+    """Ipopt takes its string values in any case, and so did this check, but the options object
+    then refused ``NONE`` with a traceback (exit status 1); the values come back in Ipopt's
+    own spelling, which the solve's options and --exact-hessian read."""
+    import jtraj.plots
+    import jtraj.solver
+    from jtraj.solvers import IpoptOptions
+
+    items = ["nlp_scaling_method=NONE", "linear_solver=MUMPS", "hessian_approximation=EXACT", "mu_strategy=Adaptive"]
+    options = cli._check_ipopt(items)
+    assert options == {"nlp_scaling_method": "none", "linear_solver": "mumps", "hessian_approximation": "exact", "mu_strategy": "adaptive"}
+    assert IpoptOptions().merge(options).hessian == "exact"
+    seen = []
+    monkeypatch.setattr(jtraj.solver, "solve", lambda task, p, **kwargs: seen.append(kwargs) or types.SimpleNamespace(converged=True, success=True))
+    monkeypatch.setattr(jtraj.plots, "plot_result", lambda *a, **k: None)
+    monkeypatch.setattr(jtraj.plots, "plot_convergence", lambda *a, **k: None)
+    argv = ["solve", "big_jump", "--exact-hessian", "--ipopt", "hessian_approximation=EXACT", "--ipopt", "nlp_scaling_method=NONE", "--out", str(tmp_path / "r")]
+    assert cli.main(argv) == 0
+    assert seen[-1]["ipopt_options"] == {"hessian_approximation": "exact", "nlp_scaling_method": "none"}
+
+
+def test_an_option_the_options_object_refuses_is_one_line(monkeypatch, tmp_path, capsys):
+    """An `InvalidOptionError` raised past the command line's own checks (the options object's)
+    is an input error: one line, exit status 2, not a traceback."""
+    import jtraj.solver
+    from jtraj.solvers import InvalidOptionError
+
+    def refuse(*args, **kwargs):
+        raise InvalidOptionError("Ipopt option nlp_scaling_method='x': expected one of ['none']")
+
+    monkeypatch.setattr(jtraj.solver, "solve", refuse)
+    code, err = _run(["solve", "big_jump", "--out", str(tmp_path / "r")], capsys)
+    assert code == 2 and err == "jtraj solve: Ipopt option nlp_scaling_method='x': expected one of ['none']\n"
+
+
 def test_none_turns_off_a_jtraj_option_and_stays_a_word_for_ipopt():
     assert cli._check_ipopt(["feasibility_polish_tol=none", "feasibility_polish_iter=3"], solver="jtraj") == {"feasibility_polish_tol": None, "feasibility_polish_iter": 3}
     # a boolean option reads "false" as False (the string "false" would be truthy)

@@ -755,3 +755,80 @@ def test_mu_min_follows_ipopts_rule_when_not_given(toy):
     assert min(it.mu for it in ref.history) == 5e-14
     assert min(it.mu for it in ours.history) == pytest.approx(5e-14, rel=1e-9)  # (sigma avg at its lower end)
     assert ours.stats.iterations <= ref.stats.iterations + 2  # 18 with mu_min 1e-11, Ipopt 13
+
+
+def test_whole_numbers_for_real_options_solve_and_leave_the_defaults_working():
+    """An int (1 for 1.0) for a real option reached the loop's state as int64 and the trace
+    failed ('cond branches must have equal output types'); as 1 == 1.0, those options keyed
+    the defaults' program, registered before its compile failed, and every later solve of
+    the NLP, the defaults' included, failed the same way. Options are stored as their
+    fields' types, so both solves share one program."""
+    nlp = double_integrator()  # its own NLP: the first solve compiles its program
+    backend = solvers.get("jtraj")
+    ints = backend.solve(nlp, np.zeros(nlp.n), None, {"lbfgs_init_val": 1, "s_max": 100, "max_iter": np.int64(200)})  # the defaults
+    assert ints.converged and ints.time_compile > 0
+    default = backend.solve(nlp, np.zeros(nlp.n))
+    assert default.converged and default.time_compile == 0.0  # the same program
+    assert default.stats.iterations == ints.stats.iterations
+    np.testing.assert_array_equal(default.x, ints.x)
+    # the other options the state is built from, and numpy's float32: traced and run
+    options = {"mu_strategy": "monotone", "mu_init": 1, "delta_c": 1, "delta_c_mu_scaled": False, "tau_min": np.float32(0.99), "mu_max": 1000, "max_iter": 5}
+    ran = backend.solve(nlp, np.zeros(nlp.n), None, options)
+    assert ran.status is solvers.Status.MAX_ITER and ran.stats.iterations == 5
+
+
+def test_a_program_whose_compile_failed_is_not_kept_for_the_nlp(monkeypatch):
+    """The NLP kept the IPM of a program whose trace or compile raised, so its next solves with
+    the same options reused that failing program instead of tracing their own."""
+    nlp = double_integrator()
+    real = IPM._solve
+
+    def failing(self, x0, theta, tols):
+        raise RuntimeError("the trace failed")
+
+    monkeypatch.setattr(IPM, "_solve", failing)
+    with pytest.raises(RuntimeError, match="the trace failed"):
+        solvers.get("jtraj").solve(nlp, np.zeros(nlp.n))
+    assert not nlp.solver_programs
+    monkeypatch.setattr(IPM, "_solve", real)
+    assert solvers.get("jtraj").solve(nlp, np.zeros(nlp.n)).converged
+
+
+def test_fixed_variables_get_ipopts_bound_multipliers(toy):
+    """The fixed variables (the first and last knots) are out of the step and had zero bound
+    multipliers, so grad f + J^T y - z_L + z_U was 4 there; they are, as Ipopt reports them
+    (fixed_variable_treatment=make_parameter), max(r, 0) and max(-r, 0) of r = grad f + J^T y."""
+    nlp, _ = toy
+    tight = {"tol": 1e-8, "compl_inf_tol": 1e-8, "constr_viol_tol": 1e-8, "max_iter": 100}  # the toy's program
+    ours = solvers.get("jtraj").solve(nlp, np.zeros(nlp.n), None, tight)
+    ref = solvers.get("ipopt").solve(nlp, np.zeros(nlp.n), None, {"tol": 1e-10, "hessian": "exact"})
+    assert ours.converged and ref.converged
+    fixed = nlp.x_lower == nlp.x_upper
+    assert fixed.sum() == 6
+    r = np.asarray(nlp.gradient(ours.x, None)) + nlp.dense_jacobian(ours.x).T @ ours.mult_g - ours.mult_x_lower + ours.mult_x_upper
+    assert np.abs(r).max() < 1e-6  # on every variable, fixed ones included
+    assert np.abs(ours.mult_x_upper[fixed]).max() > 1.0  # they carry multipliers
+    assert (ours.mult_x_lower >= 0).all() and (ours.mult_x_upper >= 0).all() and not (ours.mult_x_lower * ours.mult_x_upper)[fixed].any()
+    np.testing.assert_allclose(ours.mult_x_lower[fixed], ref.mult_x_lower[fixed], atol=1e-4)
+    np.testing.assert_allclose(ours.mult_x_upper[fixed], ref.mult_x_upper[fixed], atol=1e-4)
+
+
+def test_a_nan_exact_hessian_is_a_numerical_error():
+    """A cost whose Hessian is infinite at the start (|u|^1.5 at u = 0): every delta_w failed,
+    and the solve was reported as a failed step computation (no delta_w made the matrix
+    positive definite) instead of a function's NaN or Inf, as a NaN gradient is."""
+    layout = Layout((("p", 1), ("v", 1), ("u", 1)))
+
+    def step(theta, data, p, v, u, p1, v1):
+        return jnp.concatenate([p1 - p - H_STEP * v1, v1 - v - H_STEP * u])
+
+    groups = [ConstraintGroup("dynamics", (Dep("p"), Dep("v"), Dep("u"), Dep("p", 1), Dep("v", 1)), step, np.arange(K - 1),
+                              np.zeros((K - 1, 2)), np.zeros((K - 1, 2)), np.ones((K - 1, 2), bool))]
+    costs = [CostGroup("effort", (Dep("u"),), lambda theta, data, u: 0.5 * jnp.sum(u**2) + jnp.sum(jnp.abs(u) ** 1.5), np.arange(K))]
+    lower, upper = np.tile([-np.inf, -np.inf, -U_MAX], (K, 1)), np.tile([np.inf, np.inf, U_MAX], (K, 1))
+    lower[0] = upper[0] = 0.0
+    lower[-1] = upper[-1] = [1.0, 0.0, 0.0]
+    nlp = KnotNLP(layout, K, costs, groups, lower, upper)
+    sol = solvers.get("jtraj").solve(nlp, np.zeros(nlp.n), None, {"hessian": "exact", "max_iter": 20})
+    assert sol.status is solvers.Status.NUMERICAL_ERROR and sol.stats.iterations == 0, (sol.status, sol.message)
+    assert "NaN or Inf" in sol.message and "Hessian" in sol.message

@@ -320,3 +320,36 @@ def test_solve_refuses_a_theta_whose_fixed_knots_cannot_touch_the_terrain(monkey
     with pytest.raises(ValueError, match=r"^theta.q_joints_standing and theta.base_xyz_wxyz_standing: the pose they give puts the contact points of phase 0 \d+.\d mm apart in height"):
         jtraj.solver.solve(HOP, theta={"base_xyz_wxyz_standing": tilted}, progress=None)
     assert prep.nlp is jtraj.solver.prepare(HOP).nlp
+
+
+class FunctionsOnly:
+    """An NLP with the documented functions alone (Ipopt takes it): x0 + x1 = 0.5 in [-1, 1]^2."""
+
+    n, m = 2, 1
+    x_lower, x_upper = np.array([-1.0, -1.0]), np.array([1.0, 1.0])
+    g_lower, g_upper = np.array([0.5]), np.array([0.5])
+    jac_rows, jac_cols = np.array([0, 0]), np.array([0, 1])
+
+    def objective(self, x):
+        return jnp.sum((x - 0.2) ** 2)
+
+    def gradient(self, x):
+        return 2.0 * (x - 0.2)
+
+    def constraints(self, x):
+        return jnp.array([x[0] + x[1]])
+
+    def jacobian(self, x):
+        return jnp.array([1.0, 1.0])
+
+
+def test_jtraj_refuses_an_nlp_without_knots_by_name():
+    """jtraj's solver works on a KnotNLP's knot structure: another NLP failed with a bare
+    AttributeError ('solver_programs'); Ipopt solves it."""
+    nlp = FunctionsOnly()
+    assert solvers.get("ipopt").solve(nlp, np.zeros(2)).converged
+    jt = solvers.get("jtraj")
+    with pytest.raises(TypeError, match=r"jtraj's solver: nlp of type FunctionsOnly: expected a jtraj.nlp.KnotNLP"):
+        jt.solve(nlp, np.zeros(2))
+    with pytest.raises(TypeError, match=r"nlp of type FunctionsOnly: expected a jtraj.nlp.KnotNLP"):
+        jt.solve_batch(nlp, np.zeros((2, 2)))

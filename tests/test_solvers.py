@@ -2,6 +2,7 @@
 that fail at construction, the registry, progress resolved at call time, and Ipopt's solution
 with its multipliers on a tiny bound-constrained problem."""
 
+import dataclasses
 import io
 import sys
 
@@ -169,6 +170,40 @@ def test_numpy_scalars_are_numbers_for_the_options():
         IpoptOptions(tol=np.float32(-1.0))
     with pytest.raises(InvalidOptionError, match=r"mu_init=np.float32\(-1.0\): expected a positive number"):
         IpmOptions(mu_init=np.float32(-1.0))
+
+
+def test_jtraj_options_are_stored_as_their_fields_types():
+    """An int for a real option (lbfgs_init_val=1) or a numpy scalar was kept as it was, reached
+    the compiled loop's state as int64 or float32 and failed its trace; as IpoptOptions does,
+    each value becomes its field's type (the defaults' values are unchanged)."""
+    opts = IpmOptions(lbfgs_init_val=1, mu_init=np.int64(1), tau_min=np.float32(0.5), mu_max=1000, max_iter=np.int64(7), bfgs_scaling=np.bool_(False))
+    for name, kind in (("lbfgs_init_val", float), ("mu_init", float), ("tau_min", float), ("mu_max", float), ("max_iter", int), ("bfgs_scaling", bool)):
+        assert type(getattr(opts, name)) is kind, name
+    assert (opts.lbfgs_init_val, opts.tau_min, opts.max_iter) == (1.0, 0.5, 7)
+    assert IpmOptions(lbfgs_init_val=1).compiled_part() == IpmOptions().compiled_part()
+    assert IpmOptions(mu_min=None).mu_min is None
+    default = IpmOptions()
+    assert all(type(getattr(default, f.name)) is type(f.default) for f in dataclasses.fields(IpmOptions) if f.default is not None)
+
+
+def test_ipopts_two_names_of_the_hessian_must_agree():
+    """``hessian`` (the field) and ``hessian_approximation`` (Ipopt's name) that ask for different
+    Hessians: one was silently dropped (limited-memory won)."""
+    with pytest.raises(InvalidOptionError, match=r"hessian_approximation='limited-memory': conflicts with hessian='exact'"):
+        IpoptOptions.from_dict({"hessian": "exact", "hessian_approximation": "limited-memory"})
+    assert IpoptOptions.from_dict({"hessian": "lbfgs", "hessian_approximation": "limited-memory"}).hessian == "lbfgs"
+    assert IpoptOptions.from_dict({"hessian": "exact", "hessian_approximation": "exact"}).hessian == "exact"
+    # merging Ipopt's name over options replaces their Hessian; both in the merged values must agree
+    assert IpoptOptions(hessian="exact").merge({"hessian_approximation": "limited-memory"}).hessian == "lbfgs"
+    with pytest.raises(InvalidOptionError, match="conflicts with hessian='lbfgs'"):
+        IpoptOptions().merge({"hessian": "lbfgs", "hessian_approximation": "exact"})
+
+
+def test_ipopts_string_values_take_any_case():
+    """Ipopt takes its string options in any case, and so did the command line's check; the
+    options object refused ``NONE`` with a traceback after it."""
+    opts = IpoptOptions.from_dict({"nlp_scaling_method": "NONE", "linear_solver": "MUMPS", "hessian_approximation": "Limited-Memory"})
+    assert (opts.nlp_scaling_method, opts.linear_solver, opts.hessian) == ("none", "mumps", "lbfgs")
 
 
 def test_unknown_jtraj_option_names_the_nearest():

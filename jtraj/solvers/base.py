@@ -2,9 +2,10 @@
 
 A backend is one class: ``solve(nlp, x0, theta, options, callback) -> Solution``.
 
-- ``nlp`` is a `jtraj.nlp.KnotNLP` (or anything with the same functions: ``objective``,
-  ``gradient``, ``constraints``, ``jacobian`` in COO order, ``hessian`` after
-  ``build_hessian()``, their sparsity ``jac_rows/jac_cols/hess_rows/hess_cols`` and the bounds).
+- ``nlp`` is a `jtraj.nlp.KnotNLP` (or, for Ipopt, anything with the same functions:
+  ``objective``, ``gradient``, ``constraints``, ``jacobian`` in COO order, ``hessian`` after
+  ``build_hessian()``, their sparsity ``jac_rows/jac_cols/hess_rows/hess_cols`` and the bounds;
+  jtraj's own solver works on a KnotNLP's knot structure and refuses another with TypeError).
 - ``theta`` is the NLP's parameter pytree; the backend passes it to every function unchanged
   (None for an NLP whose numbers are all constants).
 - ``options`` is the backend's own typed options object (`AbstractOptions`): keyword-only,
@@ -144,9 +145,11 @@ class Solution:
         mult_x_lower, mult_x_upper: (n,) multipliers of the lower and upper variable bounds.
         stats: iteration and evaluation counts and the time split.
         history: one `Iteration` per iteration, in order.
-        time_compile: seconds the backend spent compiling its own program for this solve
-            (jtraj's solver, the first time it meets an NLP, options and parameter shapes; 0
-            for Ipopt, whose callbacks are compiled with the NLP). Not in ``stats``' times.
+        time_compile: seconds the backend spent compiling for this solve, outside the timed
+            solve: jtraj's solver its program, the first time it meets an NLP, options and
+            parameter shapes; Ipopt with ``hessian="exact"`` the NLP's exact Hessian, built and
+            called once the first time it meets the NLP (else 0: its other callbacks are
+            compiled with the NLP). Not in ``stats``' times.
     """
 
     x: np.ndarray

@@ -11,7 +11,8 @@ Newton steps, ``mu`` set afresh each iteration by Ipopt's adaptive rule (or fall
 monotonically, ``mu <- max(min(tol, compl_inf_tol)/(kappa_eps + 1), min(kappa_mu mu,
 mu^theta_mu))`` once the barrier error is below ``kappa_eps mu``); steps keep a fraction ``tau = max(0.99,
 1 - mu)`` of the distance to the bounds; the bound multipliers stay within ``kappa_sigma``
-of their central values. Fixed variables (equal bounds) are removed from the step.
+of their central values. Fixed variables (equal bounds) are removed from the step; their bound
+multipliers are reported at the end as Ipopt's are (`IpmResult`).
 
 Differences from Ipopt, and why:
 - Newton step: the block-tridiagonal factorization of `jtraj.solvers.kkt` (linear in the knots,
@@ -101,6 +102,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
+from jtraj.nlp import KnotNLP
 from jtraj.solvers import kkt
 from jtraj.solvers.base import (
     AbstractCallback,
@@ -135,7 +137,7 @@ class IpmStatus(enum.IntEnum):
     CONVERGED = 1
     MAX_ITER = 2
     LINE_SEARCH_FAILED = 3  # several line searches in a row found no acceptable step
-    NUMERICAL_ERROR = 4  # NaN or Inf in the iterate or its function values
+    NUMERICAL_ERROR = 4  # NaN or Inf in the iterate, its function values or derivatives (the Hessian too)
     INERTIA_FAILED = 5  # no delta_w up to delta_w_max gave a positive-definite Newton matrix
 
     @property
@@ -414,6 +416,17 @@ class IpmOptions(AbstractOptions):
                 f"jtraj option max_iter={self.max_iter!r}: expected at most {_INT32_MAX // per_iteration - 1} with max_line_search={self.max_line_search} "
                 f"and max_soc={self.max_soc} (the solver bounds its evaluations, (max_iter + 1) (max_line_search + 1 + max_soc), in a 32-bit integer)"
             )
+        # every number as the Python type of its field's default, as IpoptOptions does: an int (1
+        # for 1.0) or a numpy scalar (np.float32) reached the loop's state as int64 or float32,
+        # whose trace failed, and, equal and hashing alike, keyed the same program as 1.0
+        for field in dataclasses.fields(self):
+            value, default = getattr(self, field.name), field.default
+            if isinstance(default, bool):
+                object.__setattr__(self, field.name, bool(value))
+            elif isinstance(default, int):
+                object.__setattr__(self, field.name, int(value))
+            elif value is not None and (isinstance(default, float) or (default is None and "float" in str(field.type))):
+                object.__setattr__(self, field.name, float(value))
 
     def mu_min_value(self) -> float:
         """``mu_min``, or where it is not given Ipopt's rule at these tolerances."""
@@ -439,7 +452,9 @@ class IpmResult(NamedTuple):
         x: (K, n) primal solution.
         y: (K, m) constraint multipliers in the stage layout (Ipopt's sign convention:
             ``grad f + J^T y - z_L + z_U = 0``).
-        z_lower, z_upper: (K, n) bound multipliers.
+        z_lower, z_upper: (K, n) bound multipliers; on fixed variables (equal bounds, not in
+            the step) those that make the stationarity hold there, as Ipopt reports them:
+            ``r = grad f + J^T y``, ``z_lower = max(r, 0)``, ``z_upper = max(-r, 0)``.
         status: `IpmStatus` code.
         iterations, objective, constr_viol (unscaled, original bounds), dual_inf, compl,
         error (scaled optimality error), mu, passes (evaluations of the objective and
@@ -649,6 +664,17 @@ def _split_over_devices(batch: Any, devices: list, size: int, args: tuple, in_ba
     return jax.tree.map(lambda a: a[:size], out) if pad else out
 
 
+def _require_knot_nlp(nlp: Any, caller: str) -> None:
+    """TypeError unless ``nlp`` is a `jtraj.nlp.KnotNLP`: this solver works on its knot
+    structure (`StageView`'s blocks, the NLP's ``solver_programs``), which an NLP with only the
+    functions Ipopt takes lacks (it failed with a bare AttributeError)."""
+    if not isinstance(nlp, KnotNLP):
+        raise TypeError(
+            f"{caller}: nlp of type {type(nlp).__name__}: expected a jtraj.nlp.KnotNLP (jtraj's solver works on its knot structure; "
+            "solver='ipopt' takes any NLP with the documented functions)"
+        )
+
+
 #: guards the shared IPMs of an NLP (`IPM.__init__`)
 _SHARED_LOCK = threading.Lock()
 
@@ -670,6 +696,7 @@ class IPM:
         # refer back to it, kept every sweep group's NLP and programs, about 6,300 memory maps
         # per big_jump group, until a process met Linux's default limit of 65,530 and crashed
         # in LLVM)
+        _require_knot_nlp(nlp, "IPM")
         key = ("ipm", self.options.compiled_part())
         shared = nlp.solver_programs
         # one owner per key also when solves start side by side in threads (a vmapped
@@ -684,9 +711,19 @@ class IPM:
                     self.view.prepare_hessian()
                 self.program = jax.jit(_members_apart_on_cpu(self._solve, self.options.cpu_batch == "vectorized"))
                 self.compiled: dict[str, Any] = {}  # ahead-of-time compiled programs (`JtrajSolver`)
-                shared[key] = self
+                shared[key] = owner = self
             else:
                 self.view, self.program, self.compiled = owner.view, owner.program, owner.compiled
+        self._registry = (shared, key, owner)
+
+    def forget_if_uncompiled(self) -> None:
+        """Take this IPM's program off its NLP when it has compiled nothing (`JtrajSolver`
+        calls it when lowering or compiling the program raised): kept, it stood for every later
+        IPM of the NLP whose options compare equal, so one failed compile failed them all."""
+        shared, key, owner = self._registry
+        with _SHARED_LOCK:
+            if not owner.compiled and shared.get(key) is owner:
+                del shared[key]
 
     def solve(self, x0: jax.Array, theta: Any = None) -> IpmResult:
         """Solve from x0 (K, n) at theta (the jitted program with this IPM's tolerances)."""
@@ -848,13 +885,13 @@ class IPM:
             dx=zx, ds=zc, dy=zc, dzl=zx, dzu=zx, dvl=zc, dvu=zc,
             alpha=zero, alpha_dual=zero, trials=jnp.zeros((), jnp.int32), phi0=zero, theta0=zero, slope=zero,
             filter=jnp.full((self.FILTER_SIZE, 2), jnp.inf), n_filter=jnp.zeros((), jnp.int32),
-            theta_min=zero, theta_max=zero, mu=jnp.asarray(o.mu_init if o.mu_strategy == "monotone" else 1.0), tau=jnp.asarray(o.tau_min),
-            mu_max=jnp.asarray(np.inf if o.mu_max is None else o.mu_max),
+            theta_min=zero, theta_max=zero, mu=jnp.asarray(o.mu_init if o.mu_strategy == "monotone" else 1.0, jnp.float64), tau=jnp.asarray(o.tau_min, jnp.float64),
+            mu_max=jnp.asarray(np.inf if o.mu_max is None else o.mu_max, jnp.float64),
             free_mode=jnp.asarray(o.mu_strategy == "adaptive"), refs=jnp.full((4,), jnp.inf),
             mu_filter=jnp.full((self.FILTER_SIZE, 2), jnp.inf),
             # element Hessians are state only for the partitioned BFGS (the others rebuild them)
             H=jnp.broadcast_to(o.bfgs_init * jnp.eye(2 * n), (K, 2 * n, 2 * n)) if o.hessian == "bfgs" else jnp.zeros((K, 2 * n, 2 * n)) if o.hessian == "exact" else jnp.zeros((0,)), scaled=jnp.zeros((K,), bool), delta_w=zero, delta_w_last=zero,
-            S=jnp.zeros((l, K, n)), Y=jnp.zeros((l, K, n)), used=jnp.zeros((l,), bool), lsigma=jnp.asarray(o.lbfgs_init_val),
+            S=jnp.zeros((l, K, n)), Y=jnp.zeros((l, K, n)), used=jnp.zeros((l,), bool), lsigma=jnp.asarray(o.lbfgs_init_val, jnp.float64),
             lskip=jnp.zeros((), jnp.int32),
             fac_diag=jnp.zeros((K, n, n)), fac_sub=jnp.zeros((K, n if coupled is None else coupled.size, n)), delta_c=zero,
             first=jnp.asarray(True), it=jnp.zeros((), jnp.int32),
@@ -866,8 +903,14 @@ class IPM:
     def _finish(self, p: _Problem, st: _State, passes: jax.Array) -> IpmResult:
         """The result of the state; ``passes`` is the (values, derivatives) evaluation count."""
         err, dual_inf, constr_viol, compl = self._error(p, st, 0.0, nlp=True)
+        # fixed variables have no bound multipliers in the loop (they leave the step); reported,
+        # as Ipopt's (fixed_variable_treatment=make_parameter), are those that close the
+        # stationarity there: grad f + J^T y = z_L - z_U, the one of the sign it needs
+        r = st.grad + kkt._apply_JT(st.J, None, st.y, self.view.pattern)
+        zl = jnp.where(p.free, st.zl, jnp.maximum(r, 0.0))
+        zu = jnp.where(p.free, st.zu, jnp.maximum(-r, 0.0))
         return IpmResult(
-            x=st.x, y=st.y, z_lower=st.zl, z_upper=st.zu, status=st.status, iterations=st.it,
+            x=st.x, y=st.y, z_lower=zl, z_upper=zu, status=st.status, iterations=st.it,
             objective=st.f, constr_viol=constr_viol, dual_inf=dual_inf, compl=compl,
             error=err, mu=st.mu, passes=passes[0], derivative_passes=passes[1], history=st.history,
         )
@@ -1251,7 +1294,7 @@ class IPM:
         H = None if o.hessian == "lbfgs" else view.hessian(x, st.y, 1.0, theta) if o.hessian == "exact" else st.H
         system, low_rank, r_c, right_hand_side, full_step, barrier_gradients = self._newton_system(p, st, H)
         # Ipopt's dual regularization, shrinking with mu (its kappa_c = 1/4)
-        delta_c = o.delta_c * st.mu ** 0.25 if o.delta_c_mu_scaled else jnp.asarray(o.delta_c)
+        delta_c = o.delta_c * st.mu ** 0.25 if o.delta_c_mu_scaled else jnp.asarray(o.delta_c, jnp.float64)
         if o.delta_c_mu_scaled and o.delta_c_min > 0.0:
             delta_c = jnp.maximum(delta_c, o.delta_c_min)
         # the correction starts from the last positive delta_w, kept through the iterations
@@ -1275,7 +1318,11 @@ class IPM:
         theta0, phi0 = self._measures(p, x, st.s, st.f, st.c, mu)
         grad_bar_x, grad_bar_s = barrier_gradients(mu)
         slope = jnp.sum(grad_bar_x * dx) + jnp.sum(grad_bar_s * ds)
-        status = jnp.where((st.status == int(IpmStatus.RUNNING)) & ~ok, int(IpmStatus.INERTIA_FAILED), st.status)
+        status = st.status
+        if H is not None:
+            # a NaN or Inf Hessian fails every delta_w: a function's NaN, not a matrix to correct
+            status = jnp.where((status == int(IpmStatus.RUNNING)) & ~jnp.all(jnp.isfinite(H)), int(IpmStatus.NUMERICAL_ERROR), status)
+        status = jnp.where((status == int(IpmStatus.RUNNING)) & ~ok, int(IpmStatus.INERTIA_FAILED), status)
         return st._replace(
             dx=dx, ds=ds, dy=dy, dzl=dzl, dzu=dzu, dvl=dvl, dvu=dvu, alpha=a_max, alpha_dual=a_dual, mu=mu,
             phi0=phi0, theta0=theta0, slope=slope, delta_w=jnp.where(ok, delta_w, st.delta_w), status=status.astype(jnp.int32),
@@ -1439,7 +1486,7 @@ _MESSAGES = {
     IpmStatus.CONVERGED: "converged (Ipopt's optimality test)",
     IpmStatus.MAX_ITER: "iteration limit reached",
     IpmStatus.LINE_SEARCH_FAILED: "the filter line search failed several times in a row (this solver has no restoration phase)",
-    IpmStatus.NUMERICAL_ERROR: "NaN or Inf in the iterate or in the functions' values there",
+    IpmStatus.NUMERICAL_ERROR: "NaN or Inf in the iterate or in the functions' values or derivatives there (the Hessian's too)",
     IpmStatus.INERTIA_FAILED: "no regularization delta_w up to delta_w_max made the Newton matrix positive definite (Ipopt would turn to its restoration phase; this solver has none)",
 }
 
@@ -1471,6 +1518,10 @@ _COMPILE_LOCK = threading.Lock()
 class JtrajSolver(AbstractSolver):
     """jtraj's own interior-point solver (`IPM`) as a backend of `jtraj.solvers.SOLVERS`.
 
+    It takes a `jtraj.nlp.KnotNLP` only: the Newton step works on the knot structure (rows
+    reading knots k and k+1, `StageView`), which an NLP with the backends' functions alone
+    does not have (Ipopt takes one; here it is a TypeError).
+
     One compiled program per NLP and options (kept while the NLP lives; options that differ
     only in the tolerances, `IpmOptions.RUNTIME_FIELDS`, share it), compiled before the
     clock starts: later solves with other initial guesses or parameters do not compile again,
@@ -1491,6 +1542,9 @@ class JtrajSolver(AbstractSolver):
         return IPM(nlp, options)
 
     def solve(self, nlp: Any, x0: np.ndarray, theta: Any = None, options: AbstractOptions | dict[str, Any] | None = None, callback: AbstractCallback | None = None) -> Solution:
+        """As `AbstractSolver.solve`, for a `jtraj.nlp.KnotNLP` only (another NLP, one with the
+        functions alone, is a TypeError: the solver works on its knot structure)."""
+        _require_knot_nlp(nlp, "jtraj's solver")
         if callback is not None and callback.wants_iterates and not self.reports_iterates:
             raise ValueError("jtraj's solver runs as one compiled program and reports no intermediate iterates: record them with solver='ipopt'")
         opts = self.options(options)
@@ -1537,7 +1591,8 @@ class JtrajSolver(AbstractSolver):
         strategy: str | None = None,
         threads: int | None = None,
     ) -> tuple[list[Solution], float, float]:
-        """Solve from several initial guesses at once.
+        """Solve from several initial guesses at once (``nlp`` a `jtraj.nlp.KnotNLP`, as for
+        `solve`).
 
         ``x0s``: (B, nlp.n) or (B, K, n) initial guesses, clipped to the variable bounds as in
         `solve`, so member i equals ``solve(nlp, x0s[i], ...)`` (same iterations and status;
@@ -1565,6 +1620,7 @@ class JtrajSolver(AbstractSolver):
         solution's ``stats.time_total`` is that time divided by B) and the seconds spent
         compiling in this call (0 when the program was compiled before).
         """
+        _require_knot_nlp(nlp, "jtraj's solver")
         strategy = strategy or self.default_strategy()
         if strategy not in self.STRATEGIES:
             raise ValueError(f"solve_batch: unknown strategy {strategy!r}; expected one of {', '.join(self.STRATEGIES)}")
@@ -1636,7 +1692,11 @@ class JtrajSolver(AbstractSolver):
             if say is not None:
                 say(f"jtraj solver: compiling its {kind}program (once per NLP and options other than the tolerances)")
             t0 = time.perf_counter()
-            ipm.compiled[key] = jitted.lower(x0, theta, ipm.tolerances).compile()
+            try:
+                ipm.compiled[key] = jitted.lower(x0, theta, ipm.tolerances).compile()
+            except BaseException:
+                ipm.forget_if_uncompiled()  # the NLP's next solve traces its own program
+                raise
             seconds = time.perf_counter() - t0
         if say is not None:
             say(f"jtraj solver: compiled in {seconds:.1f} s")

@@ -146,8 +146,15 @@ class IpoptOptions(AbstractOptions):
     @classmethod
     def from_dict(cls, values: dict[str, Any] | None) -> IpoptOptions:
         """From Ipopt's own option names: the fields above by name (and Ipopt's
-        ``hessian_approximation`` = "exact" / "limited-memory"), everything else into ``extra``."""
+        ``hessian_approximation`` = "exact" / "limited-memory"), everything else into ``extra``.
+        The string values of Ipopt's options ``linear_solver``, ``nlp_scaling_method`` and
+        ``hessian_approximation`` are taken in any case, as Ipopt takes them (``NONE`` passed
+        the command line's check and failed here). ``hessian`` and ``hessian_approximation``
+        that ask for different Hessians raise `InvalidOptionError` (one was dropped)."""
         values = dict(values or {})
+        for key in _IPOPT_STRINGS:
+            if isinstance(values.get(key), str):
+                values[key] = values[key].lower()
         hessian_approximation = values.pop("hessian_approximation", None)
         fields: dict[str, Any] = {}
         extra = dict(values.pop("extra", None) or {})
@@ -160,14 +167,22 @@ class IpoptOptions(AbstractOptions):
             names = {v: k for k, v in HESSIANS.items()}
             if not isinstance(hessian_approximation, str) or hessian_approximation not in names:
                 raise InvalidOptionError(f"Ipopt option hessian_approximation={hessian_approximation!r}: expected one of {sorted(names)}")
+            if "hessian" in fields and fields["hessian"] != names[hessian_approximation]:
+                raise InvalidOptionError(
+                    f"Ipopt option hessian_approximation={hessian_approximation!r}: conflicts with hessian={fields['hessian']!r}; "
+                    f"expected hessian={names[hessian_approximation]!r} or only one of the two"
+                )
             fields["hessian"] = names[hessian_approximation]
         return cls(**fields, extra=extra)
 
     def merge(self, values: dict[str, Any] | None) -> IpoptOptions:
-        """These options with ``values`` (named as for `from_dict`) over them."""
+        """These options with ``values`` (named as for `from_dict`) over them (Ipopt's
+        ``hessian_approximation`` among them replaces the ``hessian`` of these)."""
         if not values:
             return self
         own = {k: v for k, v in self.as_dict().items() if k != "extra"}
+        if "hessian_approximation" in values:
+            del own["hessian"]
         return IpoptOptions.from_dict({**own, **self.extra, **values})
 
     def to_ipopt(self) -> dict[str, Any]:
@@ -191,6 +206,8 @@ class IpoptOptions(AbstractOptions):
 
 
 _FIELDS = {f.name for f in dataclasses.fields(IpoptOptions)} - {"extra"}
+#: Ipopt's string options among `from_dict`'s names, whose values Ipopt takes in any case
+_IPOPT_STRINGS = ("linear_solver", "nlp_scaling_method", "hessian_approximation")
 
 
 def _field_for(key: str) -> str:
