@@ -37,6 +37,9 @@ EXIT_TERMINATED = 143
 #: trial at 12 iterations), and counts far past them ended in JAX's errors or out of memory
 WAHBA_MAX_TRIALS = 100_000
 WAHBA_MAX_ITERATIONS = 100
+#: `jtraj attitude`'s largest --knots, as a task file's (`jtraj.task.MAX_KNOTS`): past it numpy
+#: failed to allocate the problem (163 PiB at 1e15 knots), a traceback
+ATTITUDE_MAX_KNOTS = 100_000
 
 
 def _cmd_params(args: argparse.Namespace) -> int:
@@ -183,9 +186,15 @@ def _cmd_wahba(args: argparse.Namespace) -> int:
 
 
 def _cmd_attitude(args: argparse.Namespace) -> int:
+    """``jtraj attitude``, with ``OUT/provenance.json`` (`jtraj.provenance`: unfinished until
+    the solves' files are written), as the sweeps and ``jtraj solve`` write it."""
     from jtraj.attitude.cli import main as attitude_main
+    from jtraj.provenance import begin_run, end_run
 
-    return attitude_main(args.bench, args.variant, args.out, n_knots=args.knots, solver=args.solver, render=args.render)
+    record = begin_run(args.out, ["jtraj", *args.argv])
+    code = attitude_main(args.bench, args.variant, args.out, n_knots=args.knots, solver=args.solver, render=args.render)
+    end_run(args.out, record)
+    return code
 
 
 def _render_options(args: argparse.Namespace):
@@ -446,6 +455,14 @@ def _check_out(path: str | None, field: str = "--out", shown: str | None = None)
         raise InputError(field, path if shown is None else shown, problem)
 
 
+def _check_out_files(folder: str, names: tuple[str, ...], field: str = "--out") -> None:
+    """The files a command writes into ``folder`` must not be folders (one failed after the
+    files before it were written)."""
+    for name in names:
+        if (Path(folder) / name).is_dir():
+            raise InputError(field, folder, f"{Path(folder) / name} is a folder; expected room for the file {name}")
+
+
 def _check_names(field: str, text: str, known: list[str], what: str, allow_files: bool = False) -> list[str]:
     names = _split(text)
     if not names:
@@ -695,12 +712,26 @@ def _check_inputs(args: argparse.Namespace) -> None:
         _check_positive_int("--seed", args.seed, 0)  # as run_wahba, which refuses a negative seed
         _check_seed(args.seed)
         _check_out(args.out)
+        _check_out_files(args.out, ("wahba.npz", "wahba.json", "wahba.png"))
     elif cmd == "attitude":
         if args.render and args.bench == "all":
             raise InputError("--render", "all", "draws one benchmark; give its name (quadflip, barrelroll or satellite)", verbatim=True)
-        # --knots: each benchmark has its own lower bound, which jtraj.attitude.cli.main checks
-        # (one line, exit status 2) before anything is solved
+        # --knots: each benchmark has its own lower bound (one line, exit status 2, before
+        # anything is written; jtraj.attitude.cli.main checks it too), the upper one is all's
+        from jtraj.attitude import benchmarks
+
+        if args.knots is not None:
+            _check_positive_int("--knots", args.knots, 1, ATTITUDE_MAX_KNOTS)
         _check_out(args.out)
+        for bench in benchmarks.BENCHMARKS if args.bench == "all" else (args.bench,):
+            if args.knots is not None:  # before OUT/provenance.json
+                try:
+                    benchmarks.get(bench, args.knots)
+                except ValueError as e:
+                    raise InputError("--knots", args.knots, str(e)) from None
+            # the folders of the solves, OUT/BENCH_VARIANT: one that is a file failed after its solve
+            for variant in ("naive", "attitude") if args.bench == "all" else (args.variant,):
+                _check_out(str(Path(args.out) / f"{bench}_{variant}"))
 
 
 def _check_variable_changes(variables: str, items: list[str] | None):

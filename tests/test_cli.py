@@ -97,6 +97,8 @@ def _run(argv, capsys):
         (["compare", "--tasks", "walk", "--out", ""], "jtraj compare: --out: '': expected a folder name"),
         # the first check said ">= 3", the benchmark's then ">= 11"
         (["attitude", "satellite", "--knots", "2"], "jtraj attitude: --knots: 2: benchmark satellite: n_knots must be an integer >= 11"),
+        # numpy's allocation failed (163 PiB), a traceback
+        (["attitude", "satellite", "--knots", str(10**15)], f"jtraj attitude: --knots: {10**15}: expected an integer in [1, {cli.ATTITUDE_MAX_KNOTS}]\n"),
     ],
 )
 def test_bad_command_lines(argv, line, capsys, no_solve):
@@ -767,3 +769,34 @@ def test_a_task_whose_first_knot_is_below_the_terrain_is_one_line_before_the_sol
             assert code == cli.EXIT_BAD_INPUT and err.count("\n") == 1, err
             assert err.startswith(f"jtraj {command[0]}: {path}: phases[0].contacts: ['left_hand', 'right_hand']: the standing pose of 'talos")
             assert not (tmp_path / "sweep").exists()
+
+
+def test_attitude_and_wahba_refuse_an_output_they_could_not_write_before_solving(tmp_path, capsys, monkeypatch):
+    """A file at OUT/BENCH_VARIANT failed jtraj attitude after its solve, a folder at
+    OUT/wahba.png jtraj wahba after its other two files (tracebacks); a knot count a benchmark
+    refuses was found after OUT/provenance.json was written."""
+    import jtraj.attitude.cli
+    import jtraj.attitude.wahba
+
+    monkeypatch.setattr(jtraj.attitude.cli, "main", lambda *a, **k: pytest.fail("solved after a bad input"))
+    monkeypatch.setattr(jtraj.attitude.wahba, "main_wahba", lambda *a, **k: pytest.fail("solved after a bad input"))
+    (tmp_path / "a").mkdir()
+    (tmp_path / "a" / "quadflip_naive").write_text("a file")
+    (tmp_path / "w" / "wahba.png").mkdir(parents=True)
+    code, err = _run(["attitude", "all", "--out", str(tmp_path / "a")], capsys)
+    assert code == 2 and err == f"jtraj attitude: --out: '{tmp_path / 'a' / 'quadflip_naive'}': is a file; expected a folder (existing or to be created)\n"
+    code, err = _run(["wahba", "--out", str(tmp_path / "w")], capsys)
+    assert code == 2 and err == f"jtraj wahba: --out: '{tmp_path / 'w'}': {tmp_path / 'w' / 'wahba.png'} is a folder; expected room for the file wahba.png\n"
+    code, err = _run(["attitude", "quadflip", "--knots", "12", "--out", str(tmp_path / "k")], capsys)
+    assert code == 2 and "two attitude waypoints on one knot" in err and not (tmp_path / "k").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a", "w"] and not (tmp_path / "w" / "wahba.npz").exists()
+
+
+def test_attitude_writes_its_provenance(tmp_path, capsys, monkeypatch):
+    """jtraj attitude's folder had no provenance.json (jtraj solve's and the sweeps' do)."""
+    import jtraj.attitude.cli
+
+    monkeypatch.setattr(jtraj.attitude.cli, "main", lambda *a, **k: 0)
+    code, _ = _run(["attitude", "quadflip", "--out", str(tmp_path)], capsys)
+    prov = json.loads((tmp_path / "provenance.json").read_text())
+    assert code == 0 and prov["command"] == f"jtraj attitude quadflip --out {tmp_path}" and prov["complete"] is True
