@@ -165,9 +165,12 @@ class RayExecutor(AbstractExecutor):
                 kwargs["_system_config"] = {"worker_niceness": 0}
             _reachable(self.address)
             try:
-                # None: a fresh instance. ray.init(address=None) joined a cluster running on this
-                # machine (or RAY_ADDRESS's), which refuses _system_config: "could not connect at None"
-                ray.init(address="local" if self.address is None else self.address, **kwargs)
+                # ray.init sets its own SIGTERM handler (sys.exit): the caller's (jtraj's command
+                # line turns SIGTERM into Ctrl-C's cleanup and exit status 143) is put back
+                with _keep_sigterm_handler():
+                    # None: a fresh instance. ray.init(address=None) joined a cluster running on this
+                    # machine (or RAY_ADDRESS's), which refuses _system_config: "could not connect at None"
+                    ray.init(address="local" if self.address is None else self.address, **kwargs)
             except (ConnectionError, ValueError) as e:  # no cluster there, or a malformed address
                 if self.address is None:
                     raise ExecutorUnavailableError(f"Ray could not start a local instance: {e} (give the address of a running cluster with --ray-address, or use --executor local)") from None
@@ -213,6 +216,24 @@ class RayExecutor(AbstractExecutor):
         except BaseException:
             _cancel(ray, pending)
             raise
+
+
+@contextlib.contextmanager
+def _keep_sigterm_handler():
+    """Put back the SIGTERM handler the block replaced (in the main thread, the only one that
+    can set one)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.getsignal(signal.SIGTERM)
+    try:
+        yield
+    finally:
+        if previous is not None:  # None: set outside Python, which cannot be put back
+            signal.signal(signal.SIGTERM, previous)
 
 
 def _cancel(ray, pending) -> None:

@@ -539,7 +539,7 @@ def read_runs(path: str | Path, progress: TextIO | None = None) -> list[dict]:
         found = [f"line(s) {_lines(bad)} did not parse"] if bad else []
         if odd:
             found.append(f"line(s) {_lines([line for line, _ in odd])} are not runs ({'; '.join(f'line {line}: {why}' for line, why in odd[:3])}{'; ...' if len(odd) > 3 else ''})")
-        print(f"warning: {path}: {' and '.join(found)}; the file was moved to {aside} and its {len(records)} good runs kept", file=progress or sys.stderr, flush=True)
+        print(f"warning: {path}: {' and '.join(found)}; the file was copied to {aside} and its {len(records)} good runs kept", file=progress or sys.stderr, flush=True)
     seen: dict[tuple, dict] = {}
     for r in records:
         seen.setdefault(run_key(r), r)

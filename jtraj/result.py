@@ -311,8 +311,10 @@ class Result:
             # the numbers of these tables are floats too (NaN for a failed group or iteration)
             fields["violation_by_group"] = _nan_for_null(fields["violation_by_group"])
             fields["history"] = [_nan_for_null(row) for row in fields["history"]] if isinstance(fields["history"], list) else fields["history"]
-            fields["metrics"] = _restore_metrics(fields["metrics"], data.get(_NON_FINITE_KEY))
-            _restore_non_finite(fields, data.get(_NON_FINITE_VALUES_KEY))
+            if _NON_FINITE_VALUES_KEY in data:  # each non-finite number where it was
+                _restore_non_finite(fields, data[_NON_FINITE_VALUES_KEY])
+            else:  # a file from before that list: a named metric's nulls are NaN
+                fields["metrics"] = _restore_metrics(fields["metrics"], data.get(_NON_FINITE_KEY))
         except KeyError as e:
             raise io.FileFormatError(f"{path}: missing field {e.args[0]!r}; not a jtraj result") from None
         except ValueError as e:

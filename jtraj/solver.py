@@ -357,7 +357,8 @@ def _hessian_conflict(options: dict[str, Any]) -> tuple[str, Any] | None:
     """The option of ``options`` that asks for another Hessian than the exact one (Ipopt's
     ``hessian_approximation``, the backends' ``hessian``), as (name, value); None if none does."""
     for key in ("hessian_approximation", "hessian"):
-        if key in options and options[key] != "exact":
+        # Ipopt takes its strings in any case ("EXACT"), as `IpoptOptions.from_dict` does
+        if key in options and not (isinstance(options[key], str) and options[key].lower() == "exact"):
             return key, options[key]
     return None
 

@@ -401,6 +401,34 @@ def test_no_address_starts_a_fresh_local_instance(monkeypatch):
         RayExecutor().connect()
 
 
+def test_ray_init_leaves_the_callers_sigterm_handler(monkeypatch):
+    """ray.init sets a SIGTERM handler of its own (sys.exit(15)), which replaced the one jtraj's
+    command line sets: SIGTERM during a Ray sweep ended it with status 15, without its message
+    of what was kept."""
+    import signal
+
+    calls: dict = {}
+    ray = _fake_ray(calls)
+    init = ray.init
+
+    def init_setting_a_handler(*args, **kwargs):
+        signal.signal(signal.SIGTERM, lambda signum, frame: sys.exit(signum))
+        return init(*args, **kwargs)
+
+    monkeypatch.setattr(ray, "init", init_setting_a_handler)
+    monkeypatch.setitem(sys.modules, "ray", ray)
+
+    def mine(signum, frame):
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, mine)
+    try:
+        RayExecutor().connect()
+        assert signal.getsignal(signal.SIGTERM) is mine and calls["address"] == "local"
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def test_an_address_nothing_answers_at_is_refused_before_ray_init(monkeypatch):
     """``ray.init`` retries a HOST:PORT that takes no connection for minutes without a word
     (127.0.0.1:1 was still waiting after 500 s): such an address is refused at once, and

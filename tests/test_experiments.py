@@ -926,7 +926,7 @@ def test_rows_that_are_not_runs_are_set_aside_with_the_torn_lines(tmp_path, fake
     warning, resuming = stream.getvalue().splitlines()[:2]
     assert warning == (
         f"warning: {path}: line(s) [8] did not parse and line(s) [3, 4, 5] are not runs (line 3: a JSON list, not an object; line 4: no 'task_hash'; "
-        f"line 5: no 'success'); the file was moved to {path}.corrupt-1 and its 3 good runs kept"
+        f"line 5: no 'success'); the file was copied to {path}.corrupt-1 and its 3 good runs kept"
     )
     assert resuming == f"resuming: 2 of this call's 3 runs already in {path}; its 1 runs of other settings are kept"
     assert [r["replicate"] for r in runs] == [0, 1, 2] and [p for _, p, _ in fake_solves] == ["se3"]  # replicate 1 solved again
@@ -953,7 +953,7 @@ def test_rows_with_values_of_another_kind_are_set_aside_with_the_torn_lines(tmp_
     warning, note, resuming = stream.getvalue().splitlines()[:3]
     assert warning == (
         f"warning: {path}: line(s) [1, 2, 4] are not runs (line 1: 'sigma' is an array (expected a number); line 2: 'constraint_violation' is a string (expected a number or null); "
-        f"line 4: 'seed' is a string (expected an integer), 'iterations' is true (expected an integer)); the file was moved to {path}.corrupt-1 and its 2 good runs kept"
+        f"line 4: 'seed' is a string (expected an integer), 'iterations' is true (expected an integer)); the file was copied to {path}.corrupt-1 and its 2 good runs kept"
     )
     assert note.startswith("note: 1 runs in ") and resuming == f"resuming: 1 of this call's 3 runs already in {path}"
     assert [r["replicate"] for r in runs] == [0, 1, 2] and len(fake_solves) == 2  # replicates 0 and 1 solved again

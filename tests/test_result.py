@@ -147,6 +147,12 @@ def test_infinities_in_the_options_and_metrics_come_back_as_they_were(tmp_path):
     assert back.metrics["margin"] == -float("inf") and back.metrics["gap"] == [0.5, float("inf")] and back.metrics["turns"] is None
 
 
+def test_a_none_beside_an_infinity_in_a_metric_stays_none(tmp_path):
+    """The older list of metrics with non-finite numbers made every null of such a metric NaN."""
+    back = Result.load(make_result(None, metrics={"margins": {"keep_out": None, "sun": float("inf")}, "turns": None}).save(tmp_path))
+    assert back.metrics["margins"] == {"keep_out": None, "sun": float("inf")}
+
+
 def test_a_list_of_non_finite_values_naming_no_null_is_refused(tmp_path):
     import json
 

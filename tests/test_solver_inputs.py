@@ -300,6 +300,8 @@ def test_exact_hessian_refuses_another_hessian_option():
         with pytest.raises(ValueError, match="with exact_hessian=True"):
             solver_options(backend, {key: value}, None, True, 10)
     assert solver_options(ipopt, None, {"hessian_approximation": "exact"}, True, 10).hessian == "exact"
+    # Ipopt's own spelling in any case, as its options take it (it was refused as a conflict)
+    assert solver_options(ipopt, None, {"hessian_approximation": "EXACT"}, True, 10).hessian == "exact"
     assert solver_options(jt, None, {"hessian": "exact"}, True, 10).hessian == "exact"
     assert solver_options(ipopt, None, {"hessian_approximation": "limited-memory"}, False, 10).hessian == "lbfgs"
 
