@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import sys
 import warnings
 from pathlib import Path
@@ -42,6 +43,9 @@ def split_cpu(count: int | None = None) -> int | None:
     if count is None:
         given = os.environ.get("JTRAJ_CPU_DEVICES")
         try:
+            # ASCII digits only: int() also read "1_6" as 16 and other scripts' digits
+            if given and not re.fullmatch(r"\s*[+-]?[0-9]+\s*", given):
+                raise ValueError
             count = int(given) if given else cpu_count()
         except ValueError:
             raise ValueError(f"JTRAJ_CPU_DEVICES={given!r}: expected a positive whole number of CPU devices") from None
@@ -85,7 +89,8 @@ def enable_compilation_cache(path: str | Path | None = None) -> Path | None:
     global _enabled
     if os.environ.get("JTRAJ_NO_CACHE", "").strip().lower() not in ("", "0", "false", "no", "off"):
         return None
-    target = Path(path) if path is not None else Path(os.environ.get("JTRAJ_CACHE_DIR") or default_cache_dir())
+    # "~/x" (a quoted path in a shell, or a .env file) made a folder named "~" here
+    target = (Path(path) if path is not None else Path(os.environ.get("JTRAJ_CACHE_DIR") or default_cache_dir())).expanduser()
     if _enabled == target:
         return target
     try:

@@ -41,6 +41,7 @@ import math
 import numpy as np
 
 from jtraj.lie import rotation_steps
+from jtraj.numbers import is_real, unit_and_length
 
 __all__ = ["TURN_TOLERANCE", "OFF_AXIS_SHARE", "MAX_STEP", "FEASIBILITY_TOL", "TaskCheck", "rotation_vector", "evaluate"]
 
@@ -133,11 +134,18 @@ def evaluate(base_xyz_wxyz: np.ndarray, flip_axis=None, flip_turns: float | None
             )
         return TaskCheck(True, None, total, None, "")
     e = np.asarray(flip_axis, float)
-    if e.shape != (3,) or not np.all(np.isfinite(e)) or np.linalg.norm(e) == 0:
+    if e.shape != (3,) or not np.all(np.isfinite(e)):
+        raise ValueError(f"flip_axis is {flip_axis!r}; expected a nonzero 3-vector")
+    # normalized without overflow or underflow: np.linalg.norm made [0, 1e200, 0] a zero axis
+    # (a done back-flip then failed) and refused [1e-200, 0, 0] as zero
+    e, length = unit_and_length(e)
+    if length == 0:
         raise ValueError(f"flip_axis is {flip_axis!r}; expected a nonzero 3-vector")
     if flip_turns is None:
         raise ValueError("flip_axis needs flip_turns (expected signed turns about it)")
-    e = e / np.linalg.norm(e)
+    if not (is_real(flip_turns) and math.isfinite(flip_turns)):
+        # NaN compared False with the turn test, which every motion then passed
+        raise ValueError(f"flip_turns is {flip_turns!r}; expected a finite number of signed turns about flip_axis")
     along = float(a @ e)
     turns = along / (2 * math.pi)
     share = float(np.linalg.norm(a - along * e) / norm) if norm > 0 else 0.0

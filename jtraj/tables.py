@@ -3,6 +3,7 @@ III, the attitude benchmarks), and the JSON next to it."""
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
@@ -13,8 +14,11 @@ __all__ = ["markdown_table", "write_table"]
 
 
 def _cell(value: Any) -> str:
-    # a '|' would end the cell and a line break the row: escaped, and written as a space
-    return " ".join(str(value).splitlines()).replace("|", "\\|")
+    # a '|' would end the cell and a line break the row: escaped, and written as a space. The
+    # backslashes before a '|' are doubled first: a cell's own '\' would escape the escape
+    # ('a\|b' written as 'a\\|b' ended the cell at that '|')
+    text = " ".join(str(value).splitlines())
+    return re.sub(r"(\\*)\|", lambda m: m.group(1) * 2 + "\\|", text)
 
 
 def markdown_table(header: Sequence[str], rows: Iterable[Sequence[Any]], note: str = "") -> str:

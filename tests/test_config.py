@@ -71,6 +71,8 @@ def test_a_bad_device_count_says_what_is_expected():
         # the message names the variable that gave the count, not only the count
         ("0", "JTRAJ_CPU_DEVICES='0': 0 CPU devices; expected a positive count (unset JTRAJ_CPU_DEVICES for one device per core)"),
         ("-2", "JTRAJ_CPU_DEVICES='-2': -2 CPU devices; expected a positive count (unset JTRAJ_CPU_DEVICES for one device per core)"),
+        # int() read "1_6" as 16 devices
+        ("1_6", "JTRAJ_CPU_DEVICES='1_6': expected a positive whole number of CPU devices"),
     ],
 )
 def test_a_bad_device_count_is_one_line_of_the_command_line(value, line):
@@ -98,10 +100,13 @@ def test_split_cpu_leaves_a_started_jax_alone():
         # an empty folder name put the cache into the working directory
         ({"JTRAJ_CACHE_DIR": ""}, "default"),
         ({"JTRAJ_CACHE_DIR": "elsewhere"}, "elsewhere"),
+        # a "~" was not expanded: a folder named "~" in the working directory
+        ({"JTRAJ_CACHE_DIR": "~/cache"}, "home/cache"),
     ],
 )
 def test_cache_switches_read_as_documented(monkeypatch, tmp_path, env, expected):
     monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
     for name in ("JTRAJ_NO_CACHE", "JTRAJ_CACHE_DIR"):
         monkeypatch.delenv(name, raising=False)

@@ -61,6 +61,17 @@ def test_zero_axis_and_missing_turns_are_errors():
         success.evaluate(traj, flip_axis=Y)
 
 
+def test_nan_turns_and_extreme_axis_lengths():
+    """NaN flip_turns passed every motion (NaN compares False with the turn test); an axis of
+    length 1e200 normalized to zero (a done back-flip failed) and one of 1e-200 was refused."""
+    traj = _about(Y, _ramp(-2 * np.pi))
+    with pytest.raises(ValueError, match=r"flip_turns is nan; expected a finite number of signed turns"):
+        success.evaluate(_about(Y, np.zeros(10)), flip_axis=Y, flip_turns=float("nan"))
+    for length in (1e200, 1e-200):
+        check = success.evaluate(traj, flip_axis=[0.0, length, 0.0], flip_turns=-1)
+        assert check.ok and check.turns == pytest.approx(-1.0, abs=1e-12), check.reason
+
+
 def test_tasks_without_flip_reject_a_somersault():
     there_and_back = np.concatenate([_ramp(np.pi), np.linspace(np.pi, 0.0, 20)])
     assert success.evaluate(_about(Y, there_and_back)).ok  # a handstand: over and back

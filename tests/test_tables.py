@@ -33,6 +33,14 @@ def test_a_pipe_or_a_line_break_in_a_cell_keeps_the_columns():
     assert _cells(lines[3]) == ["line one line two", r"failed \| restored"]
 
 
+def test_a_backslash_before_a_pipe_keeps_the_columns():
+    """A cell's own backslash before a '|' escaped the escape: 'a\\|b' ended the cell there."""
+    lines = markdown_table(["path", "status"], [["a\\|b", "ok"], ["C:\\dir\\", "x"]]).splitlines()
+    assert [len(_cells(line)) for line in lines if not line.startswith("|---")] == [2, 2, 2]
+    assert _cells(lines[2]) == ["a\\\\\\|b", "ok"]  # '\\' (the backslash) then '\|' (the pipe)
+    assert _cells(lines[3]) == ["C:\\dir\\", "x"]  # no pipe: as given
+
+
 def test_plain_cells_are_written_as_given():
     assert markdown_table(("a", "b"), [(1, None), (float("nan"), "x")], note="n.") == "| a | b |\n|---|---|\n| 1 | None |\n| nan | x |\n\nn.\n"
 
