@@ -811,7 +811,8 @@ def summarize_robustness(runs: list[dict]) -> list[dict]:
     several: the rate of runs that converged to a feasible point (the solver's success and
     largest constraint violation below `jtraj.success.FEASIBILITY_TOL`, the paper's Table III
     success), the rate that moreover did the task (`jtraj.success`: e.g. a flip with the right
-    sign, count and axis), and iterations of the converged runs."""
+    sign, count and axis), and iterations of the converged runs. The runs of a cell must share
+    their other settings (`_CELL_SETTINGS`; a ValueError otherwise)."""
     # the paper's order: tasks as in Table III, parameterizations as in Table I, then others
     task_rank = {t: i for i, t in enumerate(("walk", "big_jump", "backflip", "sideflip", "hopscotch", "handstand"))}
     param_rank = {p: i for i, p in enumerate(PARAMETERIZATIONS)}
@@ -822,6 +823,7 @@ def summarize_robustness(runs: list[dict]) -> list[dict]:
     rows = []
     for task, p, solver, chart, sigma in keys:
         sel = [r for r in runs if (r["task"], r["parameterization"], *_setting(r), r["sigma"]) == (task, p, solver, chart, sigma)]
+        _refuse_mixed_settings(sel, task, p, sigma)
         conv = [r for r in sel if _converged(r)]
         its = np.array([r["iterations"] for r in conv]) if conv else np.array([])
         rows.append(
@@ -841,6 +843,26 @@ def summarize_robustness(runs: list[dict]) -> list[dict]:
             )
         )
     return rows
+
+
+#: the settings of a run that Table III's cells do not tell apart (its rows show the solver and
+#: the noise chart): a cell's runs must share them
+_CELL_SETTINGS = ("task_hash", "robot_hash", "layout", "variables_hash", "hessian", "options_hash", "seed")
+
+
+def _refuse_mixed_settings(runs: list[dict], task: str, p: str, sigma: float) -> None:
+    """ValueError where the runs of one Table III cell come from different settings (another
+    task file, robot, variables, Hessian, solver options or seed: a runs.jsonl keeps the runs of
+    earlier settings beside a study's, `robustness`): counted together, the cell's rates had a
+    mixed denominator. A field an earlier file did not record (null) matches any value."""
+    for field in _CELL_SETTINGS:
+        values = sorted({str(v) for r in runs if (v := r.get(field, _KEY_DEFAULTS.get(field))) is not None})
+        if len(values) > 1:
+            raise ValueError(
+                f"Table III: the runs of {task} / {p} at sigma {sigma:g} differ in {field} ({', '.join(values[:4])}{', ...' if len(values) > 4 else ''}); "
+                f"expected one setting's runs per cell: select them first (e.g. the runs whose {field} is one of these; "
+                "jtraj robustness writes each call's own table)"
+            )
 
 
 def table_iii(runs: list[dict], iterations: bool = False) -> str:

@@ -283,6 +283,23 @@ def test_summary_keeps_solvers_and_noise_charts_apart(tmp_path, monkeypatch):
     assert [(r["solver"], r["noise_chart"]) for r in summarize_robustness(old)] == [("ipopt", None)]
 
 
+def test_table_iii_refuses_a_cell_whose_runs_come_from_different_settings():
+    """A runs.jsonl keeps the runs of earlier settings beside a study's (another seed, options,
+    Hessian...); Table III of the file's rows counted them in one cell, over a mixed
+    denominator. A field an earlier file did not record matches any value."""
+    from jtraj.experiments import summarize_robustness, table_iii
+
+    def run(seed, converged, **more):
+        return dict(task="walk", parameterization="se3", sigma=0.1, converged=converged, constraint_violation=1e-9, success=converged, iterations=20, seed=seed, **more)
+
+    with pytest.raises(ValueError, match=r"^Table III: the runs of walk / se3 at sigma 0.1 differ in seed \(0, 7\); expected one setting's runs per cell"):
+        table_iii([run(0, True), run(7, False)])
+    with pytest.raises(ValueError, match=r"differ in options_hash \(a, b\)"):
+        summarize_robustness([run(0, True, options_hash="a"), run(0, True, options_hash="b")])
+    (row,) = summarize_robustness([run(0, True, robot_hash="r1"), run(0, False)])  # the second's robot not recorded
+    assert row["runs"] == 2 and row["converged_rate"] == 0.5
+
+
 def test_table_iii_counts_a_converged_run_only_when_it_is_feasible():
     """The paper's Table III success is "converged to a feasible point": a run the solver calls
     converged with a violation at or over `FEASIBILITY_TOL` is not counted, nor are its
