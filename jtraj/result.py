@@ -275,8 +275,9 @@ class Result:
         data = self.to_json()
         for name in (*DERIVED_FILES, PROVENANCE_FILE):
             (d / name).unlink(missing_ok=True)
-        non_finite = [str(key) for key, value in self.metrics.items() if _has_non_finite(value)]
         exact = [[[name, *path], text] for name in _EXACT_FIELDS for path, text in _non_finite_values(getattr(self, name))]
+        # the earlier list, of the metrics holding one, for readers of files before the exact one
+        non_finite = list(dict.fromkeys(path[1] for path, _ in exact if path[0] == "metrics"))
         # the two files are replaced one after the other: the digest ties them together
         io.write_json(
             d / RESULT_FILE,
@@ -341,21 +342,6 @@ def _nan_for_null(table: Any) -> Any:
     """A table of floats as read back: its nulls (NaN and infinities when written) are NaN
     (`_all_nan_for_null`); anything but a table as it is."""
     return _all_nan_for_null(table) if isinstance(table, dict) else table
-
-
-def _has_non_finite(value: Any) -> bool:
-    """Whether ``value`` (a metric: a number, an array, or lists and dicts of them) holds a NaN
-    or an infinity, which strict JSON writes as null."""
-    if isinstance(value, (float, np.floating)):
-        return not math.isfinite(value)
-    if isinstance(value, dict):
-        return any(_has_non_finite(v) for v in value.values())
-    if isinstance(value, (list, tuple)):
-        return any(_has_non_finite(v) for v in value)
-    if isinstance(value, np.ndarray) or (hasattr(value, "__array__") and hasattr(value, "dtype")):
-        a = np.asarray(value)
-        return a.dtype.kind == "f" and not bool(np.isfinite(a).all())
-    return False
 
 
 def _non_finite_values(value: Any, path: tuple = ()) -> list[tuple[list, str]]:
