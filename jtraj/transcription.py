@@ -494,16 +494,17 @@ class Transcription:
             return jnp.asarray(self.task.target_joints, float)
         return theta.q_joints_standing
 
-    def _boundary_problem(self, theta: TaskParams) -> tuple[str, str] | None:
+    def _boundary_problem(self, theta: TaskParams, x0: np.ndarray | None = None) -> tuple[str, str] | None:
         """What keeps the fixed first or last knot of ``theta`` (concrete values) off the
         terrain the task's phases put them on, or None: ``("stance", said)`` phase 0's contact
         points more than `STANCE_SPREAD` apart in height in the standing pose; ``("first", said)`` another
         point below the terrain at the first knot (the stance lowered onto the terrain); ``("last",
         said)`` a point touching in the last phase off the terrain at the target pose (with the
         target joints), or another one below it. No solver could meet those knots' contact or
-        clearance rows (the heights are the fixed knots' alone)."""
+        clearance rows (the heights are the fixed knots' alone). ``x0``: theta's initial pose
+        (`_initial_xyz_wxyz`), where the caller has it."""
         host, task = self._host, self.task
-        x0 = np.asarray(host["initial"](theta))
+        x0 = np.asarray(host["initial"](theta)) if x0 is None else x0
         xN = np.asarray(host["target"](x0, theta))
         qj0 = np.asarray(theta.q_joints_standing, float)
         qjN = qj0 if task.target_joints is None else np.asarray(task.target_joints, float)
@@ -532,7 +533,9 @@ class Transcription:
         """Standing base pose, lowered/raised so the first phase's contact points touch the
         terrain. Checks the task's fixed first and last knots (`_boundary_problem`), naming the
         robot or the task file's key."""
-        problem = self._boundary_problem(self.default_theta())
+        theta = self.default_theta()
+        x0 = np.asarray(self._host["initial"](theta))
+        problem = self._boundary_problem(theta, x0)
         if problem is not None:
             kind, said = problem
             task = self.task
@@ -555,7 +558,7 @@ class Transcription:
             else:
                 field, value = "target_translation", list(task.target_translation)
             raise self._task_error(field, value, f"{said}; expected a target whose touching points rest on the terrain and others above it (the last knot is fixed at the target)")
-        return np.asarray(self._host["initial"](self.default_theta()))
+        return x0
 
     @cached_property
     def target_xyz_wxyz(self) -> np.ndarray:
