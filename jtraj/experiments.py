@@ -630,13 +630,6 @@ def _robustness_group_in_worker(*args) -> int:
     return _robustness_group(*args, progress=sys.stdout if verbose else None)
 
 
-def _robustness_group_rows(*args) -> Iterator[dict]:
-    """`_robustness_rows` on a machine that may not see the study's folder (a Ray node): a
-    streaming task (`jtraj.executors.RayExecutor.stream`) that hands back each run's row as
-    it is solved, which the caller appends to runs.jsonl; it prints nothing (the caller does)."""
-    yield from _robustness_rows(*args, progress=None)
-
-
 def robustness(
     tasks: Sequence[str | Task] = ROBUSTNESS_TASKS,
     params: Sequence[str | AbstractParameterization] = ROBUSTNESS_PARAMS,
@@ -748,9 +741,11 @@ def robustness(
                     for _ in groups:
                         pass
             else:
-                # each row as it is solved on the cluster: an interrupt or a failing group keeps
-                # the runs that came back (they came only at a group's end, and were lost with it)
-                rows = executor_for(executor, workers, ray_address).stream(_robustness_group_rows, [a[:-1] for a in args])
+                # each row as it is solved on the cluster (a streaming task, on a machine that
+                # may not see the study's folder; it prints nothing, this process does): an
+                # interrupt or a failing group keeps the runs that came back (they came only at
+                # a group's end, and were lost with it)
+                rows = executor_for(executor, workers, ray_address).stream(_robustness_rows, [a[:-1] for a in args])
                 with contextlib.closing(rows):
                     for _, row in rows:
                         jio.append_jsonl(runs_path, row)
