@@ -9,7 +9,7 @@ import numpy as np
 
 from jtraj import io as jio
 from jtraj.lie import accumulated_rotation
-from jtraj.result import Result
+from jtraj.result import Result, stale_trajectory_note
 
 __all__ = ["plot_result", "plot_convergence", "plot_solution", "plot_comparison", "plot_directory", "friction_pyramid_ratio"]
 
@@ -308,9 +308,7 @@ def plot_directory(directory: str | Path, out: str | Path | None = None) -> list
         raise FileNotFoundError(f"{directory}: neither result.json (a `jtraj solve` folder) nor table_iv.json (a `jtraj compare` folder)")
     result = Result.load(directory)
     if result.trajectory is None:
-        # Result.load leaves out a trajectory file beside a result saved without one
-        stale = "; the trajectory.npz beside it is an earlier solve's" if (directory / "trajectory.npz").exists() else ""
-        raise jio.FileFormatError(f"{directory / 'result.json'}: saved without a trajectory, nothing to plot against time{stale}")
+        raise jio.FileFormatError(f"{directory / 'result.json'}: saved without a trajectory, nothing to plot against time{stale_trajectory_note(directory)}")
     # Result.plot: the whole-body figure, or an attitude benchmark's own
     solution = out / "solution.png"
     result.plot(solution)

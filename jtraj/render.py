@@ -432,14 +432,13 @@ def _side_by_side(images: Sequence[np.ndarray]) -> np.ndarray:
 
 
 def _as_result(result) -> Result:
-    from jtraj.result import Result
+    from jtraj.result import Result, result_folder, stale_trajectory_note
 
     if isinstance(result, (str, Path)):
-        folder = Path(result)
+        folder = result_folder(result)
         result = Result.load(folder)
-        folder = folder.parent if folder.is_file() else folder  # the result's own file named instead, as Result.load takes
-        if result.trajectory is None and (folder / "trajectory.npz").exists():  # left out by Result.load
-            raise NotDrawable(f"{folder / 'result.json'}: saved without a trajectory, nothing to draw; the trajectory.npz beside it is an earlier solve's")
+        if result.trajectory is None and (stale := stale_trajectory_note(folder)):
+            raise NotDrawable(f"{folder / 'result.json'}: saved without a trajectory, nothing to draw{stale}")
     elif not isinstance(result, Result):
         raise TypeError(f"render takes a Result or the folder `jtraj solve` wrote, got a {type(result).__name__} (pass the Result itself, not its trajectory)")
     if result.trajectory is None:

@@ -295,11 +295,7 @@ class Result:
         """Read a result saved by `save` from its folder (or its ``result.json`` or
         ``trajectory.npz``); `jtraj.io.FileFormatError` names the file that is missing, empty
         or corrupt."""
-        d = Path(directory)
-        if d.is_file():
-            if d.name not in (RESULT_FILE, TRAJECTORY_FILE):
-                raise io.FileFormatError(f"{d}: is a file; expected a result's folder (with {RESULT_FILE})")
-            d = d.parent  # one of the result's own files named instead of its folder
+        d = result_folder(directory)
         path = d / RESULT_FILE
         data = io.read_json(path)
         if not isinstance(data, dict):
@@ -331,6 +327,25 @@ class Result:
             if _DIGEST_KEY in data and data[_DIGEST_KEY] != digest:
                 raise io.FileFormatError(f"{npz}: not the trajectory of {path} (its digest differs: a save interrupted between the two files?)")
         return cls(**fields, stats=stats, trajectory=trajectory)
+
+
+def result_folder(path: str | Path) -> Path:
+    """The folder of the result ``path`` names: the folder itself, or one of the result's own
+    files (``result.json``, ``trajectory.npz``) named instead; `jtraj.io.FileFormatError` for
+    another file."""
+    d = Path(path)
+    if d.is_file():
+        if d.name not in (RESULT_FILE, TRAJECTORY_FILE):
+            raise io.FileFormatError(f"{d}: is a file; expected a result's folder (with {RESULT_FILE})")
+        d = d.parent
+    return d
+
+
+def stale_trajectory_note(folder: str | Path) -> str:
+    """For a result in ``folder`` saved without a trajectory (`Result.load` leaves out a
+    trajectory file beside it): ``"; the trajectory.npz beside it is an earlier solve's"``
+    where there is one, else nothing."""
+    return f"; the {TRAJECTORY_FILE} beside it is an earlier solve's" if (Path(folder) / TRAJECTORY_FILE).exists() else ""
 
 
 def _float_or_nan(field: dataclasses.Field, value: Any) -> Any:
