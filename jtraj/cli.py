@@ -766,6 +766,10 @@ def _input_errors() -> tuple[type[BaseException], ...]:
     # command that has not imported it (jtraj params, wahba) cannot have raised its errors
     if experiments := sys.modules.get("jtraj.experiments"):
         errors += (experiments.NoiseChartError, experiments.RepeatedValueError)
+    # a robot that cannot be loaded (JTRAJ_ROBOT_DATA not a folder, example-robot-data missing,
+    # a robot file's URDF): loading one imports jtraj.robot
+    if robot := sys.modules.get("jtraj.robot"):
+        errors += (robot.RobotLoadError,)
     return errors
 
 

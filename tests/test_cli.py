@@ -111,6 +111,20 @@ def test_bad_command_lines(argv, line, capsys, no_solve):
     assert err.count("\n") == 1
 
 
+def test_a_robot_that_cannot_be_loaded_is_one_line(monkeypatch, capsys, no_solve):
+    """A bad JTRAJ_ROBOT_DATA (or no example-robot-data) raises RobotLoadError as the task's
+    robot loads: one line naming it and exit status 2, not a traceback."""
+    import jtraj.robot
+
+    def unloadable(name):
+        raise jtraj.robot.RobotLoadError(f"{jtraj.robot.ROBOT_DATA_ENV}='/nonexistent' is not a folder")
+
+    monkeypatch.setattr(jtraj.robot, "load", unloadable)
+    code, err = _run(["solve", "walk"], capsys)
+    assert code == 2
+    assert err == "jtraj solve: JTRAJ_ROBOT_DATA='/nonexistent' is not a folder\n"
+
+
 def test_out_must_be_a_writable_folder(tmp_path, capsys, no_solve):
     afile = tmp_path / "notes.txt"
     afile.write_text("x")
