@@ -540,7 +540,12 @@ class Transcription:
             kind, said = problem
             task = self.task
             if kind == "stance":
-                raise ValueError(f"the standing pose of {self.robot.name!r} {said}")
+                # phase 0's contacts (e.g. the feet and a hand) are what the standing pose does
+                # not put level, more often than the robot's standing pose itself
+                raise self._task_error(
+                    "phases[0].contacts", list(task.phases[0].contacts),
+                    f"the standing pose of {self.robot.name!r} {said}; expected contacts of phase 0 that the robot's standing pose puts level (its feet, on a biped or quadruped)",
+                )
             if kind == "first":
                 # a point lower than phase 0's contacts in the standing pose (the feet, for a
                 # task that starts on the hands)

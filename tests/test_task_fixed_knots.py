@@ -56,6 +56,19 @@ def test_a_first_phase_on_the_hands_is_refused(tmp_path):
         tr.warm_start()
 
 
+def test_a_first_phase_the_standing_pose_does_not_put_level_is_refused(tmp_path):
+    # the feet and a hand: the standing pose holds the hand far above the feet, which was a
+    # ValueError blaming the robot (a traceback from the command line), not the task's key
+    path = _file(tmp_path, 'contacts = ["left_foot", "right_foot"]', 'contacts = ["left_foot", "right_foot", "left_hand"]')
+    tr = _transcription(tasks.load(path))
+    expected = (
+        rf"^{re.escape(path)}: phases\[0\].contacts: \['left_foot', 'right_foot', 'left_hand'\]: the standing pose of 'talos' puts the contact points of phase 0 "
+        r"\d+ mm apart in height \(on flat ground: within 0.1 mm, which the fixed first knot's contact rows allow\); expected contacts of phase 0 that the robot's standing pose puts level"
+    )
+    with pytest.raises(TaskError, match=expected):
+        tr.build_nlp()
+
+
 def test_a_first_phase_on_one_foot_is_accepted():
     # the other foot is as low, not lower: it stays on the terrain, where clearance allows it
     task = tasks.load("big_jump")
