@@ -533,6 +533,22 @@ def _check_fixed_knots(name: str, task) -> None:
         raise (e if e.source else e.with_source(_task_file(name))) from None
 
 
+def _check_euler_warm_start(tasks_or_names: list, variables) -> None:
+    """A sweep's task whose warm-start rules the Euler angles cannot write with these variables
+    (`jtraj.transcription._check_euler_warm_start`), refused before the sweep starts."""
+    from jtraj import task as tasks
+    from jtraj.solver import VARIABLES
+    from jtraj.transcription import _check_euler_warm_start as check
+
+    options = VARIABLES[variables] if isinstance(variables, str) else variables
+    for item in tasks_or_names:
+        task = tasks.load(item) if isinstance(item, str) else item
+        try:
+            check(task, "euler", options)
+        except tasks.TaskError as e:
+            raise (e if e.source or not isinstance(item, str) else e.with_source(_task_file(item))) from None
+
+
 def _check_tasks(field: str, text: str, robots: dict[str, str] | None = None) -> list:
     """Every task named loads and passes the checks that need its robot, before any solve.
 
@@ -642,6 +658,8 @@ def _check_inputs(args: argparse.Namespace) -> None:
         _check_render_writer(cmd)
     if cmd == "solve":
         args.task_checked = _load_valid_task(args.task, args.robots_checked, all_used=True)
+        if args.param == "euler":
+            _check_euler_warm_start([args.task_checked], args.variables)
         args.out_checked = _solve_out(args)
         _check_out(args.out_checked)
         if not (math.isfinite(args.noise) and args.noise >= 0):
@@ -670,7 +688,9 @@ def _check_inputs(args: argparse.Namespace) -> None:
     elif cmd in ("compare", "robustness"):
         # sweeps: every name is checked before the first solve
         args.tasks_checked = _check_tasks("--tasks", args.tasks, args.robots_checked)
-        _check_params("--params", args.params)
+        params = _check_params("--params", args.params)
+        if "euler" in params:  # its cells run last in compare, after the others solved
+            _check_euler_warm_start(args.tasks_checked, args.variables)
         _check_positive_int("--workers", args.workers)
         # options of the other executor would be ignored without a word
         if args.ray_address is not None and args.executor != "ray":

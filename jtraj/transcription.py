@@ -327,6 +327,25 @@ class Trajectory:
     contact_names: tuple[str, ...]
 
 
+def _check_euler_warm_start(task: Task, param_name: str, options: TranscriptionOptions) -> None:
+    """Refuse, naming the task's key (and file), a warm-start rotation rule the Euler-angle
+    parameterization cannot write with ``warm_start_euler="angles"`` (the study's variables):
+    those add a rule's angle to one Euler angle, so its axis must be x, y or z. A task file's
+    rules may be about any axis; the other parameterizations and variables rotate the poses."""
+    if param_name != "euler" or options.warm_start_euler != "angles":
+        return
+    for i, rule in enumerate(task.warm_start_rules):
+        axis = np.asarray(rule.axis, float)
+        if np.count_nonzero(np.abs(axis) > 1e-12) != 1:
+            error = TaskError(
+                f"warm_start_rules[{i}].axis", axis.tolist(),
+                "with the Euler angles and warm_start_euler='angles' (the study's variables) a rule's angle is added to one Euler angle; "
+                "expected a principal axis (x, y or z), or other variables (e.g. compact)",
+            )
+            source = getattr(task, "_source", None)
+            raise error if source is None else error.with_source(source)
+
+
 class Transcription:
     """The transcription of ``task`` for ``robot`` in parameterization ``param``."""
 
@@ -336,6 +355,7 @@ class Transcription:
         if not isinstance(options, TranscriptionOptions):
             raise TypeError(f"options must be a TranscriptionOptions (jtraj.solver.VARIABLES[{options!r}] for a name), got {type(options).__name__}")
         task.validate(robot)
+        _check_euler_warm_start(task, param.name, options)  # before anything is built
         self.options = options
         self.robot = robot
         self.task = task

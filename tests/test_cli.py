@@ -785,6 +785,27 @@ def test_a_task_whose_first_knot_is_below_the_terrain_is_one_line_before_the_sol
             assert not (tmp_path / "sweep").exists()
 
 
+def test_a_rule_the_euler_angles_cannot_write_is_one_line_before_the_sweep(tmp_path, capsys, no_solve):
+    """A task file's warm-start rule about a diagonal axis, which the Euler angles with the
+    study's variables cannot write: a traceback from warm_start, and compare found it after the
+    other charts' cells had solved (euler runs last there)."""
+    import importlib.resources
+
+    text = (importlib.resources.files("jtraj.tasks") / "backflip.toml").read_text()
+    path = tmp_path / "diagonal.toml"
+    path.write_text(text.replace("\naxis = [0.0, 1.0, 0.0]", "\naxis = [1.0, 1.0, 0.0]", 1))
+    line = f"{path}: warm_start_rules[0].axis: [1.0, 1.0, 0.0]: with the Euler angles and warm_start_euler='angles'"
+    code, err = _run(["solve", str(path), "--param", "euler", "--variables", "paper", "--out", str(tmp_path / "run")], capsys)
+    assert code == cli.EXIT_BAD_INPUT and err.startswith(f"jtraj solve: {line}") and err.count("\n") == 1, err
+    for command in (["compare"], ["robustness", "--sigmas", "0.1", "--replicates", "1"]):
+        code, err = _run([*command, "--tasks", f"big_jump,{path}", "--params", "se3,euler", "--out", str(tmp_path / "sweep")], capsys)
+        assert code == cli.EXIT_BAD_INPUT and err.startswith(f"jtraj {command[0]}: {line}") and err.count("\n") == 1, err
+        assert not (tmp_path / "sweep").exists()
+    # other variables rotate the poses: the sweep goes on to its solves
+    with pytest.raises(AssertionError, match="a solve started"):
+        _run(["compare", "--tasks", str(path), "--params", "euler", "--variables", "compact", "--out", str(tmp_path / "sweep")], capsys)
+
+
 def test_attitude_and_wahba_refuse_an_output_they_could_not_write_before_solving(tmp_path, capsys, monkeypatch):
     """A file at OUT/BENCH_VARIANT failed jtraj attitude after its solve, a folder at
     OUT/wahba.png jtraj wahba after its other two files (tracebacks); a knot count a benchmark

@@ -98,3 +98,30 @@ def test_targets_that_keep_the_feet_on_the_terrain_are_accepted(rpy):
     # a turn about the vertical, and whole turns (a flip's target attitude is its start's)
     tr = _transcription(tasks.load("big_jump").replace(target_rotation_rpy=rpy))
     assert np.all(np.isfinite(tr.target_xyz_wxyz))
+
+
+def _diagonal_rule_file(tmp_path) -> str:
+    """backflip with its rotation rule about a diagonal axis (a task file may give any axis)."""
+    text = (importlib.resources.files("jtraj.tasks") / "backflip.toml").read_text()
+    assert "\naxis = [0.0, 1.0, 0.0]" in text
+    path = tmp_path / "diagonal.toml"
+    path.write_text(text.replace("\naxis = [0.0, 1.0, 0.0]", "\naxis = [1.0, 1.0, 0.0]", 1))
+    return str(path)
+
+
+def test_a_rule_the_euler_angles_cannot_write_is_refused_before_the_nlp(tmp_path):
+    # with the study's variables the Euler warm start adds a rule's angle to one Euler angle:
+    # a diagonal axis was a ValueError raised by warm_start, after the NLP was built
+    from jtraj.transcription import COMPACT_VARIABLES, PAPER_VARIABLES
+
+    path = _diagonal_rule_file(tmp_path)
+    task = tasks.load(path)
+    robot = robot_lib.load(task.robot)
+    expected = rf"^{re.escape(path)}: warm_start_rules\[0\].axis: \[1.0, 1.0, 0.0\]: with the Euler angles and warm_start_euler='angles' \(the study's variables\)"
+    with pytest.raises(TaskError, match=expected):
+        Transcription(robot, task, parameterization.get("euler"), PAPER_VARIABLES)
+    # the poses are rotated instead with other variables or another chart: accepted
+    for param, options in (("euler", COMPACT_VARIABLES), ("se3", PAPER_VARIABLES)):
+        tr = Transcription(robot, task, parameterization.get(param), options)
+        assert tr.warm_start().shape == (tr.N + 1, tr.layout.nz)
+
