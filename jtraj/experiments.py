@@ -427,13 +427,28 @@ def _robot_hash(name: str) -> str:
     return load_robot(name).content_hash()
 
 
+def _hessian_label(exact_hessian: bool, options) -> str:
+    """The Hessian a group's solves use, for its runs' key: ``"exact"``, ``"limited-memory"``
+    (the default of both solvers) or ``"bfgs"`` (jtraj's partitioned BFGS), from
+    ``exact_hessian`` or the solver options that ask for one (Ipopt's
+    ``hessian_approximation``, the backends' ``hessian``; any case, as the solvers take them)."""
+    if exact_hessian:
+        return "exact"
+    names = {"exact": "exact", "limited-memory": "limited-memory", "lbfgs": "limited-memory", "bfgs": "bfgs"}
+    for key in ("hessian_approximation", "hessian"):
+        value = (options or {}).get(key)
+        if isinstance(value, str) and value.lower() in names:
+            return names[value.lower()]
+    return "limited-memory"
+
+
 def _group_key(task: Task, p: str, variables: str | TranscriptionOptions, exact_hessian: bool, options, seed: int, solver: str, noise_chart: str | None = None) -> dict:
     """The `RUN_KEY` fields that every run of one (task, parameterization) group shares; a
     group's noise drawn in its own chart has ``noise_chart`` None, as before it was recorded."""
     return dict(
         robot_hash=_robot_hash(task.robot),
         task_hash=task.content_hash(), parameterization=p, layout=variables_label(variables), variables_hash=variables_hash(variables),
-        hessian="exact" if exact_hessian else "limited-memory", options_hash=_options_hash(options), seed=seed, solver=solver,
+        hessian=_hessian_label(exact_hessian, options), options_hash=_options_hash(options), seed=seed, solver=solver,
         noise_chart=None if noise_chart == p else noise_chart,
     )
 

@@ -117,6 +117,25 @@ def test_robustness_keys_changed_variables_by_their_label(tmp_path):
     assert paper[0]["layout"] == "paper" and len(read_runs(tmp_path / RUNS_FILE)) == 2
 
 
+@pytest.mark.parametrize(
+    ("exact_hessian", "options", "label"),
+    [
+        (False, None, "limited-memory"),
+        (True, None, "exact"),
+        # the solver options were not looked at: these runs were keyed "limited-memory"
+        (False, {"hessian_approximation": "exact"}, "exact"),
+        (False, {"hessian_approximation": "EXACT"}, "exact"),
+        (False, {"hessian": "exact"}, "exact"),
+        (False, {"hessian": "bfgs"}, "bfgs"),
+        (False, {"hessian": "lbfgs", "tol": 1e-4}, "limited-memory"),
+    ],
+)
+def test_robustness_keys_runs_by_the_hessian_they_solve_with(exact_hessian, options, label):
+    from jtraj.experiments import _group_key
+
+    assert _group_key(HOP, "se3", "paper", exact_hessian, options, 0, "jtraj")["hessian"] == label
+
+
 @pytest.mark.parametrize("sigma", [-0.1, float("nan"), float("inf")])
 def test_robustness_refuses_a_noise_level_that_is_no_standard_deviation(sigma, tmp_path):
     with pytest.raises(ValueError, match=r"robustness: sigma=.*: expected noise levels \(standard deviations\) >= 0"):
