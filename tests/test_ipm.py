@@ -342,6 +342,42 @@ def test_vmap_keeps_members_line_searches_apart():
     assert len({int(i) for i in batched.iterations}) > 1  # each member stopped at its own iteration
 
 
+def test_a_stopped_member_of_a_vmapped_batch_makes_no_inertia_correction(monkeypatch):
+    """Under vmap a member that has stopped still runs the batch's iteration (its results are
+    masked): one whose matrix holds a NaN (a log of a negative point) failed every trial of the
+    inertia correction, about 24 factorizations, in each of the other members' iterations."""
+    from jtraj.solvers import kkt
+
+    calls: list[int] = []
+    real = kkt.factor
+
+    def counting(*args, **kwargs):
+        fac, ok = real(*args, **kwargs)
+        jax.debug.callback(lambda ok: calls.append(1), ok)  # once per member and factorization
+        return fac, ok
+
+    monkeypatch.setattr(kkt, "factor", counting)
+    n = 4
+    layout = Layout((("p", 1), ("u", 1)))
+    costs = [CostGroup("c", (Dep("p"), Dep("u")), lambda th, d, p, u: 0.5 * jnp.sum((p - 2.0) ** 2) + 0.5 * jnp.sum(u**2), np.arange(n))]
+    groups = [
+        ConstraintGroup("log", (Dep("p"),), lambda th, d, p: jnp.log(p), np.arange(n), np.full((n, 1), -10.0), np.full((n, 1), np.inf), np.ones((n, 1), bool)),
+        ConstraintGroup("step", (Dep("p"), Dep("u"), Dep("p", 1)), lambda th, d, p, u, p1: p1 - p - u, np.arange(n - 1), np.zeros((n - 1, 1)), np.zeros((n - 1, 1)), np.ones((n - 1, 1), bool)),
+    ]
+    ipm = IPM(KnotNLP(layout, n, costs, groups, np.full((n, 2), -np.inf), np.full((n, 2), np.inf)), IpmOptions(max_iter=40, cpu_batch="vectorized"))
+    good = jnp.ones((n, 2))
+    run = jax.jit(jax.vmap(ipm.solve))
+    counts = []
+    for batch in (jnp.stack([good, good]), jnp.stack([good, good.at[:, 0].set(-1.0)])):
+        calls.clear()
+        r = jax.block_until_ready(run(batch))
+        counts.append(len(calls))
+    assert [IpmStatus(int(s)) for s in r.status] == [IpmStatus.CONVERGED, IpmStatus.NUMERICAL_ERROR]
+    assert int(r.iterations[0]) >= 2  # the batch iterated after the second member stopped
+    # measured: 8 and 8 (192 before the stopped member's loop was cut)
+    assert counts[1] <= counts[0] + 2 * int(r.iterations[0]), counts
+
+
 def test_negative_curvature_goes_through_inertia_correction():
     """max |z|^2 in a box: the exact Hessian is -I, so the Newton matrix has the wrong inertia
     where the barrier's curvature is smaller than 1; uncorrected, Newton would jump to the
@@ -663,8 +699,8 @@ def test_a_failed_inertia_correction_is_not_reported_as_nan(monkeypatch):
     nlp = double_integrator()
     real = kkt.factor_with_correction
 
-    def never(system, delta_c, delta_w_last, options=kkt.InertiaOptions()):
-        fac, delta_w, _ = real(system, delta_c, delta_w_last, options)
+    def never(system, delta_c, delta_w_last, options=kkt.InertiaOptions(), active=True):
+        fac, delta_w, _ = real(system, delta_c, delta_w_last, options, active)
         return fac, delta_w, jnp.asarray(False)
 
     monkeypatch.setattr(kkt, "factor_with_correction", never)

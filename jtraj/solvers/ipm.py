@@ -1299,7 +1299,8 @@ class IPM:
             delta_c = jnp.maximum(delta_c, o.delta_c_min)
         # the correction starts from the last positive delta_w, kept through the iterations
         # that needed none (Wächter & Biegler 2006, Algorithm IC; Ipopt's perturbation handler)
-        fac, delta_w, ok = kkt.factor_with_correction(system, delta_c, st.delta_w_last)
+        # (a member of a vmapped batch that has stopped makes no correction: its step is not taken)
+        fac, delta_w, ok = kkt.factor_with_correction(system, delta_c, st.delta_w_last, active=st.status == int(IpmStatus.RUNNING))
         avg = jnp.maximum(self._complementarity(p, st)[0], 1e-300)
         rx, rc = jax.tree.map(lambda a, b: jnp.stack([a, b]), right_hand_side(0.0, r_c), right_hand_side(avg, r_c))
         # both right-hand sides at once: their first block solves share the sweeps with the

@@ -531,7 +531,7 @@ def solve_factored(fac: BlockFactor, b: jax.Array, coupled: np.ndarray | None = 
 
 
 def factor_with_correction(
-    system: KKTSystem, delta_c: jax.Array, delta_w_last: jax.Array, options: InertiaOptions = InertiaOptions()
+    system: KKTSystem, delta_c: jax.Array, delta_w_last: jax.Array, options: InertiaOptions = InertiaOptions(), active: jax.Array | bool = True
 ) -> tuple[BlockFactor, jax.Array, jax.Array]:
     """Factor with the smallest ``delta_w`` of Ipopt's sequence that gives the right inertia.
 
@@ -542,7 +542,10 @@ def factor_with_correction(
     above ``delta_w_max`` nor more than ``max_attempts``, and then gives up (ok False) with the
     last value tried. ``delta_w_last`` is the last positive ``delta_w`` used by any earlier
     factorization, not only the previous one (Wächter & Biegler 2006, Algorithm IC: only a
-    correction sets it). Returns (factor, delta_w used, ok).
+    correction sets it). ``active`` False makes no correction (the ``delta_w = 0`` trial only):
+    under ``vmap`` the batch's loop runs while any member's does, and a member that has stopped
+    (a NaN matrix fails every trial) made every later iteration of the batch pay the whole
+    sequence of trials. Returns (factor, delta_w used, ok).
     """
     d = system.d0 + delta_c
     coupled = coupled_columns(system.pattern, system.H is not None)
@@ -564,7 +567,7 @@ def factor_with_correction(
         # as Ipopt's perturbation handler, a trial above delta_w_max is not made: the
         # correction gives up with the last value tried
         _, ok, dw, i = state
-        return (~ok) & (i < options.max_attempts) & (following(dw, i) <= options.delta_w_max)
+        return active & (~ok) & (i < options.max_attempts) & (following(dw, i) <= options.delta_w_max)
 
     def body(state):
         _, _, dw, i = state
