@@ -9,6 +9,7 @@ set XLA's flags before their first import of jtraj.
 from __future__ import annotations
 
 import argparse
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -73,6 +74,17 @@ def add_out(ap: argparse.ArgumentParser, name: str, default: str | None = None) 
     ``default``: the folder without ``--out`` (None: nothing is written)."""
     where = f" (default {default})" if default is not None else ""
     ap.add_argument("--out", type=out_folder, default=default, metavar="DIR", help=f"write DIR/{name}.json, DIR/{name}.md, DIR/provenance.json{where}")
+
+
+def results_record(script: str, argv: Sequence[str] | None, complete: bool) -> dict:
+    """The ``provenance.json`` record of a benchmark that rewrites its results folder after each
+    task (`jtraj.provenance.write_results`'s ``record``): the command ``python SCRIPT ARGS``
+    (``argv``, default this process's arguments) and ``"complete"``, false while tasks remain
+    (a folder left by a run stopped part-way is not taken for a finished one's), true after
+    the last."""
+    from jtraj.provenance import provenance
+
+    return {**provenance(["python", script, *(sys.argv[1:] if argv is None else argv)]), "complete": complete}
 
 
 def out_folder(text: str) -> str:

@@ -54,9 +54,10 @@ convergence test, an Ipopt-like one) and the task's ``max_iter``; exact Hessian 
 no quasi-Newton option) against Ipopt's L-BFGS default (jtraj's solve defaults). Timing: the
 stage NLP's JAX functions are compiled and each called once (and the CasADi solver object
 built) before the clock starts; ``time`` is the wall time of the solve call, ``JAX eval`` the
-part spent in the callbacks (JAX and the host conversions), ``FATROP own`` the difference.
+part spent in the callbacks' bodies (JAX and the host conversions: reordering rows and values,
+building the ``casadi.DM``), ``FATROP own`` the difference.
 ``--out DIR`` writes ``DIR/fatrop.json`` (raw records), ``DIR/fatrop.md`` (the table) and
-``DIR/provenance.json``.
+``DIR/provenance.json``, again after each task, with ``"complete": false`` until the last.
 
 State (measured on the 2-core CPU, ``python bench/fatrop.py sideflip big_jump --jtraj --out
 results/fatrop``, 2026-12-06): on the Go2 sideflip FATROP converges in 25 iterations (Ipopt 41,
@@ -93,7 +94,7 @@ from jtraj.provenance import write_results
 from jtraj.solver import prepare, solve
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
-from _args import add_out, add_param, add_tasks  # noqa: E402
+from _args import add_out, add_param, add_tasks, results_record  # noqa: E402
 
 #: The NLP's group whose rows encode ``x_{k+1} = step(x_k, u_k)`` (jtraj.transcription).
 DYNAMICS = "integration"
@@ -341,7 +342,8 @@ def _ccs(n_rows: int, n_cols: int, rows: np.ndarray, cols: np.ndarray):
 
 class _Evaluator:
     """The stage NLP's functions at a fixed theta, in FATROP's row order, on numpy vectors,
-    with the time spent in them."""
+    with the calls of each counted; ``seconds``: the time spent in the callbacks that call them
+    (`_callback_class`'s oracle times their whole bodies)."""
 
     def __init__(self, form: StageForm, theta: Any, hessian: str = "exact", margin: float = 1e-6):
         if hessian not in HESSIANS:
@@ -386,12 +388,19 @@ class _Evaluator:
         self.counts: dict[str, int] = {}
         self.errors: list[str] = []
 
-    def _timed(self, key: str, fn: Callable, *args) -> np.ndarray:
-        t = time.perf_counter()
-        out = np.asarray(fn(*args))
-        self.seconds += time.perf_counter() - t
+    def _counted(self, key: str, fn: Callable, *args) -> np.ndarray:
+        """``fn(*args)`` as numpy, counted under ``key`` (timed by the callback it runs in)."""
         self.counts[key] = self.counts.get(key, 0) + 1
-        return out
+        return np.asarray(fn(*args))
+
+    def clocked(self, fn: Callable, *args) -> Any:
+        """``fn(*args)`` with its time added to ``seconds``: a callback's whole body (JAX and
+        the host's work on the values), all of which is the JAX eval column, not FATROP's own."""
+        t = time.perf_counter()
+        try:
+            return fn(*args)
+        finally:
+            self.seconds += time.perf_counter() - t
 
     def _lam(self, lam) -> np.ndarray:
         """FATROP's multipliers -> the stage NLP's rows (0 on the rows left out)."""
@@ -400,21 +409,21 @@ class _Evaluator:
         return out
 
     def f(self, x):
-        return self._timed("f", self.form.nlp.objective, jnp.asarray(x), self.theta)
+        return self._counted("f", self.form.nlp.objective, jnp.asarray(x), self.theta)
 
     def g(self, x):
-        return self._timed("g", self.form.nlp.constraints, jnp.asarray(x), self.theta)[self.sel]
+        return self._counted("g", self.form.nlp.constraints, jnp.asarray(x), self.theta)[self.sel]
 
     def grad(self, x):
-        return self._timed("grad", self.form.nlp.gradient, jnp.asarray(x), self.theta)
+        return self._counted("grad", self.form.nlp.gradient, jnp.asarray(x), self.theta)
 
     def jac(self, x):
         """Values in the CCS order of ``jac_sp``."""
-        return self._timed("jac", self.form.nlp.jacobian, jnp.asarray(x), self.theta)[self.jac_order]
+        return self._counted("jac", self.form.nlp.jacobian, jnp.asarray(x), self.theta)[self.jac_order]
 
     def grad_lagrangian(self, x, obj_factor, lam):
         """obj_factor grad f + J^T lam (lam in FATROP's row order)."""
-        vals = self._timed("jac", self.form.nlp.jacobian, jnp.asarray(x), self.theta)
+        vals = self._counted("jac", self.form.nlp.jacobian, jnp.asarray(x), self.theta)
         lam_nlp = self._lam(lam)
         jt = np.bincount(self.jac_cols, weights=vals * lam_nlp[self.jac_rows], minlength=self.n)
         return obj_factor * self.grad(x) + jt
@@ -423,8 +432,8 @@ class _Evaluator:
         """Full symmetric Hessian of the Lagrangian, values in the CCS order of ``hess_sp``."""
         lam_nlp = self._lam(lam)
         if self.hessian == "clip":  # dense symmetric blocks: CCS order is the row-major order
-            return self._timed("hess", self._clipped, jnp.asarray(x), jnp.asarray(lam_nlp), float(obj_factor), self.theta)
-        low = self._timed("hess", self.form.nlp.hessian, jnp.asarray(x), jnp.asarray(lam_nlp), float(obj_factor), self.theta)
+            return self._counted("hess", self._clipped, jnp.asarray(x), jnp.asarray(lam_nlp), float(obj_factor), self.theta)
+        low = self._counted("hess", self.form.nlp.hessian, jnp.asarray(x), jnp.asarray(lam_nlp), float(obj_factor), self.theta)
         return np.concatenate([low, low[self.hess_off]])[self.hess_order]
 
 
@@ -476,6 +485,9 @@ def _callback_class():
             super().__init__("nlp", [("x", self.sp["x"]), ("p", self.sp["p"])], [("f", self.sp["f"]), ("g", self.sp["g"])], self._nlp)
 
         def _nlp(self, x, p):
+            return self.ev.clocked(self._nlp_body, x)
+
+        def _nlp_body(self, x):
             x = np.asarray(x).ravel()
             return [float(self.ev.f(x)), self.ev.g(x)]
 
@@ -507,7 +519,7 @@ def _callback_class():
             def fn(*arg):
                 d = dict(zip(s_in, arg))
                 try:
-                    return [casadi.DM(sparsity(s)) if s.endswith(":p") else self._value(s, d) for s in s_out]
+                    return self.ev.clocked(lambda: [casadi.DM(sparsity(s)) if s.endswith(":p") else self._value(s, d) for s in s_out])
                 except Exception as e:  # CasADi reports a failed callback and FATROP goes on: keep it
                     self.ev.errors.append(f"{name}: {type(e).__name__}: {e}")
                     raise
@@ -607,12 +619,14 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--print-level", type=int, default=0, help="FATROP's print_level (0 quiet, 10 a line per iteration)")
     add_out(ap, "fatrop")
     args = ap.parse_args(argv)
+    if not 0 < args.rtol < 1:  # drop_dependent's rank test: NaN dropped every row it tests (no pivot is > NaN), a negative rtol none
+        ap.error(f"--rtol: {args.rtol}: expected a finite relative tolerance 0 < rtol < 1 (default 1e-7)")
     try:  # imported where FATROP is first called, after the NLP's compile and the presolve
         import casadi  # noqa: F401
     except ImportError:
         ap.error('casadi (whose wheel has the fatrop plugin) is not installed: pip install -e ".[bench]"')
     records = []
-    for task in args.tasks:
+    for t, task in enumerate(args.tasks):
         rec = dict(task=task, param=args.param, machine=dict(cpus=os.cpu_count(), load_1min=os.getloadavg()[0]), solvers=[])
         prep = prepare(task, args.param)
         tr, nlp = prep.transcription, prep.nlp
@@ -642,7 +656,7 @@ def main(argv: list[str] | None = None) -> None:
         rec["load_1min_after"] = os.getloadavg()[0]
         records.append(rec)
         if args.out:
-            write_results(args.out, "fatrop", records, markdown(records), "bench/fatrop.py", argv)
+            write_results(args.out, "fatrop", records, markdown(records), "bench/fatrop.py", record=results_record("bench/fatrop.py", argv, complete=t == len(args.tasks) - 1))
     print(markdown(records))
 
 

@@ -10,8 +10,8 @@ solver="jtraj", options={"hessian": ...})`` with the study's other settings (tol
 task's iteration limit), one after the other in this process; the time is the solve alone
 (its program is compiled before the clock starts, and that compile is printed and kept as
 ``time_compile_s``). Prints one row per solve; ``--out`` writes ``DIR/hessians.json``,
-``DIR/hessians.md`` and ``DIR/provenance.json``, again after each task. Default tasks: the six
-of the study.
+``DIR/hessians.md`` and ``DIR/provenance.json``, again after each task (``"complete": false``
+until the last). Default tasks: the six of the study.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from jtraj.solvers.ipm import IpmOptions
 from jtraj.tables import markdown_table
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
-from _args import add_out, add_param, add_tasks, add_variables, refuse_repeats  # noqa: E402
+from _args import add_out, add_param, add_tasks, add_variables, refuse_repeats, results_record  # noqa: E402
 
 HESSIANS = ("lbfgs", "bfgs", "exact")
 
@@ -74,10 +74,10 @@ def main(argv: list[str] | None = None) -> None:
         except ValueError as e:  # InvalidOptionError
             ap.error(f"--hessians: {e}")
     rows: list[dict] = []
-    for task in args.tasks:  # the files after each task: a long run keeps what it solved
+    for t, task in enumerate(args.tasks):  # the files after each task: a long run keeps what it solved
         rows += run([task], hessians, args.param, args.variables)
         if args.out:
-            write_results(args.out, "hessians", rows, table(rows), "bench/hessians.py", argv)
+            write_results(args.out, "hessians", rows, table(rows), "bench/hessians.py", record=results_record("bench/hessians.py", argv, complete=t == len(args.tasks) - 1))
 
 
 if __name__ == "__main__":

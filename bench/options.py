@@ -18,7 +18,7 @@ all where they differ.
 The table gives each variant's status, iterations, cost and largest violation (of its last
 repeat), the median time with its range, and the baseline's median over the variant's.
 ``--out`` writes ``DIR/options.json``, ``DIR/options.md`` and ``DIR/provenance.json``, again after
-each task. Default tasks: the six of the study.
+each task (``"complete": false`` until the last). Default tasks: the six of the study.
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ from jtraj.provenance import write_results
 from jtraj.tables import markdown_table
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
-from _args import add_out, add_param, add_tasks, add_variables  # noqa: E402
+from _args import add_out, add_param, add_tasks, add_variables, results_record  # noqa: E402
 
 
 def parse_variant(text: str) -> tuple[str, dict[str, Any]]:
@@ -121,10 +121,10 @@ def main(argv: list[str] | None = None) -> None:
     if len({name for name, _ in variants}) != len(variants):
         ap.error("--variant names must differ")
     rows: list[dict] = []
-    for task in args.tasks:  # the files after each task: a long run keeps what it measured
+    for t, task in enumerate(args.tasks):  # the files after each task: a long run keeps what it measured
         rows += measure(task, variants, args.rounds, args.param, args.variables)
         if args.out:
-            write_results(args.out, "options", rows, table(rows), "bench/options.py", argv)
+            write_results(args.out, "options", rows, table(rows), "bench/options.py", record=results_record("bench/options.py", argv, complete=t == len(args.tasks) - 1))
 
 
 if __name__ == "__main__":

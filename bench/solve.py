@@ -1,8 +1,9 @@
 """Benchmark tasks side by side with the comparative study's public code, in one invocation:
-compile time, time to solution, time per Ipopt iteration and its split into JAX evaluation
-(functions and derivatives) and Ipopt's own work, for jtraj's variants, and the public code's
-time and iterations measured in the same run (never remembered figures: machines differ from
-day to day).
+time to solution, time per Ipopt iteration and its split into JAX evaluation (functions and
+derivatives) and Ipopt's own work, for jtraj's variants, and the public code's time and
+iterations measured in the same run (never remembered figures: machines differ from day to
+day). The table has no compile column: the JSON records ``compile_s``, the time to build the
+NLP of the first variant's variables (``compile_variables``), once per task.
 
     python bench/solve.py big_jump [sideflip ...] [--param se3] [--variants paper,compact,lean]
         [--ipopt NAME=VALUE ...] [--jtraj NAME=VALUE ...] [--peer PATH | --no-peer] [--repeat N]
@@ -27,8 +28,10 @@ and prints one JSON line with at least ``iterations`` and ``time_s`` (its wall t
 Ipopt's solve, model building excluded); the default is ``../shared/peers/run-se3-trajopt``
 beside the repository when it exists. It runs before jtraj's variants, one after the other (never concurrently), and the
 ratio column is its time over each variant's time to solution (compile excluded; none where
-the variant did not solve the task, its status instead). Without a peer the table has no ratio
-column.
+the variant did not solve the task, its status instead). A public-code run stopped by a limit
+(Ipopt status -1, -4 or -5: iterations, CPU or wall time) gives a lower bound (">= "); one that
+failed otherwise (e.g. 2, infeasible; -2, restoration failed) gives no ratio, its status
+instead. Without a peer the table has no ratio column.
 
 ``--repeat N`` measures each side N times, alternating (the public code, then jtraj's variants,
 N rounds), and reports the median of each with its range (N odd: the median is one of the runs,
@@ -37,7 +40,8 @@ of either can be off by a third (big_jump's jtraj solve took 2.02 s and then 1.5
 minutes apart, and 1.22 s in the session before), and the ratio of two single runs inherits both errors. The iterations of every repeat
 should agree (both sides are deterministic on one machine); where they do not, the table
 shows each repeat's, and stderr says so. ``--out DIR`` writes ``DIR/speed.json`` (every raw record)
-and ``DIR/speed.md`` (the table) and ``DIR/provenance.json`` (command, date, machine, versions).
+and ``DIR/speed.md`` (the table) and ``DIR/provenance.json`` (command, date, machine, versions),
+again after each task, with ``"complete": false`` until the last task's rows are written.
 """
 
 from __future__ import annotations
@@ -60,7 +64,7 @@ from jtraj.provenance import write_results
 from jtraj.solver import prepare, solve
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
-from _args import DEFAULT_PEER, add_out, add_param, add_tasks  # noqa: E402
+from _args import DEFAULT_PEER, add_out, add_param, add_tasks, refuse_repeats, results_record  # noqa: E402
 
 VARIANTS = {
     "paper": dict(variables="paper", exact_hessian=False),
@@ -69,6 +73,10 @@ VARIANTS = {
     "compact": dict(variables="compact", exact_hessian=False),
     "jtraj": dict(variables="compact", exact_hessian=False, solver="jtraj"),
 }
+
+#: Ipopt's statuses of a run stopped by a limit, not failed: -1 Maximum_Iterations_Exceeded,
+#: -4 Maximum_CpuTime_Exceeded, -5 Maximum_WallTime_Exceeded (its time is a lower bound)
+STOPPED_BY_LIMIT = (-1, -4, -5)
 
 
 def linear_solver_time(text: str) -> float | None:
@@ -186,16 +194,25 @@ def markdown(records: list[dict]) -> str:
                 f"| {v['time_derivatives']:.2f} | {v['time_ipopt']:.2f} |"
             )
             if with_peer and peer:
-                # the public code stops at its own 600 s wall-time limit (Ipopt status -5): its
-                # time is then a lower bound, and so is the ratio
+                # a run stopped by a limit (`STOPPED_BY_LIMIT`; the public code stops at its own
+                # 600 s wall-time limit, Ipopt status -5): its time is then a lower bound, and so
+                # is the ratio. Any other status but 0 and 1 (2 infeasible, -2 restoration
+                # failed, 4 diverging, ...) is a failed run: no time to solution, no ratio.
                 # (a runner owes only iterations and time_s: without a status, nothing is claimed)
-                done = peer.get("status") in (0, 1)
-                bound = "" if done or peer.get("status") is None else ">= "
-                note = " (no status)" if peer.get("status") is None else "" if done else f" (stopped, Ipopt status {peer['status']})"
+                status = peer.get("status")
+                done = status is None or status in (0, 1)
+                stopped = status in STOPPED_BY_LIMIT
+                bound = ">= " if stopped else ""
+                note = " (no status)" if status is None else "" if done else f" (stopped, Ipopt status {status})" if stopped else f" (failed, Ipopt status {status})"
                 cost = f"{peer['obj']:.4g}" if peer.get("obj") is not None else ""
                 viol = f"{peer['cons']:.1e}" if peer.get("cons") is not None else ""
                 # a variant that did not solve the task has no time to solution to compare
-                ratio = f"{bound}{peer['time_s'] / v['time_s']:.1f}x" if v.get("success", True) else f"none (jtraj {v['status']})"
+                if not v.get("success", True):
+                    ratio = f"none (jtraj {v['status']})"
+                elif not (done or stopped):
+                    ratio = f"none (peer status {status})"
+                else:
+                    ratio = f"{bound}{peer['time_s'] / v['time_s']:.1f}x"
                 row += f" {_iterations_cell(peer)}{note} | {cost} | {viol} | {bound}{_time_cell(peer)} | {ratio} |"
             elif with_peer:
                 row += " | | | | |"
@@ -231,16 +248,31 @@ def main(argv: list[str] | None = None) -> None:
     if args.table_only:
         if not args.out:
             ap.error("--table-only needs --out DIR")
-        jio.write_text(Path(args.out) / "speed.md", markdown(jio.read_json(Path(args.out) / "speed.json")))
+        path = Path(args.out) / "speed.json"
+        not_records = f"--table-only: {path}: not the records bench/solve.py writes (a list of one object per task, with its variants)"
+        try:
+            records = jio.read_json(path)
+        except jio.FileFormatError as e:  # missing, empty, not JSON
+            ap.error(f"--table-only: {e}")
+        if not isinstance(records, list) or not all(isinstance(r, dict) for r in records):
+            ap.error(not_records)
+        try:
+            text = markdown(records)
+        except (KeyError, TypeError, AttributeError, ValueError, IndexError) as e:  # records of another shape
+            ap.error(f"{not_records}: {type(e).__name__}: {e}")
+        jio.write_text(Path(args.out) / "speed.md", text)
         return
     if not args.tasks:
         ap.error("give at least one task")
     if args.repeat < 1 or args.repeat % 2 == 0:
         ap.error(f"--repeat: {args.repeat}: expected an odd count (at least 1), so that the median is one of the runs")
     variants = [v for v in args.variants.split(",") if v]
+    if not variants:
+        ap.error(f"--variants: {args.variants!r}: expected some of {sorted(VARIANTS)}")
     for v in variants:
         if v not in VARIANTS:
             ap.error(f"--variants: {v!r}: expected some of {sorted(VARIANTS)}")
+    refuse_repeats(ap, "--variants", variants, "variant")  # each would run twice a round and be tabled twice
     try:  # the command line's own parsing and checks of solver options
         extra = _check_ipopt(args.ipopt, "ipopt")
         extra_jtraj = _check_ipopt(args.jtraj, "jtraj", field="--jtraj")
@@ -259,7 +291,7 @@ def main(argv: list[str] | None = None) -> None:
     if peer is None and not args.no_peer:
         print(f"bench/solve.py: no peer: the paper's public code is not at {DEFAULT_PEER}; the table has jtraj's rows only (pass --peer PATH to compare, --no-peer to silence this)", file=sys.stderr, flush=True)
     records = []
-    for task in args.tasks:
+    for t, task in enumerate(args.tasks):
         rec = dict(task=task, param=args.param, machine=dict(cpus=os.cpu_count(), load_1min=os.getloadavg()[0], platform=platform.platform()), peer=None, variants=[])
         peer_runs: list[dict] = []
         runs: dict[str, list[dict]] = {name: [] for name in variants}
@@ -286,7 +318,7 @@ def main(argv: list[str] | None = None) -> None:
         records.append(rec)
         print(markdown([rec]), flush=True)
         if args.out:
-            write_results(args.out, "speed", records, markdown(records), "bench/solve.py", argv)
+            write_results(args.out, "speed", records, markdown(records), "bench/solve.py", record=results_record("bench/solve.py", argv, complete=t == len(args.tasks) - 1))
 
 
 if __name__ == "__main__":

@@ -201,3 +201,84 @@ def test_a_peer_without_a_status_is_not_called_stopped(status, cells):
     table = solve.markdown([dict(task="big_jump", peer=peer, variants=[_run("compact", 2.0)])])
     row = next(line for line in table.splitlines() if line.startswith("| big_jump |"))
     assert row.endswith(cells), row
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        # each run twice a round: the median of an even count, and every row printed twice
+        (["--variants", "paper,paper"], "--variants: 'paper' given 2 times; expected each variant once"),
+        (["--variants", "jtraj,compact,jtraj"], "--variants: 'jtraj' given 2 times; expected each variant once"),
+        # an IndexError at variants[0], after the peer's first run
+        (["--variants", ","], "--variants: ',': expected some of ['compact', 'exact', 'jtraj', 'lean', 'paper']"),
+        (["--variants", ""], "--variants: '': expected some of"),
+    ],
+)
+def test_variants_given_twice_or_none_are_refused_before_any_work(monkeypatch, capsys, tmp_path, argv, message):
+    solve = bench_module("solve")
+    for name in ("prepare", "solve", "run_variant", "run_peer"):
+        monkeypatch.setattr(solve, name, _no_solve)
+    peer = fake_peer(tmp_path, "exit 1")
+    refused(solve.main, ["big_jump", "--peer", str(peer), *argv], capsys, message)
+
+
+@pytest.mark.parametrize(
+    ("status", "cells"),
+    [
+        # stopped by a limit (iterations, CPU time, wall time): the time and the ratio are lower bounds
+        (-1, "| 11 (stopped, Ipopt status -1) | 1 | 1.0e-06 | >= 10.00 | >= 5.0x |"),
+        (-4, "| 11 (stopped, Ipopt status -4) | 1 | 1.0e-06 | >= 10.00 | >= 5.0x |"),
+        # failed: no time to solution, no ratio (these were '>= 5.0x', as if stopped by a limit)
+        (2, "| 11 (failed, Ipopt status 2) | 1 | 1.0e-06 | 10.00 | none (peer status 2) |"),
+        (-2, "| 11 (failed, Ipopt status -2) | 1 | 1.0e-06 | 10.00 | none (peer status -2) |"),
+        (4, "| 11 (failed, Ipopt status 4) | 1 | 1.0e-06 | 10.00 | none (peer status 4) |"),
+        (1, "| 11 | 1 | 1.0e-06 | 10.00 | 5.0x |"),  # solved to acceptable level
+    ],
+)
+def test_only_a_peer_stopped_by_a_limit_is_a_lower_bound(status, cells):
+    solve = bench_module("solve")
+    peer = dict(iterations=11, time_s=10.0, obj=1.0, cons=1e-6, status=status)
+    table = solve.markdown([dict(task="big_jump", peer=peer, variants=[_run("compact", 2.0)])])
+    row = next(line for line in table.splitlines() if line.startswith("| big_jump |"))
+    assert row.endswith(cells), row
+
+
+@pytest.mark.parametrize(
+    ("content", "expected"),
+    [
+        (None, "speed.json: file does not exist"),
+        ("", "speed.json: file is empty; expected JSON"),
+        ("{not json", "speed.json: not valid JSON"),
+        ("{}", "speed.json: not the records bench/solve.py writes"),
+        ("[1, 2]", "speed.json: not the records bench/solve.py writes"),
+        ('[{"task": "big_jump"}]', "speed.json: not the records bench/solve.py writes (a list of one object per task, with its variants): KeyError: 'variants'"),
+        ('[{"task": "big_jump", "variants": [{"variant": "paper"}]}]', "speed.json: not the records bench/solve.py writes"),
+        ('[{"task": "big_jump", "variants": 3}]', "speed.json: not the records bench/solve.py writes"),
+    ],
+)
+def test_table_only_refuses_a_missing_or_malformed_speed_json(monkeypatch, capsys, tmp_path, content, expected):
+    """``--table-only`` read DIR/speed.json with a traceback (FileFormatError, or KeyError and
+    TypeError for records of another shape): argparse's one-line error now, no speed.md written."""
+    solve = bench_module("solve")
+    for name in ("prepare", "solve", "run_variant", "run_peer"):
+        monkeypatch.setattr(solve, name, _no_solve)
+    if content is not None:
+        (tmp_path / "speed.json").write_text(content)
+    refused(solve.main, ["--table-only", "--out", str(tmp_path)], capsys, f"--table-only: {tmp_path}/{expected}")
+    assert not (tmp_path / "speed.md").exists()
+
+
+def test_table_only_rewrites_the_table_of_good_records(monkeypatch, tmp_path):
+    solve = bench_module("solve")
+    records = [dict(task="big_jump", peer=None, variants=[_run("compact", 2.0)])]
+    (tmp_path / "speed.json").write_text(json.dumps(records))
+    solve.main(["--table-only", "--out", str(tmp_path)])
+    assert (tmp_path / "speed.md").read_text() == solve.markdown(records)
+
+
+def test_the_docstring_promises_no_compile_column():
+    """Its second line promised 'compile time' beside the table's columns; the table has none
+    (the JSON's compile_s is the first variant's NLP build)."""
+    solve = bench_module("solve")
+    assert "compile time" not in solve.__doc__.split("\n\n")[0]
+    assert "compile_s" in solve.__doc__ and "compile" not in solve.markdown([dict(task="t", peer=None, variants=[_run("compact", 2.0)])]).splitlines()[0]
