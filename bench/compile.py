@@ -10,7 +10,9 @@ compilation cache) and ``XLA_FLAGS`` set to one of ``--flags``' settings (separa
 an empty one is none; write ``--flags=...``, since the settings start with dashes): `jtraj.solver.prepare`, then
 `jtraj.solve(..., solver="jtraj")` once (its ``time_compile`` less prepare's is the program's
 compile) and ``--repeats`` more times (the table gives the fastest solve). ``--out DIR``
-writes ``DIR/compile.json``, ``DIR/compile.md`` and ``DIR/provenance.json``. Default: big_jump,
+writes ``DIR/compile.json``, ``DIR/compile.md`` and ``DIR/provenance.json``; where a process
+fails, the records measured before it (provenance ``"complete": false``), and the benchmark
+stops with one line naming the failure. Default: big_jump,
 no flags. Run it on an otherwise idle machine: compiles are single-threaded and slow down under
 load.
 """
@@ -25,7 +27,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
-from _args import add_out, add_param, add_tasks, add_variables  # noqa: E402
+from _args import add_out, add_param, add_tasks, add_variables, results_record  # noqa: E402
 
 CHILD = """
 import json, sys
@@ -44,12 +46,14 @@ print("COMPILE " + json.dumps(dict(
 
 
 def run_child(task: str, param: str, variables: str, flags: str, repeats: int) -> dict:
-    """One fresh process; its record, with the flags it ran under."""
+    """One fresh process; its record, with the flags it ran under (RuntimeError, one line with
+    the last lines of its stderr, where it fails)."""
     env = dict(os.environ, JTRAJ_NO_CACHE="1", XLA_FLAGS=flags)
     proc = subprocess.run([sys.executable, "-c", CHILD, task, param, variables, str(repeats)], env=env, capture_output=True, text=True)
     lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("COMPILE ")]
     if proc.returncode != 0 or not lines:
-        raise RuntimeError(f"{task} with XLA_FLAGS={flags!r}: exit {proc.returncode}\n{proc.stderr[-3000:]}")
+        tail = (proc.stderr or proc.stdout).strip().splitlines()[-3:]
+        raise RuntimeError(f"{task} with XLA_FLAGS={flags!r}: exit {proc.returncode}: {' | '.join(tail)}")
     return json.loads(lines[-1][len("COMPILE ") :]) | dict(flags=flags, param=param, variables=variables)
 
 
@@ -75,19 +79,27 @@ def main(argv: list[str] | None = None) -> None:
     a = ap.parse_args(argv)
     if a.repeats < 1:
         ap.error(f"--repeats: {a.repeats}: expected an integer >= 1 (the table gives the fastest of them)")
-    records = []
-    for task in a.tasks:
-        for flags in a.flags.split("|"):
-            records.append(run_child(task, a.param, a.variables, flags, a.repeats))
-            r = records[-1]
-            print(f"{task} XLA_FLAGS={flags!r}: build {r['build']:.1f} s, program {r['program']:.1f} s, solve {min(r['times']):.2f} s", flush=True)
+    records: list[dict] = []
+    failure = None
+    try:
+        for task in a.tasks:
+            for flags in a.flags.split("|"):
+                records.append(run_child(task, a.param, a.variables, flags, a.repeats))
+                r = records[-1]
+                print(f"{task} XLA_FLAGS={flags!r}: build {r['build']:.1f} s, program {r['program']:.1f} s, solve {min(r['times']):.2f} s", flush=True)
+    except RuntimeError as e:  # a failed process: keep the records measured before it
+        failure = e
     text = table(records)
-    print(text, end="")
-    if a.out is not None:
+    if records:
+        print(text, end="")
+    if a.out is not None and records:
         from jtraj.provenance import write_results
 
-        write_results(a.out, "compile", records, text, "bench/compile.py", argv)
+        write_results(a.out, "compile", records, text, "bench/compile.py", record=results_record("bench/compile.py", argv, complete=failure is None))
         print(f"wrote {a.out}/compile.json, compile.md, provenance.json")
+    if failure is not None:
+        kept = f"; {a.out}/compile.json holds the {len(records)} records measured before it" if a.out is not None and records else ""
+        raise SystemExit(f"bench/compile.py: {failure}{kept}")
 
 
 if __name__ == "__main__":

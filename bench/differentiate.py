@@ -22,8 +22,9 @@ Hessian), after compiling everything once:
   (`jtraj.differentiate`), Ipopt's one after another.
 
 Each figure is the fastest of ``--repeat`` runs; the solvers' gradients of the loss are printed
-and must agree. ``--out DIR`` writes them with the run's provenance (command, date, machine,
-versions): ``DIR/differentiate.json``, ``DIR/differentiate.md`` and ``DIR/provenance.json``.
+and must agree, as must a batch's vmapped and one-by-one gradients. ``--out DIR`` writes them
+with the run's provenance (command, date, machine, versions): ``DIR/differentiate.json``,
+``DIR/differentiate.md`` and ``DIR/provenance.json``.
 """
 
 from __future__ import annotations
@@ -169,7 +170,7 @@ def measure(task: Task, solver: str, repeat: int, batch: int = 4) -> tuple[dict,
     g_single = jax.block_until_ready(run_sequential())
     t_batch = best_of(run_batched, repeat)
     t_seq = best_of(run_sequential, repeat)
-    gradients_agree(np.asarray(g_batch), np.asarray(g_single))
+    gradients_agree(np.asarray(g_batch), np.asarray(g_single), "the vmapped and the one-by-one gradients")
     print(f"{name}: grad at {batch} frictions, vmapped {t_batch * 1e3:8.1f} ms, one after another {t_seq * 1e3:8.1f} ms, speedup {t_seq / t_batch:.2f}", flush=True)
     rec = dict(
         cold_ms=t_cold * 1e3, cold_iterations=cold_iterations, warm_ms=t_warm * 1e3, warm_iterations=warm_iterations,
@@ -180,15 +181,15 @@ def measure(task: Task, solver: str, repeat: int, batch: int = 4) -> tuple[dict,
     return rec, gradient
 
 
-def gradients_agree(a, b, rtol: float = 1e-5) -> float:
+def gradients_agree(a, b, what: str = "the solvers' gradients", rtol: float = 1e-5) -> float:
     """Largest difference of two gradients (pytrees), relative to the largest entry of ``b``;
-    raises SystemExit when it exceeds ``rtol`` (a backward pass of a wrong solution is no
-    measurement)."""
+    raises SystemExit naming ``what`` differs when it exceeds ``rtol`` (a backward pass of a
+    wrong solution is no measurement)."""
     la = np.concatenate([np.ravel(np.asarray(v, float)) for v in jax.tree.leaves(a)])
     lb = np.concatenate([np.ravel(np.asarray(v, float)) for v in jax.tree.leaves(b)])
     diff = float(np.max(np.abs(la - lb)) / max(np.max(np.abs(lb)), 1e-300))
     if not diff <= rtol:
-        raise SystemExit(f"bench/differentiate.py: the solvers' gradients differ by {diff:.1e} of the largest entry (more than {rtol:g})")
+        raise SystemExit(f"bench/differentiate.py: {what} differ by {diff:.1e} of the largest entry (more than {rtol:g})")
     return diff
 
 

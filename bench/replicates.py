@@ -53,6 +53,7 @@ import numpy as np
 from jtraj import solvers
 from jtraj.cli import InputError, _check_out
 from jtraj.experiments import noisy_warm_starts
+from jtraj.numbers import is_seed
 from jtraj.provenance import provenance, write_results
 from jtraj.solver import compile_callbacks, prepare, solve, solver_options
 from jtraj.success import FEASIBILITY_TOL
@@ -61,7 +62,7 @@ from jtraj.tables import markdown_table
 from jtraj.task import task_argument
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/_args.py, also when the tests load this file from its path
-from _args import add_param  # noqa: E402
+from _args import add_param, refuse_repeats  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -89,8 +90,11 @@ def main(argv: list[str] | None = None) -> None:
     known = (*JtrajSolver.STRATEGIES, "vectorized")
     if not strategies or any(s not in known for s in strategies):
         ap.error(f"--strategies takes some of {', '.join(known)}")
+    refuse_repeats(ap, "--strategies", strategies, "strategy")  # each would be timed and tabled twice
     if args.replicates < 1 or any(b < 1 for b in batches):
         ap.error("--replicates and --batches take positive whole numbers")
+    if not is_seed(args.seed):  # JAX's PRNGKey raised OverflowError after the compile
+        ap.error(f"--seed: {args.seed}: expected a 64-bit integer (below 2**63 in magnitude)")
     if args.out is not None:  # a file that can be written, before minutes of solves
         try:
             if os.path.isdir(args.out):

@@ -14,7 +14,9 @@ times (`jtraj.solve(..., solver="jtraj")`; each solve's time is the jitted solve
 ``stats.time_total``), and the table gives the fastest. Iterations, status and cost are printed
 beside the times, so a change that alters the iterates shows. ``--out DIR`` writes
 ``DIR/revisions.json`` (every record), ``DIR/revisions.md`` (the table) and
-``DIR/provenance.json``. Default tasks: walk big_jump backflip sideflip.
+``DIR/provenance.json``; where a process fails, the records measured before it (provenance
+``"complete": false``), and the benchmark stops with one line naming the failure. Default
+tasks: walk big_jump backflip sideflip.
 
 A record's ``time_compile`` is the first solve's `Result.time_compile`: building the NLP and
 compiling the solver's program, in seconds (short where the persistent compilation cache held them;
@@ -55,12 +57,14 @@ print("REVISIONS " + json.dumps(dict(
 
 
 def run_child(tree: Path, task: str, param: str, variables: str, repeats: int) -> dict:
-    """One process solving ``task`` with the jtraj of ``tree``; its record."""
+    """One process solving ``task`` with the jtraj of ``tree``; its record (RuntimeError, one
+    line with the last lines of its stderr, where it fails)."""
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tree), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep))
     proc = subprocess.run([sys.executable, "-c", CHILD, task, param, variables, str(repeats)], env=env, capture_output=True, text=True, cwd=tree)
     lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("REVISIONS ")]
     if proc.returncode != 0 or not lines:
-        raise RuntimeError(f"{task} at {tree}: exit {proc.returncode}\n{proc.stderr[-3000:]}")
+        tail = (proc.stderr or proc.stdout).strip().splitlines()[-3:]
+        raise RuntimeError(f"{task} at {tree}: exit {proc.returncode}: {' | '.join(tail)}")
     record = json.loads(lines[-1][len("REVISIONS ") :])
     if Path(record["jtraj"]).resolve().parent.parent != tree.resolve():
         raise RuntimeError(f"{task}: the child imported jtraj from {record['jtraj']}, not from {tree}")
@@ -118,6 +122,7 @@ def main(argv: list[str] | None = None) -> int:
     if labels[0] == labels[1]:  # the table's columns are found by label: both would be one run's
         ap.error(f"rev: {args.rev!r}: the checkout itself ({head}, no changes); expected an earlier revision, or changes in the checkout")
     records: list[dict] = []
+    failure = None
     with tempfile.TemporaryDirectory(prefix="jtraj-rev-") as tmp:
         tree = Path(tmp) / "tree"
         subprocess.run(["git", "worktree", "add", "--detach", str(tree), sha.stdout.strip()], cwd=REPO, check=True, capture_output=True)
@@ -129,9 +134,13 @@ def main(argv: list[str] | None = None) -> int:
                     rec["task"], rec["label"] = task, label
                     records.append(rec)
                     print(f"{task:10s} {label:14s} {rec['iterations']:4d} it  {rec['status']:26s} cost {rec['cost']:.4g}  fastest {min(rec['times']):.2f} s  (all: {', '.join(f'{t:.2f}' for t in rec['times'])})", flush=True)
+        except RuntimeError as e:  # a failed process: keep the records measured before it
+            failure = e
         finally:
             subprocess.run(["git", "worktree", "remove", "--force", str(tree)], cwd=REPO, capture_output=True)
-    md = table(records, labels)
+    if failure is not None and not records:
+        raise SystemExit(f"bench/revisions.py: {failure}")
+    md = table(records[: len(records) // 2 * 2], labels)  # the tasks both revisions solved
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     note = f"\nMachine: {os.cpu_count()} CPUs, 1-minute load average {load:.1f} at the end; {args.param}, {args.variables} variables, jtraj's solver, the fastest of {args.repeats} solves (compile excluded), one process per task and revision.\n"
     print()
@@ -143,7 +152,11 @@ def main(argv: list[str] | None = None) -> int:
         # its record is built with them and written once
         record = provenance(["python", "bench/revisions.py", *(argv if argv is not None else sys.argv[1:])])
         record["revisions"] = {"earlier": labels[0], "later": labels[1]}
+        record["complete"] = failure is None
         write_results(args.out, "revisions", records, md + note, "bench/revisions.py", record=record)
+    if failure is not None:
+        kept = f"; {args.out}/revisions.json holds the {len(records)} records measured before it" if args.out else ""
+        raise SystemExit(f"bench/revisions.py: {failure}{kept}")
     return 0
 
 

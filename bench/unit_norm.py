@@ -11,9 +11,10 @@ a free direction of the NLP depends on the chart's rows (`jtraj.parameterization
 - Quaternion #3: its difference rows are six (``Exp(q2) (-) Exp(q1)``) for seven coordinates,
   so rho's norm at each knot is left free: a direction along which no row and no cost changes.
 
-This benchmark solves each task with a chart as the study does and with
+This benchmark solves each task with Quaternion #3 as the study does and with
 ``unit_norm=True`` (the row ``|rho|^2 - 1 = 0`` at every knot whose coordinates are not fixed
-by bounds), the study's variables, Ipopt with the study's settings::
+by bounds), the study's variables, Ipopt with the study's settings (``--params`` quat1 and
+quat2 are refused: for the reason above, they get no unit-norm row)::
 
     python bench/unit_norm.py [TASK ...] [--params quat3] [--solver ipopt] [--out DIR]
 
@@ -62,13 +63,18 @@ def table(records: list[dict]) -> str:
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     add_tasks(ap, ALL_TASKS)
-    ap.add_argument("--params", default="quat3", help="comma-separated quaternion charts (quat1, quat2, quat3)")
+    ap.add_argument("--params", default="quat3", help="comma-separated quaternion charts: quat3 (quat1 and quat2 get no unit-norm row: their integration rows fix rho's norm)")
     ap.add_argument("--solver", default="ipopt", choices=("ipopt", "jtraj"))
     add_out(ap, "unit_norm")
     a = ap.parse_args(argv)
     params = [p for p in a.params.split(",") if p]
     if not params or any(p not in ("quat1", "quat2", "quat3") for p in params):
         ap.error(f"--params: expected quaternion charts (quat1, quat2, quat3), got {a.params!r}")
+    # quat1 and quat2 were solved with unit_norm=True too, which the docstring says they do not get
+    why = {"quat1": "would contradict them (forcing omega = 0)", "quat2": "would repeat them (the manifold step has norm 1)"}
+    for p in params:
+        if p in why:
+            ap.error(f"--params: {p!r}: its integration rows fix rho's norm at every interior knot, so a unit-norm row {why[p]}; expected quat3")
     refuse_repeats(ap, "--params", params, "chart")
     records = []
     for task in a.tasks:

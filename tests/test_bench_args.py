@@ -142,6 +142,32 @@ def test_lists_and_counts_are_checked(monkeypatch, capsys, script, argv, message
 
 
 @pytest.mark.parametrize(
+    ("script", "argv", "message"),
+    [
+        # JAX's PRNGKey raised OverflowError after the compile
+        ("replicates", ["--seed", str(2**64)], f"--seed: {2**64}: expected a 64-bit integer (below 2**63 in magnitude)"),
+        ("replicates", ["--seed", str(-(2**63) - 1)], "expected a 64-bit integer (below 2**63 in magnitude)"),
+        # each timed twice, and the second overwrote the first in the report
+        ("replicates", ["--strategies", "vmap,threads,vmap"], "--strategies: 'vmap' given 2 times; expected each strategy once"),
+        # NaN left out every row the rank test reads, a negative tolerance none
+        ("fatrop", ["--rtol", "nan"], "--rtol: nan: expected a finite relative tolerance 0 < rtol < 1"),
+        ("fatrop", ["--rtol=-1e-7"], "--rtol: -1e-07: expected a finite relative tolerance 0 < rtol < 1"),
+        ("fatrop", ["--rtol", "0"], "--rtol: 0.0: expected a finite relative tolerance 0 < rtol < 1"),
+        ("fatrop", ["--rtol", "inf"], "--rtol: inf: expected a finite relative tolerance 0 < rtol < 1"),
+        # solved with unit_norm=True, a row the module's docstring says these charts do not get
+        ("unit_norm", ["--params", "quat1"], "--params: 'quat1': its integration rows fix rho's norm at every interior knot, so a unit-norm row would contradict them"),
+        ("unit_norm", ["--params", "quat3,quat2"], "--params: 'quat2': its integration rows fix rho's norm at every interior knot, so a unit-norm row would repeat them"),
+    ],
+)
+def test_seeds_tolerances_charts_and_repeated_names_are_checked(monkeypatch, capsys, script, argv, message):
+    """Found by the work itself (or not at all: a bad tolerance silently changed the rows left
+    out), or accepted against the script's own docstring."""
+    if script == "fatrop":
+        pytest.importorskip("casadi")
+    refused(_without_work(monkeypatch, script).main, argv, capsys, message)
+
+
+@pytest.mark.parametrize(
     ("argv", "message"),
     [
         (["--params", "quat1,quat2", "--modes", "raw,quat2"], "--modes: quat2: with --params quat2 it is mode raw"),

@@ -1,5 +1,7 @@
 """bench/differentiate.py: its table, one pair of columns per solver, and its gradient check (its refusals: tests/test_bench_args.py)."""
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 from conftest import bench_module
@@ -30,3 +32,53 @@ def test_gradients_that_differ_stop_the_benchmark():
     assert bench.gradients_agree(a, {"x": np.array([1.0, -2.0 + 1e-7]), "y": np.array(0.5)}) == pytest.approx(5e-8)
     with pytest.raises(SystemExit, match=r"gradients differ by 5\.0e-02"):
         bench.gradients_agree(a, {"x": np.array([1.0, -2.0]), "y": np.array(0.6)})
+
+
+class _Theta:
+    def __init__(self, friction=1.0):
+        self.friction = friction
+
+    def replace(self, friction):
+        return _Theta(friction)
+
+
+class _Differentiable:
+    """A stand-in for `jtraj.differentiable` of the hop: the loss's gradient is the friction."""
+
+    def __init__(self, task, solver):
+        self.theta = _Theta()
+        self.last_solution = SimpleNamespace(stats=SimpleNamespace(iterations=7), x=np.zeros(3), mult_g=np.zeros(2))
+        self.nlp = SimpleNamespace(n=3, m=2)
+        self.transcription = SimpleNamespace(N=4)
+
+    def __call__(self, theta):
+        return SimpleNamespace(cost=float(np.sum(theta.friction)), tau=np.zeros((5, 8)))
+
+    def warm_start_from(self, x):
+        pass
+
+
+@pytest.mark.parametrize("vmapped_off_by", [0.0, 0.5])
+def test_a_batch_whose_vmapped_gradients_differ_says_so(monkeypatch, vmapped_off_by):
+    """Where the vmapped and the one-by-one gradients of a batch disagreed, the benchmark said
+    "the solvers' gradients differ" (one solver's, against itself). Fakes for JAX's transforms
+    and the solver: no compile, no solve."""
+    import jax
+
+    bench = bench_module("differentiate")
+
+    def vmap(fn):  # the batch's gradients, off by ``vmapped_off_by`` against the members one by one
+        return lambda xs: np.array([fn(x) for x in xs]) + vmapped_off_by
+
+    fake_jax = SimpleNamespace(jit=lambda fn: fn, grad=lambda fn: fn, vmap=vmap, block_until_ready=lambda x: x, tree=jax.tree)
+    monkeypatch.setattr(bench, "jax", fake_jax)
+    monkeypatch.setattr(bench, "jnp", np)
+    monkeypatch.setattr(bench, "differentiable", _Differentiable)
+    monkeypatch.setattr(bench, "kkt_system", lambda *a: SimpleNamespace(solve=lambda *a, **k: None, matrix=SimpleNamespace(nnz=1)))
+    if vmapped_off_by:
+        with pytest.raises(SystemExit) as exc:
+            bench.measure(bench.hop(1), "jtraj", repeat=1, batch=2)
+        assert str(exc.value.code).startswith("bench/differentiate.py: the vmapped and the one-by-one gradients differ by ")
+    else:
+        rec, gradient = bench.measure(bench.hop(1), "jtraj", repeat=1, batch=2)
+        assert rec["batch"] == 2 and rec["knots"] == 5 and gradient == 1.0

@@ -30,3 +30,22 @@ def test_factor_split_bench_compares_the_two_factors(monkeypatch):
     lines = bench.table([small, split]).splitlines()
     assert lines[2].startswith("| 3 x 4 (2) | no (n <= 4) |")
     assert lines[3].startswith("| 3 x 9 (5) | yes |")
+
+
+def test_the_largest_difference_covers_the_off_diagonal_blocks(monkeypatch):
+    """The table's "largest difference between the two factors" compared only their diagonal
+    blocks: factors that differ in ``sub`` alone reported 0. Fake programs, no compile."""
+    import jax.numpy as jnp
+
+    bench = bench_module("factor_split")
+    K, n, c = 3, 4, 2
+
+    def program(split_above, cols, diag, upper):
+        sub = jnp.ones((K, c, n)).at[1, 0, 2].add(0.25 if split_above == bench.NO_SPLIT else 0.0)
+        return lambda d, u: (kkt.BlockFactor(diag=d, sub=sub), jnp.asarray(True))
+
+    monkeypatch.setattr(bench, "program", program)
+    rec = bench.measure(K, n, c, rounds=1)
+    # |1 - 1.25| of the one call's largest sub entry 1.25; the diagonal blocks agree
+    assert rec["max_rel_diff"] == 0.2
+    assert bench._relative_difference(jnp.zeros(3), jnp.zeros(3)) == 0.0

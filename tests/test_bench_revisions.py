@@ -152,3 +152,60 @@ def test_out_is_written_as_the_other_benchmarks_results_with_the_provenance_writ
     md = (out / "revisions.md").read_text()
     assert md.startswith("| task | iterations (") and md in printed
     assert sorted(p.name for p in out.iterdir()) == ["provenance.json", "revisions.json", "revisions.md"]  # no temporary file left
+
+
+def test_a_failed_process_keeps_the_records_measured_before_it(revisions, monkeypatch, tmp_path, capsys):
+    """One failed child raised RuntimeError with a traceback, and every record measured before
+    it was lost (the files were written at the end): now they are written, marked incomplete,
+    the table holds the tasks both revisions solved, and the benchmark stops with one line."""
+    from jtraj import io
+
+    real_run = revisions.subprocess.run
+    removed = []
+
+    def run(cmd, *args, **kwargs):  # no worktree: the children are faked
+        if "worktree" in cmd:
+            removed.append("remove" in cmd)
+            return revisions.subprocess.CompletedProcess(cmd, 0, "", "")
+        return real_run(cmd, *args, **kwargs)
+
+    calls = []
+
+    def child(tree, task, param, variables, repeats):
+        calls.append(task)
+        if len(calls) == 4:  # the later revision of the second task
+            raise RuntimeError(f"{task} at {tree}: exit 1: MemoryError")
+        return dict(task=task, iterations=10, status="solved", cost=1.0, times=[1.0])
+
+    monkeypatch.setattr(revisions.subprocess, "run", run)
+    monkeypatch.setattr(revisions, "run_child", child)
+    monkeypatch.setattr("jtraj.provenance.source", lambda root=None: {"commit": "c", "dirty": True})
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as exc:
+        revisions.main(["HEAD", "walk", "big_jump", "backflip", "--repeats", "1", "--out", str(out)])
+    message = str(exc.value.code)
+    assert message == f"bench/revisions.py: big_jump at {revisions.REPO}: exit 1: MemoryError; {out}/revisions.json holds the 3 records measured before it"
+    assert calls == ["walk", "walk", "big_jump", "big_jump"] and removed == [False, True]  # stopped there; the worktree removed
+    prov = io.read_json(out / "provenance.json")
+    earlier, later = prov["revisions"]["earlier"], prov["revisions"]["later"]
+    assert [(r["task"], r["label"]) for r in io.read_json(out / "revisions.json")] == [("walk", earlier), ("walk", later), ("big_jump", earlier)]
+    assert prov["complete"] is False
+    rows = [line for line in (out / "revisions.md").read_text().splitlines() if line.startswith("| ")]
+    assert [row.split(" | ")[0] for row in rows] == ["| task", "| walk"]  # big_jump has one revision's record: no row
+
+
+def test_a_failed_first_process_writes_nothing(revisions, monkeypatch, tmp_path):
+    real_run = revisions.subprocess.run
+
+    def run(cmd, *args, **kwargs):
+        return revisions.subprocess.CompletedProcess(cmd, 0, "", "") if "worktree" in cmd else real_run(cmd, *args, **kwargs)
+
+    def child(tree, task, param, variables, repeats):
+        raise RuntimeError(f"{task} at {tree}: exit 1: boom")
+
+    monkeypatch.setattr(revisions.subprocess, "run", run)
+    monkeypatch.setattr(revisions, "run_child", child)
+    monkeypatch.setattr("jtraj.provenance.source", lambda root=None: {"commit": "c", "dirty": True})
+    with pytest.raises(SystemExit, match=r"^bench/revisions\.py: walk at .*: exit 1: boom$"):
+        revisions.main(["HEAD", "walk", "--out", str(tmp_path / "out")])
+    assert not (tmp_path / "out").exists()
