@@ -30,7 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jtraj.numbers import is_whole
-from jtraj.sensitivity import ActiveArrays, KKTSystem, ParametricNLP, check_weak_tol, kkt_system, residual
+from jtraj.sensitivity import KKT_TOL, ActiveArrays, KKTSystem, ParametricNLP, check_kkt_tol, check_weak_tol, kkt_system, residual
 
 __all__ = ["ImplicitSolution", "implicit_solution", "SecondOrderError"]
 
@@ -141,6 +141,7 @@ def implicit_solution(
     forward: Callable[[Any], tuple[np.ndarray, np.ndarray]],
     *,
     weak_tol: float = 1e-6,
+    kkt_tol: float | None = KKT_TOL,
     cache_size: int = 16,
     forward_many: Callable[[list[Any]], list[tuple[np.ndarray, np.ndarray]]] | None = None,
 ) -> Callable[[Any], ImplicitSolution]:
@@ -152,6 +153,11 @@ def implicit_solution(
             (a numpy pytree theta in); it should solve tightly (the derivatives are those of
             the exact solution) and may raise on failure.
         weak_tol: weak-activity tolerance of `jtraj.sensitivity.active_set`.
+        kkt_tol: the largest `jtraj.sensitivity.kkt_errors` of a forward's solution accepted
+            (infeasibility, and the dual and complementarity errors relative to the gradient's
+            and multipliers' size); a point farther from a KKT point is refused with
+            `jtraj.sensitivity.NotAKKTPointError`, since its derivatives would be of no
+            solution. None: not checked.
         cache_size: how many factorized systems to keep for backward passes (an integer >= 0;
             a pass whose system is no longer kept rebuilds it from the solution).
         forward_many: optional host function ``forward_many([theta, ...]) -> [(x, lam), ...]``
@@ -162,6 +168,7 @@ def implicit_solution(
     # checked here: a negative size failed at the first solve with a bare KeyError, a
     # negative or NaN weak_tol was taken without a word
     check_weak_tol(weak_tol)
+    check_kkt_tol(kkt_tol)
     if not is_whole(cache_size) or cache_size < 0:
         raise ValueError(f"cache_size must be an integer >= 0 (factorized systems kept), got {cache_size!r}")
     n, m = nlp.n, nlp.m
@@ -180,7 +187,7 @@ def implicit_solution(
             raise ValueError(f"forward returned x of shape {x.shape} and lam of shape {lam.shape}; expected ({n},) and ({m},), the NLP's sizes")
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(lam))):
             raise ValueError("forward returned NaN or infinite x or lam: a failed solve? forward should raise when its solver fails")
-        system = kkt_system(nlp, x, lam, theta, weak_tol=weak_tol)
+        system = kkt_system(nlp, x, lam, theta, weak_tol=weak_tol, kkt_tol=kkt_tol)
         a = system.active
         token = cache.put(system)
         lam = np.where(a.row_active, lam, 0.0)
@@ -253,7 +260,7 @@ def implicit_solution(
             if system is None:  # evicted: rebuild from the solution it was made for
                 i = rows[0]
                 th = jax.tree_util.tree_unflatten(treedef, [leaf.reshape((-1,) + leaf.shape[len(batch):])[i] for leaf in thetas])
-                system = kkt_system(nlp, xs[i], lams[i], th, weak_tol=weak_tol)
+                system = kkt_system(nlp, xs[i], lams[i], th, weak_tol=weak_tol, kkt_tol=None)  # checked by the forward pass
                 cache.restore(int(t), system)
             out[rows] = system.solve(bb[rows], transpose=transpose)
         return out.reshape(batch + (b.shape[-1],))

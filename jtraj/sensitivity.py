@@ -64,7 +64,21 @@ import scipy.sparse.linalg as spla
 
 from jtraj.numbers import is_real
 
-__all__ = ["ParametricNLP", "DenseNLP", "ActiveSet", "ActiveArrays", "active_set", "active_arrays", "KKTSystem", "kkt_system", "residual", "check_weak_tol", "SingularKKTError"]
+__all__ = ["ParametricNLP", "DenseNLP", "ActiveSet", "ActiveArrays", "active_set", "active_arrays", "KKTSystem", "kkt_system", "residual", "check_weak_tol", "SingularKKTError", "NotAKKTPointError", "kkt_errors", "check_kkt_point", "check_kkt_tol", "KKT_TOL"]
+
+
+class NotAKKTPointError(ValueError):
+    """The point given as a solution is not a KKT point of the NLP at theta (`kkt_errors` above
+    ``kkt_tol``): a solve stopped early or at a loose tolerance, or a forward that returns
+    something else. The implicit function theorem holds at KKT points only: the derivatives
+    there would be of no solution (an unconverged point of ``min (x - theta)^2 / 2, x <= 1``
+    at theta = 2, x = 0.5, gave dx/dtheta = 1 where the solution's is 0)."""
+
+
+#: `kkt_system`'s default ``kkt_tol``: the largest `kkt_errors` accepted. A solve to Ipopt's
+#: tol 1e-10 (`jtraj.differentiate`'s forward) ends near 1e-10; the study's tol 1e-3 ends with
+#: violations near 1e-6 or below.
+KKT_TOL = 1e-4
 
 
 class SingularKKTError(RuntimeError):
@@ -355,17 +369,84 @@ class KKTSystem:
         return Z.T.reshape(rhs.shape)
 
 
-def kkt_system(nlp: ParametricNLP, x: np.ndarray, lam: np.ndarray, theta: Any, *, weak_tol: float = 1e-6) -> KKTSystem:
+def kkt_errors(nlp: ParametricNLP, x: Any, lam: Any, theta: Any, jac_values: np.ndarray | None = None) -> dict[str, float]:
+    """How far ``(x, lam)`` is from a KKT point of ``nlp`` at ``theta`` (Ipopt's sign convention,
+    module docstring), each the largest over the variables and rows:
+
+    - ``infeasibility``: a row's or a variable's violation of its bounds (absolute);
+    - ``dual``: the bound multiplier ``z = grad f + J^T lam`` a variable cannot have (of the sign
+      of its nearer bound's, 0 without a finite bound; a fixed variable takes any), and a
+      row's multiplier of the wrong sign for its nearer bound (an equality's takes any);
+    - ``complementarity``: ``|z_i| slack_i`` and ``|lam_j| slack_j`` (to the nearer bound).
+
+    ``dual`` and ``complementarity`` are relative to ``max(1, |grad f|, |lam|)`` (largest
+    entries), as Ipopt scales its dual residual by the multipliers' size."""
+    x, lam = _solution_point(nlp, x, lam, 0.0)
+    xl, xu, gl, gu = (np.asarray(b, float) for b in nlp.bounds(theta))
+    xj = jnp.asarray(x)
+    g = np.asarray(nlp.constraints(xj, theta))
+    J = np.asarray(nlp.jacobian(xj, theta)) if jac_values is None else jac_values
+    grad = np.asarray(nlp.gradient(xj, theta))
+    z = grad.copy()
+    np.add.at(z, nlp.jac_cols, J * lam[nlp.jac_rows])
+    scale = max(1.0, float(np.abs(grad).max(initial=0.0)), float(np.abs(lam).max(initial=0.0)))
+    infeasible = max(
+        float(np.max(np.maximum(xl - x, x - xu), initial=0.0)),
+        float(np.max(np.maximum(gl - g, g - gu), initial=0.0)),
+    )
+
+    def dual_and_compl(value, mult, lower, upper, free_sign):
+        upper_side, slack = _side_and_slack(value, lower, upper)
+        bounded = np.isfinite(slack)
+        # the multiplier's own sign: >= 0 at a lower bound, <= 0 at an upper one (z = z_L - z_U;
+        # a row's lam is -lam_L + lam_U, the other way round)
+        signed = np.where(upper_side, -mult, mult) if free_sign is None else np.where(upper_side, mult, -mult)
+        wrong = np.where(bounded, np.maximum(-signed, 0.0), np.abs(mult))
+        wrong = np.where(free_sign if free_sign is not None else lower == upper, 0.0, wrong)
+        compl = np.abs(mult) * np.where(bounded, np.maximum(slack, 0.0), 0.0)  # (no inf * 0)
+        return float(np.max(wrong, initial=0.0)), float(np.max(compl, initial=0.0))
+
+    dual_x, compl_x = dual_and_compl(x, z, xl, xu, None)
+    dual_g, compl_g = dual_and_compl(g, lam, gl, gu, gl == gu)
+    return dict(infeasibility=infeasible, dual=max(dual_x, dual_g) / scale, complementarity=max(compl_x, compl_g) / scale)
+
+
+def check_kkt_tol(kkt_tol: Any) -> None:
+    """Refuse a ``kkt_tol`` that is neither a number > 0 nor None."""
+    if kkt_tol is not None and not (is_real(kkt_tol) and kkt_tol > 0):
+        raise ValueError(f"kkt_tol must be a number > 0 or None (no check), got {kkt_tol!r}")
+
+
+def check_kkt_point(nlp: ParametricNLP, x: Any, lam: Any, theta: Any, kkt_tol: float | None = KKT_TOL, jac_values: np.ndarray | None = None) -> None:
+    """Raise `NotAKKTPointError` where a `kkt_errors` of ``(x, lam)`` is above ``kkt_tol``
+    (None: no check)."""
+    check_kkt_tol(kkt_tol)
+    if kkt_tol is None:
+        return
+    errors = kkt_errors(nlp, x, lam, theta, jac_values)
+    above = {k: v for k, v in errors.items() if not v <= kkt_tol}
+    if above:
+        said = ", ".join(f"{k} {v:.3g}" for k, v in above.items())
+        raise NotAKKTPointError(
+            f"not a KKT point of the NLP at this theta: {said} (kkt_tol={kkt_tol:g}); its implicit derivatives would be of no solution. "
+            "Solve to a tighter tolerance, or check what the forward returns (kkt_tol=None skips this check)"
+        )
+
+
+def kkt_system(nlp: ParametricNLP, x: np.ndarray, lam: np.ndarray, theta: Any, *, weak_tol: float = 1e-6, kkt_tol: float | None = KKT_TOL) -> KKTSystem:
     """Active set and sensitivity matrix K at a solution ``(x, lam)`` of ``nlp`` at ``theta``.
 
     K is built from the sparse Jacobian and Lagrangian Hessian values of ``nlp`` (the
     Hessian with the active rows' multipliers only); `residual` is the function it is the
-    Jacobian of. The LU factorization happens on the first `KKTSystem.solve`.
+    Jacobian of. The LU factorization happens on the first `KKTSystem.solve`. A point farther
+    from a KKT point than ``kkt_tol`` (`kkt_errors`; None: not checked) is refused with
+    `NotAKKTPointError`.
     """
     n, m = nlp.n, nlp.m
     x, lam = _solution_point(nlp, x, lam, weak_tol)
     xj = jnp.asarray(x)
     J = np.asarray(nlp.jacobian(xj, theta))
+    check_kkt_point(nlp, x, lam, theta, kkt_tol, jac_values=J)
     act = active_set(nlp, x, lam, theta, weak_tol=weak_tol, jac_values=J)
     lam_a = np.where(act.row_active, np.asarray(lam, float), 0.0)
     Hv = np.asarray(nlp.hessian(xj, jnp.asarray(lam_a), 1.0, theta))

@@ -256,14 +256,17 @@ def test_a_target_off_the_terrain_is_refused_before_a_solve(hop):
 def test_a_solve_stopped_at_the_acceptable_level_warns(hop):
     """Ipopt's acceptable level (violation and complementarity up to 1e-2) is "converged" to
     the Status, but the derivatives at such a point may be wrong: it warns, not silently
-    (regression: the motion and its derivatives came back without a word)."""
+    (regression: the motion and its derivatives came back without a word). This one, accepted
+    at thresholds of 1e3 after its first iterations, is then refused as no KKT point
+    (violation 3.3): its derivatives would have been of no solution."""
     from jtraj.differentiate import forward_options
+    from jtraj.sensitivity import NotAKKTPointError
 
     options = hop.options
     hop.options = forward_options(hop.backend, {"acceptable_iter": 1, "acceptable_tol": 1e3, "acceptable_constr_viol_tol": 1e3, "acceptable_compl_inf_tol": 1e3})
     hop.warm_start_from(None)
     try:
-        with pytest.warns(RuntimeWarning, match="approximate solution"):
+        with pytest.warns(RuntimeWarning, match="approximate solution"), pytest.raises(NotAKKTPointError, match=r"infeasibility \d"):
             hop(hop.theta)
     finally:
         hop.options = options

@@ -356,3 +356,45 @@ def test_vmap_hands_the_whole_batch_to_forward_many():
     bad = implicit_solution(nlp, forward, forward_many=lambda ths: [forward(th) for th in ths[:-1]])
     with pytest.raises(Exception, match="forward_many returned 2 solutions for 3 parameter sets"):
         jax.block_until_ready(jax.vmap(lambda th: bad(th).x)(thetas))
+
+
+def _capped_qp() -> DenseNLP:
+    """``min (x - theta)^2 / 2  s.t.  x <= 1`` (a row): at theta = 2, x = 1, lam = 1 and
+    dx/dtheta = 0."""
+    return DenseNLP(
+        lambda x, th: 0.5 * jnp.sum((x - th) ** 2),
+        lambda x, th: x,
+        lambda th: (jnp.full(1, -jnp.inf), jnp.full(1, jnp.inf), jnp.full(1, -jnp.inf), jnp.ones(1)),
+        1, 1,
+    )
+
+
+@pytest.mark.parametrize(
+    ("x", "lam", "said"),
+    [
+        # stopped early: stationarity fails, |x - theta| / max(1, |grad f|) (it gave dx/dtheta = 1)
+        (0.5, 0.0, "dual 1"),
+        (1.0, -1.0, "dual 2"),  # the row's multiplier of the wrong sign (and stationarity)
+        (1.2, 0.8, "infeasibility 0.2, complementarity 0.16"),  # over the row's bound
+        (0.5, 1.5, "complementarity 0.5"),  # a multiplier on a row that is slack (0.5 * 1.5 / 1.5)
+    ],
+)
+def test_a_point_that_is_not_a_kkt_point_is_refused(x, lam, said):
+    """Only shapes and finiteness were checked: the derivatives of a forward that returned an
+    unconverged point came back as those of a solution (dx/dtheta = 1 where it is 0)."""
+    from jtraj.sensitivity import NotAKKTPointError, kkt_errors
+
+    nlp, theta = _capped_qp(), jnp.array([2.0])
+    good = implicit_solution(nlp, lambda th: (np.array([1.0]), np.array([1.0])))
+    np.testing.assert_allclose(np.asarray(jax.jacobian(lambda th: good(th).x)(theta)), [[0.0]], atol=1e-12)
+    assert max(kkt_errors(nlp, np.array([1.0]), np.array([1.0]), theta).values()) == 0.0
+    bad = implicit_solution(nlp, lambda th: (np.array([x]), np.array([lam])))
+    with pytest.raises(NotAKKTPointError, match=rf"not a KKT point of the NLP at this theta: {said} \(kkt_tol=0.0001\); its implicit derivatives would be of no solution"):
+        bad(theta)
+    with pytest.raises(NotAKKTPointError):
+        kkt_system(nlp, np.array([x]), np.array([lam]), theta)
+    # kkt_tol=None: not checked, as before (the caller's own responsibility)
+    assert implicit_solution(nlp, lambda th: (np.array([x]), np.array([lam])), kkt_tol=None)(theta).x.shape == (1,)
+    for tol in (0.0, -1.0, float("nan"), "1e-4"):
+        with pytest.raises(ValueError, match="kkt_tol must be a number > 0 or None"):
+            implicit_solution(nlp, lambda th: (np.array([1.0]), np.array([1.0])), kkt_tol=tol)
