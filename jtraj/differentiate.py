@@ -318,13 +318,15 @@ def differentiable(
         variables: the variables per knot, a name of `jtraj.solver.VARIABLES` or a
             `jtraj.transcription.TranscriptionOptions` (default compact).
         force_weight: weight of the force regularization ``1/2 w |f / (m g)|^2`` per knot
-            and contact point (makes internal contact forces unique).
+            and contact point (makes internal contact forces unique); ``m`` is the robot
+            model's mass, a constant: theta's ``body_masses`` do not rescale this term.
         solver: a `jtraj.solvers.SOLVERS` name or a solver object, for the forward solve.
         options: its options. A dict is merged over the forward solve's defaults (None:
             those alone), `IPOPT_OPTIONS` for Ipopt (tol 1e-10 and the exact Hessian) and
             `JTRAJ_OPTIONS` for jtraj's solver (the same, and a floor under its dual
             regularization), so ``{"max_iter": 50}`` keeps the tight tolerance; an options
-            object is used as given. Other backends: their defaults and the dict's changes.
+            object is used as given. The task's own ``max_iter`` (the study's limit, 50 to
+            200) is not used: the tight tolerance takes more, and the defaults allow 500. Other backends: their defaults and the dict's changes.
             jtraj's solver's own defaults are loose for derivatives: it stops at tol 1e-3
             (measured on the Go2 hop of tests/test_differentiable.py: d take-off velocity /
             d trunk mass -1.42992e-3 against Ipopt's -1.43133e-3, which central differences
