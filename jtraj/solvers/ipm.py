@@ -68,7 +68,17 @@ Differences from Ipopt, and why:
   strategy's fixed mode lowers it once); the filter holds 64 entries in a ring and keeps
   dominated ones; with the LOQO oracle the free mode's fraction to the boundary is
   ``1 - mu`` (Ipopt's is ``1 - error`` with every oracle); ``delta_w_max`` is the paper's
-  1e40 (Ipopt's default 1e20).
+  1e40 (Ipopt's default 1e20). In the adaptive strategy's fixed mode tau is ``max(tau_min,
+  1 - mu)`` of the new mu at every iteration (Ipopt sets it when the mode changes or mu is
+  lowered, from the old mu; they differ below mu = 1e-2, in tau's third decimal or beyond).
+  The inertia correction tries ``delta_w = 0`` first at every iteration (Ipopt skips that
+  trial once three iterations in a row needed a correction, its degenerate-Hessian rule; with
+  the default L-BFGS Hessian the matrix is positive definite anyway) and makes at most 40
+  trials (Ipopt has no count; its sequence reaches ``delta_w_max`` in about 35). Iterative
+  refinement stops at the first step that does not lower the residual and hands that step
+  on: Ipopt then raises the perturbation when the residual ratio is still above 1e-5
+  (``residual_ratio_singular``), which is not done here (on 40 random ill-conditioned systems
+  one ended at a ratio of 1.5e-5; on the tests' problems at tol 1e-15 none above 1e-6).
 - Everything is one `jax.jit` program (`lax.while_loop`); `jax.vmap` of `IPM.solve` over
   initial guesses (and parameters theta) is one program too. On an accelerator it is
   vectorized: the replicates step together, and a converged replicate's state no longer
