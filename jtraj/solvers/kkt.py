@@ -656,7 +656,9 @@ def solve(
     it stops once the residual ratio ``|res| / (min(|sol|, 1e6 |rhs|) + |rhs|)`` (max norms) is
     at most ``residual_ratio_max``, or when a step does not lower the residual, and after
     ``refine_steps`` steps in any case. ``residual_ratio_max=0`` always takes ``refine_steps``
-    steps, keeping each only where it lowers the residual.
+    steps, keeping each only where it lowers the residual. Unlike Ipopt, a solve whose ratio
+    stays above the limit is returned as it is (Ipopt raises the perturbation and solves again
+    above ``residual_ratio_singular``, 1e-5; `jtraj.solvers.ipm`'s list of differences).
 
     ``low_rank``: the Hessian has that term too (``fac`` factors the matrix without it, which
     must then be positive definite, as with a BFGS matrix); the condensed solve applies the
