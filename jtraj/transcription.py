@@ -224,7 +224,10 @@ class TaskParams:
         timestep: () h (s); the knot count stays the task's.
         friction: () coefficient mu of the friction pyramid.
         force_limit_factor: () |f_i| <= factor * (sum of body_masses) * g per component.
-        max_delta_force: () N per knot and component; inf (and no rows) for a task without.
+        max_delta_force: () N per knot and component; inf (and no rows) for a task without,
+            where a finite value is refused (`Transcription.resolve_theta`) unless it is
+            being traced (under ``jit``/``grad``): then it cannot be looked at, and has no
+            effect, since the task has no force-rate rows to bound.
         configuration_weight, acceleration_weight: () cost weights.
         body_masses: (nbody,) kg, one per MuJoCo body, world first (`dynamics.model_masses`;
             the world's must be 0: no dynamics has it).
