@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import threading
 import time
+from collections.abc import Mapping
 from typing import Any
 
 import jax.numpy as jnp
@@ -88,6 +90,9 @@ class Prepared:
 
 
 _CACHE: dict[tuple, Prepared] = {}
+#: guards `_CACHE` and `_BUILDING` (a key's lock while a thread builds its NLP)
+_CACHE_LOCK = threading.Lock()
+_BUILDING: dict[tuple, threading.Lock] = {}
 
 
 def release_compiled() -> None:
@@ -137,14 +142,32 @@ def prepare(
     layout: str | TranscriptionOptions | None = None,
 ) -> Prepared:
     """Build (once per task, parameterization and variables per knot) the transcription and
-    compile its NLP. ``variables`` as in `solve`; ``layout`` is its deprecated former name."""
+    compile its NLP. ``variables`` as in `solve`; ``layout`` is its deprecated former name.
+
+    The task is part of the key field by field: a task with another value of a parameter (or
+    ``max_iter``, ``description``) is another NLP, built and compiled again. To reuse the
+    compiled NLP, pass the parameter as ``theta`` (`solve`'s) and the iteration limit as a
+    solver option. Threads that ask for the same key at once build it once."""
     variables = renamed_argument(variables, layout, "variables", "layout", "compact")
     task = tasks.load(task)
     param = params.get(parameterization)
     options = transcription_options(variables)
     key = (task, param, options)
-    if key in _CACHE:
-        return _CACHE[key]
+    with _CACHE_LOCK:
+        if key in _CACHE:
+            return _CACHE[key]
+        building = _BUILDING.setdefault(key, threading.Lock())
+    with building:  # two threads missed the cache: the second waits for the first's build
+        try:
+            if key in _CACHE:
+                return _CACHE[key]
+            return _build(key, task, param, options)
+        finally:
+            with _CACHE_LOCK:
+                _BUILDING.pop(key, None)
+
+
+def _build(key: tuple, task: tasks.Task, param: params.AbstractParameterization, options: TranscriptionOptions) -> Prepared:
     # about to compile a new NLP (and, for jtraj's solver, its program): a process that went
     # through many of them (a sweep, a benchmark, a notebook) frees the earlier ones first
     release_compiled_if_crowded()
@@ -157,6 +180,20 @@ def prepare(
     prep = Prepared(tr, nlp, time.perf_counter() - t0)
     _CACHE[key] = prep
     return prep
+
+
+def _check_theta_form(theta: Any) -> None:
+    """`solve`'s ``theta`` checked for its form and names before the NLP is built (its values
+    need the task's shapes: `Transcription.resolve_theta`); the messages are resolve_theta's
+    and `TaskParams.replace`'s."""
+    if theta is None or isinstance(theta, TaskParams):
+        return
+    if not isinstance(theta, Mapping):
+        raise TypeError(f"theta must be None, a mapping of parameter overrides or a TaskParams, got {type(theta).__name__}")
+    names = [f.name for f in dataclasses.fields(TaskParams)]
+    for name in theta:
+        if name not in names:
+            raise ValueError(f"unknown task parameter {name!r}; expected one of {names}")
 
 
 def compile_callbacks(tr: Transcription, nlp: KnotNLP) -> None:
@@ -256,10 +293,19 @@ def solve(
         raise ValueError(f"solve: seed={seed!r}: expected a seed >= 0 for numpy's default_rng, which draws this noise (replicate= draws with JAX, which takes any)")
     if out is not None and (problem := jio.output_folder_problem(out)) is not None:  # (not after the solve)
         raise ValueError(f"solve: out={out!r}: {problem}")
+    # how the start is drawn, and theta's form and names (its values need the task's shapes)
+    if replicate is not None and (warm_start is not None or theta is not None):
+        raise ValueError("solve: replicate= solves a run of the noise study, from the task's own warm start at its own theta; give it without warm_start= and theta=")
+    if noise_chart is not None and replicate is None:
+        raise ValueError("solve: noise_chart= needs replicate= (the study's draws)")
+    if noise_chart is not None and noise_chart not in params.PARAMETERIZATIONS:
+        raise ValueError(f"solve: noise_chart={noise_chart!r}: expected one of {', '.join(params.PARAMETERIZATIONS)} or None")
+    _check_theta_form(theta)
     backend = solvers.get(solver)
     solver_options(backend, options, ipopt_options, exact_hessian, 0)  # the task's limit comes below
-    if isinstance(progress_every, bool) or not isinstance(progress_every, int) or progress_every < 1:
+    if not is_whole(progress_every) or progress_every < 1:  # (numpy's integers too; not True)
         raise ValueError(f"solve: progress_every={progress_every!r}: expected an integer >= 1")
+    progress_every = int(progress_every)
     callback = solvers.resolve_progress(progress, progress_every)
     if callback is not None and callback.wants_iterates and not backend.reports_iterates:
         raise ValueError(f"solve: progress={progress!r} records the iterates, which solver={backend.name!r} does not report: record them with solver='ipopt'")
@@ -275,11 +321,7 @@ def solve(
     if replicate is not None:
         from jtraj.experiments import chart_noisy_warm_starts
 
-        if warm_start is not None or theta_given:
-            raise ValueError("solve: replicate= solves a run of the noise study, from the task's own warm start at its own theta; give it without warm_start= and theta=")
         x0 = chart_noisy_warm_starts(tr, noise_chart, [noise], [replicate], seed)[0, 0]
-    elif noise_chart is not None:
-        raise ValueError("solve: noise_chart= needs replicate= (the study's draws)")
     elif noise:
         x0 = x0 + noise * np.random.default_rng(seed).standard_normal(x0.shape)
     compile_time = prep.time_compile
@@ -343,7 +385,21 @@ def solver_options(
     if isinstance(options, solvers.AbstractOptions):
         if ipopt_options:
             raise ValueError("pass the solver options either as an options object or as ipopt_options, not both")
-        return backend.options(options, hessian="exact") if exact_hessian else backend.options(options)
+        if exact_hessian:
+            # the object's own choice of another Hessian than its default was replaced without
+            # a word (a dict's is refused below)
+            chosen = getattr(options, "hessian", None)
+            fields = {f.name: f.default for f in dataclasses.fields(options)} if dataclasses.is_dataclass(options) else {}
+            if chosen is not None and str(chosen).lower() not in ("exact", str(fields.get("hessian", "")).lower()):
+                raise ValueError(f"solve: {type(options).__name__}(hessian={chosen!r}) with exact_hessian=True: expected hessian='exact' (or the default) or exact_hessian=False")
+            return backend.options(options, hessian="exact")
+        return backend.options(options)
+    if options and ipopt_options:
+        # both dicts: ipopt_options won where they disagreed, without a word
+        clash = sorted(k for k in set(options) & set(ipopt_options) if options[k] != ipopt_options[k])
+        if clash:
+            said = ", ".join(f"{k}={options[k]!r} and {ipopt_options[k]!r}" for k in clash)
+            raise ValueError(f"solve: options and ipopt_options disagree on {said}: expected each option once (they are the same thing)")
     merged: dict[str, Any] = {"max_iter": max_iter, **(options or {}), **(ipopt_options or {})}
     if exact_hessian:
         if conflict := _hessian_conflict(merged):

@@ -288,6 +288,76 @@ def test_the_result_records_how_its_warm_start_was_made(tmp_path):
     assert given.options["warm_start"] == {"given": True, "noise": 0.0, "seed": 0, "replicate": None, "noise_chart": None}
 
 
+def test_solve_refuses_bad_starts_and_thetas_before_building_anything(monkeypatch):
+    """These were refused only after the NLP was built and compiled (tens of seconds on a
+    whole-body task); progress_every took no numpy integer."""
+    import jtraj.solver
+
+    class Built(Exception):
+        pass
+
+    def built(*args, **kwargs):
+        raise Built
+
+    monkeypatch.setattr(jtraj.solver, "prepare", built)
+    for kwargs, error, match in (
+        ({"noise_chart": "euler"}, ValueError, r"^solve: noise_chart= needs replicate="),
+        ({"noise": 0.1, "replicate": 0, "warm_start": np.zeros((3, 4))}, ValueError, r"^solve: replicate= solves a run of the noise study"),
+        ({"noise": 0.1, "replicate": 0, "theta": {"friction": 0.5}}, ValueError, r"^solve: replicate= solves a run of the noise study"),
+        ({"noise": 0.1, "replicate": 0, "noise_chart": "eulr"}, ValueError, r"^solve: noise_chart='eulr': expected one of se3, quat1, quat2, quat3, euler or None$"),
+        ({"theta": {"frictoin": 0.5}}, ValueError, r"^unknown task parameter 'frictoin'; expected one of \['target_translation'"),
+        ({"theta": [0.5]}, TypeError, r"^theta must be None, a mapping of parameter overrides or a TaskParams, got list$"),
+        ({"progress_every": 0}, ValueError, r"progress_every=0: expected an integer >= 1"),
+        ({"progress_every": True}, ValueError, r"progress_every=True: expected an integer >= 1"),
+    ):
+        with pytest.raises(error, match=match):
+            jtraj.solver.solve("big_jump", **kwargs)
+    for kwargs in ({"progress_every": np.int64(2)}, {"theta": {"friction": 0.5}}, {"noise": 0.1, "replicate": 0, "noise_chart": "euler"}):
+        with pytest.raises(Built):  # good: on to the build
+            jtraj.solver.solve("big_jump", **kwargs)
+
+
+def test_options_given_twice_must_agree():
+    """options and ipopt_options are the same thing: given both as dicts, ipopt_options won
+    where they disagreed; exact_hessian=True replaced an options object's own other Hessian."""
+    from jtraj.solver import solver_options
+
+    ipopt, jt = solvers.get("ipopt"), solvers.get("jtraj")
+    with pytest.raises(ValueError, match=r"^solve: options and ipopt_options disagree on max_iter=5 and 50: expected each option once"):
+        solver_options(ipopt, {"max_iter": 5, "tol": 1e-8}, {"max_iter": 50}, False, 200)
+    assert solver_options(ipopt, {"max_iter": 5}, {"max_iter": 5, "tol": 1e-8}, False, 200).max_iter == 5
+    with pytest.raises(ValueError, match=r"IpmOptions\(hessian='bfgs'\) with exact_hessian=True: expected hessian='exact'"):
+        solver_options(jt, jt.options({"hessian": "bfgs"}), None, True, 10)
+    assert solver_options(jt, jt.options({"tol": 1e-6}), None, True, 10).hessian == "exact"  # its default Hessian
+    assert solver_options(ipopt, ipopt.options({"hessian": "exact"}), None, True, 10).hessian == "exact"
+
+
+def test_threads_that_prepare_one_task_at_once_build_it_once(monkeypatch):
+    """Two threads that missed the cache together each built (and compiled) the NLP, and the
+    second replaced the first's in the cache."""
+    import threading
+    import time
+    from concurrent.futures import ThreadPoolExecutor
+
+    import jtraj.solver
+
+    builds: list[int] = []
+
+    def slow_build(key, task, param, options):
+        builds.append(threading.get_ident())
+        time.sleep(0.3)
+        prep = SimpleNamespace(key=key)
+        jtraj.solver._CACHE[key] = prep
+        return prep
+
+    monkeypatch.setattr(jtraj.solver, "_build", slow_build)
+    monkeypatch.setattr(jtraj.solver, "_CACHE", {})
+    with ThreadPoolExecutor(2) as pool:
+        a, b = pool.map(lambda _: jtraj.solver.prepare("big_jump"), range(2))
+    assert len(builds) == 1 and a is b
+    assert not jtraj.solver._BUILDING  # no lock left behind
+
+
 def test_exact_hessian_refuses_another_hessian_option():
     """exact_hessian=True dropped an explicit hessian_approximation='limited-memory' without a
     word and solved with the exact Hessian; an agreeing option is taken."""
