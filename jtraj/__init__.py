@@ -53,18 +53,25 @@ __version__ = "0.1.0"
 _LAZY = {"solve": ("jtraj.solver", "solve"), "Result": ("jtraj.result", "Result"), "load_task": ("jtraj.task", "load"), "load_robot": ("jtraj.robot", "load"), "TaskParams": ("jtraj.transcription", "TaskParams"), "differentiable": ("jtraj.differentiate", "differentiable"), "OptimalMotion": ("jtraj.differentiate", "OptimalMotion")}
 
 
+def _submodules() -> frozenset[str]:
+    """The names of the package's modules and subpackages (from its folder, nothing imported)."""
+    import pkgutil
+
+    return frozenset(info.name for info in pkgutil.iter_modules(__path__))
+
+
 def __getattr__(name: str):
     """The names imported on first use (solve, Result, load_task, load_robot, TaskParams,
-    differentiable, OptimalMotion, render): they pull in MuJoCo and the robots."""
-    if name == "render":  # the module jtraj.render, callable as its render() function
-        import importlib
+    differentiable, OptimalMotion, render): they pull in MuJoCo and the robots. The package's
+    submodules too (``jtraj.solvers``, ``jtraj.task``...): they were an AttributeError after
+    ``import jtraj`` until something else had imported them."""
+    import importlib
 
-        return importlib.import_module("jtraj.render")
     if name in _LAZY:
-        import importlib
-
         module, attr = _LAZY[name]
         return getattr(importlib.import_module(module), attr)
+    if not name.startswith("_") and name in _submodules():  # jtraj.render too, callable as its render()
+        return importlib.import_module(f"jtraj.{name}")
     raise AttributeError(f"module 'jtraj' has no attribute {name!r}")
 
 

@@ -85,9 +85,21 @@ def enable_compilation_cache(path: str | Path | None = None) -> Path | None:
     ``false``, ``no``, ``off`` or an empty value leave it on); an empty ``JTRAJ_CACHE_DIR`` is
     the default folder, not the working directory. Returns the folder, or None where the cache
     is turned off or its folder cannot be made (a `RuntimeWarning` says which and what to set:
-    the solve goes on without the cache)."""
+    the solve goes on without the cache).
+
+    Each call reads its arguments and the environment again, and a change takes effect in
+    this process: another folder (``path``, or a changed ``JTRAJ_CACHE_DIR``) is where the
+    compilations from then on are written and looked up, and ``JTRAJ_NO_CACHE=1`` set after
+    an earlier call turns the cache this module turned on off again (JAX sets its cache up
+    once, at the first compilation after the folder is chosen; it is reset here, by
+    ``jax.experimental.compilation_cache.compilation_cache.reset_cache``). Programs compiled
+    before stay in memory, and in the folder they were written to."""
     global _enabled
     if os.environ.get("JTRAJ_NO_CACHE", "").strip().lower() not in ("", "0", "false", "no", "off"):
+        if _enabled is not None:  # turned on by an earlier call: JAX would go on using it
+            jax.config.update("jax_compilation_cache_dir", None)
+            _reset_jax_cache()
+            _enabled = None
         return None
     # "~/x" (a quoted path in a shell, or a .env file) made a folder named "~" here
     target = (Path(path) if path is not None else Path(os.environ.get("JTRAJ_CACHE_DIR") or default_cache_dir())).expanduser()
@@ -106,5 +118,16 @@ def enable_compilation_cache(path: str | Path | None = None) -> Path | None:
     # entry that another process (a notebook kernel, a sweep's worker) is still writing gets
     # a torn executable (seen here: a segmentation fault in deserialize_executable).
     jax.config.update("jax_compilation_cache_max_size", CACHE_MAX_BYTES)
+    # JAX opens its folder at its first compilation and keeps it: without the reset, a second
+    # call's folder was returned while the entries still went to the first one
+    _reset_jax_cache()
     _enabled = target
     return target
+
+
+def _reset_jax_cache() -> None:
+    """Have JAX set its persistent cache up again, from its current settings, at its next
+    compilation (it does so once per process otherwise)."""
+    from jax.experimental.compilation_cache import compilation_cache
+
+    compilation_cache.reset_cache()

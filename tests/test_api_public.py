@@ -78,3 +78,33 @@ def test_former_names_warn_with_the_new_name(module, old, new):
     with pytest.warns(DeprecationWarning, match=new.replace(".", r"\.")):
         value = getattr(m, old)
     assert value is getattr(m, new.rsplit(".", 1)[1])
+
+
+def test_submodules_are_attributes_of_a_fresh_import():
+    """``jtraj.solvers.IpoptOptions`` (as docstrings write it) was an AttributeError after
+    ``import jtraj`` until a lazy name had imported the module; `import jtraj` still imports
+    none of them, and an unknown name is still an AttributeError."""
+    import os
+    import subprocess
+    import sys
+
+    code = """
+import sys
+import jtraj
+heavy = ("jtraj.solver", "jtraj.solvers", "jtraj.robot", "jtraj.render", "mujoco")
+assert not [m for m in heavy if m in sys.modules], [m for m in heavy if m in sys.modules]
+assert jtraj.solvers.IpoptOptions.__name__ == "IpoptOptions"
+for name in ("solver", "task", "transcription", "experiments", "result", "robot", "attitude"):
+    assert getattr(jtraj, name) is sys.modules["jtraj." + name], name
+for name in ("no_such_name", "_private"):
+    try:
+        getattr(jtraj, name)
+    except AttributeError as e:
+        assert str(e) == f"module 'jtraj' has no attribute {name!r}", str(e)
+    else:
+        raise AssertionError(name)
+print("ok")
+"""
+    env = {**os.environ, "JTRAJ_CPU_DEVICES": "1"}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and out.stdout == "ok\n", out.stderr

@@ -149,3 +149,38 @@ def test_split_cpu_takes_whole_counts_only(monkeypatch):
             config.split_cpu(count)
     assert not updates
     assert config.split_cpu(np.int64(3)) == 3 and updates == {"jax_num_cpu_devices": 3} and type(updates["jax_num_cpu_devices"]) is int
+
+
+def test_a_later_cache_folder_or_switch_takes_effect():
+    """JAX sets its persistent cache up once: a second call's folder (or JTRAJ_NO_CACHE=1 set
+    after the first) was returned while the entries still went to the first folder. A fresh
+    interpreter (this process's cache stays as it is) compiles a tiny program after each call."""
+    code = """
+import os, sys, tempfile
+import jax, jax.numpy as jnp
+from jtraj import config
+first, second = tempfile.mkdtemp(), tempfile.mkdtemp()
+def compile_one(k):  # a new program, cached however quickly it compiles
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
+    jax.jit(lambda x: jnp.sin(x) * k + k)(jnp.ones(k)).block_until_ready()
+    return [len(os.listdir(d)) for d in (first, second)]
+assert str(config.enable_compilation_cache(first)) == first
+one = compile_one(2)
+assert one[0] > 0 and one[1] == 0, one
+assert str(config.enable_compilation_cache(second)) == second
+two = compile_one(3)
+assert two[0] == one[0] and two[1] > 0, (one, two)
+os.environ["JTRAJ_NO_CACHE"] = "1"
+assert config.enable_compilation_cache() is None and jax.config.jax_compilation_cache_dir is None
+assert compile_one(4) == two, two
+del os.environ["JTRAJ_NO_CACHE"]
+assert str(config.enable_compilation_cache(first)) == first
+three = compile_one(5)
+assert three[0] > two[0] and three[1] == two[1], (two, three)
+print("ok")
+"""
+    env = _environment({"JTRAJ_CPU_DEVICES": "1"})
+    for name in ("JTRAJ_NO_CACHE", "JTRAJ_CACHE_DIR"):
+        env.pop(name, None)
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and out.stdout == "ok\n", out.stderr

@@ -394,9 +394,10 @@ class AbstractSolver(abc.ABC):
         callback: AbstractCallback | None = None,
     ) -> Solution:
         """Solve ``nlp`` with parameters ``theta`` (None: ``nlp.theta``) from the primal guess
-        ``x0`` (n,) or (n_knots, nz) (clipped into the variable bounds; another shape is a
-        ValueError, `initial_guess`). A NaN bound is a ValueError; a lower bound above its
-        upper one returns `Status.INVALID_PROBLEM` naming it, before anything compiles."""
+        ``x0`` (n,) or (n_knots, nz) (clipped into the variable bounds; another shape, or a NaN
+        or infinite entry, is a ValueError, `initial_guess`). A NaN bound is a ValueError; a
+        lower bound above its upper one returns `Status.INVALID_PROBLEM` naming it, before
+        anything compiles."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -462,13 +463,37 @@ def guess_shapes(nlp: Any) -> list[tuple[int, ...]]:
 
 
 def initial_guess(nlp: Any, x0: Any, name: str = "x0") -> np.ndarray:
-    """``x0`` as the (n,) vector of ``nlp``'s variables, from one of `guess_shapes`; any other
-    shape (a scalar or one value would be broadcast by the clip into the bounds) raises
-    ValueError naming ``name`` before anything compiles."""
-    x = np.asarray(x0, float)
+    """``x0`` as the (n,) vector of ``nlp``'s variables, from one of `guess_shapes`, before
+    anything compiles: something that is not an array of numbers (a `jtraj.result.Result`, a
+    trajectory) raises TypeError, any other shape (a scalar or one value would be broadcast by
+    the clip into the bounds) and a NaN or infinite entry (the solve compiled, then ended in a
+    numerical error with a NaN cost) raise ValueError, each naming ``name`` (and the first bad
+    entry, with its knot and slot where the NLP tells them: ``nlp.locate``)."""
     shapes = guess_shapes(nlp)
+    expected = f"{' or '.join(str(s) for s in shapes)} (the NLP's {nlp.n} variables)"
+    try:
+        x = np.asarray(x0, float)
+    except (TypeError, ValueError):  # float() of a Result, a ragged list, a word
+        raise TypeError(
+            f"{name} of type {type(x0).__name__}: expected an array of numbers of shape {expected}; "
+            "a Result or its trajectory holds no such array (jtraj.transcription.Transcription.warm_start gives a task's own start)"
+        ) from None
     if x.shape not in shapes:
-        raise ValueError(f"{name} of shape {x.shape}: expected {' or '.join(str(s) for s in shapes)} (the NLP's {nlp.n} variables)")
+        raise ValueError(f"{name} of shape {x.shape}: expected {expected}")
+    bad = np.flatnonzero(~np.isfinite(x.reshape(-1)))
+    if bad.size:
+        i = int(bad[0])
+        index = ", ".join(str(int(k)) for k in np.unravel_index(i, x.shape))
+        if callable(getattr(nlp, "locate", None)):
+            where = f" (at {nlp.locate('x', i)})"
+        elif x.ndim == 2:
+            where = f" (at knot {i // x.shape[1]}, column {i % x.shape[1]})"
+        else:
+            where = ""
+        raise ValueError(
+            f"{name}[{index}]{where} is {float(x.reshape(-1)[i])!r} ({bad.size} NaN or infinite entries of {name}): "
+            "an initial guess must be finite (a solve from it ends in a numerical error)"
+        )
     return x.reshape(-1)
 
 
@@ -497,16 +522,30 @@ def invalid_problem(f: BoundNLP, x0: np.ndarray, message: str, m: int, nlp: Any 
 def _check_theta_shapes(nlp: Any, theta: Any) -> None:
     """ValueError naming the first parameter of ``theta`` whose shape differs from that of the
     NLP's own ``nlp.theta`` (same structure); a batch of parameters, one per member of a
-    `solve_batch`, failed inside the NLP's bound functions with JAX's broadcasting error."""
+    `solve_batch`, failed inside the NLP's bound functions with JAX's broadcasting error.
+    TypeError where the structure differs (another type, other fields), naming the type
+    expected. An NLP without ``theta`` is not checked."""
     import jax
 
     own = getattr(nlp, "theta", None)
     if own is None or theta is own:
         return
+    structure: Any = jax.tree_util.tree_structure(theta)  # (mypy does not see PyTreeDef's !=)
+    if structure != jax.tree_util.tree_structure(own):
+        # (a dict of overrides, as jtraj.solve takes, failed inside the bound functions with
+        # AttributeError)
+        transcription = sys.modules.get("jtraj.transcription")
+        hint = (
+            "; a mapping of overrides ({'friction': 0.5}) becomes one by jtraj.transcription.Transcription.resolve_theta"
+            if transcription is not None and isinstance(own, transcription.TaskParams)
+            else ""
+        )
+        raise TypeError(
+            f"theta of type {type(theta).__name__} does not have the structure of the NLP's own theta: expected a {type(own).__name__} "
+            f"with the same fields (nlp.theta, or None for it){hint}"
+        )
     given = jax.tree_util.tree_flatten_with_path(theta)[0]
     ref = jax.tree_util.tree_flatten_with_path(own)[0]
-    if [path for path, _ in given] != [path for path, _ in ref]:
-        return
     for (path, a), (_, b) in zip(given, ref):
         if np.shape(a) != np.shape(b):
             raise ValueError(
@@ -519,7 +558,8 @@ def bind(nlp: Any, theta: Any = None) -> BoundNLP:
     """Fix ``theta`` in ``nlp``'s functions. An NLP with parameters has ``bounds(theta)`` and
     functions of ``(x, theta)``; one without takes x alone (``theta`` must then be None).
     ``theta=None`` means the NLP's own default parameters ``nlp.theta`` where it has them; a
-    parameter of another shape than in ``nlp.theta`` (a batch of them) raises ValueError.
+    parameter of another shape than in ``nlp.theta`` (a batch of them) raises ValueError, a
+    theta of another structure (a dict where ``nlp.theta`` is a `TaskParams`) TypeError.
     A NaN bound raises ValueError (bounds where lower > upper are `BoundNLP.inconsistent`)."""
     if callable(getattr(nlp, "bounds", None)):
         if theta is None:
