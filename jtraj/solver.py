@@ -243,8 +243,10 @@ def solve(
             default iteration limit of a dict.
         exact_hessian: use the exact Hessian of the Lagrangian from JAX instead of L-BFGS.
         ipopt_options: a dict of Ipopt options, the same as ``options`` (kept for scripts).
-        warm_start: (n_knots, nz) initial guess; default the task's warm start
-            (`Transcription.warm_start` at ``theta``: its standing pose and masses).
+        warm_start: (n_knots, nz) initial guess, in this parameterization's coordinates and
+            these variables (an array carries no chart: one made for another parameterization
+            of the same size, e.g. se3 and euler, is taken as it is); default the task's warm
+            start (`Transcription.warm_start` at ``theta``: its standing pose and masses).
         noise: standard deviation of zero-mean Gaussian noise added to the warm start.
         seed: seed of that noise (numpy's ``default_rng(seed)``, as the study's public code
             draws it, unless ``replicate`` is given).
