@@ -342,6 +342,32 @@ def test_vmap_keeps_members_line_searches_apart():
     assert len({int(i) for i in batched.iterations}) > 1  # each member stopped at its own iteration
 
 
+def test_the_direction_at_a_converged_iterate_is_corrected_for_the_polish():
+    """The feasibility polish goes on from a converged iterate with the direction computed
+    there; cutting the inertia correction for every member that was not RUNNING (meant for the
+    vmapped batch's members stopped before) left that direction uncorrected: a NaN step where
+    the Newton matrix needs delta_w > 0 (measured on the side-flip: 32 iterations ending at a
+    violation of 1.0e-6 instead of 33 at 5.8e-11)."""
+    layout = Layout((("z", 2),))
+    nk = 3
+    costs = [CostGroup("concave", (Dep("z"),), lambda theta, data, z: -0.5 * jnp.sum(z**2), np.arange(nk))]
+    groups = [ConstraintGroup("sum", (Dep("z"),), lambda theta, data, z: z[:1] + z[1:], np.arange(nk),
+                              np.full((nk, 1), -1.5), np.full((nk, 1), 1.5), np.ones((nk, 1), bool))]
+    nlp = KnotNLP(layout, nk, costs, groups, -np.ones((nk, 2)), np.ones((nk, 2)))
+    ipm = IPM(nlp, IpmOptions(hessian="exact", tol=0.1, compl_inf_tol=1.0, dual_inf_tol=10.0, max_iter=100, feasibility_polish_tol=None))
+    z0 = jnp.tile(jnp.array([0.05, 0.02]), (nk, 1))
+    p, st = ipm._start(z0, None)
+    step = jax.jit(lambda st, passes: ipm._iteration(p, st, passes, None))
+    passes = jnp.zeros((2,), jnp.int32)
+    for _ in range(5):
+        st, passes = step(st, passes)
+        if int(st.status) != IpmStatus.RUNNING:
+            break
+    # converged after one iteration (the loose test), where the concave cost needs a correction
+    assert int(st.status) == IpmStatus.CONVERGED and int(st.it) == 1
+    assert float(st.delta_w) > 0.0 and bool(jnp.all(jnp.isfinite(st.dx))), (float(st.delta_w), st.dx)
+
+
 def test_a_stopped_member_of_a_vmapped_batch_makes_no_inertia_correction(monkeypatch):
     """Under vmap a member that has stopped still runs the batch's iteration (its results are
     masked): one whose matrix holds a NaN (a log of a negative point) failed every trial of the
@@ -374,8 +400,9 @@ def test_a_stopped_member_of_a_vmapped_batch_makes_no_inertia_correction(monkeyp
         counts.append(len(calls))
     assert [IpmStatus(int(s)) for s in r.status] == [IpmStatus.CONVERGED, IpmStatus.NUMERICAL_ERROR]
     assert int(r.iterations[0]) >= 2  # the batch iterated after the second member stopped
-    # measured: 8 and 8 (192 before the stopped member's loop was cut)
-    assert counts[1] <= counts[0] + 2 * int(r.iterations[0]), counts
+    # the stopped member's corrections no longer come with every later iteration of the batch:
+    # at most those of the iterations up to its stop (measured: 8 and 54; 192 before)
+    assert counts[1] <= counts[0] + 2 * kkt.InertiaOptions().max_attempts, counts
 
 
 def test_negative_curvature_goes_through_inertia_correction():

@@ -1185,7 +1185,10 @@ class IPM:
             jnp.where(~finite, int(IpmStatus.NUMERICAL_ERROR),
             jnp.where(new.ls_fail >= o.max_line_search_failures, int(IpmStatus.LINE_SEARCH_FAILED),
             jnp.where(it >= o.max_iter, int(IpmStatus.MAX_ITER), int(IpmStatus.RUNNING)))))
-        new = self._direction(p, new._replace(status=status.astype(jnp.int32)), theta)  # sets mu with the quality function
+        # (the inertia correction is cut only for a member that had stopped before this
+        # iteration, a vmapped batch's: one that stops here may still take this direction, as
+        # the feasibility polish does from a converged iterate)
+        new = self._direction(p, new._replace(status=status.astype(jnp.int32)), theta, active=st.status == int(IpmStatus.RUNNING))  # sets mu with the quality function
         # a new barrier problem, every free-mode iteration (only the adaptive strategy has
         # one; Ipopt's AdaptiveMuUpdate resets the line search there even when mu comes out the
         # same, e.g. at mu_min), or a failed line search empties the filter
@@ -1288,7 +1291,7 @@ class IPM:
         M = jnp.block([[sig * SS + unused, L], [L.T, -jnp.diag(jnp.where(used, jnp.diag(SY), 1.0))]])
         return kkt.LowRank(W=jnp.concatenate([sig * S, Y], axis=0), M=M)
 
-    def _direction(self, p: _Problem, st: _State, theta) -> _State:
+    def _direction(self, p: _Problem, st: _State, theta, active: jax.Array | bool = True) -> _State:
         """Newton direction at the iterate for the barrier parameter, its step bounds, and the
         line search's reference values.
 
@@ -1309,8 +1312,9 @@ class IPM:
             delta_c = jnp.maximum(delta_c, o.delta_c_min)
         # the correction starts from the last positive delta_w, kept through the iterations
         # that needed none (Wächter & Biegler 2006, Algorithm IC; Ipopt's perturbation handler)
-        # (a member of a vmapped batch that has stopped makes no correction: its step is not taken)
-        fac, delta_w, ok = kkt.factor_with_correction(system, delta_c, st.delta_w_last, active=st.status == int(IpmStatus.RUNNING))
+        # (``active`` False, a member of a vmapped batch that had stopped: no correction, its
+        # step is not taken)
+        fac, delta_w, ok = kkt.factor_with_correction(system, delta_c, st.delta_w_last, active=active)
         avg = jnp.maximum(self._complementarity(p, st)[0], 1e-300)
         rx, rc = jax.tree.map(lambda a, b: jnp.stack([a, b]), right_hand_side(0.0, r_c), right_hand_side(avg, r_c))
         # both right-hand sides at once: their first block solves share the sweeps with the
