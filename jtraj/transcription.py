@@ -405,7 +405,10 @@ class Transcription:
     def resolve_theta(self, theta: TaskParams | Mapping[str, Any] | None = None, base: TaskParams | None = None) -> TaskParams:
         """``theta`` as `TaskParams`: None is ``base`` (default `default_theta`), a mapping
         overrides some of its fields (``{"friction": 0.5}``), a `TaskParams` is checked against
-        its shapes; both are checked for values (`TaskParams.check`)."""
+        its shapes; both are checked for values (`TaskParams.check`). A `TaskParams` carries no
+        task: one made for another task on the same robot (same shapes) is taken as it is, every
+        field of it, so start from this transcription's own (`default_theta`, a
+        `jtraj.differentiate.DifferentiableTask`'s ``theta``) or pass a mapping."""
         default = self.default_theta() if base is None else base
         if theta is None:
             return default
