@@ -61,6 +61,7 @@ from jtraj import dynamics, lie
 from jtraj.constants import GRAVITY
 from jtraj.deprecation import warn_renamed
 from jtraj.nlp import ConstraintGroup, CostGroup, Dep, KnotNLP, KnotStructure, Layout
+from jtraj.numbers import unit_and_length
 from jtraj.parameterization import AbstractParameterization
 from jtraj.task import Task, TaskError, _Raw
 
@@ -334,14 +335,18 @@ def _check_euler_warm_start(task: Task, param_name: str, options: TranscriptionO
     """Refuse, naming the task's key (and file), a warm-start rotation rule the Euler-angle
     parameterization cannot write with ``warm_start_euler="angles"`` (the study's variables):
     those add a rule's angle to one Euler angle, so its axis must be x, y or z. A task file's
-    rules may be about any axis; the other parameterizations and variables rotate the poses."""
+    rules may be about any axis (of any length: its direction is what counts, as in
+    `jtraj.task.Task.warm_start_angles`); the other parameterizations and variables rotate the
+    poses. Checked where the task's own warm start is built (`Transcription.warm_start`) and by
+    the command line before a solve or sweep starts; a transcription given another warm start
+    does not need it."""
     if param_name != "euler" or options.warm_start_euler != "angles":
         return
     for i, rule in enumerate(task.warm_start_rules):
-        axis = np.asarray(rule.axis, float)
-        if np.count_nonzero(np.abs(axis) > 1e-12) != 1:
+        unit = unit_and_length(rule.axis)[0]
+        if np.count_nonzero(np.abs(unit) > 1e-12) != 1:  # `_warm_start_coords`' test
             error = TaskError(
-                f"warm_start_rules[{i}].axis", axis.tolist(),
+                f"warm_start_rules[{i}].axis", np.asarray(rule.axis, float).tolist(),
                 "with the Euler angles and warm_start_euler='angles' (the study's variables) a rule's angle is added to one Euler angle; "
                 "expected a principal axis (x, y or z), or other variables (e.g. compact)",
             )
@@ -358,7 +363,6 @@ class Transcription:
         if not isinstance(options, TranscriptionOptions):
             raise TypeError(f"options must be a TranscriptionOptions (jtraj.solver.VARIABLES[{options!r}] for a name), got {type(options).__name__}")
         task.validate(robot)
-        _check_euler_warm_start(task, param.name, options)  # before anything is built
         self.options = options
         self.robot = robot
         self.task = task
@@ -731,6 +735,7 @@ class Transcription:
         (`resolve_theta`; None: the task's and robot's)."""
         robot, L = self.robot, self.layout
         n_knots, P = self.N + 1, self.P
+        _check_euler_warm_start(self.task, self.param.name, self.options)  # a TaskError, not _warm_start_coords' ValueError
         host = self._host
         # the default theta's pose is initial_xyz_wxyz, which also checks the robot's stance
         resolved = self.resolve_theta(theta)

@@ -100,28 +100,44 @@ def test_targets_that_keep_the_feet_on_the_terrain_are_accepted(rpy):
     assert np.all(np.isfinite(tr.target_xyz_wxyz))
 
 
-def _diagonal_rule_file(tmp_path) -> str:
-    """backflip with its rotation rule about a diagonal axis (a task file may give any axis)."""
+def _rule_file(tmp_path, axis: str = "[1.0, 1.0, 0.0]") -> str:
+    """backflip with its rotation rule about ``axis`` (a task file may give any axis)."""
     text = (importlib.resources.files("jtraj.tasks") / "backflip.toml").read_text()
     assert "\naxis = [0.0, 1.0, 0.0]" in text
-    path = tmp_path / "diagonal.toml"
-    path.write_text(text.replace("\naxis = [0.0, 1.0, 0.0]", "\naxis = [1.0, 1.0, 0.0]", 1))
+    path = tmp_path / "rule.toml"
+    path.write_text(text.replace("\naxis = [0.0, 1.0, 0.0]", f"\naxis = {axis}", 1))
     return str(path)
 
 
-def test_a_rule_the_euler_angles_cannot_write_is_refused_before_the_nlp(tmp_path):
+def test_a_rule_the_euler_angles_cannot_write_is_a_task_error(tmp_path):
     # with the study's variables the Euler warm start adds a rule's angle to one Euler angle:
-    # a diagonal axis was a ValueError raised by warm_start, after the NLP was built
+    # a diagonal axis was a ValueError (a traceback from the command line)
     from jtraj.transcription import COMPACT_VARIABLES, PAPER_VARIABLES
 
-    path = _diagonal_rule_file(tmp_path)
+    path = _rule_file(tmp_path)
     task = tasks.load(path)
     robot = robot_lib.load(task.robot)
     expected = rf"^{re.escape(path)}: warm_start_rules\[0\].axis: \[1.0, 1.0, 0.0\]: with the Euler angles and warm_start_euler='angles' \(the study's variables\)"
+    tr = Transcription(robot, task, parameterization.get("euler"), PAPER_VARIABLES)  # a given warm start needs no rule
     with pytest.raises(TaskError, match=expected):
-        Transcription(robot, task, parameterization.get("euler"), PAPER_VARIABLES)
+        tr.warm_start()
     # the poses are rotated instead with other variables or another chart: accepted
     for param, options in (("euler", COMPACT_VARIABLES), ("se3", PAPER_VARIABLES)):
         tr = Transcription(robot, task, parameterization.get(param), options)
         assert tr.warm_start().shape == (tr.N + 1, tr.layout.nz)
+
+
+@pytest.mark.parametrize(("axis", "principal"), [("[0.0, 1e-13, 0.0]", True), ("[1e-11, 1000.0, 0.0]", True), ("[1e-13, 1e-10, 0.0]", False)])
+def test_the_euler_rule_check_reads_the_axis_direction(tmp_path, axis, principal):
+    """Its length does not count (the warm start reads the unit axis): the check tested the raw
+    entries, refusing [0, 1e-13, 0] and passing [1e-13, 1e-10, 0] to warm_start's ValueError."""
+    from jtraj.transcription import PAPER_VARIABLES
+
+    task = tasks.load(_rule_file(tmp_path, axis))
+    tr = Transcription(robot_lib.load(task.robot), task, parameterization.get("euler"), PAPER_VARIABLES)
+    if principal:
+        assert tr.warm_start().shape == (tr.N + 1, tr.layout.nz)
+    else:
+        with pytest.raises(TaskError, match=r"warm_start_rules\[0\].axis"):
+            tr.warm_start()
 
