@@ -377,12 +377,17 @@ def kkt_errors(nlp: ParametricNLP, x: Any, lam: Any, theta: Any, jac_values: np.
     - ``dual``: the bound multiplier ``z = grad f + J^T lam`` a variable cannot have (of the sign
       of its nearer bound's, 0 without a finite bound; a fixed variable takes any), and a
       row's multiplier of the wrong sign for its nearer bound (an equality's takes any);
-    - ``complementarity``: ``|z_i| slack_i`` and ``|lam_j| slack_j`` (to the nearer bound).
+    - ``complementarity``: ``|z_i| min(slack_i, 1)`` and ``|lam_j| min(slack_j, 1)`` (to the
+      nearer bound; a multiplier on a slack bound, which a large slack would otherwise
+      magnify: an interior-point solution's small multipliers times bounds far away).
 
     ``dual`` and ``complementarity`` are relative to ``max(1, |grad f|, |lam|)`` (largest
-    entries), as Ipopt scales its dual residual by the multipliers' size."""
+    entries), as Ipopt scales its dual residual by the multipliers' size. Bounds of 1e19 and
+    beyond in magnitude are infinite, as in Ipopt's convention."""
     x, lam = _solution_point(nlp, x, lam, 0.0)
     xl, xu, gl, gu = (np.asarray(b, float) for b in nlp.bounds(theta))
+    xl, gl = (np.where(b <= -1e19, -np.inf, b) for b in (xl, gl))
+    xu, gu = (np.where(b >= 1e19, np.inf, b) for b in (xu, gu))
     xj = jnp.asarray(x)
     g = np.asarray(nlp.constraints(xj, theta))
     J = np.asarray(nlp.jacobian(xj, theta)) if jac_values is None else jac_values
@@ -403,7 +408,7 @@ def kkt_errors(nlp: ParametricNLP, x: Any, lam: Any, theta: Any, jac_values: np.
         signed = np.where(upper_side, -mult, mult) if free_sign is None else np.where(upper_side, mult, -mult)
         wrong = np.where(bounded, np.maximum(-signed, 0.0), np.abs(mult))
         wrong = np.where(free_sign if free_sign is not None else lower == upper, 0.0, wrong)
-        compl = np.abs(mult) * np.where(bounded, np.maximum(slack, 0.0), 0.0)  # (no inf * 0)
+        compl = np.abs(mult) * np.where(bounded, np.minimum(np.maximum(slack, 0.0), 1.0), 0.0)  # (no inf * 0)
         return float(np.max(wrong, initial=0.0)), float(np.max(compl, initial=0.0))
 
     dual_x, compl_x = dual_and_compl(x, z, xl, xu, None)
@@ -429,7 +434,7 @@ def check_kkt_point(nlp: ParametricNLP, x: Any, lam: Any, theta: Any, kkt_tol: f
         said = ", ".join(f"{k} {v:.3g}" for k, v in above.items())
         raise NotAKKTPointError(
             f"not a KKT point of the NLP at this theta: {said} (kkt_tol={kkt_tol:g}); its implicit derivatives would be of no solution. "
-            "Solve to a tighter tolerance, or check what the forward returns (kkt_tol=None skips this check)"
+            "Solve to a tighter tolerance, or check what the forward returns (jtraj.implicit.implicit_solution's kkt_tol=None skips this check)"
         )
 
 

@@ -398,3 +398,21 @@ def test_a_point_that_is_not_a_kkt_point_is_refused(x, lam, said):
     for tol in (0.0, -1.0, float("nan"), "1e-4"):
         with pytest.raises(ValueError, match="kkt_tol must be a number > 0 or None"):
             implicit_solution(nlp, lambda th: (np.array([1.0]), np.array([1.0])), kkt_tol=tol)
+
+
+def test_bounds_of_1e19_are_infinite_to_the_kkt_check():
+    """Ipopt's convention: a bound of 1e19 or beyond is none. Counted as finite, the exact
+    solution of ``min (x - theta)^2 / 2`` with x in [-1e19, 1e19] had a complementarity of
+    1e7 (its stationarity residual times the slack) and was refused."""
+    from jtraj.sensitivity import kkt_errors
+
+    nlp = DenseNLP(
+        lambda x, th: 0.5 * jnp.sum((x - th) ** 2),
+        lambda x, th: jnp.zeros(0),
+        lambda th: (jnp.full(1, -1e19), jnp.full(1, 1e19), jnp.zeros(0), jnp.zeros(0)),
+        1, 0,
+    )
+    theta = jnp.array([2.0])
+    errors = kkt_errors(nlp, np.array([2.0 + 1e-12]), np.zeros(0), theta)
+    assert max(errors.values()) < 1e-11, errors
+    assert kkt_system(nlp, np.array([2.0 + 1e-12]), np.zeros(0), theta).active.at_bound.tolist() == [False]
