@@ -121,3 +121,22 @@ def test_a_theta_of_another_structure_of_any_nlp_is_a_type_error():
     with pytest.raises(TypeError, match=r"^theta of type dict does not have the structure of the NLP's own theta: expected a dict with the same fields \(nlp.theta, or None for it\)$"):
         bind(nlp, {"vmax": 0.3})
     assert float(bind(nlp, {"vmin": -2.0, "vmax": 0.3}).g_upper[-1]) == 0.3
+
+
+def test_a_theta_with_the_same_leaves_in_another_sequence_type_binds():
+    """The check compares the leaves' paths, not the tree types: a list for the NLP's tuple
+    (the same parameters) was refused when the structures were compared."""
+    nlp = double_integrator(lambda th: th[0] * jnp.ones((K, 1)), lambda th: th[1] * jnp.ones((K, 1)), (-1.0, 0.35))
+    assert float(bind(nlp, [-2.0, 0.3]).g_upper[-1]) == 0.3
+    with pytest.raises(TypeError, match=r"^theta of type list does not have the structure"):
+        bind(nlp, [-2.0, 0.3, 1.0])
+
+
+def test_a_traced_initial_guess_keeps_jaxs_own_error():
+    """The solvers run on the host: a guess traced under jit was reported as "x0 of type
+    DynamicJaxprTracer ... a Result or its trajectory holds no such array"."""
+    import jax
+
+    nlp = double_integrator()
+    with pytest.raises(jax.errors.TracerArrayConversionError):
+        jax.jit(lambda x: initial_guess(nlp, x).sum())(jnp.zeros(nlp.n))

@@ -471,6 +471,10 @@ def initial_guess(nlp: Any, x0: Any, name: str = "x0") -> np.ndarray:
     entry, with its knot and slot where the NLP tells them: ``nlp.locate``)."""
     shapes = guess_shapes(nlp)
     expected = f"{' or '.join(str(s) for s in shapes)} (the NLP's {nlp.n} variables)"
+    import jax
+
+    if isinstance(x0, jax.core.Tracer):  # JAX's own error says it: the solvers run on the host
+        np.asarray(x0, float)
     try:
         x = np.asarray(x0, float)
     except (TypeError, ValueError):  # float() of a Result, a ragged list, a word
@@ -530,8 +534,10 @@ def _check_theta_shapes(nlp: Any, theta: Any) -> None:
     own = getattr(nlp, "theta", None)
     if own is None or theta is own:
         return
-    structure: Any = jax.tree_util.tree_structure(theta)  # (mypy does not see PyTreeDef's !=)
-    if structure != jax.tree_util.tree_structure(own):
+    given = jax.tree_util.tree_flatten_with_path(theta)[0]
+    ref = jax.tree_util.tree_flatten_with_path(own)[0]
+    # the leaves' paths, not the tree types: a list for the NLP's tuple is the same theta
+    if [path for path, _ in given] != [path for path, _ in ref]:
         # (a dict of overrides, as jtraj.solve takes, failed inside the bound functions with
         # AttributeError)
         transcription = sys.modules.get("jtraj.transcription")
@@ -544,8 +550,6 @@ def _check_theta_shapes(nlp: Any, theta: Any) -> None:
             f"theta of type {type(theta).__name__} does not have the structure of the NLP's own theta: expected a {type(own).__name__} "
             f"with the same fields (nlp.theta, or None for it){hint}"
         )
-    given = jax.tree_util.tree_flatten_with_path(theta)[0]
-    ref = jax.tree_util.tree_flatten_with_path(own)[0]
     for (path, a), (_, b) in zip(given, ref):
         if np.shape(a) != np.shape(b):
             raise ValueError(
