@@ -158,13 +158,13 @@ def prepare(
             return _CACHE[key]
         building = _BUILDING.setdefault(key, threading.Lock())
     with building:  # two threads missed the cache: the second waits for the first's build
-        try:
-            if key in _CACHE:
-                return _CACHE[key]
-            return _build(key, task, param, options)
-        finally:
-            with _CACHE_LOCK:
-                _BUILDING.pop(key, None)
+        if key in _CACHE:
+            return _CACHE[key]
+        prep = _build(key, task, param, options)
+        # (only once built: after a failed build, the threads that retry still take turns)
+        with _CACHE_LOCK:
+            _BUILDING.pop(key, None)
+        return prep
 
 
 def _build(key: tuple, task: tasks.Task, param: params.AbstractParameterization, options: TranscriptionOptions) -> Prepared:
