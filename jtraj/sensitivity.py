@@ -215,6 +215,19 @@ def _solution_point(nlp: ParametricNLP, x: Any, lam: Any, weak_tol: Any) -> tupl
 WEAK_RATIO = 100.0
 
 
+def _rows_and_multipliers(nlp: ParametricNLP, x: np.ndarray, lam: np.ndarray, theta: Any, jac_values: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """At ``x``: the rows g, the Jacobian's values J (``jac_values`` where the caller has them),
+    the gradient of f, and the bound multipliers read off stationarity,
+    ``z = z_L - z_U = grad f + J^T lam``."""
+    xj = jnp.asarray(x)
+    g = np.asarray(nlp.constraints(xj, theta))
+    J = np.asarray(nlp.jacobian(xj, theta)) if jac_values is None else jac_values
+    grad = np.asarray(nlp.gradient(xj, theta))
+    z = grad.copy()
+    np.add.at(z, nlp.jac_cols, J * lam[nlp.jac_rows])
+    return g, J, grad, z
+
+
 def _side_and_slack(value, lower, upper):
     """Nearer bound (True: upper) and the slack to it, elementwise."""
     s_lo = np.where(np.isfinite(lower), value - lower, np.inf)
@@ -238,11 +251,7 @@ def active_set(
     """
     x, lam = _solution_point(nlp, x, lam, weak_tol)
     xl, xu, gl, gu = (np.asarray(b, float) for b in nlp.bounds(theta))
-    g = np.asarray(nlp.constraints(jnp.asarray(x), theta))
-    J = np.asarray(nlp.jacobian(jnp.asarray(x), theta)) if jac_values is None else jac_values
-    # bound multipliers from stationarity: z_L - z_U = grad f + J^T lam
-    z = np.asarray(nlp.gradient(jnp.asarray(x), theta)).copy()
-    np.add.at(z, nlp.jac_cols, J * lam[nlp.jac_rows])
+    g, J, _, z = _rows_and_multipliers(nlp, x, lam, theta, jac_values)
     fixed = xl == xu
     # (a fixed variable's z is not a multiplier that can vanish: it must not set the scale)
     scale = max(1.0, float(np.abs(lam).max(initial=0.0)), float(np.abs(z[~fixed]).max(initial=0.0)))
@@ -384,16 +393,13 @@ def kkt_errors(nlp: ParametricNLP, x: Any, lam: Any, theta: Any, jac_values: np.
     ``dual`` and ``complementarity`` are relative to ``max(1, |grad f|, |lam|)`` (largest
     entries), as Ipopt scales its dual residual by the multipliers' size. Bounds of 1e19 and
     beyond in magnitude are infinite, as in Ipopt's convention."""
+    from jtraj.solvers.stage import INFINITY  # Ipopt's nlp_lower/upper_bound_inf, as jtraj's solver reads bounds
+
     x, lam = _solution_point(nlp, x, lam, 0.0)
     xl, xu, gl, gu = (np.asarray(b, float) for b in nlp.bounds(theta))
-    xl, gl = (np.where(b <= -1e19, -np.inf, b) for b in (xl, gl))
-    xu, gu = (np.where(b >= 1e19, np.inf, b) for b in (xu, gu))
-    xj = jnp.asarray(x)
-    g = np.asarray(nlp.constraints(xj, theta))
-    J = np.asarray(nlp.jacobian(xj, theta)) if jac_values is None else jac_values
-    grad = np.asarray(nlp.gradient(xj, theta))
-    z = grad.copy()
-    np.add.at(z, nlp.jac_cols, J * lam[nlp.jac_rows])
+    xl, gl = (np.where(b <= -INFINITY, -np.inf, b) for b in (xl, gl))
+    xu, gu = (np.where(b >= INFINITY, np.inf, b) for b in (xu, gu))
+    g, _, grad, z = _rows_and_multipliers(nlp, x, lam, theta, jac_values)
     scale = max(1.0, float(np.abs(grad).max(initial=0.0)), float(np.abs(lam).max(initial=0.0)))
     infeasible = max(
         float(np.max(np.maximum(xl - x, x - xu), initial=0.0)),
