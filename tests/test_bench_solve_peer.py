@@ -154,6 +154,12 @@ def test_ipopt_options_may_raise_the_print_level(monkeypatch, extra, expected):
         (["--repeat", "0"], "--repeat: 0: expected an odd count"),
         # the peer solves with SE(3): its ratio to another parameterization's solve was printed as a speed-up
         (["--param", "euler"], "--param euler: the public code solves with the SE(3) tangent only"),
+        # each run twice a round: the median of an even count, and every row printed twice
+        (["--variants", "paper,paper"], "--variants: 'paper' given 2 times; expected each variant once"),
+        (["--variants", "jtraj,compact,jtraj"], "--variants: 'jtraj' given 2 times; expected each variant once"),
+        # an IndexError at variants[0], after the peer's first run
+        (["--variants", ","], "--variants: ',': expected some of ['compact', 'exact', 'jtraj', 'lean', 'paper']"),
+        (["--variants", ""], "--variants: '': expected some of"),
     ],
 )
 def test_bad_options_are_refused_before_any_work(monkeypatch, capsys, tmp_path, argv, message):
@@ -201,25 +207,6 @@ def test_a_peer_without_a_status_is_not_called_stopped(status, cells):
     table = solve.markdown([dict(task="big_jump", peer=peer, variants=[_run("compact", 2.0)])])
     row = next(line for line in table.splitlines() if line.startswith("| big_jump |"))
     assert row.endswith(cells), row
-
-
-@pytest.mark.parametrize(
-    ("argv", "message"),
-    [
-        # each run twice a round: the median of an even count, and every row printed twice
-        (["--variants", "paper,paper"], "--variants: 'paper' given 2 times; expected each variant once"),
-        (["--variants", "jtraj,compact,jtraj"], "--variants: 'jtraj' given 2 times; expected each variant once"),
-        # an IndexError at variants[0], after the peer's first run
-        (["--variants", ","], "--variants: ',': expected some of ['compact', 'exact', 'jtraj', 'lean', 'paper']"),
-        (["--variants", ""], "--variants: '': expected some of"),
-    ],
-)
-def test_variants_given_twice_or_none_are_refused_before_any_work(monkeypatch, capsys, tmp_path, argv, message):
-    solve = bench_module("solve")
-    for name in ("prepare", "solve", "run_variant", "run_peer"):
-        monkeypatch.setattr(solve, name, _no_solve)
-    peer = fake_peer(tmp_path, "exit 1")
-    refused(solve.main, ["big_jump", "--peer", str(peer), *argv], capsys, message)
 
 
 @pytest.mark.parametrize(

@@ -342,20 +342,25 @@ def test_vmap_keeps_members_line_searches_apart():
     assert len({int(i) for i in batched.iterations}) > 1  # each member stopped at its own iteration
 
 
+def _concave_box():
+    """max |z|^2 per knot in the box |z_i| <= 1, |z_1 + z_2| <= 1.5 (3 knots of z in R^2; the
+    exact Hessian is -I) and its asymmetric start (0.05, 0.02): (nlp, z0)."""
+    nk = 3
+    costs = [CostGroup("concave", (Dep("z"),), lambda theta, data, z: -0.5 * jnp.sum(z**2), np.arange(nk))]
+    groups = [ConstraintGroup("sum", (Dep("z"),), lambda theta, data, z: z[:1] + z[1:], np.arange(nk),
+                              np.full((nk, 1), -1.5), np.full((nk, 1), 1.5), np.ones((nk, 1), bool))]
+    nlp = KnotNLP(Layout((("z", 2),)), nk, costs, groups, -np.ones((nk, 2)), np.ones((nk, 2)))
+    return nlp, jnp.tile(jnp.array([0.05, 0.02]), (nk, 1))
+
+
 def test_the_direction_at_a_converged_iterate_is_corrected_for_the_polish():
     """The feasibility polish goes on from a converged iterate with the direction computed
     there; cutting the inertia correction for every member that was not RUNNING (meant for the
     vmapped batch's members stopped before) left that direction uncorrected: a NaN step where
     the Newton matrix needs delta_w > 0 (measured on the side-flip: 32 iterations ending at a
     violation of 1.0e-6 instead of 33 at 5.8e-11)."""
-    layout = Layout((("z", 2),))
-    nk = 3
-    costs = [CostGroup("concave", (Dep("z"),), lambda theta, data, z: -0.5 * jnp.sum(z**2), np.arange(nk))]
-    groups = [ConstraintGroup("sum", (Dep("z"),), lambda theta, data, z: z[:1] + z[1:], np.arange(nk),
-                              np.full((nk, 1), -1.5), np.full((nk, 1), 1.5), np.ones((nk, 1), bool))]
-    nlp = KnotNLP(layout, nk, costs, groups, -np.ones((nk, 2)), np.ones((nk, 2)))
+    nlp, z0 = _concave_box()
     ipm = IPM(nlp, IpmOptions(hessian="exact", tol=0.1, compl_inf_tol=1.0, dual_inf_tol=10.0, max_iter=100, feasibility_polish_tol=None))
-    z0 = jnp.tile(jnp.array([0.05, 0.02]), (nk, 1))
     p, st = ipm._start(z0, None)
     step = jax.jit(lambda st, passes: ipm._iteration(p, st, passes, None))
     passes = jnp.zeros((2,), jnp.int32)
@@ -410,14 +415,8 @@ def test_negative_curvature_goes_through_inertia_correction():
     where the barrier's curvature is smaller than 1; uncorrected, Newton would jump to the
     stationary point z = 0 (a maximum of the cost). With delta_w the method walks out to a
     vertex (an asymmetric start, so that it does not stop at the saddle (0.75, 0.75) either)."""
-    layout = Layout((("z", 2),))
-    nk = 3
-    costs = [CostGroup("concave", (Dep("z"),), lambda theta, data, z: -0.5 * jnp.sum(z**2), np.arange(nk))]
-    groups = [ConstraintGroup("sum", (Dep("z"),), lambda theta, data, z: z[:1] + z[1:], np.arange(nk),
-                              np.full((nk, 1), -1.5), np.full((nk, 1), 1.5), np.ones((nk, 1), bool))]
-    nlp = KnotNLP(layout, nk, costs, groups, -np.ones((nk, 2)), np.ones((nk, 2)))
+    nlp, z0 = _concave_box()
     ipm = IPM(nlp, IpmOptions(hessian="exact", tol=1e-6, max_iter=100))
-    z0 = jnp.tile(jnp.array([0.05, 0.02]), (nk, 1))
     # iteration by iteration: once the barrier's curvature no longer outweighs -I, the Newton
     # matrices need delta_w > 0 (measured 2026-12-04: from the second iteration to the eleventh)
     p, st = ipm._start(z0, None)
@@ -443,7 +442,7 @@ def test_negative_curvature_goes_through_inertia_correction():
     x = np.asarray(r.x)
     # local minimizers are vertices of {|z_i| <= 1, |z_1 + z_2| <= 1.5}: (1, -1)-like with cost
     # -1 or (1, 0.5)-like with cost -0.625 per knot; the stationary point z = 0 costs 0
-    assert float(r.objective) <= -0.625 * nk + 1e-6
+    assert float(r.objective) <= -0.625 * z0.shape[0] + 1e-6
     assert np.all(np.max(np.abs(x), axis=1) > 1.0 - 1e-5)
     assert nlp.violation(x.reshape(-1)) < 1e-8
 
