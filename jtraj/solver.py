@@ -259,7 +259,9 @@ def solve(
         progress: True (default) prints a line per ``progress_every`` iterations to the
             ``sys.stdout`` of the moment; a text stream prints there; False or None is quiet;
             a `jtraj.solvers.AbstractCallback` receives the iterations instead.
-        progress_every: print every this many iterations (default 1: each).
+        progress_every: print every this many iterations (default 1: each); printed progress
+            only (a callback given as ``progress`` receives every iteration, and is refused
+            with another value).
         out: directory to write ``result.json`` and ``trajectory.npz`` into: a folder (or none
             yet) this user can write in, checked before the compile (as ``jtraj solve --out``).
             The result's ``options["warm_start"]`` records how the start was made: ``given``
@@ -308,6 +310,8 @@ def solve(
     if not is_whole(progress_every) or progress_every < 1:  # (numpy's integers too; not True)
         raise ValueError(f"solve: progress_every={progress_every!r}: expected an integer >= 1")
     progress_every = int(progress_every)
+    if progress_every != 1 and isinstance(progress, solvers.AbstractCallback):  # it was ignored
+        raise ValueError(f"solve: progress_every={progress_every} with a callback: the callback receives every iteration; progress_every sets how often printed progress prints")
     callback = solvers.resolve_progress(progress, progress_every)
     if callback is not None and callback.wants_iterates and not backend.reports_iterates:
         raise ValueError(f"solve: progress={progress!r} records the iterates, which solver={backend.name!r} does not report: record them with solver='ipopt'")

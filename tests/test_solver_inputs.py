@@ -290,7 +290,7 @@ def test_the_result_records_how_its_warm_start_was_made(tmp_path):
 
 def test_solve_refuses_bad_starts_and_thetas_before_building_anything(monkeypatch):
     """These were refused only after the NLP was built and compiled (tens of seconds on a
-    whole-body task); progress_every took no numpy integer."""
+    whole-body task); progress_every took no numpy integer, and was ignored with a callback."""
     import jtraj.solver
 
     class Built(Exception):
@@ -309,6 +309,7 @@ def test_solve_refuses_bad_starts_and_thetas_before_building_anything(monkeypatc
         ({"theta": [0.5]}, TypeError, r"^theta must be None, a mapping of parameter overrides or a TaskParams, got list$"),
         ({"progress_every": 0}, ValueError, r"progress_every=0: expected an integer >= 1"),
         ({"progress_every": True}, ValueError, r"progress_every=True: expected an integer >= 1"),
+        ({"progress_every": 5, "progress": solvers.RecordIterates()}, ValueError, r"^solve: progress_every=5 with a callback: the callback receives every iteration"),
     ):
         with pytest.raises(error, match=match):
             jtraj.solver.solve("big_jump", **kwargs)
