@@ -250,8 +250,13 @@ def active_set(
     ``weak_tol=0`` turns both tests off.
     """
     x, lam = _solution_point(nlp, x, lam, weak_tol)
+    return _active_set_at(nlp, x, lam, theta, weak_tol, _rows_and_multipliers(nlp, x, lam, theta, jac_values))
+
+
+def _active_set_at(nlp: ParametricNLP, x: np.ndarray, lam: np.ndarray, theta: Any, weak_tol: float, point: tuple) -> ActiveSet:
+    """`active_set` of a checked point whose `_rows_and_multipliers` are ``point``."""
     xl, xu, gl, gu = (np.asarray(b, float) for b in nlp.bounds(theta))
-    g, J, _, z = _rows_and_multipliers(nlp, x, lam, theta, jac_values)
+    g, J, _, z = point
     fixed = xl == xu
     # (a fixed variable's z is not a multiplier that can vanish: it must not set the scale)
     scale = max(1.0, float(np.abs(lam).max(initial=0.0)), float(np.abs(z[~fixed]).max(initial=0.0)))
@@ -393,13 +398,18 @@ def kkt_errors(nlp: ParametricNLP, x: Any, lam: Any, theta: Any, jac_values: np.
     ``dual`` and ``complementarity`` are relative to ``max(1, |grad f|, |lam|)`` (largest
     entries), as Ipopt scales its dual residual by the multipliers' size. Bounds of 1e19 and
     beyond in magnitude are infinite, as in Ipopt's convention."""
+    x, lam = _solution_point(nlp, x, lam, 0.0)
+    return _kkt_errors_at(nlp, x, lam, theta, _rows_and_multipliers(nlp, x, lam, theta, jac_values))
+
+
+def _kkt_errors_at(nlp: ParametricNLP, x: np.ndarray, lam: np.ndarray, theta: Any, point: tuple) -> dict[str, float]:
+    """`kkt_errors` of a checked point whose `_rows_and_multipliers` are ``point``."""
     from jtraj.solvers.stage import INFINITY  # Ipopt's nlp_lower/upper_bound_inf, as jtraj's solver reads bounds
 
-    x, lam = _solution_point(nlp, x, lam, 0.0)
     xl, xu, gl, gu = (np.asarray(b, float) for b in nlp.bounds(theta))
     xl, gl = (np.where(b <= -INFINITY, -np.inf, b) for b in (xl, gl))
     xu, gu = (np.where(b >= INFINITY, np.inf, b) for b in (xu, gu))
-    g, _, grad, z = _rows_and_multipliers(nlp, x, lam, theta, jac_values)
+    g, _, grad, z = point
     scale = max(1.0, float(np.abs(grad).max(initial=0.0)), float(np.abs(lam).max(initial=0.0)))
     infeasible = max(
         float(np.max(np.maximum(xl - x, x - xu), initial=0.0)),
@@ -432,9 +442,12 @@ def check_kkt_point(nlp: ParametricNLP, x: Any, lam: Any, theta: Any, kkt_tol: f
     """Raise `NotAKKTPointError` where a `kkt_errors` of ``(x, lam)`` is above ``kkt_tol``
     (None: no check)."""
     check_kkt_tol(kkt_tol)
-    if kkt_tol is None:
-        return
-    errors = kkt_errors(nlp, x, lam, theta, jac_values)
+    if kkt_tol is not None:
+        _refuse_above(kkt_errors(nlp, x, lam, theta, jac_values), kkt_tol)
+
+
+def _refuse_above(errors: dict[str, float], kkt_tol: float) -> None:
+    """`NotAKKTPointError` where one of `kkt_errors`'s ``errors`` is above ``kkt_tol``."""
     above = {k: v for k, v in errors.items() if not v <= kkt_tol}
     if above:
         said = ", ".join(f"{k} {v:.3g}" for k, v in above.items())
@@ -455,10 +468,13 @@ def kkt_system(nlp: ParametricNLP, x: np.ndarray, lam: np.ndarray, theta: Any, *
     """
     n, m = nlp.n, nlp.m
     x, lam = _solution_point(nlp, x, lam, weak_tol)
+    check_kkt_tol(kkt_tol)
     xj = jnp.asarray(x)
-    J = np.asarray(nlp.jacobian(xj, theta))
-    check_kkt_point(nlp, x, lam, theta, kkt_tol, jac_values=J)
-    act = active_set(nlp, x, lam, theta, weak_tol=weak_tol, jac_values=J)
+    point = _rows_and_multipliers(nlp, x, lam, theta, None)  # (once for both uses)
+    if kkt_tol is not None:
+        _refuse_above(_kkt_errors_at(nlp, x, lam, theta, point), kkt_tol)
+    act = _active_set_at(nlp, x, lam, theta, weak_tol, point)
+    J = point[1]
     lam_a = np.where(act.row_active, np.asarray(lam, float), 0.0)
     Hv = np.asarray(nlp.hessian(xj, jnp.asarray(lam_a), 1.0, theta))
     hr, hc = np.asarray(nlp.hess_rows), np.asarray(nlp.hess_cols)

@@ -1,5 +1,7 @@
 """Implicit derivatives of small NLPs against central differences of re-solved problems."""
 
+import dataclasses
+
 import cyipopt
 import jax
 import jax.numpy as jnp
@@ -416,3 +418,31 @@ def test_bounds_of_1e19_are_infinite_to_the_kkt_check():
     errors = kkt_errors(nlp, np.array([2.0 + 1e-12]), np.zeros(0), theta)
     assert max(errors.values()) < 1e-11, errors
     assert kkt_system(nlp, np.array([2.0 + 1e-12]), np.zeros(0), theta).active.at_bound.tolist() == [False]
+
+
+def test_kkt_system_evaluates_the_point_once():
+    """The KKT check and the active set each evaluated the rows, the Jacobian and the gradient
+    at the same point: twice each per `kkt_system`. Same active set and matrix."""
+    nlp, theta = _capped_qp(), jnp.array([2.0])
+    calls = {"constraints": 0, "jacobian": 0, "gradient": 0}
+
+    def counted(name):
+        fn = getattr(nlp, name)
+
+        def call(*args):
+            calls[name] += 1
+            return fn(*args)
+
+        return call
+
+    class Counted:
+        def __getattr__(self, attr):
+            return counted(attr) if attr in calls else getattr(nlp, attr)
+
+    system = kkt_system(Counted(), np.array([1.0]), np.array([1.0]), theta)
+    assert calls == {"constraints": 1, "jacobian": 1, "gradient": 1}
+    plain = kkt_system(nlp, np.array([1.0]), np.array([1.0]), theta)
+    for field in dataclasses.fields(plain.active):
+        assert np.array_equal(getattr(system.active, field.name), getattr(plain.active, field.name)), field.name
+    np.testing.assert_array_equal(system.solve(np.ones(2)), plain.solve(np.ones(2)))
+    assert system.active.row_active.tolist() == [True]
