@@ -512,6 +512,12 @@ def _load_valid_task(name: str, robots: dict[str, str] | None = None, all_used: 
         raise e.with_source(_task_file(name)) from None
 
 
+def _from_file(error, name: str):
+    """A task's ``error`` naming the file of the task argument ``name`` where it names none
+    (a task built from a file names that file already)."""
+    return error if error.source else error.with_source(_task_file(name))
+
+
 def _task_file(name: str) -> str:
     """The file a task argument names, for its errors: the .toml given, or the built-in's."""
     return name if name.endswith(".toml") else f"tasks/{name}.toml"
@@ -530,7 +536,7 @@ def _check_fixed_knots(name: str, task) -> None:
     try:
         _ = Transcription(robot_lib.load(task.robot), task, get("se3")).initial_xyz_wxyz
     except tasks.TaskError as e:
-        raise (e if e.source else e.with_source(_task_file(name))) from None
+        raise _from_file(e, name) from None
 
 
 def _check_euler_warm_start(tasks_or_names: list, variables) -> None:
@@ -546,7 +552,7 @@ def _check_euler_warm_start(tasks_or_names: list, variables) -> None:
         try:
             check(task, "euler", options)
         except tasks.TaskError as e:
-            raise (e if e.source or not isinstance(item, str) else e.with_source(_task_file(item))) from None
+            raise (_from_file(e, item) if isinstance(item, str) else e) from None
 
 
 def _check_tasks(field: str, text: str, robots: dict[str, str] | None = None) -> list:

@@ -241,6 +241,13 @@ class Task:
         return out
 
     # -------------------------------------------------------------- validation
+    def error(self, field: str, value: Any, expected: str) -> TaskError:
+        """A `TaskError` about this task's ``field``, naming the file the task came from where
+        it came from one (`from_file`, `load`), as `validate`'s errors do."""
+        error = TaskError(field, value, expected)
+        source = getattr(self, "_source", None)
+        return error if source is None else error.with_source(source)
+
     def validate(self, robot=None) -> Task:
         """Raise `TaskError` for what needs the robot model (contact and joint names, joint
         limits); the rest was checked when the task was built. Return self. The error of a

@@ -63,7 +63,7 @@ from jtraj.deprecation import warn_renamed
 from jtraj.nlp import ConstraintGroup, CostGroup, Dep, KnotNLP, KnotStructure, Layout
 from jtraj.numbers import unit_and_length
 from jtraj.parameterization import AbstractParameterization
-from jtraj.task import Task, TaskError, _Raw
+from jtraj.task import Task, _Raw
 
 __all__ = [
     "Transcription",
@@ -345,13 +345,11 @@ def _check_euler_warm_start(task: Task, param_name: str, options: TranscriptionO
     for i, rule in enumerate(task.warm_start_rules):
         unit = unit_and_length(rule.axis)[0]
         if np.count_nonzero(np.abs(unit) > 1e-12) != 1:  # `_warm_start_coords`' test
-            error = TaskError(
+            raise task.error(
                 f"warm_start_rules[{i}].axis", np.asarray(rule.axis, float).tolist(),
                 "with the Euler angles and warm_start_euler='angles' (the study's variables) a rule's angle is added to one Euler angle; "
                 "expected a principal axis (x, y or z), or other variables (e.g. compact)",
             )
-            source = getattr(task, "_source", None)
-            raise error if source is None else error.with_source(source)
 
 
 class Transcription:
@@ -572,14 +570,14 @@ class Transcription:
             if kind == "stance":
                 # phase 0's contacts (e.g. the feet and a hand) are what the standing pose does
                 # not put level, more often than the robot's standing pose itself
-                raise self._task_error(
+                raise self.task.error(
                     "phases[0].contacts", list(task.phases[0].contacts),
                     f"the standing pose of {self.robot.name!r} {said}; expected contacts of phase 0 that the robot's standing pose puts level (its feet, on a biped or quadruped)",
                 )
             if kind == "first":
                 # a point lower than phase 0's contacts in the standing pose (the feet, for a
                 # task that starts on the hands)
-                raise self._task_error(
+                raise self.task.error(
                     "phases[0].contacts", list(task.phases[0].contacts),
                     f"the standing pose of {self.robot.name!r} {said}; expected the contacts of phase 0 to be the lowest points of the standing pose",
                 )
@@ -592,19 +590,13 @@ class Transcription:
                 field, value = "target_joints", _Raw(f"{len(task.target_joints)} joint angles")
             else:
                 field, value = "target_translation", list(task.target_translation)
-            raise self._task_error(field, value, f"{said}; expected a target whose touching points rest on the terrain and others above it (the last knot is fixed at the target)")
+            raise self.task.error(field, value, f"{said}; expected a target whose touching points rest on the terrain and others above it (the last knot is fixed at the target)")
         return x0
 
     @cached_property
     def target_xyz_wxyz(self) -> np.ndarray:
         """Target base pose: the task's displacement and rotation applied to the initial pose."""
         return self.target_xyz_wxyz_of(None)
-
-    def _task_error(self, field: str, value: Any, expected: str) -> TaskError:
-        """A `TaskError` naming the task's file where it came from one (as `Task.validate`)."""
-        error = TaskError(field, value, expected)
-        source = getattr(self.task, "_source", None)
-        return error if source is None else error.with_source(source)
 
     def target_xyz_wxyz_of(self, theta: TaskParams | None) -> np.ndarray:
         """Target base pose (7,) for parameters ``theta`` (None: the task's)."""

@@ -409,3 +409,19 @@ def test_a_retargeted_task_file_keeps_its_file_for_its_errors(tmp_path):
     moved = tasks.retarget(task, {"talos": "talos_full"})
     assert moved.robot == "talos_full" and moved._source == task._source == str(path)
     assert tasks.retarget(task, {"go2": "g1"}) is task
+
+
+def test_a_tasks_own_errors_name_its_file_and_toml_keys(tmp_path):
+    """`Task.error`: the transcription's errors about a task name its file as `validate`'s do
+    (one helper, where the transcription had two copies of it)."""
+    path = tmp_path / "mine.toml"
+    path.write_text(
+        'name = "mine"\nrobot = "go2"\ntimestep = 0.05\n'
+        '[[phases]]\ncontacts = ["FL_foot", "FR_foot", "RL_foot", "RR_foot"]\nduration = 0.2\n'
+    )
+    error = tasks.load(str(path)).error("target_joints[3]", 1.5, "expected a value in the joint's limits")
+    assert isinstance(error, TaskError)
+    assert error.source == str(path)
+    assert str(error) == f"{path}: target.joints[3]: 1.5: expected a value in the joint's limits"
+    built = dataclasses.replace(tasks.load("big_jump"))  # not from a file: no source
+    assert built.error("timestep", 0.0, "expected > 0").source is None
