@@ -437,9 +437,14 @@ class InputError(ValueError):
     """A command-line value that cannot work: ``str(error)`` is ``"FIELD: VALUE: EXPECTED"``."""
 
     def __init__(self, field: str, value: Any, expected: str, verbatim: bool = False):
-        self.field, self.value, self.expected = field, value, expected
+        self.field, self.value, self.expected, self.verbatim = field, value, expected, verbatim
         # verbatim: the value is already words of the message (e.g. "neither given"), not a value
         super().__init__(f"{field}: {value if verbatim else repr(value)}: {expected}")
+
+    def __reduce__(self):
+        # as it was made: Exception's own pickling passes the message alone, which this
+        # constructor does not take (a worker process's InputError could not come back)
+        return (type(self), (self.field, self.value, self.expected, self.verbatim))
 
 
 def _check_out(path: str | None, field: str = "--out", shown: str | None = None) -> None:

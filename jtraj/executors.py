@@ -20,7 +20,9 @@ sooner writes them itself, as `jtraj.experiments.robustness` does).
 A group that raises, an interrupt (Ctrl-C, or SIGTERM, which the command line turns into one)
 or a caller that stops iterating (an exception in its loop, ``close()``) ends the sweep: groups
 not started are cancelled, those running are stopped (their worker processes terminated, their
-Ray tasks cancelled), and the exception goes on to the caller. A worker that ends without
+Ray tasks cancelled), and the exception goes on to the caller as the group raised it (one
+that cannot be pickled back from a local worker process comes as a `GroupError` with its type,
+message and traceback as text). A worker that ends without
 handing back its group (a local worker process that failed to start or was killed from outside,
 e.g. by the kernel when memory ran out; a Ray worker that crashed or was killed, by Ray's memory
 monitor too, or whose node died) ends it with `WorkerLostError`. A local worker process dies
@@ -45,7 +47,7 @@ import sys
 from collections.abc import Callable, Generator, Iterator, Sequence
 from typing import Any
 
-__all__ = ["AbstractExecutor", "LocalExecutor", "RayExecutor", "EXECUTORS", "ExecutorUnavailableError", "WorkerLostError", "check_executor_name", "executor_for"]
+__all__ = ["AbstractExecutor", "LocalExecutor", "RayExecutor", "EXECUTORS", "ExecutorUnavailableError", "WorkerLostError", "GroupError", "check_executor_name", "executor_for"]
 
 #: Names accepted by `executor_for` and the command line's ``--executor``.
 EXECUTORS = ("local", "ray")
@@ -96,7 +98,7 @@ class LocalExecutor(AbstractExecutor):
         # JAX is not fork-safe: workers start fresh interpreters
         pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"), initializer=_start_worker)
         try:
-            futures = {pool.submit(fn, *args): i for i, args in enumerate(arg_list)}
+            futures = {pool.submit(_portable, fn, *args): i for i, args in enumerate(arg_list)}
             for f in as_completed(futures):
                 try:
                     result = f.result()
@@ -125,6 +127,36 @@ class LocalExecutor(AbstractExecutor):
             for i, items in groups:
                 for item in items:
                     yield i, item
+
+
+class GroupError(RuntimeError):
+    """A group's exception that cannot be sent back from its worker process as it is (one that
+    does not survive pickling, e.g. an exception class whose constructor takes several
+    arguments and which has no ``__reduce__``): its type, message and the worker's traceback,
+    as text."""
+
+
+def _portable(fn: Callable[..., Any], *args) -> Any:
+    """``fn(*args)`` in a local worker process, whose exception, or result, comes back to the
+    caller: one that does not survive pickling broke the pool when the caller unpickled it,
+    and the group's error was reported as a lost worker (killed by the kernel); it is raised
+    as a `GroupError` that says what it was."""
+    import pickle
+    import traceback
+
+    try:
+        result = fn(*args)
+    except Exception as e:
+        try:
+            pickle.loads(pickle.dumps(e))
+        except Exception:
+            raise GroupError(f"{type(e).__module__}.{type(e).__qualname__}: {e}\n(in the worker process:)\n{traceback.format_exc()}") from None
+        raise
+    try:
+        pickle.loads(pickle.dumps(result))
+    except Exception as e:
+        raise GroupError(f"the group's result, a {type(result).__qualname__}, cannot be sent back from its worker process: {type(e).__name__}: {e}") from None
+    return result
 
 
 def _collect(fn: Callable[..., Iterator[Any]], *args) -> list:
@@ -254,11 +286,22 @@ _RAY_LOST = ("WorkerCrashedError", "OutOfMemoryError", "NodeDiedError", "ObjectL
 def _lost_as_worker_lost(ray):
     """Raise Ray's errors of a lost worker (`_RAY_LOST`) as `WorkerLostError` (the command line
     says it in one line and the sweeps say what they kept), with the first line of Ray's
-    message; they were raw tracebacks of Ray's own."""
+    message; they were raw tracebacks of Ray's own. A group's own error (Ray's
+    ``RayTaskError``) is raised as the group raised it."""
     exceptions = getattr(ray, "exceptions", None)
     lost = tuple(error for name in _RAY_LOST if isinstance(error := getattr(exceptions, name, None), type))
+    task_error = getattr(exceptions, "RayTaskError", None)
+    group = task_error if isinstance(task_error, type) else ()
     try:
         yield
+    except group as e:
+        # a group's own error: Ray's carries the group's exception (``cause``) in a message of
+        # its worker's whole traceback, with terminal colours, which the command line printed
+        # as its one line; the group's exception goes on, Ray's as its cause
+        cause = getattr(e, "cause", None)
+        if not isinstance(cause, Exception):
+            raise
+        raise cause from e
     except lost as e:
         said = next((line.strip() for line in str(e).splitlines() if line.strip()), type(e).__name__)
         raise WorkerLostError(

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from jtraj.executors import EXECUTORS, ExecutorUnavailableError, LocalExecutor, RayExecutor, WorkerLostError, executor_for
+from jtraj.executors import EXECUTORS, ExecutorUnavailableError, GroupError, LocalExecutor, RayExecutor, WorkerLostError, executor_for
 
 
 def test_local_in_process_keeps_order():
@@ -92,6 +92,48 @@ def test_a_killed_local_worker_is_one_clear_error(tmp_path):
     assert _workers_ended(tmp_path)
 
 
+class _TwoArgumentError(Exception):
+    """An exception that does not survive pickling: Exception's pickling passes its message
+    alone to a constructor that takes two arguments."""
+
+    def __init__(self, field: str, detail: str):
+        super().__init__(f"{field}: {detail}")
+
+
+class _Unsendable:
+    def __reduce__(self):
+        raise TypeError("not this one")
+
+
+def _raises_unpicklable(i: int):
+    if i == 1:
+        raise _TwoArgumentError("--tasks", "no such task")
+    if i == 2:
+        from jtraj.cli import InputError
+
+        raise InputError("--tasks", "moonwalk", "expected a task name")
+    if i == 3:
+        return _Unsendable()
+    return i
+
+
+@pytest.mark.parametrize(
+    ("i", "error", "match"),
+    [
+        (1, GroupError, r"^test_executors._TwoArgumentError: --tasks: no such task\n\(in the worker process:\)\nTraceback"),
+        (2, None, r"^--tasks: 'moonwalk': expected a task name$"),  # the command line's own error comes back as it is
+        (3, GroupError, r"^the group's result, a _Unsendable, cannot be sent back from its worker process: TypeError: not this one$"),
+    ],
+)
+def test_a_group_error_that_cannot_be_pickled_is_said_not_lost(i, error, match):
+    """A group's exception (or result) that did not survive pickling broke the pool when the
+    caller unpickled it, and came back as a WorkerLostError blaming the kernel's memory."""
+    from jtraj.cli import InputError
+
+    with pytest.raises(error or InputError, match=match):
+        list(LocalExecutor(workers=2).map(_raises_unpicklable, [(0,), (i,)]))
+
+
 _ORPHANED = """
 import sys
 sys.path.insert(0, {tests!r})
@@ -157,6 +199,15 @@ class _RayCrash(Exception):
     """Stands for Ray's errors of a lost worker in `_fake_ray`'s ``exceptions``."""
 
 
+class RayTaskError(Exception):
+    """Stands for Ray's error of a task that raised: a multi-line message of the worker's
+    traceback, the task's exception as ``cause``."""
+
+    def __init__(self, cause: Exception):
+        super().__init__(f"\x1b[36mray::group()\x1b[39m (pid=1, ip=192.0.2.2)\n  File ...\n{type(cause).__name__}: {cause}")
+        self.cause = cause
+
+
 def _fake_ray(calls: dict) -> types.ModuleType:
     """A `ray` stand-in: tasks run when submitted, ``wait`` hands them back last-first, and
     ``get`` raises a task's error, as Ray's does. A streaming task (``num_returns="streaming"``)
@@ -188,13 +239,18 @@ def _fake_ray(calls: dict) -> types.ModuleType:
                 raise
             except Exception as e:
                 self.ended = True
-                return Ref(error=e)
+                return Ref(error=wrapped(e))
 
     def run(fn, *args):
         try:
             return Ref(fn(*args))
         except Exception as e:
-            return Ref(error=e)
+            return Ref(error=wrapped(e))
+
+    def wrapped(e):
+        # Ray's get raises a group's own error as a RayTaskError: the worker's traceback, with
+        # terminal colours, and the group's exception as its cause; a lost worker's as it is
+        return e if isinstance(e, _RayCrash) else RayTaskError(e)
 
     def init(address=None, **kwargs):
         calls["address"] = address
@@ -229,6 +285,7 @@ def _fake_ray(calls: dict) -> types.ModuleType:
     ray.wait = wait
     ray.get = get
     ray.exceptions = types.SimpleNamespace(**{name: type(name, (_RayCrash,), {}) for name in ("WorkerCrashedError", "OutOfMemoryError", "NodeDiedError", "ObjectLostError")})
+    ray.exceptions.RayTaskError = RayTaskError
     return ray
 
 
@@ -319,6 +376,31 @@ def test_ray_stream_hands_back_each_item_as_it_comes(monkeypatch):
     with pytest.raises(RuntimeError, match="group 1 failed at item 2"):
         next(items)
     assert sorted(calls["cancelled"]) == [((0, 2), True), ((1, 3, 2), True)]  # group 0 not started (group 1's ended: harmless, as in Ray)
+
+
+def _raise_task_error(i: int):
+    from jtraj.task import TaskError
+
+    if i == 1:
+        raise TaskError("phases[0].contacts", ["hand"], "expected contacts of the robot", "mine.toml")
+    return i
+
+
+def test_a_ray_groups_error_is_the_groups_own(monkeypatch):
+    """Ray raises a group's error as its RayTaskError, a message of the worker's traceback in
+    terminal colours, which the command line printed as its one line; the group's own error
+    now comes back, Ray's as its cause, from map and from stream."""
+    from jtraj.task import TaskError
+
+    ray = _fake_ray({})
+    monkeypatch.setitem(sys.modules, "ray", ray)
+    said = "mine.toml: phases[0].contacts: ['hand']: expected contacts of the robot"
+    with pytest.raises(TaskError) as info:
+        list(RayExecutor().map(_raise_task_error, [(0,), (1,)]))
+    assert str(info.value) == said and isinstance(info.value.__cause__, ray.exceptions.RayTaskError)
+    with pytest.raises(RuntimeError, match=r"^group 0 failed at item 1$") as stream_info:
+        list(RayExecutor().stream(_items, [(0, 3, 1)]))
+    assert type(stream_info.value) is RuntimeError
 
 
 def test_ray_executor_submits_one_task_per_group(monkeypatch):
