@@ -598,3 +598,31 @@ def test_local_workers_leave_ctrl_c_to_the_caller():
     caller, which gets it, stops them (test_local_workers_stop_when_the_caller_is_interrupted)."""
     handlers = dict(LocalExecutor(workers=2).map(signal.getsignal, [(signal.SIGINT,), (signal.SIGINT,)]))
     assert handlers == {0: signal.SIG_IGN, 1: signal.SIG_IGN}
+
+
+def test_jtrajs_own_errors_survive_pickling():
+    """Every exception class of jtraj whose constructor takes several arguments comes back from
+    a worker process as it was raised (found by walking the package; InputError and
+    IpoptOptionError did not survive pickling)."""
+    import importlib
+    import inspect
+    import pickle
+    import pkgutil
+
+    import jtraj
+    from jtraj.cli import InputError
+    from jtraj.solvers.ipopt_catalog import IpoptOptionError
+    from jtraj.task import TaskError
+
+    samples = {InputError: InputError("--tasks", "moonwalk", "expected a task name"), IpoptOptionError: IpoptOptionError("tol", -1.0, "expected > 0"), TaskError: TaskError("timestep", 0.0, "expected > 0", "mine.toml")}
+    found = set()
+    for module in pkgutil.walk_packages(jtraj.__path__, "jtraj."):
+        for cls in vars(importlib.import_module(module.name)).values():
+            if inspect.isclass(cls) and issubclass(cls, BaseException) and cls.__module__ == module.name and "__init__" in vars(cls):
+                required = [p for p in inspect.signature(cls.__init__).parameters.values() if p.default is p.empty and p.kind is p.POSITIONAL_OR_KEYWORD]
+                if len(required) > 2:  # self and more than a message
+                    found.add(cls)
+    assert found == set(samples), found
+    for cls, error in samples.items():
+        back = pickle.loads(pickle.dumps(error))
+        assert type(back) is cls and str(back) == str(error) and vars(back) == vars(error)

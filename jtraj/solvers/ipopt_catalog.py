@@ -40,8 +40,13 @@ class IpoptOptionError(ValueError):
     ``str(error)`` is ``"--ipopt NAME: VALUE: EXPECTED"``."""
 
     def __init__(self, name: str, value: Any, expected: str):
-        self.field, self.value, self.expected = f"--ipopt {name}", value, expected
+        self.name, self.field, self.value, self.expected = name, f"--ipopt {name}", value, expected
         super().__init__(f"{self.field}: {value!r}: {expected}")
+
+    def __reduce__(self):
+        # as it was made (Exception's pickling passes the message alone, which this
+        # constructor does not take): a sweep's worker process sends it back
+        return (type(self), (self.name, self.value, self.expected))
 
 
 @dataclasses.dataclass(frozen=True)
