@@ -447,6 +447,7 @@ def _as_result(result) -> Result:
         raise NotDrawable(f"{result.problem!r} is not a legged robot's motion (its trajectory is a {type(result.trajectory).__name__}); draw a rigid-body benchmark with jtraj.render.render_benchmark")
     status = f" (the solver's status: {result.solver_status.value})"
     _refuse_non_finite("the base pose is", status, result.trajectory.base_xyz_wxyz)
+    _refuse_zero_quaternions("the base orientation", status, np.asarray(result.trajectory.base_xyz_wxyz)[:, 3:7])
     # MuJoCo draws NaN joint angles as missing limbs, without a word
     _refuse_non_finite("the joint angles are", status, result.trajectory.q_joints)
     return result
@@ -462,6 +463,15 @@ def _refuse_non_finite(what: str, note: str, *per_knot: Any) -> None:
         bad |= ~np.all(np.isfinite(values), axis=tuple(range(1, values.ndim)))
     if bad.any():
         raise NotDrawable(f"{what} NaN or infinite at {int(bad.sum())} knot(s), the first at knot {int(np.argmax(bad))}{note}; nothing to draw there")
+
+
+def _refuse_zero_quaternions(what: str, note: str, wxyz: Any) -> None:
+    """NotDrawable where a knot's quaternion (N, 4) is zero, which no rotation is: normalized
+    for drawing, it was NaN, and the camera, which follows the base over the whole motion,
+    turned every frame black without a word."""
+    bad = np.linalg.norm(np.asarray(wxyz, float), axis=-1) < 1e-9
+    if bad.any():
+        raise NotDrawable(f"{what} is a zero quaternion at {int(bad.sum())} knot(s), the first at knot {int(np.argmax(bad))}{note}; nothing to draw there")
 
 
 def _check_forces(result: Result, options: RenderOptions) -> None:
@@ -671,17 +681,21 @@ def render_rigid_body(
         raise ValueError(f"strip must be a whole number of keyframes >= 1, got {strip!r}")
     options = _render_options(options, kwargs)
     t, xyz, wxyz = (np.asarray(a, float) for a in (t, xyz, wxyz))
+    # (a knot more in t than in xyz was an IndexError inside the interpolation)
+    if t.ndim != 1 or len(t) < 1 or xyz.shape != (len(t), 3) or wxyz.shape != (len(t), 4):
+        raise ValueError(f"render_rigid_body: t {t.shape}, xyz {xyz.shape} and wxyz {wxyz.shape}: expected (N,), (N, 3) and (N, 4), N >= 1 knots")
     # MuJoCo would refuse the body's NaN size ("nan size in geom")
     _refuse_non_finite("the body's position or attitude is", "", xyz, wxyz)
+    _refuse_zero_quaternions("the body's attitude", "", wxyz)
     extent = float(np.max(np.ptp(xyz, axis=0)))
     size = 1.0 if extent < 1e-6 else float(np.clip(0.2 * extent, 0.3, 2.0))
     travel = xyz[-1, :2] - xyz[0, :2]
     if np.linalg.norm(travel) > 1e-6 and options.azimuth == RenderOptions.azimuth:
         # seen from the side of its travel (MuJoCo's camera looks along (cos az, sin az))
         options = dataclasses.replace(options, azimuth=float(np.degrees(np.arctan2(travel[1], travel[0]))) + 90.0)
-    painter = _Painter(rigid_body_model(shape, size), options, scale=size)
     # the path as flown between knots (constant twist), not straight chords
     path = _interpolate_poses(t, xyz, wxyz, np.linspace(t[0], t[-1], min(2000, 8 * len(t))))[0][:, :3] if extent > 1e-6 else None
+    painter = _Painter(rigid_body_model(shape, size), options, scale=size)  # (its GL context is closed below)
     try:
         if strip is not None:
             times = np.linspace(t[0], t[-1], strip)

@@ -246,6 +246,13 @@ def test_render_names_what_it_was_given_instead_of_a_result(result):
     broken = dataclasses.replace(result, trajectory=dataclasses.replace(result.trajectory, q_joints=joints))
     with pytest.raises(NotDrawable, match=r"the joint angles are NaN or infinite at 1 knot\(s\), the first at knot 4"):
         keyframe_strip(broken, options=SMALL)
+    # a zero quaternion was normalized to NaN, and the camera, following the base over the whole
+    # motion, turned every frame black
+    poses = np.array(result.trajectory.base_xyz_wxyz)
+    poses[5, 3:7] = 0.0
+    broken = dataclasses.replace(result, trajectory=dataclasses.replace(result.trajectory, base_xyz_wxyz=poses))
+    with pytest.raises(NotDrawable, match=r"^the base orientation is a zero quaternion at 1 knot\(s\), the first at knot 5 \(the solver's status: solved\); nothing to draw there$"):
+        render(broken, SMALL)
 
 
 def test_nan_forces_are_refused_before_drawing_where_forces_are_drawn(result, monkeypatch):
@@ -404,6 +411,22 @@ def test_attitude_bodies_along_their_paths(tmp_path):
     xyz[6:, 2] = np.nan
     with pytest.raises(NotDrawable, match=r"the body's position or attitude is NaN or infinite at 3 knot\(s\), the first at knot 6"):
         render_rigid_body(t, xyz, wxyz, "quadrotor", options=SMALL)
+
+
+
+def test_rigid_body_paths_are_checked_before_a_renderer_opens(monkeypatch):
+    """Knots of different counts were an IndexError inside the interpolation, after the
+    renderer had opened (and was left open); a zero quaternion drew black frames."""
+    import jtraj.render as jrender
+
+    monkeypatch.setattr(jrender, "_Painter", lambda *a, **k: pytest.fail("opened a renderer before checking the path"))
+    t, xyz, wxyz = np.linspace(0.0, 1.0, 5), np.zeros((5, 3)), np.tile([1.0, 0.0, 0.0, 0.0], (5, 1))
+    for args in ((t, xyz[:4], wxyz), (t, xyz, wxyz[:, :3]), (t[:, None], xyz, wxyz), (t[:0], xyz[:0], wxyz[:0])):
+        with pytest.raises(ValueError, match=r"^render_rigid_body: t \(\d*,?.*\), xyz .* and wxyz .*: expected \(N,\), \(N, 3\) and \(N, 4\), N >= 1 knots$"):
+            jrender.render_rigid_body(*args, "quadrotor", options=SMALL)
+    wxyz[2] = 0.0
+    with pytest.raises(NotDrawable, match=r"^the body's attitude is a zero quaternion at 1 knot\(s\), the first at knot 2; nothing to draw there$"):
+        jrender.render_rigid_body(t, xyz, wxyz, "quadrotor", options=SMALL)
 
 
 def test_no_context_names_the_backend_mujoco_loaded(monkeypatch):
