@@ -40,8 +40,11 @@ def rotation_matrix(rpy: jax.Array) -> jax.Array:
     return _rz(rpy[2]) @ _ry(rpy[1]) @ _rx(rpy[0])
 
 
-#: Below this cos(pitch) `from_rotation_matrix` takes the yaw from the roll (see there).
-_LOCK_COS = 1e-6
+#: Below this cos(pitch) `from_rotation_matrix` takes the yaw from the roll (see there): from
+#: 1e-6, where it was, to 1e-4 the two arctan2 of entries of size cos(pitch) lost up to six
+#: digits (the round trip's matrix off by 6e-10 at 1e-6); the yaw from the roll is exact for
+#: any pitch, and farther from the lock both agree to rounding.
+_LOCK_COS = 1e-2
 
 
 def from_rotation_matrix(Rm: jax.Array) -> jax.Array:
@@ -52,17 +55,24 @@ def from_rotation_matrix(Rm: jax.Array) -> jax.Array:
     ``rotation_matrix(from_rotation_matrix(Rm)) == Rm`` holds at the lock too.
     """
     Rm = shaped(Rm, (3, 3), "Rm (a rotation matrix)")
-    roll = jnp.arctan2(Rm[2, 1], Rm[2, 2])
-    cos_pitch = jnp.sqrt(Rm[2, 1] ** 2 + Rm[2, 2] ** 2)
+    # exactly at the lock Rm[2, 1] = Rm[2, 2] = 0: arctan2(0, 0) and sqrt(0) have NaN
+    # derivatives, and the roll there is any (0, as arctan2 gives); one branch only, as in
+    # jtraj.lie, so that the untaken one passes no NaN
+    sq = Rm[2, 1] ** 2 + Rm[2, 2] ** 2
+    away = sq > 0.0
+    roll = jnp.where(away, jnp.arctan2(jnp.where(away, Rm[2, 1], 0.0), jnp.where(away, Rm[2, 2], 1.0)), 0.0)
+    cos_pitch = jnp.where(away, jnp.sqrt(jnp.where(away, sq, 1.0)), 0.0)
     pitch = jnp.arctan2(-Rm[2, 0], cos_pitch)
-    yaw = jnp.arctan2(Rm[1, 0], Rm[0, 0])
+    lock = cos_pitch < _LOCK_COS
+    # (at the lock Rm[1, 0] = Rm[0, 0] = 0 too: that arctan2 is not taken there, one branch)
+    yaw = jnp.arctan2(jnp.where(lock, 0.0, Rm[1, 0]), jnp.where(lock, 1.0, Rm[0, 0]))
     # Near the lock Rm[2, 1], Rm[2, 2], Rm[1, 0] and Rm[0, 0] are all ~cos(pitch): at the lock
     # they are rounding noise, and the two arctan2 give a roll and a yaw that do not belong
     # together (a pose off by up to pi). Column 1 of Rm Rx(roll)^T = Rz(yaw) Ry(pitch) is
     # (-sin yaw, cos yaw, 0) for any pitch, which gives the yaw that goes with the roll.
     sr, cr = jnp.sin(roll), jnp.cos(roll)
     yaw_from_roll = jnp.arctan2(Rm[0, 2] * sr - Rm[0, 1] * cr, Rm[1, 1] * cr - Rm[1, 2] * sr)
-    yaw = jnp.where(cos_pitch < _LOCK_COS, yaw_from_roll, yaw)
+    yaw = jnp.where(lock, yaw_from_roll, yaw)
     return jnp.stack([roll, pitch, yaw])
 
 

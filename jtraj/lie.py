@@ -295,7 +295,7 @@ def accumulated_rotation(wxyz: ArrayLike, frame: str = "world") -> jax.Array:
     (``frame="body"``), starting from zero, so that a full flip about a fixed axis reads as the
     axis times 2 pi where ``Log`` of the end attitude alone would read 0. Each step must stay
     below pi for its direction to be seen. Inputs need not be unit quaternions (they are
-    normalized first).
+    normalized first); `rotation_steps` says what they must be.
     """
     steps = rotation_steps(wxyz, frame)
     return jnp.concatenate([jnp.zeros((1, 3), steps.dtype), jnp.cumsum(steps, axis=0)])
@@ -303,10 +303,19 @@ def accumulated_rotation(wxyz: ArrayLike, frame: str = "world") -> jax.Array:
 
 def rotation_steps(wxyz: ArrayLike, frame: str = "world") -> jax.Array:
     """The increments of `accumulated_rotation`: (N, 4) wxyz -> (N - 1, 3) rad,
-    ``Log(R_{k+1} R_k^T)`` (``"world"``) or ``Log(R_k^T R_{k+1})`` (``"body"``)."""
+    ``Log(R_{k+1} R_k^T)`` (``"world"``) or ``Log(R_k^T R_{k+1})`` (``"body"``).
+
+    One sequence (N, 4), N >= 1, not a batch of them (unlike the rest of this module); a zero
+    quaternion, which is no attitude, is a ValueError where the values are known (not under
+    ``jit``)."""
     if frame not in ("world", "body"):
         raise ValueError(f"frame must be 'world' or 'body', got {frame!r}")
     q = jnp.asarray(wxyz)
-    q = q / jnp.linalg.norm(q, axis=-1, keepdims=True)
+    if q.ndim != 2 or q.shape[0] < 1 or q.shape[1] != 4:  # (they failed deep in jaxlie or numpy)
+        raise ValueError(f"wxyz must be a sequence of quaternions of shape (N, 4), N >= 1, got {q.shape}")
+    norm = jnp.linalg.norm(q, axis=-1, keepdims=True)
+    if not isinstance(norm, jax.core.Tracer) and bool(jnp.any(norm == 0.0)):  # normalized, it was a NaN step
+        raise ValueError(f"wxyz: the quaternion at index {int(jnp.argmax(norm[:, 0] == 0.0))} is zero, which is no attitude")
+    q = q / norm
     a, b = SO3(q[1:]), SO3(q[:-1])
     return log(a @ b.inverse()) if frame == "world" else log(b.inverse() @ a)

@@ -114,9 +114,13 @@ class AbstractParameterization(abc.ABC):
         return jnp.concatenate([T.translation(), T.rotation().wxyz])
 
     def from_qpos(self, qpos: jax.Array) -> jax.Array:
-        """Inverse of `to_qpos` (the quaternion is normalized first)."""
+        """Inverse of `to_qpos` (the quaternion is normalized first; a zero one, which gave NaN
+        coordinates, is the identity, as the quaternion charts' `to_qpos` read theirs)."""
         qpos = self._coordinates(qpos, "qpos (xyz_wxyz)", 7)
-        wxyz = qpos[3:7] / jnp.linalg.norm(qpos[3:7])
+        wxyz = qpos[3:7]
+        zero = jnp.all(wxyz == 0.0)  # (one branch: no NaN derivative from the other)
+        wxyz = jnp.where(zero, jnp.array([1.0, 0.0, 0.0, 0.0]), wxyz)
+        wxyz = wxyz / jnp.linalg.norm(wxyz)
         return self.from_pose(SE3.from_rotation_and_translation(SO3(wxyz), qpos[:3]))
 
     def __repr__(self) -> str:
@@ -185,8 +189,12 @@ class SE3Tangent(AbstractParameterization):
 
     integrate: ``Log(Exp(xi) Exp(V h))``; difference: ``Log(Exp(xi1)^-1 Exp(xi2))``.
     The two are inverse maps: ``difference(xi, integrate(xi, V, h)) == V h`` for rotation
-    angles below pi. Any xi is a valid coordinate (angles beyond pi included), which lets
-    a warm start wind through full turns; `integrate` returns the principal logarithm.
+    angles below pi. Any xi whose rotation angle is not a nonzero multiple of 2 pi is a valid
+    coordinate (angles beyond pi included); at 2 pi k, k != 0, Exp's Jacobian loses rank: a
+    pose turned a whole number of times with a translation off its axis has no coordinates
+    there, and near it the translation's grow without bound, so a warm start winding through
+    a full turn meets a singular point. `integrate` and `from_pose` return the principal
+    logarithm (angle at most pi).
     """
 
     name: ClassVar[str] = "se3"
@@ -328,8 +336,9 @@ class EulerRPY(AbstractParameterization):
     def from_pose(self, T_world_base):
         """Coordinates with pitch in [-pi/2 + m, pi/2 - m], m = `euler.GIMBAL_MARGIN`: at
         gimbal lock W(theta) is infinite (|W| ~ 1e16 at pitch = pi/2 in floating point), so a
-        pose there (e.g. a flip's warm start passing pitch -pi/2 at a knot) gets the pitch m
-        rad short of it; every other pose round-trips exactly."""
+        pose there or within m of it (e.g. a flip's warm start passing pitch -pi/2 at a knot)
+        gets its pitch clipped to m rad short of the lock; every other pose round-trips
+        exactly."""
         rpy = euler.from_rotation_matrix(T_world_base.rotation().as_matrix())
         return jnp.concatenate([T_world_base.translation(), euler.away_from_gimbal_lock(rpy)])
 

@@ -56,6 +56,14 @@ def test_dimensions(name, rng):
     x, u = random_state(model, rng), random_control(model, rng)
     assert u.shape == (model.nu,)
     assert model.dynamics(x, u).shape == (model.nx,)
+    # one input short or too many, a state short: JAX clamps an index past the end (a rigid
+    # body given 4 inputs took the fourth as all three torques), now refused by name
+    kind = type(model).__name__
+    for bad_u in (u[:-1], jnp.concatenate([u, u[:1]])):
+        with pytest.raises(ValueError, match=rf"^{kind} input u must have shape \({model.nu},\), got \({bad_u.shape[0]},\)$"):
+            model.dynamics(x, bad_u)
+    with pytest.raises(ValueError, match=rf"^{kind} state x must have shape \({model.nx},\), got \({model.nx - 1},\)$"):
+        model.dynamics(x[:-1], u)
 
 
 def test_rk4_quaternion_norm_error_is_fifth_order(rng):
@@ -102,6 +110,11 @@ def test_quadrotor_hover_is_an_equilibrium(yaw):
     u = jnp.asarray(quad.hover_control())
     np.testing.assert_allclose(u, 0.5 * 9.81 / 4, rtol=1e-15)
     np.testing.assert_allclose(quad.dynamics(x, u), 0.0, atol=1e-14)
+
+
+def test_quadrotor_wrench_takes_one_command_per_rotor():
+    with pytest.raises(ValueError, match=r"^Quadrotor input u must have shape \(4,\), got \(3,\)$"):
+        M.Quadrotor().wrench(jnp.array([1.0, 2.0, 3.0]))
 
 
 def test_quadrotor_motor_torques():

@@ -316,3 +316,32 @@ def test_regression_batches_are_refused_with_a_pointer_to_vmap(param):
     with pytest.raises(ValueError, match=r"qpos \(xyz_wxyz\) must be one configuration of shape \(7,\)"):
         param.from_qpos(jnp.zeros((3, 7)).at[:, 3].set(1.0))
     np.testing.assert_allclose(jax.vmap(param.to_qpos)(qs), np.tile([0.0, 0, 0, 1, 0, 0, 0], (3, 1)), atol=1e-15)
+
+
+def test_se3_tangent_is_singular_at_a_whole_turn():
+    """The docstring said any xi was a valid coordinate, winding through full turns: at a
+    rotation angle of 2 pi Exp's Jacobian loses rank (translation off the axis cannot be
+    written), while half a radian past it the chart is regular again."""
+    se3 = get("se3")
+
+    def smallest_singular_value(angle):
+        xi = jnp.array([0.3, 0.0, 0.2, 0.0, angle, 0.0])
+        J = jax.jacfwd(lambda x: se3.to_pose(x).parameters())(xi)  # (7, 6): wxyz_xyz
+        return float(np.linalg.svd(np.asarray(J), compute_uv=False)[-1])
+
+    assert smallest_singular_value(2 * np.pi) < 1e-12
+    assert smallest_singular_value(2 * np.pi + 0.5) > 1e-2 and smallest_singular_value(1.5 * np.pi) > 1e-2
+
+
+def test_a_zero_quaternion_in_qpos_is_the_identity_not_nan():
+    """from_qpos divided by the quaternion's norm: a zero one gave NaN coordinates (and NaN
+    derivatives), where the quaternion charts' to_qpos read a zero quaternion as the identity."""
+    for name in PARAMETERIZATIONS:
+        p = get(name)
+        qpos = jnp.array([0.1, 0.2, 0.3, 0.0, 0.0, 0.0, 0.0])
+        q = p.from_qpos(qpos)
+        np.testing.assert_allclose(p.to_qpos(q), [0.1, 0.2, 0.3, 1.0, 0.0, 0.0, 0.0], atol=1e-12)
+        assert np.all(np.isfinite(np.asarray(jax.jacfwd(p.from_qpos)(qpos)))), name
+        # a tiny quaternion keeps its direction (no floor)
+        tiny = jnp.array([0.0, 0.0, 0.0, 0.0, 1e-9, 0.0, 0.0])
+        np.testing.assert_allclose(np.abs(p.to_qpos(p.from_qpos(tiny))[3:]), [0.0, 1.0, 0.0, 0.0], atol=1e-9)

@@ -36,6 +36,7 @@ import numpy as np
 
 from jtraj import quaternion as quat
 from jtraj.constants import GRAVITY
+from jtraj.numbers import shaped
 
 __all__ = [
     "POS",
@@ -130,6 +131,13 @@ def retract_error_state(x_ref: jax.Array, dx: jax.Array) -> jax.Array:
 # Models
 
 
+def _state_and_input(model, x: jax.Array, u: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """``x`` (nx,) and ``u`` (nu,) of ``model``, else a ValueError naming them: the models index
+    their inputs, and JAX clamps an index past the end without a word (a rigid body given 4
+    inputs took the fourth as all three torques)."""
+    return shaped(x, (model.nx,), f"{type(model).__name__} state x"), shaped(u, (model.nu,), f"{type(model).__name__} input u")
+
+
 @dataclasses.dataclass(frozen=True)
 class RigidBody:
     """A free rigid body: ``u = [force_world (3) N, torque_body (3) N m]``, no gravity.
@@ -145,6 +153,7 @@ class RigidBody:
     nu: ClassVar[int] = 6
 
     def dynamics(self, x: jax.Array, u: jax.Array) -> jax.Array:
+        x, u = _state_and_input(self, x, u)
         return rigid_body_dynamics(x, u[:3], u[3:], self.mass, jnp.diag(jnp.asarray(self.inertia)))
 
     def energy(self, x: jax.Array) -> jax.Array:
@@ -182,6 +191,7 @@ class Quadrotor:
 
     def wrench(self, u: jax.Array) -> tuple[jax.Array, jax.Array]:
         """(thrust along body z (N), torque in the body frame (3,) N m) of the commands u."""
+        u = shaped(u, (self.nu,), "Quadrotor input u")
         thrust = self.kf * u
         torque = jnp.stack(
             [
@@ -193,6 +203,7 @@ class Quadrotor:
         return jnp.sum(thrust), torque
 
     def dynamics(self, x: jax.Array, u: jax.Array) -> jax.Array:
+        x, u = _state_and_input(self, x, u)
         thrust, torque = self.wrench(u)
         f_world = quat.rotate(x[QUAT], jnp.stack([0.0, 0.0, thrust])) + jnp.array([0.0, 0.0, -self.mass * self.gravity])
         return rigid_body_dynamics(x, f_world, torque, self.mass, jnp.diag(jnp.asarray(self.inertia)))
@@ -293,6 +304,7 @@ class Airplane:
         return force, torque
 
     def dynamics(self, x: jax.Array, u: jax.Array) -> jax.Array:
+        x, u = _state_and_input(self, x, u)
         q = x[QUAT]
         f_aero, tau = self.aero_wrench(q, x[VEL], x[OMEGA], u)
         f_body = f_aero + jnp.stack([u[0], 0.0, 0.0])
@@ -430,6 +442,7 @@ class FlexibleSpacecraft:
         return 0.5 * w @ m["J"] @ w + w @ m["delta"].T @ eta_dot + 0.5 * eta_dot @ eta_dot + 0.5 * eta @ m["K"] @ eta
 
     def dynamics(self, x: jax.Array, u: jax.Array) -> jax.Array:
+        x, u = _state_and_input(self, x, u)
         m = self.matrices()
         q, w = x[QUAT], x[OMEGA]
         eta, eta_dot = x[self.ETA], x[self.ETA_DOT]
