@@ -885,6 +885,18 @@ def table_iii(runs: list[dict], iterations: bool = False) -> str:
     return _table_iii_markdown(summary, sorted({r["sigma"] for r in summary}), iterations)
 
 
+def _percent(rate: float) -> str:
+    """A rate as Table III prints it: whole percent, but never 0 % or 100 % for a rate that is
+    not (399 of 400 read "100%", hiding the one run that failed, or the one jump counted as a
+    flip, that the cell's two rates are there to show)."""
+    text = f"{100 * rate:.0f}%"
+    if text == "100%" and rate < 1:
+        return ">99%"
+    if text == "0%" and rate > 0:
+        return "<1%"
+    return text
+
+
 def _table_iii_markdown(summary: list[dict], sigmas: Sequence[float], iterations: bool = False) -> str:
     """Table III of ``summary`` (`summarize_robustness`) at the noise levels ``sigmas``; its
     heading names the solvers and noise charts of the summary's rows (the one place
@@ -904,7 +916,7 @@ def _table_iii_markdown(summary: list[dict], sigmas: Sequence[float], iterations
     ]
 
     def cell(r: dict) -> str:
-        rates = f"{100 * r['converged_rate']:.0f}% / {100 * r['task_success_rate']:.0f}%"
+        rates = f"{_percent(r['converged_rate'])} / {_percent(r['task_success_rate'])}"
         if not iterations:
             return rates
         return rates + (" (-)" if r["iterations_median"] is None else f" ({r['iterations_median']:.0f})")

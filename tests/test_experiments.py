@@ -337,6 +337,22 @@ def test_table_iii_counts_a_converged_run_only_when_it_is_feasible():
     assert (row["converged_rate"], row["iterations_median"]) == (0.0, None)
 
 
+def test_table_iii_never_rounds_a_failure_away():
+    """Whole percent read 399 of 400 as "100%" and 1 of 400 as "0%": a cell with one failed run,
+    or one jump counted as a flip, showed the same two rates."""
+    from jtraj.experiments import _table_iii_markdown, summarize_robustness
+
+    def cell(done: list[bool]) -> str:
+        runs = [dict(task="walk", parameterization="se3", sigma=0.1, converged=True, constraint_violation=1e-9, success=ok, iterations=20) for ok in done]
+        return next(line for line in _table_iii_markdown(summarize_robustness(runs), [0.1]).splitlines() if line.startswith("| walk"))
+
+    assert cell([True] * 399 + [False]) == "| walk | se3 | 100% / >99% |"
+    assert cell([False] * 399 + [True]) == "| walk | se3 | 100% / <1% |"
+    assert cell([True] * 7 + [False] * 3) == "| walk | se3 | 100% / 70% |"
+    assert cell([True] * 199 + [False]) == "| walk | se3 | 100% / >99% |"  # 99.5 % rounds to 100 %
+    assert cell([True] * 399 + [False] * 401).endswith("/ 50% |")  # 49.875 %: not at the ends
+
+
 def test_fig2_gives_each_setting_one_colour_in_every_panel(tmp_path, monkeypatch):
     """Fig. 2: a setting keeps its colour and marker across tasks even where another setting has
     no converged run (the colours used to follow each panel's own cycle); one legend lists every
