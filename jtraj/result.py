@@ -18,8 +18,9 @@ that jtraj derives from a result into its folder (`DERIVED_FILES`: figures, vide
 strip), which would otherwise show an earlier solve beside this one.
 
 Strict JSON writes NaN and infinities as null, and a null can also be meaningful (a ``turns``
-of None: not a flip task): ``result.json`` lists where the metrics and options held non-finite
-numbers and which (``non_finite_values``: a path of keys and indices, and ``"nan"``, ``"inf"``
+of None: not a flip task): ``result.json`` lists where the result held non-finite numbers
+(the metrics, options, violations per group, history, and the numbers of the top level such as
+the cost) and which (``non_finite_values``: a path of keys and indices, and ``"nan"``, ``"inf"``
 or ``"-inf"``; e.g. a theta's infinite ``max_delta_force``), and `Result.load` puts them back.
 Files written before that list name only the metrics that held one (``metrics_non_finite``),
 whose nulls are read back as NaN; in files written before either, a null stays None.
@@ -55,7 +56,7 @@ _DIGEST_KEY = "trajectory_sha256"
 _NON_FINITE_KEY = "metrics_non_finite"
 _NON_FINITE_VALUES_KEY = "non_finite_values"
 #: The fields whose non-finite numbers `Result.save` lists where they are (`_non_finite_values`).
-_EXACT_FIELDS = ("metrics", "options")
+_EXACT_FIELDS = ("metrics", "options", "violation_by_group", "history")
 PROVENANCE_FILE = "provenance.json"
 #: The files jtraj writes into a result's folder from its result: `jtraj solve`'s figures
 #: (``trajectory.png``, ``convergence.png``), ``jtraj plot``'s (``solution.png``), ``jtraj
@@ -276,6 +277,10 @@ class Result:
         for name in (*DERIVED_FILES, PROVENANCE_FILE):
             (d / name).unlink(missing_ok=True)
         exact = [[[name, *path], text] for name in _EXACT_FIELDS for path, text in _non_finite_values(getattr(self, name))]
+        # and the numbers of the top level (stats flattened into it: `to_json`): an infinite
+        # cost came back as NaN
+        top = {**{f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name not in ("trajectory", "stats", *_EXACT_FIELDS)}, **dataclasses.asdict(self.stats)}
+        exact += [[[name], text] for name, value in top.items() if isinstance(value, (float, np.floating)) for _, text in _non_finite_values(value)]
         # the earlier list, of the metrics holding one, for readers of files before the exact one
         non_finite = list(dict.fromkeys(path[1] for path, _ in exact if path[0] == "metrics"))
         # the two files are replaced one after the other: the digest ties them together
@@ -301,6 +306,7 @@ class Result:
         if not isinstance(data, dict):
             raise io.FileFormatError(f"{path}: expected a JSON object, got {type(data).__name__}")
         try:
+            data = _restore_top_level(data, data.get(_NON_FINITE_VALUES_KEY))
             stats = Stats(**{f.name: _float_or_nan(f, data[f.name]) for f in dataclasses.fields(Stats)})
             fields = {f.name: _float_or_nan(f, data[f.name]) for f in dataclasses.fields(cls) if f.name not in ("stats", "trajectory")}
             fields["status"] = _member(Outcome, data["status"])
@@ -349,13 +355,15 @@ def stale_trajectory_note(folder: str | Path) -> str:
 
 
 def _float_or_nan(field: dataclasses.Field, value: Any) -> Any:
-    """A float field's value as read back: strict JSON writes NaN and infinities as null."""
+    """A float field's value as read back: strict JSON writes NaN and infinities as null (a
+    file before the list of non-finite values: NaN for either)."""
     return math.nan if value is None and field.type in ("float", float) else value
 
 
 def _nan_for_null(table: Any) -> Any:
-    """A table of floats as read back: its nulls (NaN and infinities when written) are NaN
-    (`_all_nan_for_null`); anything but a table as it is."""
+    """A table of floats as read back: its nulls (NaN and infinities when written; the list of
+    non-finite values then puts the infinities back) are NaN (`_all_nan_for_null`); anything
+    but a table as it is."""
     return _all_nan_for_null(table) if isinstance(table, dict) else table
 
 
@@ -378,6 +386,22 @@ def _non_finite_values(value: Any, path: tuple = ()) -> list[tuple[list, str]]:
     return []
 
 
+def _restore_top_level(data: dict[str, Any], entries: Any) -> dict[str, Any]:
+    """``data`` with the non-finite numbers of its top level (entries of one key, `Result.save`)
+    back in place of their nulls; ValueError for one that names no null."""
+    if not isinstance(entries, list):  # (a file before the list; a bad list: _restore_non_finite says so)
+        return data
+    values = {"nan": math.nan, "inf": math.inf, "-inf": -math.inf}
+    data = dict(data)
+    for entry in entries:
+        if isinstance(entry, list) and len(entry) == 2 and isinstance(entry[0], list) and len(entry[0]) == 1:
+            (name,), text = entry
+            if name not in data or data[name] is not None or text not in values or name in _EXACT_FIELDS:
+                raise ValueError(f"{_NON_FINITE_VALUES_KEY}: {entry!r} names no null of the result")
+            data[name] = values[text]
+    return data
+
+
 def _restore_non_finite(fields: dict[str, Any], entries: Any) -> None:
     """Put the non-finite numbers ``entries`` lists (`Result.save`'s ``non_finite_values``)
     back in place of their nulls in ``fields``; ValueError for an entry that names no null."""
@@ -387,6 +411,8 @@ def _restore_non_finite(fields: dict[str, Any], entries: Any) -> None:
         raise ValueError(f"{_NON_FINITE_VALUES_KEY}: expected a list, got {type(entries).__name__}")
     values = {"nan": math.nan, "inf": math.inf, "-inf": -math.inf}
     for entry in entries:
+        if isinstance(entry, list) and len(entry) == 2 and isinstance(entry[0], list) and len(entry[0]) == 1:
+            continue  # the top level's, put back first (`_restore_top_level`)
         try:
             (name, *keys, last), text = entry
             assert name in _EXACT_FIELDS and text in values

@@ -104,9 +104,9 @@ def test_non_finite_numbers_are_written_as_strict_json(tmp_path):
     text = (r.save(tmp_path) / "result.json").read_text()
     assert "NaN" not in text and "Infinity" not in text
     back = Result.load(tmp_path)
-    # strict JSON keeps no NaN or inf: a float field read back as null is NaN again
-    assert np.isnan(back.cost) and np.isnan(back.constraint_violation)
-    assert "cost nan, violation nan" in back.summary()
+    # strict JSON keeps no NaN or inf: the file lists where they were, and they come back
+    assert np.isnan(back.cost) and back.constraint_violation == float("inf")
+    assert "cost nan, violation inf" in back.summary()
 
 
 def test_non_finite_numbers_in_the_float_tables_come_back_as_nan(tmp_path):
@@ -117,7 +117,7 @@ def test_non_finite_numbers_in_the_float_tables_come_back_as_nan(tmp_path):
     back = Result.load(r.save(tmp_path))
     assert np.isnan(back.violation_by_group["dynamics"]) and back.violation_by_group["bounds"] == 0.0
     (loaded,) = back.history
-    assert loaded.keys() == row.keys() and np.isnan(loaded["objective"]) and np.isnan(loaded["inf_pr"])
+    assert loaded.keys() == row.keys() and np.isnan(loaded["objective"]) and loaded["inf_pr"] == float("inf")
     assert {k: loaded[k] for k in ("iter", "inf_du", "mu", "alpha_pr")} == {"iter": 3, "inf_du": 0.5, "mu": 0.1, "alpha_pr": 0.0}
 
 
@@ -151,6 +151,26 @@ def test_a_none_beside_an_infinity_in_a_metric_stays_none(tmp_path):
     """The older list of metrics with non-finite numbers made every null of such a metric NaN."""
     back = Result.load(make_result(None, metrics={"margins": {"keep_out": None, "sun": float("inf")}, "turns": None}).save(tmp_path))
     assert back.metrics["margins"] == {"keep_out": None, "sun": float("inf")}
+
+
+def test_infinities_of_the_top_level_and_float_tables_come_back_as_they_were(tmp_path):
+    """Only the metrics and options kept their infinities: an infinite cost, violation, group
+    violation or history number came back as NaN."""
+    import json
+
+    row = {"iter": 3, "objective": -float("inf"), "inf_pr": float("inf"), "inf_du": float("nan"), "mu": 0.1, "alpha_pr": 0.0}
+    r = make_result(None, cost=-float("inf"), constraint_violation=float("inf"), violation_by_group={"dynamics": float("inf"), "bounds": float("nan")}, history=[row])
+    back = Result.load(r.save(tmp_path))
+    assert back.cost == -float("inf") and back.constraint_violation == float("inf")
+    assert back.violation_by_group["dynamics"] == float("inf") and np.isnan(back.violation_by_group["bounds"])
+    (loaded,) = back.history
+    assert loaded["objective"] == -float("inf") and loaded["inf_pr"] == float("inf") and np.isnan(loaded["inf_du"])
+    # an entry of the top level that names no null is refused, as the others are
+    data = json.loads((tmp_path / "result.json").read_text())
+    data["non_finite_values"].append([["n_variables"], "inf"])
+    (tmp_path / "result.json").write_text(json.dumps(data))
+    with pytest.raises(FileFormatError, match=r"non_finite_values: \[\['n_variables'\], 'inf'\] names no null of the result"):
+        Result.load(tmp_path)
 
 
 def test_a_list_of_non_finite_values_naming_no_null_is_refused(tmp_path):
