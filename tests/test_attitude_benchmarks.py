@@ -339,6 +339,7 @@ def test_importing_attitude_loads_no_mujoco_robot_or_transcription():
 
 
 def test_every_benchmark_has_its_own_check_and_figure():
+    assert set(B.BENCHMARKS) == set(SHORT) == {"quadflip", "barrelroll", "satellite"}  # the paper's three
     for name, cls in B.BENCHMARKS.items():
         assert cls.name == name
         for method in ("build", "task_metrics", "plot_curve"):

@@ -113,3 +113,16 @@ def test_one_task_is_complete_at_once(monkeypatch, capsys, tmp_path, script, nam
     monkeypatch.setattr(jtraj.provenance, "provenance", _record)
     mod.main(["walk", *options, "--out", str(tmp_path)])
     assert json.loads((tmp_path / "provenance.json").read_text())["complete"] is True
+    # and the results file holds the task's record, with what its fake solve returned
+    records = json.loads((tmp_path / f"{name}.json").read_text())
+    assert [r["task"] for r in records] == ["walk"]  # one solve: one variant, Hessian or solver
+    assert ITERATIONS[script](records[0]) == 3
+
+
+#: where each script's record keeps its solve's iterations (3 in every fake above)
+ITERATIONS = {
+    "solve": lambda r: r["variants"][0]["iterations"],
+    "hessians": lambda r: r["iterations"],
+    "options": lambda r: r["iterations"][0],
+    "fatrop": lambda r: r["solvers"][0]["iterations"],
+}

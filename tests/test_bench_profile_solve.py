@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 from conftest import bench_module
 
+from jtraj.solvers.ipm import IpmStatus
+
 RESULTS = Path(__file__).resolve().parents[1] / "results" / "profile_solve"
 
 
@@ -36,8 +38,26 @@ def test_a_solve_that_did_not_succeed_shows_its_status(profile_solve):
     assert lines[3].startswith("| walk | 47 x 156 | 50 (max_iter) | 1.45 | 125 | 12 % |")
 
 
-@pytest.mark.parametrize(("code", "status"), [(1, "solved"), (2, "max_iter"), (3, "restoration_failed"), (4, "numerical_error"), (0, "internal_error")])
-def test_the_status_is_the_one_jtraj_solve_gives(profile_solve, code, status):
+#: every termination of the interior point and the status jtraj's solve reports for it (the
+#: comments of `IpmStatus` and `jtraj.solvers.Status`): a loop still running when it stopped is
+#: an internal error, a line search failing repeatedly the solver's restoration failure, no
+#: regularization giving the right inertia a step that could not be computed
+SHARED_STATUS = {
+    IpmStatus.RUNNING: "internal_error",
+    IpmStatus.CONVERGED: "solved",
+    IpmStatus.MAX_ITER: "max_iter",
+    IpmStatus.LINE_SEARCH_FAILED: "restoration_failed",
+    IpmStatus.NUMERICAL_ERROR: "numerical_error",
+    IpmStatus.INERTIA_FAILED: "step_computation_failed",
+}
+
+
+def test_every_ipm_status_has_its_expected_status():
+    assert set(SHARED_STATUS) == set(IpmStatus)  # a new termination needs its row here
+
+
+@pytest.mark.parametrize("ipm", list(IpmStatus), ids=lambda s: s.name)
+def test_the_status_is_the_one_jtraj_solve_gives(profile_solve, ipm):
     """The compiled program's IpmStatus code (a JAX scalar) as `jtraj.solvers.Status`'s value,
     as every other benchmark records ``Result.status.value``."""
-    assert profile_solve.status_of(SimpleNamespace(status=np.int32(code))) == status
+    assert profile_solve.status_of(SimpleNamespace(status=np.int32(int(ipm)))) == SHARED_STATUS[ipm]

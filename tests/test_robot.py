@@ -87,11 +87,17 @@ def test_talos_full_is_the_study_codes_talos():
     assert full.joint_names == reduced.joint_names
     np.testing.assert_array_equal(full.q_joints_standing, reduced.q_joints_standing)
     assert full.contact_names == reduced.contact_names
-    # the mass of every link of the URDF, read here independently of the loader
-    links = ET.parse(full.urdf_path).getroot().findall("link")
-    urdf_mass = sum(float(link.find("inertial/mass").get("value")) for link in links if link.find("inertial") is not None)
-    assert full.total_mass == pytest.approx(urdf_mass) == pytest.approx(93.336, abs=1e-3)
-    assert reduced.total_mass == pytest.approx(90.272, abs=1e-3)
+
+    # the mass of every link of each URDF, read here independently of the loader (locked
+    # joints and fused links keep their masses): 93.336 kg in talos_full_v2.urdf, 90.272 kg in
+    # talos_reduced.urdf (example-robot-data's files; robots/talos_full.toml: "3.1 kg lighter")
+    def urdf_mass(path):
+        links = ET.parse(path).getroot().findall("link")
+        return sum(float(link.find("inertial/mass").get("value")) for link in links if link.find("inertial") is not None)
+
+    assert reduced.urdf_path.name == "talos_reduced.urdf"
+    assert full.total_mass == pytest.approx(urdf_mass(full.urdf_path)) == pytest.approx(93.336, abs=1e-3)
+    assert reduced.total_mass == pytest.approx(urdf_mass(reduced.urdf_path)) == pytest.approx(90.272, abs=1e-3)
     tau = dict(zip(full.joint_names, full.tau_max))
     tau_reduced = dict(zip(reduced.joint_names, reduced.tau_max))
     assert (tau["arm_left_5_joint"], tau_reduced["arm_left_5_joint"]) == (20.0, 3.0)
@@ -139,6 +145,21 @@ def test_go2_effort_limits():
         assert effort == pytest.approx(expected), name
 
 
+#: How far (m) from the ground the standing pose's lowest foot point may be: the study's base
+#: heights have 4 or 5 decimals (G1's 0.6756 puts its soles 0.073 mm below the ground).
+STANDING_HEIGHT_TOLERANCE = 1e-4
+
+
+def _assert_stands_on_its_feet(robot):
+    """What the standing base height means: with the standing joint angles, the lowest of the
+    robot's contact points is a foot point (a point of a ``*foot*`` contact group) at z = 0, the
+    ground, by MuJoCo's forward kinematics."""
+    z = _mujoco_contact_positions(robot, robot.qpos_standing)[:, 2]
+    feet = sorted(i for g, idx in robot.contact_groups.items() if "foot" in g for i in idx)
+    assert feet and int(np.argmin(z)) in feet, (robot.name, z)
+    assert abs(z.min()) < STANDING_HEIGHT_TOLERANCE, (robot.name, robot.contact_names[int(np.argmin(z))], z.min())
+
+
 def test_standing_pose_values():
     # the legs' angles and base heights are the study's public code's standing poses (its
     # Talos, G1 and Go2 wrappers set q[2] = 1.0274, 0.6756 and 0.31131): the robots' files must
@@ -149,6 +170,7 @@ def test_standing_pose_values():
         hip, knee, ankle = (q[f"leg_{side}_{i}_joint"] for i in (3, 4, 5))
         assert (hip, knee, ankle) == (-0.4, 0.8, -0.4)
     assert talos.base_xyz_wxyz_standing.tolist() == [0.0, 0.0, 1.0274, 1.0, 0.0, 0.0, 0.0]
+    _assert_stands_on_its_feet(talos)
     # arms as in talos.srdf's half_sitting (read independently here)
     srdf = robot_lib.robots_data_dir() / "talos_data" / "srdf" / "talos.srdf"
     state = next(s for s in ET.parse(srdf).getroot().iter("group_state") if s.get("name") == "half_sitting")
@@ -164,12 +186,14 @@ def test_standing_pose_values():
         hip, knee, ankle = (q[f"{side}_{j}_joint"] for j in ("hip_pitch", "knee", "ankle_pitch"))
         assert (hip, knee, ankle) == (-0.6, 1.2, -0.6)
     assert g1.base_xyz_wxyz_standing[2] == 0.6756
+    _assert_stands_on_its_feet(g1)
 
     go2 = robot_lib.load("go2")
     q = dict(zip(go2.joint_names, go2.q_joints_standing))
     for leg in ("FL", "FR", "RL", "RR"):
         assert (q[f"{leg}_hip_joint"], q[f"{leg}_thigh_joint"], q[f"{leg}_calf_joint"]) == (0.0, 0.7, -1.5)
     assert go2.base_xyz_wxyz_standing[2] == 0.31131
+    _assert_stands_on_its_feet(go2)
 
 
 def test_fused_links_resolve_to_surviving_bodies():

@@ -217,6 +217,9 @@ def test_jtraj_option_ranges_are_ipopts():
     from jtraj.solvers import ipopt_catalog
 
     specs = ipopt_catalog.catalog()
+    # the 22 options that follow Ipopt's ranges, among them the two special cases below and one
+    # under another name in Ipopt: a loop over fewer (none) would check less than it says
+    assert len(IpmOptions.RANGES) >= 22 and {"mu_min", "kappa_sigma", "bound_push", "kappa_eps"} <= set(IpmOptions.RANGES)
     for name, (lo, lo_open, hi, hi_open, ipopt_name) in IpmOptions.RANGES.items():
         spec = specs[ipopt_name]
         ours = (lo, lo_open, hi, hi_open) if name != "kappa_sigma" else (0.0, True, np.inf, True)  # Ipopt: below 1 turns it off

@@ -6,6 +6,7 @@ kinematics of the two poses."""
 import importlib.resources
 import re
 
+import mujoco
 import numpy as np
 import pytest
 
@@ -20,6 +21,54 @@ HANDS_FIRST = 'contacts = ["left_hand", "right_hand"]'
 
 def _transcription(task: tasks.Task) -> Transcription:
     return Transcription(robot_lib.load(task.robot), task, parameterization.get("se3"))
+
+
+#: How far (m) from the terrain a touching point of a built-in task may be at a fixed knot: the
+#: standing poses put each robot's feet level to far better (~1e-16 m), so this is rounding only.
+ON_TERRAIN = 1e-9
+
+
+def _contact_heights(robot, xyz_wxyz, q_joints) -> np.ndarray:
+    """Heights (m) of all the robot's contact points at the base pose ``xyz_wxyz`` and joint
+    positions ``q_joints``, by MuJoCo's forward kinematics (the transcription's checks use
+    jtraj's own JAX kinematics): each point is its body's frame applied to its offset there."""
+    m = robot.mj_model
+    d = mujoco.MjData(m)
+    d.qpos[:] = np.concatenate([xyz_wxyz, q_joints])
+    mujoco.mj_kinematics(m, d)
+    b = robot.contact_body_ids
+    return (d.xpos[b] + np.einsum("cij,cj->ci", d.xmat[b].reshape(-1, 3, 3), robot.contact_offsets))[:, 2]
+
+
+def _assert_on_the_terrain(tr: Transcription) -> None:
+    """At the first knot (the initial pose, the standing joints) the contact points of the first
+    phase rest on the terrain, at the last knot (the target pose and joints) those of the last
+    phase do; the task's other contact points are not below it. The points are read from the
+    task's phases and the robot's groups, not from the transcription's schedule."""
+    task, robot = tr.task, tr.robot
+    h = task.terrain_height
+
+    def points(*phases):
+        return {i for phase in phases for group in phase.contacts for i in robot.group(group)}
+
+    used = points(*task.phases)
+    q_target = robot.q_joints_standing if task.target_joints is None else np.asarray(task.target_joints, float)
+    for knot, pose, q_joints, phase in (("first", tr.initial_xyz_wxyz, robot.q_joints_standing, task.phases[0]), ("last", tr.target_xyz_wxyz, q_target, task.phases[-1])):
+        z = _contact_heights(robot, pose, q_joints)
+        touching = points(phase)
+        assert touching, (knot, phase)  # every built-in task starts and ends on its feet
+        for i in sorted(used):
+            name = robot.contact_names[i]
+            if i in touching:
+                assert abs(z[i] - h) <= ON_TERRAIN, (knot, name, z[i] - h)
+            else:
+                assert z[i] >= h - ON_TERRAIN, (knot, name, z[i] - h)
+
+
+def _same_rotation(wxyz, expected) -> bool:
+    """Unit quaternions of the same rotation (q and -q are one)."""
+    wxyz, expected = np.asarray(wxyz, float), np.asarray(expected, float)
+    return min(np.abs(wxyz - expected).max(), np.abs(wxyz + expected).max()) < 1e-12
 
 
 def _file(tmp_path, old: str, new: str) -> str:
@@ -38,7 +87,14 @@ def _file(tmp_path, old: str, new: str) -> str:
 def test_builtin_tasks_stand_on_the_terrain_at_both_ends(name, robot):
     task = tasks.load(name) if robot is None else tasks.retarget(tasks.load(name), {"talos": robot})
     tr = _transcription(task)
-    assert tr.initial_xyz_wxyz.shape == tr.target_xyz_wxyz.shape == (7,)  # neither raises
+    standing = tr.robot.base_xyz_wxyz_standing
+    # the first knot is the standing pose moved vertically only, the last that pose moved by
+    # the task's target (no built-in task turns the base: its attitude is the standing one)
+    assert task.target_rotation_rpy == (0.0, 0.0, 0.0)
+    np.testing.assert_array_equal(tr.initial_xyz_wxyz[[0, 1, 3, 4, 5, 6]], standing[[0, 1, 3, 4, 5, 6]])
+    np.testing.assert_allclose(tr.target_xyz_wxyz[:3], tr.initial_xyz_wxyz[:3] + task.target_translation, rtol=0, atol=1e-12)
+    assert _same_rotation(tr.target_xyz_wxyz[3:], standing[3:])
+    _assert_on_the_terrain(tr)
 
 
 def test_a_first_phase_on_the_hands_is_refused(tmp_path):
@@ -93,11 +149,22 @@ def test_a_target_that_lifts_the_last_contacts_off_the_terrain_is_refused(tmp_pa
         tr.build_nlp()
 
 
-@pytest.mark.parametrize("rpy", [(0.0, 0.0, 0.5), (2 * np.pi, 0.0, 0.0), (0.0, -2 * np.pi, 0.0)])
-def test_targets_that_keep_the_feet_on_the_terrain_are_accepted(rpy):
+@pytest.mark.parametrize(
+    "rpy, wxyz",
+    [
+        ((0.0, 0.0, 0.5), (np.cos(0.25), 0.0, 0.0, np.sin(0.25))),  # 0.5 rad about +z (Talos stands unrotated)
+        ((2 * np.pi, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0)),  # a whole turn: the standing attitude
+        ((0.0, -2 * np.pi, 0.0), (1.0, 0.0, 0.0, 0.0)),
+    ],
+)
+def test_targets_that_keep_the_feet_on_the_terrain_are_accepted(rpy, wxyz):
     # a turn about the vertical, and whole turns (a flip's target attitude is its start's)
-    tr = _transcription(tasks.load("big_jump").replace(target_rotation_rpy=rpy))
-    assert np.all(np.isfinite(tr.target_xyz_wxyz))
+    task = tasks.load("big_jump").replace(target_rotation_rpy=rpy)
+    tr = _transcription(task)
+    assert tr.robot.base_xyz_wxyz_standing[3:].tolist() == [1.0, 0.0, 0.0, 0.0]  # what wxyz assumes
+    assert _same_rotation(tr.target_xyz_wxyz[3:], wxyz), tr.target_xyz_wxyz[3:]
+    np.testing.assert_allclose(tr.target_xyz_wxyz[:3], tr.initial_xyz_wxyz[:3] + task.target_translation, rtol=0, atol=1e-12)
+    _assert_on_the_terrain(tr)
 
 
 def _rule_file(tmp_path, axis: str = "[1.0, 1.0, 0.0]") -> str:
