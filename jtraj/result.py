@@ -307,8 +307,8 @@ class Result:
             raise io.FileFormatError(f"{path}: expected a JSON object, got {type(data).__name__}")
         try:
             data = _restore_top_level(data, data.get(_NON_FINITE_VALUES_KEY))
-            stats = Stats(**{f.name: _float_or_nan(f, data[f.name]) for f in dataclasses.fields(Stats)})
-            fields = {f.name: _float_or_nan(f, data[f.name]) for f in dataclasses.fields(cls) if f.name not in ("stats", "trajectory")}
+            stats = Stats(**{f.name: _field_value(f, data) for f in dataclasses.fields(Stats)})
+            fields = {f.name: _field_value(f, data) for f in dataclasses.fields(cls) if f.name not in ("stats", "trajectory")}
             fields["status"] = _member(Outcome, data["status"])
             fields["solver_status"] = _member(Status, data["solver_status"])
             # the numbers of these tables are floats too (NaN for a failed group or iteration)
@@ -352,6 +352,27 @@ def stale_trajectory_note(folder: str | Path) -> str:
     trajectory file beside it): ``"; the trajectory.npz beside it is an earlier solve's"``
     where there is one, else nothing."""
     return f"; the {TRAJECTORY_FILE} beside it is an earlier solve's" if (Path(folder) / TRAJECTORY_FILE).exists() else ""
+
+
+#: what each annotation of a result's field takes from JSON (a number for a float: an int too)
+_JSON_TYPES: dict[str, tuple[type, ...]] = {"float": (int, float), "int": (int,), "str": (str,)}
+
+
+def _field_value(field: dataclasses.Field, data: dict[str, Any]) -> Any:
+    """``field``'s value in a result file's ``data``: its default where the file has none (a
+    field added later), KeyError where it has no default; ValueError naming it where the file
+    holds something of another type (\"12\" for the iterations loaded as a string, and a cost
+    of "abc" failed later in `Result.summary`)."""
+    if field.name not in data and field.default is not dataclasses.MISSING:
+        return field.default
+    if field.name not in data and field.default_factory is not dataclasses.MISSING:
+        return field.default_factory()
+    value = _float_or_nan(field, data[field.name])
+    annotation = str(field.type)
+    expected = _JSON_TYPES.get(annotation) or ((dict,) if annotation.startswith("dict") else (list,) if annotation.startswith("list") else None)
+    if expected is not None and value is not None and (isinstance(value, bool) or not isinstance(value, expected)):
+        raise ValueError(f"field {field.name!r}: {value!r}: expected {'a number' if annotation == 'float' else 'an integer' if annotation == 'int' else 'a ' + expected[0].__name__}")
+    return float(value) if annotation == "float" and value is not None else value
 
 
 def _float_or_nan(field: dataclasses.Field, value: Any) -> Any:

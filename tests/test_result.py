@@ -173,6 +173,28 @@ def test_infinities_of_the_top_level_and_float_tables_come_back_as_they_were(tmp
         Result.load(tmp_path)
 
 
+def test_a_field_of_the_wrong_type_is_named_and_a_missing_default_is_taken(tmp_path):
+    """"iterations": "12" loaded as a string and a cost of "abc" failed later in summary() with
+    a bare ValueError; a file without a field that has a default (one added later) was refused."""
+    import json
+
+    make_result(None).save(tmp_path)
+    good = json.loads((tmp_path / "result.json").read_text())
+    for key, value, said in (("iterations", "12", "'12': expected an integer"), ("cost", "abc", "'abc': expected a number"), ("n_variables", True, "True: expected an integer"), ("metrics", [1], r"\[1\]: expected a dict"), ("problem", 3, "3: expected a str")):
+        (tmp_path / "result.json").write_text(json.dumps({**good, key: value}))
+        with pytest.raises(FileFormatError, match=rf"result\.json: field '{key}': {said}$"):
+            Result.load(tmp_path)
+    (tmp_path / "result.json").write_text(json.dumps({**good, "cost": 3}))  # an integer is a number
+    assert Result.load(tmp_path).cost == 3.0 and isinstance(Result.load(tmp_path).cost, float)
+    older = {k: v for k, v in good.items() if k not in ("nnz_jacobian", "history", "options")}
+    (tmp_path / "result.json").write_text(json.dumps(older))
+    back = Result.load(tmp_path)
+    assert (back.nnz_jacobian, back.history, back.options) == (0, [], {})
+    (tmp_path / "result.json").write_text(json.dumps({k: v for k, v in good.items() if k != "cost"}))
+    with pytest.raises(FileFormatError, match=r"missing field 'cost'; not a jtraj result"):
+        Result.load(tmp_path)
+
+
 def test_a_list_of_non_finite_values_naming_no_null_is_refused(tmp_path):
     import json
 
