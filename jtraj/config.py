@@ -15,6 +15,7 @@ from jtraj.numbers import is_whole
 __all__ = ["CACHE_MAX_BYTES", "cpu_count", "split_cpu", "default_cache_dir", "enable_compilation_cache"]
 
 _enabled: Path | None = None
+_given = False  # whether _enabled was a folder given to enable_compilation_cache
 
 #: Size limit of the persistent compilation cache (least recently used entries go first).
 CACHE_MAX_BYTES = 4 * 2**30
@@ -93,17 +94,32 @@ def enable_compilation_cache(path: str | Path | None = None) -> Path | None:
     an earlier call turns the cache this module turned on off again (JAX sets its cache up
     once, at the first compilation after the folder is chosen; it is reset here, by
     ``jax.experimental.compilation_cache.compilation_cache.reset_cache``). Programs compiled
-    before stay in memory, and in the folder they were written to."""
-    global _enabled
+    before stay in memory, and in the folder they were written to.
+
+    A cache set up for JAX before (``jax.config.update("jax_compilation_cache_dir", ...)`` or
+    ``JAX_COMPILATION_CACHE_DIR``) is left as it is, with its thresholds, and its folder is
+    returned, unless ``path`` or ``JTRAJ_CACHE_DIR`` asks for another; so is a folder given as
+    ``path`` before. `jtraj.solve`,
+    `jtraj.differentiate.differentiable` and the attitude benchmarks' solves call this
+    without arguments."""
+    global _enabled, _given
     if os.environ.get("JTRAJ_NO_CACHE", "").strip().lower() not in ("", "0", "false", "no", "off"):
         if _enabled is not None:  # turned on by an earlier call: JAX would go on using it
             jax.config.update("jax_compilation_cache_dir", None)
             _reset_jax_cache()
             _enabled = None
         return None
+    # a cache the user set up for JAX (jax.config, or JAX_COMPILATION_CACHE_DIR) is theirs: its
+    # folder and thresholds were overwritten by the first solve; a folder given here, or
+    # JTRAJ_CACHE_DIR, still asks for jtraj's
+    # (and so is a folder given here before: the next solve's call without one kept it not)
+    own = jax.config.jax_compilation_cache_dir
+    if path is None and not os.environ.get("JTRAJ_CACHE_DIR") and own and (_enabled is None or str(_enabled) != own or _given):
+        return Path(own)
     # "~/x" (a quoted path in a shell, or a .env file) made a folder named "~" here
     target = (Path(path) if path is not None else Path(os.environ.get("JTRAJ_CACHE_DIR") or default_cache_dir())).expanduser()
     if _enabled == target:
+        _given = _given or path is not None
         return target
     try:
         target.mkdir(parents=True, exist_ok=True)
@@ -121,7 +137,7 @@ def enable_compilation_cache(path: str | Path | None = None) -> Path | None:
     # JAX opens its folder at its first compilation and keeps it: without the reset, a second
     # call's folder was returned while the entries still went to the first one
     _reset_jax_cache()
-    _enabled = target
+    _enabled, _given = target, path is not None
     return target
 
 

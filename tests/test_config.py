@@ -184,3 +184,33 @@ print("ok")
         env.pop(name, None)
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0 and out.stdout == "ok\n", out.stderr
+
+
+def test_a_cache_the_user_set_up_for_jax_is_left_as_it_is(tmp_path):
+    """jtraj.solve and differentiable turn the cache on without arguments: they overwrote the
+    folder and thresholds a user had given JAX. A folder given to jtraj (path=, or
+    JTRAJ_CACHE_DIR) still takes effect. A fresh interpreter, so this process's cache stays."""
+    code = f"""
+import os
+import jax
+from jtraj import config
+mine = {str(tmp_path / "mine")!r}
+jax.config.update("jax_compilation_cache_dir", mine)
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 5.0)
+assert str(config.enable_compilation_cache()) == mine
+assert jax.config.jax_compilation_cache_dir == mine and jax.config.jax_persistent_cache_min_compile_time_secs == 5.0
+theirs = {str(tmp_path / "jtraj")!r}
+assert str(config.enable_compilation_cache(theirs)) == theirs == jax.config.jax_compilation_cache_dir
+assert jax.config.jax_persistent_cache_min_compile_time_secs == 0.2
+assert str(config.enable_compilation_cache()) == theirs  # jtraj's own, once chosen, stays
+print("ok")
+"""
+    env = _environment({"JTRAJ_CPU_DEVICES": "1"})
+    for name in ("JTRAJ_NO_CACHE", "JTRAJ_CACHE_DIR", "JAX_COMPILATION_CACHE_DIR"):
+        env.pop(name, None)
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-2000:]
+    # JAX's own variable is a cache set up for JAX too
+    code = "import jax; from jtraj import config; print(config.enable_compilation_cache(), jax.config.jax_persistent_cache_min_compile_time_secs)"
+    out = subprocess.run([sys.executable, "-c", code], env={**env, "JAX_COMPILATION_CACHE_DIR": str(tmp_path / "env")}, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and out.stdout.split() == [str(tmp_path / "env"), "1.0"], (out.stdout, out.stderr[-2000:])
