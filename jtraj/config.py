@@ -112,8 +112,8 @@ def enable_compilation_cache(path: str | Path | None = None) -> Path | None:
     # a cache the user set up for JAX (jax.config, or JAX_COMPILATION_CACHE_DIR) is theirs: its
     # folder and thresholds were overwritten by the first solve; a folder given here, or
     # JTRAJ_CACHE_DIR, still asks for jtraj's
-    # (and so is a folder given here before: the next solve's call without one kept it not)
-    own = jax.config.jax_compilation_cache_dir
+    # (and so is a folder given here before: the next solve's call without one did not keep it)
+    own = jax.config.jax_compilation_cache_dir  # type: ignore[attr-defined]
     if path is None and not os.environ.get("JTRAJ_CACHE_DIR") and own and (_enabled is None or str(_enabled) != own or _given):
         return Path(own)
     # "~/x" (a quoted path in a shell, or a .env file) made a folder named "~" here
