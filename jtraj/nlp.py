@@ -143,11 +143,12 @@ class ConstraintGroup:
         data: per-knot data pytree with leading axis K.
         batched_jacobian: optional ``(theta, data, *deps) -> (K, n_rows, sum dep sizes)``
             with leading knot axes, replacing ``vmap(jacfwd(fn))``.
-        dense: skip probing, keep the full dependency block in the structure. Needed by a
-            function whose derivative can vanish at every probe point (entries of magnitude
-            0.2 to 1, either sign) and not elsewhere: a clip, ``maximum``, ``where`` (``y +
-            max(x - 1.5, 0)`` lost its x column, and both solvers stopped "solved" at a wrong
-            optimum).
+        dense: skip probing, keep the full dependency block in the structure of the Jacobian
+            and of the Hessian (`KnotNLP.build_hessian`). Needed by a function whose
+            derivative can vanish at every probe point (entries of magnitude 0.2 to 1, either
+            sign) and not elsewhere: a clip, ``maximum``, ``where`` (``y + max(x - 1.5, 0)``
+            lost its x column, and both solvers stopped "solved" at a wrong optimum; the
+            Hessian's probes dropped the x entry of ``y + max(x - 1.5, 0) ** 2``).
     """
 
     name: str
@@ -184,13 +185,19 @@ class ConstraintGroup:
 
 @dataclasses.dataclass(eq=False)
 class CostGroup:
-    """Cost ``sum_k fn(theta, data_k, *deps_k)`` over ``knots`` (scalar per knot)."""
+    """Cost ``sum_k fn(theta, data_k, *deps_k)`` over ``knots`` (scalar per knot).
+
+    ``dense``: keep the full Hessian block of the group's dependencies in the Hessian's
+    structure instead of probing it (as `ConstraintGroup.dense`): a cost whose second
+    derivative can vanish at every probe point and not elsewhere (``max(x - 1.5, 0) ** 2``)
+    lost that entry."""
 
     name: str
     deps: tuple[Dep, ...]
     fn: Callable[..., jax.Array]
     knots: np.ndarray
     data: Any = None
+    dense: bool = False
 
     def __post_init__(self):
         self.knots = _knot_indices(self.name, self.knots)
@@ -628,8 +635,9 @@ class KnotNLP:
 
         Per group and knot, the Hessian of ``lambda_k . g_k`` (and of each cost term) with
         respect to the group's dependency vector is a dense block; entries are kept where
-        they are nonzero at random probes, and mapped to the global (row >= col) COO list,
-        summing where blocks of neighbouring knots or groups overlap.
+        they are nonzero at random probes (all of them for a ``dense`` group or cost), and
+        mapped to the global (row >= col) COO list, summing where blocks of neighbouring
+        knots or groups overlap.
         """
         if self._hessian_built:
             return
@@ -657,6 +665,7 @@ class KnotNLP:
 
         terms = [(weighted(c.fn, c.deps), c.deps, c.knots, c.data) for c in self.costs]
         terms += [(weighted(g.fn, g.deps), g.deps, g.knots, g.data) for g in self.groups]
+        dense = [bool(c.dense) for c in self.costs] + [bool(g.dense) for g in self.groups]
 
         def all_blocks(x, lam, obj_factor, theta):
             """(K, ndep, ndep) Hessians of weights_k . fn(theta, data_k, deps_k) per term."""
@@ -665,12 +674,14 @@ class KnotNLP:
             return [_knot_blocks(jax.hessian, fn, layout, Z, knots, deps, theta, data, w) for (fn, deps, knots, data), w in zip(terms, weights)]
 
         all_blocks_jit = jax.jit(all_blocks)
-        patterns = [np.zeros((_dep_columns(layout, t[1])[1].size,) * 2, bool) for t in terms]
-        for theta in thetas:
-            Z = _probe_point(rng, n_knots, nz)
-            lam = rng.normal(size=self.m)
-            for pattern, B in zip(patterns, all_blocks_jit(jnp.asarray(Z.reshape(-1)), jnp.asarray(lam), 1.0, theta)):
-                pattern |= np.any(np.asarray(B) != 0.0, axis=0)
+        # a dense term keeps its whole block (not probed), as in the Jacobian's structure
+        patterns = [np.full((_dep_columns(layout, t[1])[1].size,) * 2, d) for t, d in zip(terms, dense)]
+        if not all(dense):
+            for theta in thetas:
+                Z = _probe_point(rng, n_knots, nz)
+                lam = rng.normal(size=self.m)
+                for pattern, B in zip(patterns, all_blocks_jit(jnp.asarray(Z.reshape(-1)), jnp.asarray(lam), 1.0, theta)):
+                    pattern |= np.any(np.asarray(B) != 0.0, axis=0)
 
         rows, cols, gathers = [], [], []
         for (_fn, deps, knots, _data), pattern in zip(terms, patterns):

@@ -179,3 +179,30 @@ def test_violation_of_a_nan_point_is_nan():
     x[1] = np.nan  # u at the first knot: no row reads it
     assert np.isnan(nlp.violation(x))
     assert np.isnan(nlp.violation_by_group(x)["bounds"]) and nlp.violation_by_group(x)["p"] == 0.0
+
+
+def test_dense_groups_and_costs_keep_their_whole_hessian_block():
+    """``dense`` reached the Jacobian's structure only: the Hessian's probes, whose entries are
+    0.2 to 1 in size, dropped the x entry of ``y + max(x - 1.5, 0) ** 2`` (a row and a cost),
+    and Ipopt's exact Hessian and the implicit derivatives read it as 0 (3.4 at x = 2)."""
+    import jax
+
+    layout = Layout((("x", 1), ("y", 1)))
+    kink = lambda x: jnp.maximum(x - 1.5, 0.0) ** 2  # noqa: E731
+
+    def build(dense):
+        row = ConstraintGroup("row", (Dep("x"), Dep("y")), lambda theta, data, x, y: y + kink(x), np.arange(1), np.zeros((1, 1)), np.zeros((1, 1)), np.ones((1, 1), bool), dense=dense)
+        cost = CostGroup("cost", (Dep("x"), Dep("y")), lambda theta, data, x, y: jnp.sum(kink(x) + y**2), np.arange(1), dense=dense)
+        nlp = KnotNLP(layout, 1, [cost], [row], np.full((1, 2), -10.0), np.full((1, 2), 10.0))
+        nlp.build_hessian()
+        return nlp
+
+    x, lam = jnp.array([2.0, 0.3]), jnp.array([0.7])
+    lagrangian = lambda z: jnp.sum(kink(z[0]) + z[1] ** 2) + lam[0] * (z[1] + kink(z[0]))  # noqa: E731
+    reference = np.tril(np.asarray(jax.hessian(lagrangian)(x)))
+    assert reference[0, 0] == pytest.approx(3.4)
+    for dense, expected in ((True, reference), (False, np.diag([0.0, 2.0]))):  # probed: the entry is lost
+        nlp = build(dense)
+        got = np.zeros((2, 2))
+        np.add.at(got, (nlp.hess_rows, nlp.hess_cols), np.asarray(nlp.hessian(x, lam, 1.0, None)))
+        np.testing.assert_allclose(got, expected, atol=1e-12)
