@@ -233,7 +233,9 @@ class TaskParams:
         body_masses: (nbody,) kg, one per MuJoCo body, world first (`dynamics.model_masses`;
             the world's must be 0: no dynamics has it).
         base_xyz_wxyz_standing: (7,) standing base pose (before it is lowered so the first
-            phase's contact points touch the terrain).
+            phase's contact points touch the terrain). Its height therefore has no effect on
+            the NLP (the lowering replaces it: its derivative is exactly 0); x, y and the
+            attitude do.
         q_joints_standing: (nj,) standing joint positions (rad), also the configuration
             cost's reference and the target joints of tasks that set none.
 

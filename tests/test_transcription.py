@@ -312,6 +312,12 @@ def test_theta_values_no_task_can_have_are_refused():
     tr.check_boundaries(tr.resolve_theta({"target_translation": [0.5, 0.1, 0.0]}))  # another place on the ground
     half_turn = tr.resolve_theta({"base_xyz_wxyz_standing": [0.0, 0.0, 0.3, 0.0, 0.0, 0.0, 1.0]})
     assert float(half_turn.base_xyz_wxyz_standing[6]) == 1.0
+    # the standing height is replaced by the lowering onto the terrain (TaskParams says so):
+    # the poses of the fixed knots, and so the NLP, do not depend on it; x does
+    standing = np.asarray(tr.default_theta().base_xyz_wxyz_standing)
+    higher, moved = (tr.resolve_theta({"base_xyz_wxyz_standing": standing + np.eye(7)[i] * 0.2}) for i in (2, 0))
+    np.testing.assert_allclose(tr.target_xyz_wxyz_of(higher), tr.target_xyz_wxyz_of(None), atol=1e-12)
+    assert float(tr.target_xyz_wxyz_of(moved)[0] - tr.target_xyz_wxyz_of(None)[0]) == pytest.approx(0.2)
     # under jit the values are tracers: the check lets them through, and the program runs
     assert float(jax.jit(lambda t: tr.resolve_theta(t).friction)(theta)) == 0.5
 
