@@ -417,3 +417,37 @@ def test_exact_hessian_is_compiled_before_the_timed_solve(monkeypatch):
     assert first.time_compile > 0.0 and second.time_compile == 0.0
     lbfgs = IpoptSolver().solve(_walk_nlp(), np.zeros(nlp.n), None, IpoptOptions(tol=1e-10))
     assert lbfgs.time_compile == 0.0
+
+
+@pytest.mark.parametrize("error", [KeyboardInterrupt, RuntimeError])
+def test_an_exception_of_the_exact_hessian_stops_ipopt_and_is_raised(walk_nlp, monkeypatch, error):
+    """cyipopt loses an exception raised in its Hessian callback (its other callbacks raise
+    theirs after the solve): a Ctrl-C, or the command line's SIGTERM, during an exact-Hessian
+    solve was ignored, and the solve went on from the values Ipopt's array happened to hold."""
+    import jtraj.solvers.ipopt as ipopt_backend
+
+    walk_nlp.build_hessian()
+    real = walk_nlp.hessian
+    calls = []
+
+    def failing(*args):
+        calls.append(1)
+        if len(calls) == 3:
+            raise error("stop here")
+        return real(*args)
+
+    class Recorder(AbstractCallback):
+        def __init__(self):
+            self.iterations = []
+
+        def on_iteration(self, it):
+            self.iterations.append(it.iter)
+
+    monkeypatch.setattr(walk_nlp, "hessian", failing)
+    monkeypatch.setattr(ipopt_backend, "_HESSIAN_COMPILED", {walk_nlp})  # (no compile call)
+    recorder = Recorder()
+    with pytest.raises(error, match="stop here"):
+        IpoptSolver().solve(walk_nlp, np.zeros(walk_nlp.n), options={"hessian": "exact"}, callback=recorder)
+    assert len(calls) == 3 and recorder.iterations == [0, 1, 2]  # (each report before its Hessian) stopped at the next one
+    monkeypatch.setattr(walk_nlp, "hessian", real)
+    assert IpoptSolver().solve(walk_nlp, np.zeros(walk_nlp.n), options={"hessian": "exact"}).status is Status.SOLVED

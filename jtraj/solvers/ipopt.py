@@ -228,6 +228,7 @@ class _Problem:
         self.callback = callback
         self.history: list[Iteration] = []
         self.problem: Any = None  # the cyipopt.Problem, for its current iterate
+        self.failure: BaseException | None = None  # an exception of the Hessian, see _hessian
         if exact_hessian:
             self.hessianstructure = lambda: (nlp.hess_rows, nlp.hess_cols)
             self.hessian = self._hessian
@@ -248,9 +249,22 @@ class _Problem:
         return self.nlp.jac_rows, self.nlp.jac_cols
 
     def _hessian(self, x, lagrange, obj_factor):
-        return self.timer.call("hess", self.f.hessian, jnp.asarray(x), jnp.asarray(lagrange), float(obj_factor))
+        # cyipopt (1.7.0.dev0) loses an exception of this callback, which its other callbacks
+        # keep and raise after the solve: its hessian_cb cannot store it and reports success.
+        # A Ctrl-C (or the command line's SIGTERM) during an exact-Hessian solve was then
+        # ignored, and the iteration went on with the values Ipopt's array happened to hold
+        # (the solve "solved" in 52 or 75 iterations where it takes 35). Kept here instead:
+        # the iteration ends with a zero Hessian, `intermediate` stops Ipopt, and `solve`
+        # raises it.
+        try:
+            return self.timer.call("hess", self.f.hessian, jnp.asarray(x), jnp.asarray(lagrange), float(obj_factor))
+        except BaseException as e:
+            self.failure = self.failure or e
+            return np.zeros(len(self.nlp.hess_rows))
 
     def intermediate(self, alg_mod, iter_count, obj_value, inf_pr, inf_du, mu, d_norm, regularization_size, alpha_du, alpha_pr, ls_trials):
+        if self.failure is not None:  # (`_hessian`): stop here, raised after the solve
+            return False
         it = Iteration(int(iter_count), float(obj_value), float(inf_pr), float(inf_du), float(mu), float(alpha_pr))
         self.history.append(it)
         if self.callback is None:
@@ -308,6 +322,8 @@ class IpoptSolver(AbstractSolver):
         t0 = time.perf_counter()
         x, info = problem.solve(x0)
         total = time.perf_counter() - t0
+        if problem_obj.failure is not None:
+            raise problem_obj.failure
         g = np.asarray(f.constraints(jnp.asarray(x)))
         message = info["status_msg"]
         message = message.decode() if isinstance(message, bytes) else str(message)
