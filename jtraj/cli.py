@@ -358,7 +358,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--exact-hessian", action="store_true", help="exact Hessian of the Lagrangian instead of L-BFGS")
     p.add_argument("--ipopt", action="append", metavar="NAME=VALUE", help="any solver option (Ipopt's names for ipopt), repeatable (e.g. --ipopt max_iter=50)")
     p.add_argument("--noise", type=float, default=0.0, help="std of Gaussian noise added to the warm start (default 0: none)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the noise (default 0)")
+    p.add_argument("--seed", type=int, default=None, help="seed of the noise (default 0; needs --noise)")
     p.add_argument("--replicate", type=int, default=None, metavar="R", help="draw the noise as `jtraj robustness` draws replicate R (same --seed and sigma --noise), to solve one run of a study again with its trajectory")
     p.add_argument("--noise-chart", default=None, choices=["se3", "quat1", "quat2", "quat3", "euler"], help="with --replicate: that run of `jtraj robustness --noise-chart`")
     p.add_argument("--every", type=int, default=1, help="print the solver's progress every N iterations (default 1)")
@@ -675,6 +675,9 @@ def _check_inputs(args: argparse.Namespace) -> None:
         _check_out(args.out_checked)
         if not (math.isfinite(args.noise) and args.noise >= 0):
             raise InputError("--noise", args.noise, "expected a standard deviation >= 0")
+        if args.seed is not None and not args.noise:  # (it was ignored, as --replicate is refused)
+            raise InputError("--seed", args.seed, "needs the noise level --noise SIGMA > 0 (the seed is that noise's)")
+        args.seed = 0 if args.seed is None else args.seed
         _check_seed(args.seed)
         _check_positive_int("--every", args.every)
         if args.noise and args.replicate is None and args.seed < 0:

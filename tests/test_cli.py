@@ -45,6 +45,7 @@ def _run(argv, capsys):
         (["robustness", "--tasks", "big_jump", "--replicates", "two"], "jtraj robustness: argument --replicates: invalid int value: 'two'"),
         (["solve", "big_jump", "--noise", "-1"], "jtraj solve: --noise: -1.0: expected a standard deviation >= 0"),
         (["solve", "big_jump", "--replicate", "2"], "jtraj solve: --replicate: 2: needs the noise level --noise SIGMA > 0"),
+        (["solve", "big_jump", "--seed", "3"], "jtraj solve: --seed: 3: needs the noise level --noise SIGMA > 0 (the seed is that noise's)"),  # it was ignored
         (["solve", "big_jump", "--noise", "0.1", "--replicate", "-1"], "jtraj solve: --replicate: -1: expected an integer >= 0"),
         (["solve", "big_jump", "--noise", "0.1", "--seed", "-1"], "jtraj solve: --seed: -1: expected a seed >= 0 for --noise without --replicate (numpy draws that noise; --replicate R draws with JAX, which takes any)"),
         (["solve", "big_jump", "--noise", "0.1", "--noise-chart", "se3"], "jtraj solve: --noise-chart: 'se3': needs --noise SIGMA --replicate R"),
