@@ -315,7 +315,10 @@ def _add_render_parsers(sub) -> None:
     p.add_argument("--no-forces", action="store_true", help="no contact-force arrows (they are drawn by default)")
     p.set_defaults(func=_cmd_render)
 
-    p = sub.add_parser("plot", help="figures of a solution folder (or of a `jtraj compare` folder)")
+    p = sub.add_parser(
+        "plot",
+        help="figures of a solution folder: DIR/solution.png (six panels, joints and friction too: fuller than solve's trajectory.png) and DIR/convergence.png; of a `jtraj compare` folder: DIR/comparison.png",
+    )
     p.add_argument("dir", help="a folder written by `jtraj solve` or `jtraj compare`")
     p.add_argument("--out", help="output folder (default DIR)")
     p.set_defaults(func=_cmd_plot)
@@ -344,7 +347,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser(
         "solve",
-        help="solve a task (Ipopt by default) and write DIR/result.json, DIR/trajectory.npz and DIR/provenance.json",
+        help="solve a task (Ipopt by default) and write DIR/result.json, DIR/trajectory.npz, DIR/provenance.json and two figures, DIR/trajectory.png (base, forces, torques) and DIR/convergence.png",
         epilog=(
             f"exit status: 0 the task succeeded, {EXIT_BAD_INPUT} bad input, {EXIT_TASK_FAILED} converged but the motion does not do the task, {EXIT_NOT_CONVERGED} not converged, "
             f"1 the task succeeded but --render could not draw it (the solution is saved), {EXIT_INTERRUPTED} interrupted (Ctrl-C)"
