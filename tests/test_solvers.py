@@ -451,3 +451,18 @@ def test_an_exception_of_the_exact_hessian_stops_ipopt_and_is_raised(walk_nlp, m
     assert len(calls) == 3 and recorder.iterations == [0, 1, 2]  # (each report before its Hessian) stopped at the next one
     monkeypatch.setattr(walk_nlp, "hessian", real)
     assert IpoptSolver().solve(walk_nlp, np.zeros(walk_nlp.n), options={"hessian": "exact"}).status is Status.SOLVED
+
+
+def test_an_option_of_the_other_solver_says_which_solver_takes_it():
+    """Ipopt's linear_solver given to jtraj's solver was refused with the list of jtraj's ~50
+    options; jtraj's delta_c_min given to Ipopt got Ipopt's nearest names (tau_min, delta)."""
+    from jtraj.solvers.ipopt_catalog import IpoptOptionError, check
+
+    with pytest.raises(InvalidOptionError, match=r"^unknown jtraj option\(s\) \['linear_solver'\] \('linear_solver' is an option of Ipopt: solver='ipopt', --solver ipopt\); expected one of"):
+        IpmOptions.from_dict({"linear_solver": "ma57"})
+    with pytest.raises(InvalidOptionError, match=r"\['bogus_name', 'linear_solver'\] \('linear_solver' is an option of Ipopt"):
+        IpmOptions.from_dict({"linear_solver": "ma57", "bogus_name": 1})
+    with pytest.raises(IpoptOptionError, match=r"^--ipopt delta_c_min: 1e-09: unknown Ipopt option; an option of jtraj's solver \(solver='jtraj', --solver jtraj\)$"):
+        check("delta_c_min", 1e-9)
+    with pytest.raises(IpoptOptionError, match=r"did you mean max_iter"):  # a typo still gets Ipopt's nearest names
+        check("max_itr", 5)

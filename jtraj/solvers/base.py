@@ -197,8 +197,15 @@ class AbstractOptions:
             # the nearest names first: the list of every option (about 50 of jtraj's) hid the typo
             close = [f"{name!r} for {near[0]!r}" for name in unknown if isinstance(name, str) and (near := difflib.get_close_matches(name, names, n=1))]
             hint = f" (did you mean {', '.join(close)}?)" if close else ""
+            hint += cls._other_solvers_options(unknown)
             raise InvalidOptionError(f"unknown {cls.solver_name} option(s) {unknown}{hint}; expected one of {sorted(names)}")
         return cls(**values)
+
+    @classmethod
+    def _other_solvers_options(cls, unknown: list) -> str:
+        """What to add to the error of options ``unknown`` that another solver takes (Ipopt's
+        linear_solver given to jtraj's solver was refused with the list of jtraj's options)."""
+        return ""
 
     def replace(self, **changes: Any) -> AbstractOptions:
         return dataclasses.replace(self, **changes)

@@ -370,6 +370,13 @@ class IpmOptions(AbstractOptions):
 
     solver_name: ClassVar[str] = "jtraj"
 
+    @classmethod
+    def _other_solvers_options(cls, unknown: list) -> str:
+        from jtraj.solvers.ipopt_catalog import catalog
+
+        ipopt = [name for name in unknown if isinstance(name, str) and name in catalog()]
+        return f" ({', '.join(map(repr, ipopt))} {'is an option' if len(ipopt) == 1 else 'are options'} of Ipopt: solver='ipopt', --solver ipopt)" if ipopt else ""
+
     def __check__(self) -> None:
         if self.hessian not in ("lbfgs", "exact", "bfgs"):
             raise InvalidOptionError(f"jtraj option hessian={self.hessian!r}: expected 'lbfgs', 'exact' or 'bfgs'")

@@ -207,6 +207,10 @@ def check(name: str, value: Any) -> Any:
     becomes a float; True/False become "yes"/"no"), or `IpoptOptionError`."""
     specs = catalog()
     if name not in specs:
+        from jtraj.solvers.ipm import IpmOptions
+
+        if name in {f.name for f in dataclasses.fields(IpmOptions)}:  # (it suggested Ipopt's nearest names)
+            raise IpoptOptionError(name, value, "unknown Ipopt option; an option of jtraj's solver (solver='jtraj', --solver jtraj)")
         close = difflib.get_close_matches(name, specs, n=3)
         hint = f"did you mean {', '.join(close)}?" if close else "see Ipopt's option list (print_options_documentation=yes)"
         raise IpoptOptionError(name, value, f"unknown Ipopt option; {hint}")
