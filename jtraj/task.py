@@ -522,8 +522,17 @@ def _table(value: Any, field: str, keys: tuple[str, ...]) -> dict[str, Any]:
         raise TaskError(field, value, f"expected a table with keys {list(keys)}")
     for k in value:
         if k not in keys:
-            raise TaskError(f"{field}.{k}", _Raw("unknown key"), f"expected one of {list(keys)}")
+            raise _unknown_key(f"{field}.{k}", k, list(keys))
     return value
+
+
+def _unknown_key(field: str, key: str, keys: list[str]) -> TaskError:
+    """The error of a key a task table does not take, with the nearest one it does (the top
+    level said "unknown field", the tables "unknown key", and neither named the one meant)."""
+    import difflib
+
+    near = difflib.get_close_matches(str(key), keys, n=1)
+    return TaskError(field, _Raw("unknown key"), (f"did you mean {near[0]!r}? " if near else "") + f"expected one of {keys}")
 
 
 def _tables(data: dict[str, Any], key: str) -> list[dict[str, Any]]:
@@ -566,7 +575,7 @@ def _from_dict(data: dict[str, Any]) -> Task:
         raise TaskError("task", data, "expected a table of fields")
     for k in data:
         if k not in _TOP_KEYS:
-            raise TaskError(k, _Raw("unknown field"), f"expected one of {sorted(_TOP_KEYS)}")
+            raise _unknown_key(k, k, sorted(_TOP_KEYS))
     for key in ("name", "robot", "timestep", "phases"):
         _need(data, key, "task", f"a task needs {key!r}")
     phases = []

@@ -214,7 +214,7 @@ def test_bad_task_file_is_one_line(tmp_path, capsys, no_solve):
     path = tmp_path / "t.toml"
     path.write_text(GOOD_TOML.replace("timestep = 0.05", "timestep = 0.05\n[costs]\nconfigration = 1.0"))
     code, err = _run(["solve", str(path)], capsys)
-    assert code == 2 and err == f"jtraj solve: {path}: costs.configration: unknown key: expected one of ['configuration', 'acceleration']\n"
+    assert code == 2 and err == f"jtraj solve: {path}: costs.configration: unknown key: did you mean 'configuration'? expected one of ['configuration', 'acceleration']\n"
     path.write_text(GOOD_TOML.replace('"FL_foot"', '"FL_paw"'))
     code, err = _run(["solve", str(path)], capsys)
     assert code == 2 and err.startswith(f"jtraj solve: {path}: phases[0].contacts: 'FL_paw': expected a contact of robot 'go2'")

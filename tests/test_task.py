@@ -173,8 +173,8 @@ phases = [1]
 @pytest.mark.parametrize(
     "old, new, match",
     [
-        ("[costs]\nconfiguration", "[costs]\nconfigration", r"costs.configration: unknown key: expected one of \['configuration', 'acceleration'\]"),
-        ("translation =", "translaton =", r"target.translaton: unknown key"),
+        ("[costs]\nconfiguration", "[costs]\nconfigration", r"costs.configration: unknown key: did you mean 'configuration'\? expected one of \['configuration', 'acceleration'\]"),
+        ("translation =", "translaton =", r"target.translaton: unknown key: did you mean 'translation'\?"),
         ("duration = 0.1", "duration = 0.1\nforce = 3", r"phases\[1\].force: unknown key"),
         ("angle = 0.5", "angel = 0.5", r"warm_start_rules\[0\].angel: unknown key"),
         ("angle = 0.5\n", "", r"warm_start_rules\[0\].angle: missing: expected a rotation angle"),
@@ -195,7 +195,7 @@ phases = [1]
         ("[target]\n", "[target]\nrotation_rpy = 3\n", r"target.rotation_rpy: 3: expected a list of 3 numbers"),
         ('robot = "go2"', 'robot = "spot"', r"robot: 'spot': expected one of"),
         ('name = "x"', 'name = "../../escaped"', r"name: '../../escaped': expected a plain name for the run folders \(e.g. my_jump\)"),
-        ('robot = "go2"', 'robot = "go2"\nspeed = 3', r"speed: unknown field"),
+        ('robot = "go2"', 'robot = "go2"\nspeed = 3', r"speed: unknown key: expected one of \["),  # (it said "unknown field" at the top level)
     ],
 )
 def test_task_file_errors_name_file_field_value_and_expectation(tmp_path, old, new, match):
