@@ -179,9 +179,14 @@ def _parse_value(text: str):
 
 
 def _cmd_wahba(args: argparse.Namespace) -> int:
+    """``jtraj wahba``, with ``OUT/provenance.json`` (`jtraj.provenance`: unfinished until its
+    three files are written), as the other commands write it (it wrote none)."""
     from jtraj.attitude.wahba import main_wahba
+    from jtraj.provenance import begin_run, end_run
 
+    record = begin_run(args.out, ["jtraj", *args.argv])
     main_wahba(args.out, trials=args.trials, iterations=args.iterations, seed=args.seed)
+    end_run(args.out, record)
     return 0
 
 
@@ -192,7 +197,7 @@ def _cmd_attitude(args: argparse.Namespace) -> int:
     from jtraj.provenance import begin_run, end_run
 
     record = begin_run(args.out, ["jtraj", *args.argv])
-    code = attitude_main(args.bench, args.variant, args.out, n_knots=args.knots, solver=args.solver, render=args.render)
+    code = attitude_main(args.bench, args.variant or "attitude", args.out, n_knots=args.knots, solver=args.solver, render=args.render)
     end_run(args.out, record)
     return code
 
@@ -426,7 +431,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("attitude", help="Planning with Attitude benchmarks, naive or attitude-aware (OUT/BENCH_VARIANT/{result.json,trajectory.npz,plot.png}; 'all' writes OUT/table.md)")
     p.add_argument("bench", choices=["quadflip", "barrelroll", "satellite", "all"], help="one benchmark, or all of them in both variants (OUT/table.md)")
-    p.add_argument("--variant", default="attitude", choices=["naive", "attitude"], help="naive quaternion calculus or the attitude-aware one (default attitude; 'all' solves both)")
+    p.add_argument("--variant", default=None, choices=["naive", "attitude"], help="naive quaternion calculus or the attitude-aware one (default attitude; not with 'all', which solves both)")
     p.add_argument("--out", default="runs/attitude", help="output folder (default runs/attitude)")
     p.add_argument("--knots", type=int, default=None, help="number of knots (default: the paper's)")
     p.add_argument("--solver", default="ipopt", choices=_solver_names(), help="NLP solver backend (default ipopt)")
@@ -749,10 +754,12 @@ def _check_inputs(args: argparse.Namespace) -> None:
         _check_positive_int("--seed", args.seed, 0)  # as run_wahba, which refuses a negative seed
         _check_seed(args.seed)
         _check_out(args.out)
-        _check_out_files(args.out, ("wahba.npz", "wahba.json", "wahba.png"))
+        _check_out_files(args.out, ("wahba.npz", "wahba.json", "wahba.png", "provenance.json"))
     elif cmd == "attitude":
         if args.render and args.bench == "all":
             raise InputError("--render", "all", "draws one benchmark; give its name (quadflip, barrelroll or satellite)", verbatim=True)
+        if args.variant is not None and args.bench == "all":  # (it was ignored: all solves both)
+            raise InputError("--variant", args.variant, "is for one benchmark; 'all' solves both variants of each")
         # --knots: each benchmark has its own lower bound (one line, exit status 2, before
         # anything is written; jtraj.attitude.cli.main checks it too), the upper one is all's
         from jtraj.attitude import benchmarks
@@ -766,9 +773,14 @@ def _check_inputs(args: argparse.Namespace) -> None:
                     benchmarks.get(bench, args.knots)
                 except ValueError as e:
                     raise InputError("--knots", args.knots, str(e)) from None
-            # the folders of the solves, OUT/BENCH_VARIANT: one that is a file failed after its solve
-            for variant in ("naive", "attitude") if args.bench == "all" else (args.variant,):
-                _check_out(str(Path(args.out) / f"{bench}_{variant}"))
+            # the folders of the solves, OUT/BENCH_VARIANT: one that is a file failed after its
+            # solve, as did a folder where one of its files goes (a traceback, the provenance
+            # left unfinished)
+            for variant in ("naive", "attitude") if args.bench == "all" else (args.variant or "attitude",):
+                folder = str(Path(args.out) / f"{bench}_{variant}")
+                _check_out(folder)
+                _check_out_files(folder, ("result.json", "trajectory.npz", "plot.png", *(("motion.mp4", "keyframes.png") if args.render else ())))
+        _check_out_files(args.out, ("provenance.json", *(("table.json", "table.md") if args.bench == "all" else ())))
 
 
 def _check_variable_changes(variables: str, items: list[str] | None):

@@ -121,6 +121,20 @@ def test_barrel_roll_definition():
     assert abs(float(jnp.asarray(trim_only.x_init[-1, 3:7]) @ q_goal)) < 1e-12
 
 
+def test_barrel_roll_check_wants_a_half_roll_either_way():
+    """The inverted goal alone was the check: a path that rolls 540 degrees met it and passed.
+    The guess's roll about the body x axis (one axis: exactly 180, -180 and 540 degrees)."""
+    b = B.barrel_roll(21)
+    q_trim = b.x_lower[0, 3:7]
+    for turn, ok in ((np.pi, True), (-np.pi, True), (3 * np.pi, False)):
+        X = b.x_init.copy()
+        rolls = np.stack([M.quat_about_axis((1.0, 0.0, 0.0), turn * s) for s in np.linspace(0.0, 1.0, 21)])
+        X[:, 3:7] = rolls @ np.asarray(Q.L(jnp.asarray(q_trim))).T
+        metrics, passed = b.metrics(X, np.zeros((20, 4)))
+        assert max(metrics["target_errors_deg"].values()) < 1e-6  # the goal is met each time
+        assert metrics["roll_deg"] == pytest.approx(np.degrees(turn), abs=1e-6) and passed is ok
+
+
 def test_satellite_definition_and_keep_out_geometry():
     b = B.satellite_slew()
     assert (b.n_knots, b.tf, b.h) == (401, 100.0, 0.25)

@@ -828,6 +828,35 @@ def test_attitude_and_wahba_refuse_an_output_they_could_not_write_before_solving
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a", "w"] and not (tmp_path / "w" / "wahba.npz").exists()
 
 
+def test_attitude_refuses_a_folder_where_its_files_go_and_a_variant_with_all(tmp_path, capsys, monkeypatch):
+    """A folder at OUT/BENCH_VARIANT/plot.png (or result.json, or table.md with all) failed
+    jtraj attitude after its solve with a traceback, its provenance left unfinished;
+    --variant with all was ignored (all solves both)."""
+    import jtraj.attitude.cli
+
+    monkeypatch.setattr(jtraj.attitude.cli, "main", lambda *a, **k: pytest.fail("solved after a bad input"))
+    for where, argv in (("quadflip_attitude/plot.png", ["quadflip"]), ("quadflip_naive/result.json", ["quadflip", "--variant", "naive"]), ("table.md", ["all"]), ("satellite_attitude/motion.mp4", ["satellite", "--render"])):
+        out = tmp_path / where.replace("/", "_")
+        (out / where).mkdir(parents=True)
+        folder = out / where.rsplit("/", 1)[0] if "/" in where else out
+        name = where.rsplit("/", 1)[-1]
+        code, err = _run(["attitude", *argv, "--out", str(out)], capsys)
+        assert code == 2 and err == f"jtraj attitude: --out: '{folder}': {out / where} is a folder; expected room for the file {name}\n", err
+        assert not (out / "provenance.json").exists()
+    code, err = _run(["attitude", "all", "--variant", "naive", "--out", str(tmp_path / "v")], capsys)
+    assert code == 2 and err == "jtraj attitude: --variant: 'naive': is for one benchmark; 'all' solves both variants of each\n"
+
+
+def test_wahba_writes_its_provenance(tmp_path, capsys, monkeypatch):
+    """jtraj wahba wrote no provenance.json (every other command writes one)."""
+    import jtraj.attitude.wahba
+
+    monkeypatch.setattr(jtraj.attitude.wahba, "main_wahba", lambda out, **k: (tmp_path / "wahba.json").write_text("{}"))
+    code, _ = _run(["wahba", "--trials", "3", "--out", str(tmp_path)], capsys)
+    prov = json.loads((tmp_path / "provenance.json").read_text())
+    assert code == 0 and prov["command"] == f"jtraj wahba --trials 3 --out {tmp_path}" and prov["complete"] is True
+
+
 def test_attitude_writes_its_provenance(tmp_path, capsys, monkeypatch):
     """jtraj attitude's folder had no provenance.json (jtraj solve's and the sweeps' do)."""
     import jtraj.attitude.cli
