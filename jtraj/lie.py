@@ -305,17 +305,14 @@ def rotation_steps(wxyz: ArrayLike, frame: str = "world") -> jax.Array:
     """The increments of `accumulated_rotation`: (N, 4) wxyz -> (N - 1, 3) rad,
     ``Log(R_{k+1} R_k^T)`` (``"world"``) or ``Log(R_k^T R_{k+1})`` (``"body"``).
 
-    One sequence (N, 4), N >= 1, not a batch of them (unlike the rest of this module); a zero
-    quaternion, which is no attitude, is a ValueError where the values are known (not under
-    ``jit``)."""
+    One sequence (N, 4), N >= 1, not a batch of them (unlike the rest of this module). A zero
+    quaternion, which is no attitude, gives NaN steps on either side of it (the callers, e.g.
+    `jtraj.success`, read NaN as no motion to check)."""
     if frame not in ("world", "body"):
         raise ValueError(f"frame must be 'world' or 'body', got {frame!r}")
     q = jnp.asarray(wxyz)
     if q.ndim != 2 or q.shape[0] < 1 or q.shape[1] != 4:  # (they failed deep in jaxlie or numpy)
         raise ValueError(f"wxyz must be a sequence of quaternions of shape (N, 4), N >= 1, got {q.shape}")
-    norm = jnp.linalg.norm(q, axis=-1, keepdims=True)
-    if not isinstance(norm, jax.core.Tracer) and bool(jnp.any(norm == 0.0)):  # normalized, it was a NaN step
-        raise ValueError(f"wxyz: the quaternion at index {int(jnp.argmax(norm[:, 0] == 0.0))} is zero, which is no attitude")
-    q = q / norm
+    q = q / jnp.linalg.norm(q, axis=-1, keepdims=True)
     a, b = SO3(q[1:]), SO3(q[:-1])
     return log(a @ b.inverse()) if frame == "world" else log(b.inverse() @ a)

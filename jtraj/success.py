@@ -86,8 +86,6 @@ def rotation_vector(base_xyz_wxyz: np.ndarray) -> tuple[np.ndarray, float]:
         raise ValueError(f"base_xyz_wxyz has shape {q.shape}; expected (n_knots, 7)")
     if q.shape[0] < 2:
         return np.zeros(3), 0.0
-    if np.any(np.linalg.norm(q[:, 3:7], axis=-1) == 0.0):  # no attitude: nothing to read (`evaluate` says so)
-        return np.full(3, np.nan), math.nan
     steps = np.asarray(rotation_steps(q[:, 3:7]))
     return steps.sum(axis=0), float(np.max(np.linalg.norm(steps, axis=-1)))
 
