@@ -57,6 +57,11 @@ _NON_FINITE_KEY = "metrics_non_finite"
 _NON_FINITE_VALUES_KEY = "non_finite_values"
 #: The fields whose non-finite numbers `Result.save` lists where they are (`_non_finite_values`).
 _EXACT_FIELDS = ("metrics", "options", "violation_by_group", "history")
+#: The fields ``non_finite_values`` lists; the others' entries, and the top level's, are under
+#: `_NON_FINITE_MORE_KEY`: a reader of files before them (jtraj at 7307760) refuses an entry of
+#: another field in ``non_finite_values``, and ignores a key it does not know
+_FIRST_EXACT_FIELDS = ("metrics", "options")
+_NON_FINITE_MORE_KEY = "non_finite_values_more"
 PROVENANCE_FILE = "provenance.json"
 #: The files jtraj writes into a result's folder from its result: `jtraj solve`'s figures
 #: (``trajectory.png``, ``convergence.png``), ``jtraj plot``'s (``solution.png``), ``jtraj
@@ -283,10 +288,12 @@ class Result:
         exact += [[[name], text] for name, value in top.items() if isinstance(value, (float, np.floating)) for _, text in _non_finite_values(value)]
         # the earlier list, of the metrics holding one, for readers of files before the exact one
         non_finite = list(dict.fromkeys(path[1] for path, _ in exact if path[0] == "metrics"))
+        first = [e for e in exact if len(e[0]) > 1 and e[0][0] in _FIRST_EXACT_FIELDS]
+        more = [e for e in exact if not (len(e[0]) > 1 and e[0][0] in _FIRST_EXACT_FIELDS)]
         # the two files are replaced one after the other: the digest ties them together
         io.write_json(
             d / RESULT_FILE,
-            {**data, _NON_FINITE_KEY: non_finite, _NON_FINITE_VALUES_KEY: exact, _DIGEST_KEY: None if arrays is None else _digest(arrays)},
+            {**data, _NON_FINITE_KEY: non_finite, _NON_FINITE_VALUES_KEY: first, _NON_FINITE_MORE_KEY: more, _DIGEST_KEY: None if arrays is None else _digest(arrays)},
         )
         npz = d / TRAJECTORY_FILE
         if arrays is None:
@@ -306,8 +313,13 @@ class Result:
         if not isinstance(data, dict):
             raise io.FileFormatError(f"{path}: expected a JSON object, got {type(data).__name__}")
         try:
-            data = _restore_top_level(data, data.get(_NON_FINITE_VALUES_KEY))
-            stats = Stats(**{f.name: _field_value(f, data) for f in dataclasses.fields(Stats)})
+            more = data.get(_NON_FINITE_MORE_KEY)
+            if more is not None and not isinstance(more, list):
+                raise ValueError(f"{_NON_FINITE_MORE_KEY}: expected a list, got {type(more).__name__}")
+            top = [e for e in more or [] if isinstance(e, list) and len(e) == 2 and isinstance(e[0], list) and len(e[0]) == 1]
+            data = _restore_top_level(data, top)
+            # (Stats' fields have defaults, but every file has them: a missing one is no result)
+            stats = Stats(**{f.name: _field_value(f, data, required=True) for f in dataclasses.fields(Stats)})
             fields = {f.name: _field_value(f, data) for f in dataclasses.fields(cls) if f.name not in ("stats", "trajectory")}
             fields["status"] = _member(Outcome, data["status"])
             fields["solver_status"] = _member(Status, data["solver_status"])
@@ -315,7 +327,8 @@ class Result:
             fields["violation_by_group"] = _nan_for_null(fields["violation_by_group"])
             fields["history"] = [_nan_for_null(row) for row in fields["history"]] if isinstance(fields["history"], list) else fields["history"]
             if _NON_FINITE_VALUES_KEY in data:  # each non-finite number where it was
-                _restore_non_finite(fields, data[_NON_FINITE_VALUES_KEY])
+                _restore_non_finite(fields, data[_NON_FINITE_VALUES_KEY], _FIRST_EXACT_FIELDS)
+                _restore_non_finite(fields, [e for e in more or [] if not any(e is t for t in top)], _EXACT_FIELDS, _NON_FINITE_MORE_KEY)
             else:  # a file from before that list: a named metric's nulls are NaN
                 fields["metrics"] = _restore_metrics(fields["metrics"], data.get(_NON_FINITE_KEY))
         except KeyError as e:
@@ -358,14 +371,14 @@ def stale_trajectory_note(folder: str | Path) -> str:
 _JSON_TYPES: dict[str, tuple[type, ...]] = {"float": (int, float), "int": (int,), "str": (str,)}
 
 
-def _field_value(field: dataclasses.Field, data: dict[str, Any]) -> Any:
+def _field_value(field: dataclasses.Field, data: dict[str, Any], required: bool = False) -> Any:
     """``field``'s value in a result file's ``data``: its default where the file has none (a
     field added later), KeyError where it has no default; ValueError naming it where the file
     holds something of another type (\"12\" for the iterations loaded as a string, and a cost
     of "abc" failed later in `Result.summary`)."""
-    if field.name not in data and field.default is not dataclasses.MISSING:
+    if field.name not in data and not required and field.default is not dataclasses.MISSING:
         return field.default
-    if field.name not in data and field.default_factory is not dataclasses.MISSING:
+    if field.name not in data and not required and field.default_factory is not dataclasses.MISSING:
         return field.default_factory()
     value = _float_or_nan(field, data[field.name])
     annotation = str(field.type)
@@ -407,36 +420,34 @@ def _non_finite_values(value: Any, path: tuple = ()) -> list[tuple[list, str]]:
     return []
 
 
-def _restore_top_level(data: dict[str, Any], entries: Any) -> dict[str, Any]:
-    """``data`` with the non-finite numbers of its top level (entries of one key, `Result.save`)
-    back in place of their nulls; ValueError for one that names no null."""
-    if not isinstance(entries, list):  # (a file before the list; a bad list: _restore_non_finite says so)
-        return data
+def _restore_top_level(data: dict[str, Any], entries: list) -> dict[str, Any]:
+    """``data`` with the non-finite numbers of its top level (entries ``[[name], text]`` of
+    `_NON_FINITE_MORE_KEY`, `Result.save`) back in place of their nulls; ValueError for one
+    that names no null."""
     values = {"nan": math.nan, "inf": math.inf, "-inf": -math.inf}
     data = dict(data)
     for entry in entries:
-        if isinstance(entry, list) and len(entry) == 2 and isinstance(entry[0], list) and len(entry[0]) == 1:
-            (name,), text = entry
-            if name not in data or data[name] is not None or text not in values or name in _EXACT_FIELDS:
-                raise ValueError(f"{_NON_FINITE_VALUES_KEY}: {entry!r} names no null of the result")
-            data[name] = values[text]
+        (name,), text = entry
+        if name not in data or data[name] is not None or text not in values or name in _EXACT_FIELDS:
+            raise ValueError(f"{_NON_FINITE_MORE_KEY}: {entry!r} names no null of the result")
+        data[name] = values[text]
     return data
 
 
-def _restore_non_finite(fields: dict[str, Any], entries: Any) -> None:
-    """Put the non-finite numbers ``entries`` lists (`Result.save`'s ``non_finite_values``)
-    back in place of their nulls in ``fields``; ValueError for an entry that names no null."""
+def _restore_non_finite(fields: dict[str, Any], entries: Any, names: tuple[str, ...] = _EXACT_FIELDS, key: str = _NON_FINITE_VALUES_KEY) -> None:
+    """Put the non-finite numbers ``entries`` lists (`Result.save`'s ``non_finite_values``, or
+    the entries of `_NON_FINITE_MORE_KEY` below the top level) back in place of their nulls in
+    the fields ``names`` of ``fields``; ValueError (naming ``key``) for an entry that names no
+    null."""
     if entries is None:  # a file written before the list
         return
     if not isinstance(entries, list):
-        raise ValueError(f"{_NON_FINITE_VALUES_KEY}: expected a list, got {type(entries).__name__}")
+        raise ValueError(f"{key}: expected a list, got {type(entries).__name__}")
     values = {"nan": math.nan, "inf": math.inf, "-inf": -math.inf}
     for entry in entries:
-        if isinstance(entry, list) and len(entry) == 2 and isinstance(entry[0], list) and len(entry[0]) == 1:
-            continue  # the top level's, put back first (`_restore_top_level`)
         try:
             (name, *keys, last), text = entry
-            assert name in _EXACT_FIELDS and text in values
+            assert name in names and text in values
             parent = fields[name]
             for key in keys:
                 parent = parent[key]
@@ -444,7 +455,7 @@ def _restore_non_finite(fields: dict[str, Any], entries: Any) -> None:
                 raise TypeError
             parent[last] = values[text]
         except (AssertionError, KeyError, IndexError, TypeError, ValueError):
-            raise ValueError(f"{_NON_FINITE_VALUES_KEY}: {entry!r} names no null of the result") from None
+            raise ValueError(f"{key}: {entry!r} names no null of the result") from None
 
 
 def _all_nan_for_null(value: Any) -> Any:
