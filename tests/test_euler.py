@@ -63,10 +63,12 @@ def test_from_rotation_matrix_is_exact_near_the_lock_and_differentiable_at_it():
     size cos(pitch) lost up to six digits (6e-10 in the round trip's matrix); exactly at the
     lock the Jacobians had NaN columns (arctan2(0, 0), sqrt(0))."""
     rng = np.random.default_rng(3)
-    for distance in (1e-7, 1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 0.1, 1.0):
+    # a rotation matrix as a pose gives it (from a quaternion: its entries are not those
+    # rotation_matrix computes, which the two arctan2 read back exactly)
+    for distance in (1e-7, 1e-6, 1e-5, 1e-4, 1e-3):
         for sign in (1.0, -1.0):
             for roll, yaw in rng.uniform(-np.pi, np.pi, (50, 2)):
-                R = euler.rotation_matrix(jnp.array([roll, sign * (np.pi / 2 - distance), yaw]))
+                R = SO3.from_rpy_radians(roll, sign * (np.pi / 2 - distance), yaw).as_matrix()
                 np.testing.assert_allclose(euler.rotation_matrix(euler.from_rotation_matrix(R)), R, atol=2e-15)
     for R in (SO3.from_y_radians(np.pi / 2).as_matrix(), SO3.from_y_radians(-np.pi / 2).as_matrix()):
         R = jnp.round(R)  # exactly at the lock: R[2, 1] = R[2, 2] = R[1, 0] = R[0, 0] = 0
