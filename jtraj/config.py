@@ -16,6 +16,7 @@ __all__ = ["CACHE_MAX_BYTES", "cpu_count", "split_cpu", "default_cache_dir", "en
 
 _enabled: Path | None = None
 _given = False  # whether _enabled was a folder given to enable_compilation_cache
+_env_at_given: str | None = None  # JTRAJ_CACHE_DIR when it was given
 
 #: Size limit of the persistent compilation cache (least recently used entries go first).
 CACHE_MAX_BYTES = 4 * 2**30
@@ -99,10 +100,10 @@ def enable_compilation_cache(path: str | Path | None = None) -> Path | None:
     A cache set up for JAX before (``jax.config.update("jax_compilation_cache_dir", ...)`` or
     ``JAX_COMPILATION_CACHE_DIR``) is left as it is, with its thresholds, and its folder is
     returned, unless ``path`` or ``JTRAJ_CACHE_DIR`` asks for another; so is a folder given as
-    ``path`` before. `jtraj.solve`,
+    ``path`` before, until ``JTRAJ_CACHE_DIR`` changes. `jtraj.solve`,
     `jtraj.differentiate.differentiable` and the attitude benchmarks' solves call this
     without arguments."""
-    global _enabled, _given
+    global _enabled, _given, _env_at_given
     if os.environ.get("JTRAJ_NO_CACHE", "").strip().lower() not in ("", "0", "false", "no", "off"):
         if _enabled is not None:  # turned on by an earlier call: JAX would go on using it
             jax.config.update("jax_compilation_cache_dir", None)
@@ -111,15 +112,19 @@ def enable_compilation_cache(path: str | Path | None = None) -> Path | None:
         return None
     # a cache the user set up for JAX (jax.config, or JAX_COMPILATION_CACHE_DIR) is theirs: its
     # folder and thresholds were overwritten by the first solve; a folder given here, or
-    # JTRAJ_CACHE_DIR, still asks for jtraj's
-    # (and so is a folder given here before: the next solve's call without one did not keep it)
+    # JTRAJ_CACHE_DIR, still asks for jtraj's. A folder given here before is kept too (the next
+    # solve's call without one moved to the default), until JTRAJ_CACHE_DIR changes
     own = jax.config.jax_compilation_cache_dir  # type: ignore[attr-defined]
-    if path is None and not os.environ.get("JTRAJ_CACHE_DIR") and own and (_enabled is None or str(_enabled) != own or _given):
-        return Path(own)
+    env = os.environ.get("JTRAJ_CACHE_DIR") or None
+    if path is None and own:
+        users = _enabled is None or str(_enabled) != own
+        if (users and env is None) or (not users and _given and env == _env_at_given):
+            return Path(own)
     # "~/x" (a quoted path in a shell, or a .env file) made a folder named "~" here
     target = (Path(path) if path is not None else Path(os.environ.get("JTRAJ_CACHE_DIR") or default_cache_dir())).expanduser()
     if _enabled == target:
-        _given = _given or path is not None
+        if path is not None:
+            _given, _env_at_given = True, env
         return target
     try:
         target.mkdir(parents=True, exist_ok=True)
@@ -137,7 +142,7 @@ def enable_compilation_cache(path: str | Path | None = None) -> Path | None:
     # JAX opens its folder at its first compilation and keeps it: without the reset, a second
     # call's folder was returned while the entries still went to the first one
     _reset_jax_cache()
-    _enabled, _given = target, path is not None
+    _enabled, _given, _env_at_given = target, path is not None, env
     return target
 
 

@@ -203,6 +203,13 @@ theirs = {str(tmp_path / "jtraj")!r}
 assert str(config.enable_compilation_cache(theirs)) == theirs == jax.config.jax_compilation_cache_dir
 assert jax.config.jax_persistent_cache_min_compile_time_secs == 0.2
 assert str(config.enable_compilation_cache()) == theirs  # jtraj's own, once chosen, stays
+# ... also where JTRAJ_CACHE_DIR was set when it was chosen, until that changes
+os.environ["JTRAJ_CACHE_DIR"] = env = {str(tmp_path / "env1")!r}
+given = {str(tmp_path / "given")!r}
+assert str(config.enable_compilation_cache(given)) == given
+assert str(config.enable_compilation_cache()) == given
+os.environ["JTRAJ_CACHE_DIR"] = moved = {str(tmp_path / "env2")!r}
+assert str(config.enable_compilation_cache()) == moved == jax.config.jax_compilation_cache_dir
 print("ok")
 """
     env = _environment({"JTRAJ_CPU_DEVICES": "1"})
