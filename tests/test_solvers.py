@@ -466,3 +466,6 @@ def test_an_option_of_the_other_solver_says_which_solver_takes_it():
         check("delta_c_min", 1e-9)
     with pytest.raises(IpoptOptionError, match=r"did you mean max_iter"):  # a typo still gets Ipopt's nearest names
         check("max_itr", 5)
+    with pytest.raises(IpoptOptionError) as info:  # a name both take is no hint to the other solver
+        check("hessian", "exact")
+    assert "jtraj's solver" not in str(info.value)

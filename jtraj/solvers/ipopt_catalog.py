@@ -208,8 +208,11 @@ def check(name: str, value: Any) -> Any:
     specs = catalog()
     if name not in specs:
         from jtraj.solvers.ipm import IpmOptions
+        from jtraj.solvers.ipopt import IpoptOptions
 
-        if name in {f.name for f in dataclasses.fields(IpmOptions)}:  # (it suggested Ipopt's nearest names)
+        # jtraj's solver's own (it suggested Ipopt's nearest names); not the names jtraj's
+        # Ipopt options take themselves (hessian: --exact-hessian, hessian_approximation)
+        if name in {f.name for f in dataclasses.fields(IpmOptions)} - {f.name for f in dataclasses.fields(IpoptOptions)}:
             raise IpoptOptionError(name, value, "unknown Ipopt option; an option of jtraj's solver (solver='jtraj', --solver jtraj)")
         close = difflib.get_close_matches(name, specs, n=3)
         hint = f"did you mean {', '.join(close)}?" if close else "see Ipopt's option list (print_options_documentation=yes)"
