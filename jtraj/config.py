@@ -114,7 +114,7 @@ def enable_compilation_cache(path: str | Path | None = None) -> Path | None:
     # folder and thresholds were overwritten by the first solve; a folder given here, or
     # JTRAJ_CACHE_DIR, still asks for jtraj's. A folder given here before is kept too (the next
     # solve's call without one moved to the default), until JTRAJ_CACHE_DIR changes
-    own = jax.config.jax_compilation_cache_dir  # type: ignore[attr-defined]
+    own = _jax_cache_dir()
     env = os.environ.get("JTRAJ_CACHE_DIR") or None
     if path is None and own:
         users = _enabled is None or str(_enabled) != own
@@ -144,6 +144,11 @@ def enable_compilation_cache(path: str | Path | None = None) -> Path | None:
     _reset_jax_cache()
     _enabled, _given, _env_at_given = target, path is not None, env
     return target
+
+
+def _jax_cache_dir() -> str | None:
+    """The folder of JAX's persistent cache as JAX's settings have it now (None: off)."""
+    return jax.config.jax_compilation_cache_dir  # type: ignore[attr-defined]
 
 
 def _reset_jax_cache() -> None:

@@ -114,7 +114,11 @@ def test_cache_switches_read_as_documented(monkeypatch, tmp_path, env, expected)
         monkeypatch.setenv(name, value)
     updates: dict = {}
     monkeypatch.setattr(jax.config, "update", lambda name, value: updates.__setitem__(name, value))  # this process's cache stays as it is
+    # a fresh process's state: no cache chosen yet, by jtraj or for JAX (this one's, e.g. CI's
+    # JTRAJ_CACHE_DIR, would be kept as a cache set up before)
     monkeypatch.setattr(config, "_enabled", None)
+    monkeypatch.setattr(config, "_given", False)
+    monkeypatch.setattr(config, "_jax_cache_dir", lambda: None)
     target = config.enable_compilation_cache()
     if expected is None:
         assert target is None and not updates
@@ -131,6 +135,7 @@ def test_a_cache_folder_that_cannot_be_made_warns_and_leaves_the_cache_off(monke
     updates: dict = {}
     monkeypatch.setattr(jax.config, "update", lambda name, value: updates.__setitem__(name, value))
     monkeypatch.setattr(config, "_enabled", None)
+    monkeypatch.setattr(config, "_jax_cache_dir", lambda: None)
     with pytest.warns(RuntimeWarning, match="cannot be made .*set JTRAJ_CACHE_DIR to a writable folder, or JTRAJ_NO_CACHE=1"):
         assert config.enable_compilation_cache() is None
     assert not updates and config._enabled is None
