@@ -428,7 +428,8 @@ def _restore_top_level(data: dict[str, Any], entries: list) -> dict[str, Any]:
     data = dict(data)
     for entry in entries:
         (name,), text = entry
-        if name not in data or data[name] is not None or text not in values or name in _EXACT_FIELDS:
+        # (a name that is no string, e.g. a list, was a TypeError from the dict, not this error)
+        if not isinstance(name, str) or not isinstance(text, str) or name not in data or data[name] is not None or text not in values or name in _EXACT_FIELDS:
             raise ValueError(f"{_NON_FINITE_MORE_KEY}: {entry!r} names no null of the result")
         data[name] = values[text]
     return data

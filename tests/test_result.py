@@ -175,6 +175,11 @@ def test_infinities_of_the_top_level_and_float_tables_come_back_as_they_were(tmp
     (tmp_path / "result.json").write_text(json.dumps(data))
     with pytest.raises(FileFormatError, match=r"non_finite_values_more: \[\['n_variables'\], 'inf'\] names no null of the result"):
         Result.load(tmp_path)
+    for bad in ([[["cost"]], "inf"], [["cost"], ["inf"]], 3, [[], "inf"]):  # a corrupt file: its error, not a TypeError
+        data["non_finite_values_more"] = [bad]
+        (tmp_path / "result.json").write_text(json.dumps(data))
+        with pytest.raises(FileFormatError, match=r"non_finite_values_more: .* names no null of the result"):
+            Result.load(tmp_path)
 
 
 def test_a_field_of_the_wrong_type_is_named_and_a_missing_default_is_taken(tmp_path):
