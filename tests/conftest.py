@@ -43,6 +43,20 @@ def bench_module(name: str):
     return module
 
 
+def mujoco_contact_positions(robot, qpos) -> np.ndarray:
+    """World positions (P, 3) of a robot's contact points at MuJoCo coordinates ``qpos``, by
+    MuJoCo's own forward kinematics (not jtraj's JAX kinematics): each point is its body's
+    frame applied to its offset there."""
+    import mujoco
+
+    m = robot.mj_model
+    d = mujoco.MjData(m)
+    d.qpos[:] = qpos
+    mujoco.mj_kinematics(m, d)
+    b = robot.contact_body_ids
+    return d.xpos[b] + np.einsum("cij,cj->ci", d.xmat[b].reshape(-1, 3, 3), robot.contact_offsets)
+
+
 def central_difference(f, x, eps=1e-6):
     """Central finite-difference Jacobian of f at x (numpy in, numpy out)."""
     x = np.asarray(x, dtype=float)

@@ -10,6 +10,7 @@ import mujoco
 import numpy as np
 import pinocchio as pin
 import pytest
+from conftest import mujoco_contact_positions
 
 from jtraj import robot as robot_lib
 
@@ -154,7 +155,7 @@ def _assert_stands_on_its_feet(robot):
     """What the standing base height means: with the standing joint angles, the lowest of the
     robot's contact points is a foot point (a point of a ``*foot*`` contact group) at z = 0, the
     ground, by MuJoCo's forward kinematics."""
-    z = _mujoco_contact_positions(robot, robot.qpos_standing)[:, 2]
+    z = mujoco_contact_positions(robot, robot.qpos_standing)[:, 2]
     feet = sorted(i for g, idx in robot.contact_groups.items() if "foot" in g for i in idx)
     assert feet and int(np.argmin(z)) in feet, (robot.name, z)
     assert abs(z.min()) < STANDING_HEIGHT_TOLERANCE, (robot.name, robot.contact_names[int(np.argmin(z))], z.min())
@@ -206,15 +207,6 @@ def test_fused_links_resolve_to_surviving_bodies():
     assert hand.link == "right_rubber_hand" and hand.body == "right_wrist_yaw_link"
 
 
-def _mujoco_contact_positions(robot, qpos):
-    m = robot.mj_model
-    d = mujoco.MjData(m)
-    d.qpos[:] = qpos
-    mujoco.mj_kinematics(m, d)
-    b = robot.contact_body_ids
-    return d.xpos[b] + np.einsum("cij,cj->ci", d.xmat[b].reshape(-1, 3, 3), robot.contact_offsets)
-
-
 def test_total_mass_and_standing_contacts_match_pinocchio(robot):
     model, frames = pinocchio_model(robot)
     data = model.createData()
@@ -224,7 +216,7 @@ def test_total_mass_and_standing_contacts_match_pinocchio(robot):
     q = pinocchio_q(model, robot, robot.base_xyz_wxyz_standing, robot.q_joints_standing)
     pin.framesForwardKinematics(model, data, q)
     p_pin = np.stack([data.oMf[f].translation for f in frames])
-    p_mj = _mujoco_contact_positions(robot, robot.qpos_standing)
+    p_mj = mujoco_contact_positions(robot, robot.qpos_standing)
     np.testing.assert_allclose(p_mj, p_pin, atol=1e-12)
     feet = [i for g, idx in robot.contact_groups.items() if "foot" in g for i in idx]
     heights = p_mj[feet, 2]
@@ -242,7 +234,7 @@ def test_contact_positions_match_pinocchio_at_random_pose(robot):
     q_joints = rng.uniform(robot.q_lower.clip(-2, 2), robot.q_upper.clip(-2, 2))
     pin.framesForwardKinematics(model, data, pinocchio_q(model, robot, xyz_wxyz, q_joints))
     p_pin = np.stack([data.oMf[f].translation for f in frames])
-    p_mj = _mujoco_contact_positions(robot, np.concatenate([xyz_wxyz, q_joints]))
+    p_mj = mujoco_contact_positions(robot, np.concatenate([xyz_wxyz, q_joints]))
     np.testing.assert_allclose(p_mj, p_pin, atol=1e-12)
 
 

@@ -6,9 +6,9 @@ kinematics of the two poses."""
 import importlib.resources
 import re
 
-import mujoco
 import numpy as np
 import pytest
+from conftest import mujoco_contact_positions
 
 from jtraj import parameterization
 from jtraj import robot as robot_lib
@@ -28,18 +28,6 @@ def _transcription(task: tasks.Task) -> Transcription:
 ON_TERRAIN = 1e-9
 
 
-def _contact_heights(robot, xyz_wxyz, q_joints) -> np.ndarray:
-    """Heights (m) of all the robot's contact points at the base pose ``xyz_wxyz`` and joint
-    positions ``q_joints``, by MuJoCo's forward kinematics (the transcription's checks use
-    jtraj's own JAX kinematics): each point is its body's frame applied to its offset there."""
-    m = robot.mj_model
-    d = mujoco.MjData(m)
-    d.qpos[:] = np.concatenate([xyz_wxyz, q_joints])
-    mujoco.mj_kinematics(m, d)
-    b = robot.contact_body_ids
-    return (d.xpos[b] + np.einsum("cij,cj->ci", d.xmat[b].reshape(-1, 3, 3), robot.contact_offsets))[:, 2]
-
-
 def _assert_on_the_terrain(tr: Transcription) -> None:
     """At the first knot (the initial pose, the standing joints) the contact points of the first
     phase rest on the terrain, at the last knot (the target pose and joints) those of the last
@@ -54,7 +42,7 @@ def _assert_on_the_terrain(tr: Transcription) -> None:
     used = points(*task.phases)
     q_target = robot.q_joints_standing if task.target_joints is None else np.asarray(task.target_joints, float)
     for knot, pose, q_joints, phase in (("first", tr.initial_xyz_wxyz, robot.q_joints_standing, task.phases[0]), ("last", tr.target_xyz_wxyz, q_target, task.phases[-1])):
-        z = _contact_heights(robot, pose, q_joints)
+        z = mujoco_contact_positions(robot, np.concatenate([pose, q_joints]))[:, 2]  # (MuJoCo's kinematics, not the transcription's)
         touching = points(phase)
         assert touching, (knot, phase)  # every built-in task starts and ends on its feet
         for i in sorted(used):
