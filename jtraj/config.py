@@ -121,7 +121,7 @@ def enable_compilation_cache(path: str | Path | None = None) -> Path | None:
         if (users and env is None) or (not users and _given and env == _env_at_given):
             return Path(own)
     # "~/x" (a quoted path in a shell, or a .env file) made a folder named "~" here
-    target = (Path(path) if path is not None else Path(os.environ.get("JTRAJ_CACHE_DIR") or default_cache_dir())).expanduser()
+    target = (Path(path) if path is not None else Path(env or default_cache_dir())).expanduser()
     if _enabled == target:
         if path is not None:
             _given, _env_at_given = True, env
