@@ -128,8 +128,9 @@ def _executor_arguments(p: argparse.ArgumentParser, workers: bool = True) -> Non
 
 
 def _variables_argument(p: argparse.ArgumentParser, default: str, help: str) -> None:
-    # --layout is the option's former name, still parsed so that existing scripts run
-    p.add_argument("--variables", "--layout", dest="variables", default=default, choices=["compact", "paper", "lean"], help=help + " (--layout: its former name)")
+    # --layout is the option's former name, still parsed so that existing scripts run; it warns
+    # (`_check_inputs`), as render's --layout is another option (how a strip's panels lie)
+    p.add_argument("--variables", "--layout", dest="variables", default=default, choices=["compact", "paper", "lean"], action=_FormerName, help=help + " (--layout: its former name)")
     p.add_argument(
         "--set", dest="variable_changes", action="append", metavar="FIELD=VALUE",
         help="change a field of the variables' TranscriptionOptions, repeatable (e.g. --set force_limits=rows --set contact_height=row: the study's code's rows)",
@@ -138,6 +139,16 @@ def _variables_argument(p: argparse.ArgumentParser, default: str, help: str) -> 
 
 def _robot_argument(p: argparse.ArgumentParser) -> None:
     p.add_argument("--robot", action="append", metavar="ROBOT=OTHER", help="solve the tasks on ROBOT with the robot model OTHER instead, repeatable (e.g. --robot talos=talos_full: the study's Talos)")
+
+
+class _FormerName(argparse.Action):
+    """Store the value, and the option string it came with when that is a former name
+    (``--layout``), in ``former_names`` for `_check_inputs` to warn of."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        setattr(namespace, self.dest, values)
+        if option_string is not None and option_string != self.option_strings[0]:
+            namespace.former_names = [*getattr(namespace, "former_names", []), (option_string, self.option_strings[0])]
 
 
 def _split(text: str) -> list[str]:
@@ -668,6 +679,8 @@ def _check_seed(value: int) -> None:
 def _check_inputs(args: argparse.Namespace) -> None:
     """Every value of the command line that can be checked without compiling anything."""
     cmd = args.command
+    for former, name in getattr(args, "former_names", []):
+        print(f"jtraj {cmd}: {former} is deprecated: it is now called {name}", file=sys.stderr)
     if cmd in ("solve", "compare", "robustness"):
         args.robots_checked = _check_robots(args.robot)
         args.variables = _check_variable_changes(args.variables, args.variable_changes)

@@ -333,7 +333,7 @@ def test_variables_option_and_its_former_name_layout(command, default):
     assert parser.parse_args([*command, "--layout", "lean"]).variables == "lean"  # the former name still parses
 
 
-def test_solve_passes_variables_to_the_solver(monkeypatch, tmp_path):
+def test_solve_passes_variables_to_the_solver(monkeypatch, tmp_path, capsys):
     import jtraj.plots
     import jtraj.solver
 
@@ -348,6 +348,10 @@ def test_solve_passes_variables_to_the_solver(monkeypatch, tmp_path):
     monkeypatch.setattr(jtraj.plots, "plot_convergence", lambda *a, **k: None)
     assert cli.main(["solve", "big_jump", "--layout", "lean", "--out", str(tmp_path / "r")]) == 0
     assert seen["variables"] == "lean" and "layout" not in seen
+    # the former name warns (render's --layout is another option); the new one does not
+    assert capsys.readouterr().err == "jtraj solve: --layout is deprecated: it is now called --variables\n"
+    assert cli.main(["solve", "big_jump", "--variables", "lean", "--out", str(tmp_path / "r")]) == 0
+    assert "deprecated" not in capsys.readouterr().err
     assert seen["replicate"] is None and seen["noise_chart"] is None
     argv = ["solve", "big_jump", "--noise", "0.5", "--seed", "4", "--replicate", "7", "--out", str(tmp_path / "r")]
     assert cli.main(argv) == 0
