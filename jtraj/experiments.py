@@ -975,6 +975,12 @@ def plot_iterations(runs: list[dict], path: str | Path) -> None:
             ax.set_xscale("symlog", linthresh=min(positive, default=1.0))
         else:
             ax.set_xscale("log")
+        # every noise level of the panel on its axis: autoscaled from the converged medians alone,
+        # it ended before a largest sigma where no setting converged, which vanished from the figure
+        xs = np.array(sorted({r["sigma"] for r in summary if r["task"] == task}), dtype=float)
+        y0 = ax.dataLim.intervaly[0] if ax.has_data() else 0.0
+        ax.update_datalim(np.column_stack([xs, np.full(xs.size, y0)]))
+        ax.autoscale_view()
         ax.set_title(task)
         ax.set_xlabel("warm-start noise sigma")
         ax.set_ylabel("iterations to convergence")

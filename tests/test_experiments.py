@@ -420,6 +420,27 @@ def test_fig2_shows_failed_settings_and_noise_levels(tmp_path, monkeypatch):
     assert not walk.texts
 
 
+def test_fig2_axis_holds_every_noise_level(tmp_path, monkeypatch):
+    """A largest sigma where no setting converged was off the axis (it was autoscaled from the
+    converged medians alone): the figure showed no sign of that noise level."""
+    import jtraj.experiments as experiments
+    from jtraj.experiments import plot_iterations
+
+    def run(p, sigma, converged, r):
+        return dict(task="hop", parameterization=p, sigma=sigma, replicate=r, converged=converged, constraint_violation=1e-9 if converged else 1.0, success=converged, iterations=12 + r)
+
+    runs = [run(p, s, s < 0.5, r) for p in ("se3", "quat1") for s in (1e-3, 0.5) for r in range(2)]
+    runs += [dict(run("se3", 0.5, False, 0), task="walk")]  # a panel with no converged run at all
+    figures = []
+    save = experiments.jio.save_figure
+    monkeypatch.setattr(experiments.jio, "save_figure", lambda fig, path, **k: (figures.append(fig), save(fig, path, **k))[1])
+    plot_iterations(runs, tmp_path / "fig2.png")
+    axes = {ax.get_title(): ax for ax in figures[0].axes}
+    for ax, sigmas in ((axes["hop"], (1e-3, 0.5)), (axes["walk"], (0.5,))):
+        lo, hi = ax.get_xlim()
+        assert all(lo < s < hi for s in sigmas), (ax.get_title(), lo, hi)
+
+
 #: the result fields of a run that the tables read (`read_runs` sets aside rows without them)
 _RESULT = {"converged": True, "constraint_violation": 0.0, "success": True, "iterations": 12}
 
