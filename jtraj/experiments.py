@@ -94,8 +94,9 @@ def compare(
     that solved the cell (the tables are written here).
     table_iv.{json,md} are written again as each cell finishes; a cell that raises, or an
     interrupt, stops the other cells, and the tables hold the cells finished before it. An
-    earlier table's figure (``comparison.png``, from ``jtraj plot OUT``) is removed as the
-    sweep starts.
+    earlier call's tables and their figure (``comparison.png``, from ``jtraj plot OUT``) are
+    removed as the sweep starts (a folder in the place of one is refused then, not after the
+    solves).
     """
     variables = renamed_argument(variables, layout, "variables", "layout", "paper")
     progress = _progress_stream(progress)
@@ -115,8 +116,10 @@ def compare(
     command = list(sys.argv)
     folder = out.absolute()  # not relative to a Ray worker's own folder
     jobs = [(task, p, variables, exact_hessian, solver, str(folder / f"{task.name}_{p}") if save_trajectories else None, command) for task in loaded for p in params]
-    # `jtraj plot OUT`'s figure of an earlier table: this call writes another table_iv.json
-    (out / "comparison.png").unlink(missing_ok=True)
+    # an earlier call's table, and `jtraj plot OUT`'s figure of it: this call writes its own
+    # table as its cells finish (an interrupt before the first left the earlier one in OUT,
+    # which then read as this call's)
+    _clear_outputs("compare", out, ("table_iv.json", "table_iv.md", "comparison.png"))
     in_process = executor == "local" and workers <= 1
     cells = ((i, _compare_one(*job, progress=progress)) for i, job in enumerate(jobs)) if in_process else executor_for(executor, workers, ray_address).map(_compare_one, jobs)
     done: dict[int, dict] = {}
@@ -682,7 +685,9 @@ def robustness(
     and its progress line printed here. A group that raises, or an interrupt, stops the groups
     running and queued (`jtraj.executors`); the runs they finished stay in the file (of a Ray
     group: those whose rows had come back). Returns this call's runs; writes
-    table_iii.{json,md} and fig2.png. ``progress`` as in `compare`; ``layout`` is the
+    table_iii.{json,md} and fig2.png (an earlier call's are removed before the first solve;
+    the tables are written again after each group when the groups run here, one after
+    another). ``progress`` as in `compare`; ``layout`` is the
     deprecated former name of ``variables``. ``params`` are names of `PARAMETERIZATIONS` (or
     the parameterization objects of those names: runs are keyed by the name).
 
@@ -742,6 +747,10 @@ def robustness(
         if len(before) > unknown:
             kept = f"; its {others} runs of other settings are kept" if others else ""
             print(f"resuming: {len(wanted & done)} of this call's {len(wanted)} runs already in {runs_path}{kept}", file=progress, flush=True)
+    # an earlier call's tables and figure, perhaps of other settings: this call's are written
+    # at its checkpoints and its end (the figure at the end only, and with workers or Ray the
+    # tables too), and an interrupt before them left the earlier ones in OUT as if this call's
+    _clear_outputs("robustness", out, ("table_iii.json", "table_iii.md", "fig2.png"))
     if executor == "local" and workers <= 1:
         for k, a in enumerate(args):
             _robustness_group(*a, progress=progress)
@@ -773,6 +782,17 @@ def robustness(
     runs = [r for a in args for r in _select(read_runs(runs_path, progress), *a[:10])]
     _write_robustness_outputs(runs, sigmas, out)
     return runs
+
+
+def _clear_outputs(who: str, out: Path, names: tuple[str, ...]) -> None:
+    """Remove an earlier call's output files ``names`` from ``out``; a folder in the place of
+    one is refused (`ValueError`) before anything is solved (writing the file failed after
+    the solves)."""
+    for name in names:
+        if (out / name).is_dir():
+            raise ValueError(f"{who}: {out / name} is a folder; expected room for the file {name}")
+    for name in names:
+        (out / name).unlink(missing_ok=True)
 
 
 def _select(runs: list[dict], task: Task, p: str, sigmas, replicates: int, seed: int, variables: str | TranscriptionOptions, exact_hessian: bool, options, solver: str, noise_chart: str | None = None) -> list[dict]:

@@ -832,6 +832,19 @@ def test_attitude_and_wahba_refuse_an_output_they_could_not_write_before_solving
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a", "w"] and not (tmp_path / "w" / "wahba.npz").exists()
 
 
+@pytest.mark.parametrize("command, name", [("compare", "table_iv.md"), ("robustness", "fig2.png"), ("robustness", "table_iii.json")])
+def test_sweeps_refuse_a_folder_where_an_output_file_goes(monkeypatch, tmp_path, capsys, command, name):
+    """A folder at OUT/fig2.png (or a table) failed jtraj robustness and compare with a
+    traceback after all their solves (robustness: at its first checkpoint)."""
+    import jtraj.experiments
+
+    monkeypatch.setattr(jtraj.experiments, command, lambda *a, **k: pytest.fail("solved after a bad input"))
+    (tmp_path / "o" / name).mkdir(parents=True)
+    code, err = _run([command, "--tasks", "big_jump", "--params", "se3", "--out", str(tmp_path / "o")], capsys)
+    assert code == 2 and err == f"jtraj {command}: --out: '{tmp_path / 'o'}': {tmp_path / 'o' / name} is a folder; expected room for the file {name}\n"
+    assert [p.name for p in (tmp_path / "o").iterdir()] == [name]  # no provenance.json
+
+
 def test_attitude_refuses_a_folder_where_its_files_go_and_a_variant_with_all(tmp_path, capsys, monkeypatch):
     """A folder at OUT/BENCH_VARIANT/plot.png (or result.json, or table.md with all) failed
     jtraj attitude after its solve with a traceback, its provenance left unfinished;

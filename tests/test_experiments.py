@@ -762,6 +762,11 @@ def test_compare_removes_the_figure_of_the_table_it_replaces(tmp_path, monkeypat
     (tmp_path / "notes.txt").write_text("mine")
     compare(["walk"], ["euler"], out=tmp_path, progress=None, save_trajectories=False)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt", "table_iv.json", "table_iv.md"]
+    (tmp_path / "table_iv.md").unlink()
+    (tmp_path / "table_iv.md").mkdir()  # refused before the first solve, not after the last
+    with pytest.raises(ValueError, match=r"^compare: .*table_iv.md is a folder; expected room for the file table_iv.md$"):
+        compare(["walk"], ["se3"], out=tmp_path, progress=None, save_trajectories=False)
+    assert [p for _, p, _ in fake_solves] == ["euler"]
 
 
 def test_compare_keeps_a_cell_whose_progress_line_failed(tmp_path, monkeypatch, fake_solves):
@@ -1213,6 +1218,33 @@ def test_compare_interrupted_says_how_many_cells_its_table_holds(tmp_path, fake_
         compare(["big_jump"], ["se3", "euler"], out=tmp_path, progress=None)
     said = f"{tmp_path / 'table_iv.json'} holds the 1 of 2 cells finished before it" if finished else "none of the 2 cells had finished"
     assert str(e.value) == said
+    # the earlier run's table is not left to read as this call's (it was, with none finished)
+    assert (tmp_path / "table_iv.json").exists() == bool(finished) and (tmp_path / "table_iv.md").exists() == bool(finished)
+
+
+def test_robustness_removes_an_earlier_calls_tables_before_it_solves(tmp_path, monkeypatch):
+    """An interrupt before the first checkpoint left an earlier call's table_iii.* in OUT, and
+    fig2.png (written at the end only) stayed an earlier call's until the end: both read as
+    this call's. A folder in the place of one failed after all the solves."""
+    from jtraj.experiments import robustness
+
+    for name in ("table_iii.json", "table_iii.md", "fig2.png"):
+        (tmp_path / name).write_text("an earlier call's")
+    (tmp_path / "notes.txt").write_text("mine")
+    groups = []
+
+    def interrupted(*args, **kwargs):
+        groups.append(args[:2])
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(experiments, "_robustness_group", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        robustness([HOP], ["se3"], [0.1], replicates=2, out=tmp_path, progress=None)
+    assert len(groups) == 1 and sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
+    (tmp_path / "fig2.png").mkdir()
+    with pytest.raises(ValueError, match=r"^robustness: .*fig2.png is a folder; expected room for the file fig2.png$"):
+        robustness([HOP], ["se3"], [0.1], replicates=2, out=tmp_path, progress=None)
+    assert len(groups) == 1  # refused before the first group
 
 
 def test_a_noise_chart_check_that_passed_is_not_built_again(monkeypatch):
