@@ -740,13 +740,23 @@ def robustness(
     if progress is not None and before:
         bases = [_group_key(*a[:2], variables, exact_hessian, ipopt_options, seed, solver, noise_chart) for a in args]
         wanted = {run_key(base | {"sigma": s, "replicate": r}) for base in bases for s in sigmas for r in range(replicates)}
-        unknown = sum(1 for r in before if any(k not in r for k in _UNKNOWN_KEYS))
-        others = sum(1 for r in before if all(k in r for k in _UNKNOWN_KEYS) and run_key(r) not in wanted)
+        known = [r for r in before if all(k in r for k in _UNKNOWN_KEYS)]
+        unknown = len(before) - len(known)
+        settings = {_settings_key(base) for base in bases}
+        others = sum(1 for r in known if _settings_key(r) not in settings)
+        # (runs of this call's settings at noise levels or replicates it does not ask for were
+        # counted as runs of other settings)
+        elsewhere = sum(1 for r in known if _settings_key(r) in settings and run_key(r) not in wanted)
         if unknown:
             print(f"note: {unknown} runs in {runs_path} were written without the content of their variables or robot (before jtraj recorded it) and are not resumed", file=progress, flush=True)
-        if len(before) > unknown:
-            kept = f"; its {others} runs of other settings are kept" if others else ""
-            print(f"resuming: {len(wanted & done)} of this call's {len(wanted)} runs already in {runs_path}{kept}", file=progress, flush=True)
+        if known:
+            kept = [f"{others} runs of other settings"] if others else []
+            kept += [f"{elsewhere} runs of these settings at other noise levels or replicates"] if elsewhere else []
+            kept_text = f"; its {' and '.join(kept)} are kept" if kept else ""
+            print(f"resuming: {len(wanted & done)} of this call's {len(wanted)} runs already in {runs_path}{kept_text}", file=progress, flush=True)
+            if not wanted & done and (differ := _settings_differ(known, bases)):
+                # a forgotten --seed or --ipopt solved the whole study again without a word
+                print(f"note: none of them is this call's: the file's runs of these tasks and parameterizations differ in {differ}", file=progress, flush=True)
     # an earlier call's tables and figure, perhaps of other settings: this call's are written
     # at its checkpoints and its end (the figure at the end only, and with workers or Ray the
     # tables too), and an interrupt before them left the earlier ones in OUT as if this call's
@@ -793,6 +803,33 @@ def _clear_outputs(who: str, out: Path, names: tuple[str, ...]) -> None:
             raise ValueError(f"{who}: {out / name} is a folder; expected room for the file {name}")
     for name in names:
         (out / name).unlink(missing_ok=True)
+
+
+#: the settings a run's key holds beside its task, parameterization, sigma and replicate, as
+#: the resume note names them when none of a file's runs is of a call's settings
+_SETTING_NAMES = {
+    "layout": "variables (--variables, --set)", "variables_hash": "variables (--variables, --set)", "hessian": "Hessian (--exact-hessian)",
+    "options_hash": "solver options (--ipopt)", "seed": "seed (--seed)", "solver": "solver (--solver)",
+    "noise_chart": "noise chart (--noise-chart)", "robot_hash": "robot model (--robot)",
+}
+
+
+def _settings_key(row: dict) -> tuple:
+    """A run's key without its sigma and replicate: the settings of its group."""
+    return tuple(row.get(k, _KEY_DEFAULTS.get(k)) for k in RUN_KEY if k not in ("sigma", "replicate"))
+
+
+def _settings_differ(runs: list[dict], bases: list[dict]) -> str:
+    """The settings (`_SETTING_NAMES`) in which ``runs`` of the same task and parameterization
+    as one of ``bases`` differ from it, as text ("" if no run is of those)."""
+    names: dict[str, None] = {}
+    for base in bases:
+        for r in runs:
+            if (r["task_hash"], r["parameterization"]) == (base["task_hash"], base["parameterization"]):
+                for k, name in _SETTING_NAMES.items():
+                    if r.get(k, _KEY_DEFAULTS.get(k)) != base.get(k, _KEY_DEFAULTS.get(k)):
+                        names[name] = None
+    return ", ".join(names)
 
 
 def _select(runs: list[dict], task: Task, p: str, sigmas, replicates: int, seed: int, variables: str | TranscriptionOptions, exact_hessian: bool, options, solver: str, noise_chart: str | None = None) -> list[dict]:

@@ -1012,6 +1012,27 @@ def test_rows_that_are_not_runs_are_set_aside_with_the_torn_lines(tmp_path, fake
     assert len(path.read_text().splitlines()) == 4 and len(read_runs(path)) == 4
 
 
+def test_the_resume_note_tells_other_settings_from_other_noise_levels(tmp_path, fake_solves):
+    """The resume note counted runs of this call's settings at other noise levels or replicates
+    as runs of other settings, and a call whose settings matched none of the file's runs (a
+    forgotten --seed) solved the whole study again without saying why."""
+    path = tmp_path / RUNS_FILE
+    robustness(["walk"], ["se3"], sigmas=[0.1, 0.5], replicates=2, seed=4, out=tmp_path, progress=None)
+    robustness(["walk"], ["se3"], sigmas=[0.1], replicates=1, seed=5, out=tmp_path, progress=None)
+    stream = io.StringIO()
+    robustness(["walk"], ["se3"], sigmas=[0.1], replicates=2, seed=4, out=tmp_path, progress=stream)
+    lines = stream.getvalue().splitlines()
+    assert lines[0] == f"resuming: 2 of this call's 2 runs already in {path}; its 1 runs of other settings and 2 runs of these settings at other noise levels or replicates are kept"
+    assert not any(line.startswith("note:") for line in lines)
+    fake_solves.clear()
+    stream = io.StringIO()
+    robustness(["walk"], ["se3"], sigmas=[0.1], replicates=1, seed=6, out=tmp_path, progress=stream)
+    lines = stream.getvalue().splitlines()
+    assert lines[0] == f"resuming: 0 of this call's 1 runs already in {path}; its 5 runs of other settings are kept"
+    assert lines[1] == "note: none of them is this call's: the file's runs of these tasks and parameterizations differ in seed (--seed)"
+    assert len(fake_solves) == 1
+
+
 def test_rows_with_values_of_another_kind_are_set_aside_with_the_torn_lines(tmp_path, fake_solves):
     """Rows whose fields are there but of another kind than the sweeps write are set aside as
     rows that are not runs, and their runs solved again: a list for sigma made the run's key
