@@ -894,3 +894,35 @@ def test_a_nan_exact_hessian_is_a_numerical_error():
     sol = solvers.get("jtraj").solve(nlp, np.zeros(nlp.n), None, {"hessian": "exact", "max_iter": 20})
     assert sol.status is solvers.Status.NUMERICAL_ERROR and sol.stats.iterations == 0, (sol.status, sol.message)
     assert "NaN or Inf" in sol.message and "Hessian" in sol.message
+
+
+def test_a_nan_objective_is_a_numerical_error():
+    """The convergence test never reads the objective: a start where f is NaN (a log of a
+    negative number) but the gradient is zero was reported SOLVED with objective NaN, and one
+    with a finite gradient went on with a NaN barrier function. Ipopt: an invalid number."""
+    layout = Layout((("z", 2),))
+    costs = [CostGroup("c", (Dep("z"),), lambda theta, data, z: (z[0] + 0.51) ** 2 + 0.01 * jnp.log(z[0]) + (z[1] - 0.5) ** 2, np.arange(2))]
+    nlp = KnotNLP(layout, 2, costs, [], np.full((2, 2), -np.inf), np.full((2, 2), np.inf))
+    x0 = np.tile([-0.5, 0.5], 2)
+    assert np.isnan(float(nlp.objective(x0, None))) and np.abs(np.asarray(nlp.gradient(x0, None))).max() < 1e-12
+    sol = solvers.get("jtraj").solve(nlp, x0, None, {"tol": 1e-8})
+    assert sol.status is solvers.Status.NUMERICAL_ERROR and not sol.converged and sol.stats.iterations == 0, (sol.status, sol.objective)
+
+
+def test_loqo_oracle_takes_ipopts_fraction_to_the_boundary():
+    """With the LOQO oracle the free mode's fraction to the boundary was 1 - mu, Ipopt's is
+    1 - (NLP error) with every oracle: on HS071 (here on two knots) 15 iterations where Ipopt
+    takes 10. With Ipopt's rule the runs take the same barrier parameters."""
+    layout = Layout((("x", 4),))
+    cost = [CostGroup("hs071", (Dep("x"),), lambda theta, data, x: x[0] * x[3] * (x[0] + x[1] + x[2]) + x[2], np.arange(2))]
+    rows = [ConstraintGroup("rows", (Dep("x"),), lambda theta, data, x: jnp.stack([jnp.prod(x), jnp.sum(x**2)]), np.arange(2),
+                            np.tile([25.0, 40.0], (2, 1)), np.tile([np.inf, 40.0], (2, 1)), np.ones((2, 2), bool))]
+    nlp = KnotNLP(layout, 2, cost, rows, np.ones((2, 4)), np.full((2, 4), 5.0))
+    x0 = np.tile([1.0, 5.0, 5.0, 1.0], 2)
+    tight = {"tol": 1e-8, "constr_viol_tol": 1e-8, "compl_inf_tol": 1e-8, "mu_oracle": "loqo"}
+    ours = solvers.get("jtraj").solve(nlp, x0, None, tight)
+    ref = solvers.get("ipopt").solve(nlp, x0, None, tight | {"mu_strategy": "adaptive", "hessian_approximation": "limited-memory", "acceptable_iter": 0})
+    assert ours.converged and ref.converged and abs(ours.objective - ref.objective) < 1e-6
+    assert ours.stats.iterations == ref.stats.iterations, ([h.mu for h in ours.history], [h.mu for h in ref.history])
+    # (Ipopt's row k shows the mu of iteration k's step, this solver's the mu chosen after it)
+    np.testing.assert_allclose([h.mu for h in ours.history[:-1]], [h.mu for h in ref.history[1:]], rtol=1e-3)

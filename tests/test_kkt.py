@@ -114,6 +114,25 @@ def test_kkt_solve_equals_dense_solve(rng, indefinite, split):
     assert np.all(np.asarray(dx).reshape(-1)[~keep] == 0.0)
 
 
+def test_kkt_solve_keeps_float32_blocks(rng):
+    """The mask of the last knot was float64 and turned float32 Jacobian blocks into float64
+    ones: the factorization refused the mixed types (TypeError in triangular_solve). Float32
+    blocks now give float32 steps, which solve the dense system to float32's precision."""
+    system = random_system(rng)
+    single = kkt.KKTSystem(*(a.astype(jnp.float32) if a.dtype == jnp.float64 else a for a in system[:6]))
+    K, n = system.sigma.shape
+    m = system.A.shape[1]
+    r_x, r_c = rng.normal(size=(K, n)), rng.normal(size=(K, m))
+    delta_c = 1e-3  # (float32 has no room for the IPM's 1e-8: its D^-1 J^T J would swamp H)
+    fac, delta_w, ok = kkt.factor_with_correction(single, jnp.float32(delta_c), jnp.float32(0.0))
+    dx, dy = kkt.solve(single, fac, delta_w, jnp.float32(delta_c), jnp.asarray(r_x, jnp.float32), jnp.asarray(r_c, jnp.float32))
+    assert bool(ok) and fac.diag.dtype == dx.dtype == dy.dtype == jnp.float32
+    M, keep = dense_kkt(system, float(delta_w))
+    ref = np.linalg.solve(M, np.concatenate([r_x.reshape(-1)[keep], r_c.reshape(-1)]))
+    np.testing.assert_allclose(np.asarray(dx, float).reshape(-1)[keep], ref[: keep.sum()], rtol=1e-3, atol=1e-3)
+    np.testing.assert_allclose(np.asarray(dy, float).reshape(-1), ref[keep.sum() :], rtol=1e-3, atol=1e-3)
+
+
 def test_wrong_inertia_is_detected(rng, split):
     """With delta_w = 0 an indefinite Hessian (on the null space of J) fails to factor."""
     system = random_system(rng, indefinite=True)

@@ -304,9 +304,10 @@ class InertiaOptions(NamedTuple):
     max_attempts: int = 40
 
 
-def _split_last(K: int) -> jax.Array:
-    """(K,) 1.0 on knots that have a successor, 0.0 on the last."""
-    return (jnp.arange(K) < K - 1).astype(jnp.float64)
+def _split_last(K: int, dtype) -> jax.Array:
+    """(K,) 1.0 on knots that have a successor, 0.0 on the last, in the blocks' ``dtype`` (a
+    float64 mask turned float32 blocks into float64 ones, and the factorization refused them)."""
+    return (jnp.arange(K) < K - 1).astype(dtype)
 
 
 def condensed_blocks(system: KKTSystem, d: jax.Array, delta_w: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -331,7 +332,7 @@ def _product_blocks(system: KKTSystem, d: jax.Array) -> tuple[jax.Array, jax.Arr
     `condensed_blocks`'."""
     H, sigma, A, B, pattern = system.H, system.sigma, system.A, system.B, system.pattern
     K, n = sigma.shape
-    has_next = _split_last(K)
+    has_next = _split_last(K, sigma.dtype)
     w = 1.0 / d
     coupled = coupled_columns(pattern, H is not None)
     if pattern is not None:
@@ -567,7 +568,8 @@ def factor_with_correction(
         # as Ipopt's perturbation handler, a trial above delta_w_max is not made: the
         # correction gives up with the last value tried
         _, ok, dw, i = state
-        return active & (~ok) & (i < options.max_attempts) & (following(dw, i) <= options.delta_w_max)
+        # (the bound at the factor's precision: 1e40 is inf in float32, and numpy warned of it)
+        return active & (~ok) & (i < options.max_attempts) & (following(dw, i) <= min(options.delta_w_max, float(jnp.finfo(dw.dtype).max)))
 
     def body(state):
         _, _, dw, i = state
@@ -590,7 +592,7 @@ def _apply_J(A, B, x, pattern: JacobianPattern | None = None):
         return pattern.apply_J(A, x)
     K = x.shape[0]
     x_next = jnp.concatenate([x[1:], jnp.zeros_like(x[:1])], axis=0)
-    return jnp.einsum("kmn,kn->km", A, x) + jnp.einsum("kmn,kn->km", B * _split_last(K)[:, None, None], x_next)
+    return jnp.einsum("kmn,kn->km", A, x) + jnp.einsum("kmn,kn->km", B * _split_last(K, B.dtype)[:, None, None], x_next)
 
 
 def _apply_JT(A, B, y, pattern: JacobianPattern | None = None):
@@ -599,14 +601,14 @@ def _apply_JT(A, B, y, pattern: JacobianPattern | None = None):
         return pattern.apply_JT(A, y)
     K = y.shape[0]
     out = jnp.einsum("kmn,km->kn", A, y)
-    from_prev = jnp.einsum("kmn,km->kn", B * _split_last(K)[:, None, None], y)
+    from_prev = jnp.einsum("kmn,km->kn", B * _split_last(K, B.dtype)[:, None, None], y)
     return out.at[1:].add(from_prev[:-1])
 
 
 def _apply_H(H, x):
     K, n = x.shape
     x_next = jnp.concatenate([x[1:], jnp.zeros_like(x[:1])], axis=0)
-    has_next = _split_last(K)[:, None]
+    has_next = _split_last(K, x.dtype)[:, None]
     xx = jnp.concatenate([x, x_next * has_next], axis=1)
     Hx = jnp.einsum("kij,kj->ki", H, xx)
     out = Hx[:, :n]
