@@ -884,8 +884,29 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt as e:
         print(f"jtraj {args.command}: {'terminated (SIGTERM)' if terminated else 'interrupted'}{_kept(args, e)}", file=sys.stderr)
         return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
+    except BrokenPipeError as e:
+        # its output was closed (`| head`, a `tee` ended by Ctrl-C): one line, what was kept
+        # (a traceback before; and Python's flush of stdout at exit would fail again)
+        _stdout_to_devnull()
+        notes = getattr(e, "__notes__", [])
+        print(f"jtraj {args.command}: stopped: its output was closed (broken pipe){_kept(args, KeyboardInterrupt(*notes[-1:]))}", file=sys.stderr)
+        return 1
     finally:
         restore()
+
+
+def _stdout_to_devnull() -> None:
+    """Point stdout's file descriptor at /dev/null (Python's advice for a closed pipe: its
+    flush at exit would raise again); nothing where stdout has no descriptor (a test's)."""
+    import os
+
+    try:
+        fd = sys.stdout.fileno()
+    except (AttributeError, OSError, ValueError):
+        return
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, fd)
+    os.close(devnull)
 
 
 def _sigterm_as_interrupt(terminated: list[int]):

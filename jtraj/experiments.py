@@ -140,6 +140,8 @@ def compare(
             raise WorkerLostError(f"{e}; {kept}") from e.__cause__  # one message, after the pool's own error
         if isinstance(e, KeyboardInterrupt):  # the command line says what was kept (an earlier table_iv.json is not this call's)
             raise KeyboardInterrupt(kept) from None
+        if isinstance(e, BrokenPipeError):  # (the progress stream closed) the command line says it too
+            e.add_note(kept)
         raise
     return [done[k] for k in sorted(done)]
 

@@ -882,3 +882,24 @@ def test_attitude_writes_its_provenance(tmp_path, capsys, monkeypatch):
     code, _ = _run(["attitude", "quadflip", "--out", str(tmp_path)], capsys)
     prov = json.loads((tmp_path / "provenance.json").read_text())
     assert code == 0 and prov["command"] == f"jtraj attitude quadflip --out {tmp_path}" and prov["complete"] is True
+
+
+@pytest.mark.parametrize("command", ["robustness", "compare"])
+def test_a_closed_output_stops_a_sweep_with_one_line(monkeypatch, tmp_path, capsys, command):
+    """`jtraj robustness ... | head -1`: the closed pipe ended the study in a BrokenPipeError
+    traceback. It is one line saying what was kept, exit status 1."""
+    import jtraj.experiments
+
+    def closed(*args, **kwargs):
+        e = BrokenPipeError(32, "Broken pipe")
+        if command == "compare":
+            e.add_note(f"{tmp_path / 'o' / 'table_iv.json'} holds the 1 of 2 cells finished before it")
+        raise e
+
+    monkeypatch.setattr(jtraj.experiments, command, closed)
+    code, err = _run([command, "--tasks", "big_jump", "--params", "se3,quat1", "--out", str(tmp_path / "o")], capsys)
+    kept = (
+        f"the runs finished are kept in {tmp_path / 'o' / 'runs.jsonl'}, and the same command again resumes from them" if command == "robustness"
+        else f"{tmp_path / 'o' / 'table_iv.json'} holds the 1 of 2 cells finished before it (the same command again solves every cell)"
+    )
+    assert code == 1 and err == f"jtraj {command}: stopped: its output was closed (broken pipe); {kept}\n"

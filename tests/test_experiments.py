@@ -781,9 +781,10 @@ def test_compare_keeps_a_cell_whose_progress_line_failed(tmp_path, monkeypatch, 
 
     executor = _StoppingExecutor(2, lost=False)
     monkeypatch.setattr(experiments, "executor_for", lambda *args: executor)
-    with pytest.raises(BrokenPipeError):
+    with pytest.raises(BrokenPipeError) as e:
         compare(["walk"], ["se3", "quat1", "euler"], out=tmp_path, progress=Broken(), save_trajectories=False, workers=2)
     assert [r["parameterization"] for r in json.loads((tmp_path / "table_iv.json").read_text())] == ["se3", "quat1"]
+    assert e.value.__notes__ == [f"{tmp_path / 'table_iv.json'} holds the 2 of 3 cells finished before it"]  # for the command line
     assert executor.closed
 
 
