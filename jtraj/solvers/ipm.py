@@ -66,7 +66,9 @@ Differences from Ipopt, and why:
   detection, and ``obj_max_inc``. Smaller differences: a solved barrier problem lowers mu at
   most 4 times in one iteration (Ipopt's monotone loop has no bound, and its adaptive
   strategy's fixed mode lowers it once); the filter holds 64 entries in a ring and keeps
-  dominated ones; ``delta_w_max`` is the paper's
+  dominated ones; with ``adaptive_mu_globalization="kkt-error"`` the fixed mode returns to
+  the free mode only at an iteration that lowers mu with progress in the KKT error (Ipopt's
+  returns at the first with that progress); ``delta_w_max`` is the paper's
   1e40 (Ipopt's default 1e20). In the adaptive strategy's fixed mode tau is ``max(tau_min,
   1 - mu)`` of the new mu at every iteration (Ipopt sets it when the mode changes or mu is
   lowered, from the old mu; they differ below mu = 1e-2, in tau's third decimal or beyond).
