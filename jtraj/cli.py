@@ -9,7 +9,8 @@ outcome ``not_converged``, which includes a convergence to a point over the task
 violation tolerance). 1: the work itself failed after the inputs were accepted (``jtraj render`` or a
 successful solve's ``--render`` without a working OpenGL, the solution still saved; ``jtraj
 compare`` with no rows; a worker process of ``jtraj compare``/``jtraj robustness`` lost, e.g.
-killed when memory ran out; a failed ``jtraj params`` check). 130: interrupted (Ctrl-C); ``jtraj
+killed when memory ran out; a sweep's output closed, e.g. by ``| head``; a failed ``jtraj
+params`` check). 130: interrupted (Ctrl-C); ``jtraj
 robustness`` resumes from the runs finished, ``jtraj compare``'s tables hold the cells finished.
 143: terminated (SIGTERM, e.g. by a job scheduler), which stops a command as Ctrl-C does (its
 worker processes too) and keeps what Ctrl-C keeps.
@@ -366,7 +367,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="solve a task (Ipopt by default) and write DIR/result.json, DIR/trajectory.npz, DIR/provenance.json and two figures, DIR/trajectory.png (base, forces, torques) and DIR/convergence.png",
         epilog=(
             f"exit status: 0 the task succeeded, {EXIT_BAD_INPUT} bad input, {EXIT_TASK_FAILED} converged but the motion does not do the task, {EXIT_NOT_CONVERGED} not converged, "
-            f"1 the task succeeded but --render could not draw it (the solution is saved), {EXIT_INTERRUPTED} interrupted (Ctrl-C)"
+            f"1 the task succeeded but --render could not draw it (the solution is saved), {EXIT_INTERRUPTED} interrupted (Ctrl-C), {EXIT_TERMINATED} terminated (SIGTERM)"
         ),
     )
     p.add_argument("task", help="a built-in task (walk, hopscotch, big_jump, handstand, backflip, sideflip) or a .toml file")
@@ -440,8 +441,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="seed of the problems (default 0)")
     p.set_defaults(func=_cmd_wahba)
 
-    p = sub.add_parser("attitude", help="Planning with Attitude benchmarks, naive or attitude-aware (OUT/BENCH_VARIANT/{result.json,trajectory.npz,plot.png}; 'all' writes OUT/table.md)")
-    p.add_argument("bench", choices=["quadflip", "barrelroll", "satellite", "all"], help="one benchmark, or all of them in both variants (OUT/table.md)")
+    p = sub.add_parser("attitude", help="Planning with Attitude benchmarks, naive or attitude-aware (OUT/BENCH_VARIANT/{result.json,trajectory.npz}, and plot.png for one benchmark; 'all' writes OUT/table.{json,md})")
+    p.add_argument("bench", choices=["quadflip", "barrelroll", "satellite", "all"], help="one benchmark, or all of them in both variants (OUT/table.{json,md})")
     p.add_argument("--variant", default=None, choices=["naive", "attitude"], help="naive quaternion calculus or the attitude-aware one (default attitude; not with 'all', which solves both)")
     p.add_argument("--out", default="runs/attitude", help="output folder (default runs/attitude)")
     p.add_argument("--knots", type=int, default=None, help="number of knots (default: the paper's)")

@@ -2,9 +2,11 @@
 noise-robustness study (Table III, Fig. 2).
 
 Warm starts of the robustness study are drawn for all replicates and noise levels at once with
-`jax.vmap` over PRNG keys; each replicate is then an independent Ipopt solve of the same
-compiled NLP (one compile per task and parameterization). Results are written as JSON and
-Markdown tables and a figure.
+`jax.vmap` over PRNG keys, and solved with the same compiled NLP (one compile per task and
+parameterization): by Ipopt one replicate after another, by jtraj's own solver (``solver=
+"jtraj"``) each noise level's replicates in one batched call. Both write their results as JSON
+and Markdown tables; the robustness study also draws Fig. 2 (``jtraj plot OUT`` draws a
+comparison's figure).
 """
 
 from __future__ import annotations
@@ -810,7 +812,7 @@ def _clear_outputs(who: str, out: Path, names: tuple[str, ...]) -> None:
 #: the settings a run's key holds beside its task, parameterization, sigma and replicate, as
 #: the resume note names them when none of a file's runs is of a call's settings
 _SETTING_NAMES = {
-    "layout": "variables (--variables, --set)", "variables_hash": "variables (--variables, --set)", "hessian": "Hessian (--exact-hessian)",
+    "layout": "variables (--variables, --set)", "variables_hash": "variables (--variables, --set)", "hessian": "Hessian (--ipopt hessian_approximation or hessian)",
     "options_hash": "solver options (--ipopt)", "seed": "seed (--seed)", "solver": "solver (--solver)",
     "noise_chart": "noise chart (--noise-chart)", "robot_hash": "robot model (--robot)",
 }

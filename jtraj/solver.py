@@ -267,8 +267,8 @@ def solve(
             The result's ``options["warm_start"]`` records how the start was made: ``given``
             (a ``warm_start`` array), ``noise``, ``seed``, ``replicate`` and ``noise_chart``.
             The folder's ``provenance.json`` (`jtraj.provenance.begin_run`: date, machine,
-            versions, source commit) is written before the compile, marked complete once the
-            result is saved; it names this call (``"call"``) and ``command``.
+            versions, source commit) is written once the NLP is built, before the solve (and before
+            the compile of jtraj's solver program), marked complete once the result is saved; it names this call (``"call"``) and ``command``.
         keep_trajectory: attach the solution's `jtraj.transcription.Trajectory` to the result (default
             True); False keeps only the figures of the solve (the sweeps' setting), and
             ``out`` then writes no ``trajectory.npz``.
