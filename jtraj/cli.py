@@ -706,7 +706,7 @@ def _check_inputs(args: argparse.Namespace) -> None:
             # without --replicate the noise is numpy's default_rng(seed), which takes seeds >= 0
             raise InputError("--seed", args.seed, "expected a seed >= 0 for --noise without --replicate (numpy draws that noise; --replicate R draws with JAX, which takes any)")
         if args.replicate is not None:
-            _check_positive_int("--replicate", args.replicate, 0)
+            _check_positive_int("--replicate", args.replicate, 0, 2**32 - 1)  # JAX folds 32 bits in: 2**32 drew replicate 0
             if not args.noise:
                 raise InputError("--replicate", args.replicate, "needs the noise level --noise SIGMA > 0 (the study's sigma)")
         elif args.noise_chart is not None:

@@ -19,7 +19,7 @@ from jtraj import robot as robots
 from jtraj import task as tasks
 from jtraj.deprecation import renamed_argument, warn_renamed
 from jtraj.nlp import KnotNLP
-from jtraj.numbers import is_seed, is_whole
+from jtraj.numbers import is_real, is_seed, is_whole
 from jtraj.registry import lookup
 from jtraj.result import Outcome, Result
 from jtraj.solvers.base import initial_guess
@@ -103,7 +103,13 @@ def release_compiled() -> None:
 
     import jax
 
-    _CACHE.clear()
+    from jtraj.solvers import ipopt
+
+    # under the lock: a thread between `prepare`'s test of a key and its read of it got a
+    # KeyError from a clear in another thread (a solve's `release_compiled_if_crowded`)
+    with _CACHE_LOCK:
+        _CACHE.clear()
+    ipopt.forget_hessians()  # (their programs go with JAX's caches)
     jax.clear_caches()
     gc.collect()
 
@@ -154,12 +160,14 @@ def prepare(
     options = transcription_options(variables)
     key = (task, param, options)
     with _CACHE_LOCK:
-        if key in _CACHE:
-            return _CACHE[key]
+        if (hit := _CACHE.get(key)) is not None:
+            return hit
         building = _BUILDING.setdefault(key, threading.Lock())
     with building:  # two threads missed the cache: the second waits for the first's build
-        if key in _CACHE:
-            return _CACHE[key]
+        with _CACHE_LOCK:
+            hit = _CACHE.get(key)
+        if hit is not None:
+            return hit
         prep = _build(key, task, param, options)
         # (only once built: after a failed build, the threads that retry still take turns)
         with _CACHE_LOCK:
@@ -178,7 +186,8 @@ def _build(key: tuple, task: tasks.Task, param: params.AbstractParameterization,
     nlp = tr.build_nlp()
     compile_callbacks(tr, nlp)
     prep = Prepared(tr, nlp, time.perf_counter() - t0)
-    _CACHE[key] = prep
+    with _CACHE_LOCK:
+        _CACHE[key] = prep
     return prep
 
 
@@ -283,12 +292,16 @@ def solve(
     """
     variables = renamed_argument(variables, layout, "variables", "layout", "compact")
     # the arguments that need no model, checked before anything compiles
-    if not (math.isfinite(noise) and noise >= 0):
+    if not (is_real(noise) and math.isfinite(noise) and noise >= 0):  # (noise=True was sigma 1)
         raise ValueError(f"solve: noise={noise!r}: expected a standard deviation >= 0")
+    for name, flag in (("exact_hessian", exact_hessian), ("keep_trajectory", keep_trajectory)):
+        if not isinstance(flag, (bool, np.bool_)):  # exact_hessian="false" chose the exact Hessian
+            raise ValueError(f"solve: {name}={flag!r}: expected True or False")
     # replicate=1.5 drew replicate 1 and replicate=-1 one no study has (numbers are cast to
     # uint32); a negative seed of numpy's noise failed in default_rng after the NLP was built
-    if replicate is not None and (not is_whole(replicate) or replicate < 0):
-        raise ValueError(f"solve: replicate={replicate!r}: expected a replicate number >= 0 (jtraj.experiments.robustness numbers them from 0)")
+    # and 2**32 drew replicate 0's noise while the result recorded 2**32 (JAX folds 32 bits in)
+    if replicate is not None and (not is_whole(replicate) or not 0 <= replicate < 2**32):
+        raise ValueError(f"solve: replicate={replicate!r}: expected a replicate number >= 0 and below 2**32 (jtraj.experiments.robustness numbers them from 0)")
     if (noise or replicate is not None) and not is_whole(seed):
         raise ValueError(f"solve: seed={seed!r}: expected an integer")
     if replicate is not None and not is_seed(seed):  # the study's draws: JAX's PRNGKey, after the compile
@@ -315,6 +328,10 @@ def solve(
     callback = solvers.resolve_progress(progress, progress_every)
     if callback is not None and callback.wants_iterates and not backend.reports_iterates:
         raise ValueError(f"solve: progress={progress!r} records the iterates, which solver={backend.name!r} does not report: record them with solver='ipopt'")
+    if noise_chart is not None:  # a chart that cannot take the noisy poses: refused before the compile
+        from jtraj.experiments import check_noise_chart
+
+        check_noise_chart([task], [params.get(parameterization).name], variables, noise_chart)
     prep = prepare(task, parameterization, variables)
     tr, nlp = prep.transcription, prep.nlp
     theta_given = theta is not None
@@ -330,8 +347,8 @@ def solve(
         x0 = chart_noisy_warm_starts(tr, noise_chart, [noise], [replicate], seed)[0, 0]
     elif noise:
         x0 = x0 + noise * np.random.default_rng(seed).standard_normal(x0.shape)
-    compile_time = prep.time_compile
-    prep.time_compile = 0.0  # counted once per process (by the first solve that gets this far)
+    with _CACHE_LOCK:  # (two threads' solves both reported it)
+        compile_time, prep.time_compile = prep.time_compile, 0.0  # counted once per process (by the first solve that gets this far)
     run = None
     if out is not None:  # the inputs are good: unfinished from here until the result is saved
         from jtraj.provenance import begin_run

@@ -46,7 +46,8 @@ def _run(argv, capsys):
         (["solve", "big_jump", "--noise", "-1"], "jtraj solve: --noise: -1.0: expected a standard deviation >= 0"),
         (["solve", "big_jump", "--replicate", "2"], "jtraj solve: --replicate: 2: needs the noise level --noise SIGMA > 0"),
         (["solve", "big_jump", "--seed", "3"], "jtraj solve: --seed: 3: needs the noise level --noise SIGMA > 0 (the seed is that noise's)"),  # it was ignored
-        (["solve", "big_jump", "--noise", "0.1", "--replicate", "-1"], "jtraj solve: --replicate: -1: expected an integer >= 0"),
+        (["solve", "big_jump", "--noise", "0.1", "--replicate", "-1"], "jtraj solve: --replicate: -1: expected an integer in [0, 4294967295]"),
+        (["solve", "big_jump", "--noise", "0.1", "--replicate", "4294967296"], "jtraj solve: --replicate: 4294967296: expected an integer in [0, 4294967295]"),
         (["solve", "big_jump", "--noise", "0.1", "--seed", "-1"], "jtraj solve: --seed: -1: expected a seed >= 0 for --noise without --replicate (numpy draws that noise; --replicate R draws with JAX, which takes any)"),
         (["solve", "big_jump", "--noise", "0.1", "--noise-chart", "se3"], "jtraj solve: --noise-chart: 'se3': needs --noise SIGMA --replicate R"),
         (["solve", "walk", "--robot", "talos"], "jtraj solve: --robot: 'talos': expected ROBOT=OTHER"),

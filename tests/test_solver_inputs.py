@@ -205,6 +205,12 @@ def test_solve_refuses_bad_seeds_and_replicates_before_building_anything(monkeyp
         ({"noise": 0.1, "replicate": -1}, r"replicate=-1: expected a replicate number >= 0"),
         # the study's draws take JAX's PRNGKey, which raised OverflowError after the compile
         ({"noise": 0.1, "replicate": 0, "seed": 2**64}, r"seed=18446744073709551616: expected a 64-bit integer"),
+        # JAX folds 32 bits of it in: 2**32 drew replicate 0's noise, recorded as 2**32
+        ({"noise": 0.1, "replicate": 2**32}, r"replicate=4294967296: expected a replicate number >= 0 and below 2\*\*32"),
+        # noise=True was sigma 1, exact_hessian="false" the exact Hessian
+        ({"noise": True}, r"noise=True: expected a standard deviation >= 0"),
+        ({"exact_hessian": "false"}, r"exact_hessian='false': expected True or False"),
+        ({"keep_trajectory": None}, r"keep_trajectory=None: expected True or False"),
     ):
         with pytest.raises(ValueError, match=match):
             jtraj.solver.solve("big_jump", **kwargs)
@@ -428,3 +434,43 @@ def test_jtraj_refuses_an_nlp_without_knots_by_name():
         jt.solve(nlp, np.zeros(2))
     with pytest.raises(TypeError, match=r"nlp of type FunctionsOnly: expected a jtraj.nlp.KnotNLP"):
         jt.solve_batch(nlp, np.zeros((2, 2)))
+
+
+def test_solve_checks_the_noise_chart_before_the_compile(monkeypatch):
+    """solve(replicate=, noise_chart=) refused a chart that cannot take the noisy poses only
+    after its NLP was built and compiled (the command line checked it before)."""
+    import jtraj.experiments
+    import jtraj.solver
+
+    seen = []
+
+    def refuse(tasks, params, variables, chart):
+        seen.append((list(params), variables, chart))
+        raise jtraj.experiments.NoiseChartError("no room for these poses")
+
+    monkeypatch.setattr(jtraj.experiments, "check_noise_chart", refuse)
+    monkeypatch.setattr(jtraj.solver, "prepare", lambda *a, **k: pytest.fail("the NLP was built before the chart's check"))
+    with pytest.raises(jtraj.experiments.NoiseChartError, match="no room"):
+        jtraj.solver.solve("big_jump", "euler", variables="paper", noise=0.1, replicate=0, noise_chart="se3")
+    assert seen == [(["euler"], "paper", "se3")]
+
+
+def test_release_compiled_waits_for_the_cache_lock(monkeypatch):
+    """release_compiled cleared the NLP cache without its lock: a thread in `prepare` between
+    its test of a key and its read got a KeyError when a solve in another thread released the
+    compiled programs (`release_compiled_if_crowded`)."""
+    import threading
+
+    import jax
+
+    import jtraj.solver
+
+    monkeypatch.setattr(jax, "clear_caches", lambda: None)
+    monkeypatch.setattr(jtraj.solver, "_CACHE", {("a key",): "an NLP"})
+    done = threading.Event()
+    with jtraj.solver._CACHE_LOCK:
+        thread = threading.Thread(target=lambda: (jtraj.solver.release_compiled(), done.set()))
+        thread.start()
+        assert not done.wait(0.3) and jtraj.solver._CACHE == {("a key",): "an NLP"}  # it waits
+    thread.join(10)
+    assert done.is_set() and jtraj.solver._CACHE == {}

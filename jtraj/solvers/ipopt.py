@@ -8,6 +8,7 @@ Ipopt's return code to `jtraj.solvers.Status`.
 from __future__ import annotations
 
 import dataclasses
+import threading
 import time
 import weakref
 from typing import Any, ClassVar
@@ -216,6 +217,16 @@ def _field_for(key: str) -> str:
 
 #: the NLPs whose exact Hessian has been built and compiled in this process
 _HESSIAN_COMPILED: weakref.WeakSet = weakref.WeakSet()
+#: guards the test of `_HESSIAN_COMPILED` and the build it calls for
+_HESSIAN_LOCK = threading.Lock()
+
+
+def forget_hessians() -> None:
+    """Forget which NLPs' exact Hessians were compiled (`jtraj.solver.release_compiled` drops
+    JAX's compiled programs: a later exact-Hessian solve compiles it again before its clock
+    starts, not inside the timed solve)."""
+    with _HESSIAN_LOCK:
+        _HESSIAN_COMPILED.clear()
 
 
 class _Problem:
@@ -300,15 +311,16 @@ class IpoptSolver(AbstractSolver):
         exact = opts.hessian == "exact"
         x0 = np.clip(x0, f.x_lower, f.x_upper)
         time_compile = 0.0
-        if exact and nlp not in _HESSIAN_COMPILED:
-            # built and called once before the clock starts, as the other callbacks are
-            # compiled before a solve (its first call compiles its jitted scatter: it ran inside
-            # the timed solve); reported as the backend's compile time
-            t0 = time.perf_counter()
-            nlp.build_hessian()
-            np.asarray(f.hessian(jnp.asarray(x0), jnp.zeros(nlp.m), 1.0))
-            time_compile = time.perf_counter() - t0
-            _HESSIAN_COMPILED.add(nlp)
+        with _HESSIAN_LOCK:  # (two threads' solves of one NLP both built it and reported it)
+            if exact and nlp not in _HESSIAN_COMPILED:
+                # built and called once before the clock starts, as the other callbacks are
+                # compiled before a solve (its first call compiles its jitted scatter: it ran
+                # inside the timed solve); reported as the backend's compile time
+                t0 = time.perf_counter()
+                nlp.build_hessian()
+                np.asarray(f.hessian(jnp.asarray(x0), jnp.zeros(nlp.m), 1.0))
+                time_compile = time.perf_counter() - t0
+                _HESSIAN_COMPILED.add(nlp)
         problem_obj = _Problem(nlp, f, exact, callback)
         problem = cyipopt.Problem(n=nlp.n, m=nlp.m, problem_obj=problem_obj, lb=f.x_lower, ub=f.x_upper, cl=f.g_lower, cu=f.g_upper)
         problem_obj.problem = problem
