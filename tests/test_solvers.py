@@ -469,3 +469,16 @@ def test_an_option_of_the_other_solver_says_which_solver_takes_it():
     with pytest.raises(IpoptOptionError) as info:  # a name both take is no hint to the other solver
         check("hessian", "exact")
     assert "jtraj's solver" not in str(info.value)
+
+
+def test_ipopt_options_given_twice_are_refused_and_merge_takes_the_new_extra():
+    """An Ipopt option given at the top level and in ``extra`` with two values: the top
+    level's won without a word. merge() put these options' extra beside the new values at the
+    top level, so a new value given in the new values' extra was dropped."""
+    with pytest.raises(InvalidOptionError, match=r"^Ipopt option mu_init: given as 0.1 and in extra as 0.5; expected one value$"):
+        IpoptOptions.from_dict({"mu_init": 0.1, "extra": {"mu_init": 0.5}})
+    assert IpoptOptions.from_dict({"mu_init": 0.1, "extra": {"mu_init": 0.1}}).extra == {"mu_init": 0.1}
+    old = IpoptOptions(extra={"mu_init": 0.1, "bound_push": 0.02})
+    assert old.merge({"extra": {"mu_init": 0.5}}).extra == {"mu_init": 0.5, "bound_push": 0.02}
+    assert old.merge({"mu_init": 0.5}).extra == {"mu_init": 0.5, "bound_push": 0.02}
+    assert old.merge({"tol": 1e-6}).extra == old.extra and old.merge({"tol": 1e-6}).tol == 1e-6

@@ -158,7 +158,7 @@ class IpoptOptions(AbstractOptions):
                 values[key] = values[key].lower()
         hessian_approximation = values.pop("hessian_approximation", None)
         fields: dict[str, Any] = {}
-        extra = dict(values.pop("extra", None) or {})
+        extra = _extra_beside(values)
         for key, value in values.items():
             if key in _FIELDS:
                 fields[key] = value
@@ -184,7 +184,11 @@ class IpoptOptions(AbstractOptions):
         own = {k: v for k, v in self.as_dict().items() if k != "extra"}
         if "hessian_approximation" in values:
             del own["hessian"]
-        return IpoptOptions.from_dict({**own, **self.extra, **values})
+        values = dict(values)
+        # ``values``' own extra options are options of ``values``: they replace these options'
+        # (they went to the top level beside these, and these won)
+        given = _extra_beside(values) | values
+        return IpoptOptions.from_dict({**own, **self.extra, **given})
 
     def to_ipopt(self) -> dict[str, Any]:
         """The options as Ipopt's names and values (quiet: no banner, no own printing)."""
@@ -219,6 +223,19 @@ def _field_for(key: str) -> str:
 _HESSIAN_COMPILED: weakref.WeakSet = weakref.WeakSet()
 #: guards the test of `_HESSIAN_COMPILED` and the build it calls for
 _HESSIAN_LOCK = threading.Lock()
+
+
+def _extra_beside(values: dict[str, Any]) -> dict[str, Any]:
+    """Pop ``values``' ``extra`` dict and return a copy of it; an option named both there and at
+    the top level with another value raises `InvalidOptionError` (the top level's won without
+    a word)."""
+    extra = values.pop("extra", None) or {}
+    if not isinstance(extra, dict):
+        raise InvalidOptionError(f"Ipopt option extra={extra!r}: expected a dict of Ipopt option names to values")
+    for key in sorted(set(extra) & set(values), key=str):
+        if values[key] != extra[key]:
+            raise InvalidOptionError(f"Ipopt option {key}: given as {values[key]!r} and in extra as {extra[key]!r}; expected one value")
+    return dict(extra)
 
 
 def forget_hessians() -> None:
