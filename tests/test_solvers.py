@@ -482,3 +482,25 @@ def test_ipopt_options_given_twice_are_refused_and_merge_takes_the_new_extra():
     assert old.merge({"extra": {"mu_init": 0.5}}).extra == {"mu_init": 0.5, "bound_push": 0.02}
     assert old.merge({"mu_init": 0.5}).extra == {"mu_init": 0.5, "bound_push": 0.02}
     assert old.merge({"tol": 1e-6}).extra == old.extra and old.merge({"tol": 1e-6}).tol == 1e-6
+
+
+def test_ipopt_options_this_build_cannot_use_are_refused_before_a_solve():
+    """nlp_scaling_method='user-scaling' was accepted and solved as 'none' (jtraj gives Ipopt
+    no scaling factors); 'equilibration-based' and extra linear_system_scaling='mc19' need HSL's
+    MC19, which the bundled Ipopt lacks: accepted, the solve then stopped with 'Invalid option
+    encountered.' naming none of them."""
+    from jtraj.solvers import ipopt_catalog
+
+    with pytest.raises(InvalidOptionError, match=r"nlp_scaling_method='user-scaling': expected one of \['none', 'gradient-based', 'equilibration-based'\]"):
+        IpoptOptions(nlp_scaling_method="user-scaling")
+    hsl = ipopt_catalog.value_usable("linear_system_scaling", "mc19")
+    assert ipopt_catalog.value_usable("nlp_scaling_method", "equilibration-based") == hsl  # both are MC19
+    assert ipopt_catalog.value_usable("linear_system_scaling", "none") and ipopt_catalog.value_usable("mu_strategy", "monotone")
+    if hsl:  # an Ipopt built with HSL takes them
+        IpoptOptions(nlp_scaling_method="equilibration-based", extra={"linear_system_scaling": "mc19"})
+    else:
+        with pytest.raises(InvalidOptionError, match=r"equilibration-based'.*needs HSL's MC19"):
+            IpoptOptions(nlp_scaling_method="equilibration-based")
+        with pytest.raises(InvalidOptionError, match=r"linear_system_scaling='mc19'.*cannot use it"):
+            IpoptOptions(extra={"linear_system_scaling": "mc19"})
+    assert IpoptOptions(extra={"linear_system_scaling": "none"}).extra == {"linear_system_scaling": "none"}

@@ -63,7 +63,9 @@ IPOPT_STATUS: dict[int, Status] = {
 LINEAR_SOLVERS = ("mumps", "ma27", "ma57", "ma77", "ma86", "ma97", "pardiso", "pardisomkl", "spral", "wsmp")
 #: the largest value of Ipopt's integer options (a C int)
 INT_MAX = 2**31 - 1
-SCALING_METHODS = ("none", "gradient-based", "equilibration-based", "user-scaling")
+#: (Ipopt's "user-scaling" takes scaling factors from the problem, and jtraj gives none: it
+#: was accepted and solved as "none")
+SCALING_METHODS = ("none", "gradient-based", "equilibration-based")
 HESSIANS = {"lbfgs": "limited-memory", "exact": "exact"}
 
 
@@ -124,6 +126,11 @@ class IpoptOptions(AbstractOptions):
                 raise InvalidOptionError(f"Ipopt option linear_solver={self.linear_solver!r}: not available in this Ipopt build (its library is not installed); expected 'mumps'")
         if self.nlp_scaling_method not in SCALING_METHODS:
             raise InvalidOptionError(f"Ipopt option nlp_scaling_method={self.nlp_scaling_method!r}: expected one of {list(SCALING_METHODS)}")
+        if self.nlp_scaling_method == "equilibration-based":
+            from jtraj.solvers import ipopt_catalog
+
+            if not ipopt_catalog.value_usable("nlp_scaling_method", self.nlp_scaling_method):  # it needs HSL's MC19
+                raise InvalidOptionError(f"Ipopt option nlp_scaling_method={self.nlp_scaling_method!r}: not available in this Ipopt build (it needs HSL's MC19, which is not installed); expected 'gradient-based' or 'none'")
         if not isinstance(self.extra, dict):
             raise InvalidOptionError(f"Ipopt option extra={self.extra!r}: expected a dict of Ipopt option names to values")
         for key, value in self.extra.items():

@@ -174,6 +174,24 @@ def linear_solver_available(name: str) -> bool:
     return info["status"] in (0, 1)
 
 
+#: Ipopt's status for an option value it cannot use (Invalid_Option)
+_INVALID_OPTION = -12
+
+
+@functools.lru_cache(maxsize=None)
+def value_usable(name: str, value: str) -> bool:
+    """Whether this Ipopt build can use the string option ``name=value`` (one that is in its
+    list): some values need a library it loads at run time (``nlp_scaling_method=
+    equilibration-based`` and ``linear_system_scaling=mc19`` need HSL's MC19), and without it a
+    solve stops at its start with "Invalid option encountered.", naming none."""
+    p = _problem()
+    for key, v in ((name, value), ("print_level", 0), ("sb", "yes"), ("max_iter", 1)):
+        p.add_option(key, v)
+    with _captured_stdout():
+        _, info = p.solve(np.array([0.5]))
+    return info["status"] != _INVALID_OPTION
+
+
 def _range(spec: OptionSpec) -> str:
     lo = ("(" if spec.lower_strict else "[") + f"{spec.lower:g}"
     hi = f"{spec.upper:g}" + (")" if spec.upper_strict else "]")
@@ -230,6 +248,8 @@ def check(name: str, value: Any) -> Any:
             raise IpoptOptionError(name, value, "not available in this Ipopt build (its library is not installed); expected mumps")
         if value and name in _FILE_OPTIONS:
             _check_file_option(name, value)
+        elif spec.values is not None and not value_usable(name, value.lower()):
+            raise IpoptOptionError(name, value, "this Ipopt build cannot use it (it needs a library that is not installed, such as HSL's); Ipopt would stop with 'Invalid option encountered.'")
         return value
     real = _is_real(name)
     number_types = (int, float, np.integer, np.floating) if real else (int, np.integer)
