@@ -1039,9 +1039,11 @@ def plot_iterations(runs: list[dict], path: str | Path) -> None:
         # every noise level of the panel on its axis: autoscaled from the converged medians alone,
         # it ended before a largest sigma where no setting converged, which vanished from the figure
         xs = np.array(sorted({r["sigma"] for r in summary if r["task"] == task}), dtype=float)
-        y0 = ax.dataLim.intervaly[0] if ax.has_data() else 0.0
-        ax.update_datalim(np.column_stack([xs, np.full(xs.size, y0)]))
+        drawn = ax.has_data()
+        ax.update_datalim(np.column_stack([xs, np.zeros_like(xs)]), updatey=False)
         ax.autoscale_view()
+        if not drawn:  # (no converged run in the panel: matplotlib's empty axis, not one around 0)
+            ax.set_ylim(0.0, 1.0)
         ax.set_title(task)
         ax.set_xlabel("warm-start noise sigma")
         ax.set_ylabel("iterations to convergence")

@@ -19,7 +19,7 @@ from jtraj import robot as robots
 from jtraj import task as tasks
 from jtraj.deprecation import renamed_argument, warn_renamed
 from jtraj.nlp import KnotNLP
-from jtraj.numbers import is_real, is_seed, is_whole
+from jtraj.numbers import is_seed, is_whole
 from jtraj.registry import lookup
 from jtraj.result import Outcome, Result
 from jtraj.solvers.base import initial_guess
@@ -292,7 +292,12 @@ def solve(
     """
     variables = renamed_argument(variables, layout, "variables", "layout", "compact")
     # the arguments that need no model, checked before anything compiles
-    if not (is_real(noise) and math.isfinite(noise) and noise >= 0):  # (noise=True was sigma 1)
+    # a number: one of numpy's or JAX's scalars too, not a bool (noise=True was sigma 1)
+    kind = np.asarray(noise).dtype
+    if isinstance(noise, (bool, np.bool_)) or np.ndim(noise) != 0 or not (np.issubdtype(kind, np.integer) or np.issubdtype(kind, np.floating)):
+        raise ValueError(f"solve: noise={noise!r}: expected a standard deviation >= 0")
+    noise = float(noise)
+    if not (math.isfinite(noise) and noise >= 0):
         raise ValueError(f"solve: noise={noise!r}: expected a standard deviation >= 0")
     for name, flag in (("exact_hessian", exact_hessian), ("keep_trajectory", keep_trajectory)):
         if not isinstance(flag, (bool, np.bool_)):  # exact_hessian="false" chose the exact Hessian

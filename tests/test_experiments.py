@@ -439,6 +439,7 @@ def test_fig2_axis_holds_every_noise_level(tmp_path, monkeypatch):
     for ax, sigmas in ((axes["hop"], (1e-3, 0.5)), (axes["walk"], (0.5,))):
         lo, hi = ax.get_xlim()
         assert all(lo < s < hi for s in sigmas), (ax.get_title(), lo, hi)
+    assert axes["walk"].get_ylim()[0] >= 0.0 and axes["hop"].get_ylim()[0] > 0.0  # no negative iterations
 
 
 #: the result fields of a run that the tables read (`read_runs` sets aside rows without them)

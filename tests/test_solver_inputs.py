@@ -217,6 +217,14 @@ def test_solve_refuses_bad_seeds_and_replicates_before_building_anything(monkeyp
     # JAX's draws of a replicate take a negative seed (as `jtraj robustness --seed` does)
     with pytest.raises(AssertionError, match="the NLP was built"):
         jtraj.solver.solve("big_jump", noise=0.1, seed=-1, replicate=0)
+    # numpy's and JAX's scalars are numbers (the bool check refused them for a while)
+    import jax.numpy as jnp
+
+    for noise in (np.array(0.05), jnp.float32(0.05), np.int64(0)):
+        with pytest.raises(AssertionError, match="the NLP was built"):
+            jtraj.solver.solve("big_jump", noise=noise)
+    with pytest.raises(ValueError, match=r"noise=array\(\[0.1, 0.2\]\): expected a standard deviation"):
+        jtraj.solver.solve("big_jump", noise=np.array([0.1, 0.2]))
 
 
 def test_a_nan_in_the_point_is_a_nan_violation():

@@ -482,6 +482,12 @@ def test_ipopt_options_given_twice_are_refused_and_merge_takes_the_new_extra():
     assert old.merge({"extra": {"mu_init": 0.5}}).extra == {"mu_init": 0.5, "bound_push": 0.02}
     assert old.merge({"mu_init": 0.5}).extra == {"mu_init": 0.5, "bound_push": 0.02}
     assert old.merge({"tol": 1e-6}).extra == old.extra and old.merge({"tol": 1e-6}).tol == 1e-6
+    # a field in the new extra is refused as from_dict refuses it; hessian_approximation there
+    # is refused the same way, not as a conflict with a hessian the caller never gave
+    for extra in ({"tol": 1e-6}, {"hessian_approximation": "exact"}):
+        with pytest.raises(InvalidOptionError, match="has its own field"):
+            old.merge({"extra": extra})
+    assert IpoptOptions().merge({"hessian_approximation": "exact"}).hessian == "exact"
 
 
 def test_ipopt_options_this_build_cannot_use_are_refused_before_a_solve():
@@ -504,3 +510,8 @@ def test_ipopt_options_this_build_cannot_use_are_refused_before_a_solve():
         with pytest.raises(InvalidOptionError, match=r"linear_system_scaling='mc19'.*cannot use it"):
             IpoptOptions(extra={"linear_system_scaling": "mc19"})
     assert IpoptOptions(extra={"linear_system_scaling": "none"}).extra == {"linear_system_scaling": "none"}
+    # only those options are probed: a probe of hessian_approximation=exact on the tiny
+    # problem (no Hessian) logged a false cyipopt error, and a value cyipopt's add_option
+    # refuses raised its TypeError out of the check
+    assert set(ipopt_catalog._LIBRARY_OPTIONS) == {"nlp_scaling_method", "linear_system_scaling"}
+    assert not ipopt_catalog.value_usable("linear_system_scaling", "no-such-value")

@@ -189,12 +189,17 @@ class IpoptOptions(AbstractOptions):
         if not values:
             return self
         own = {k: v for k, v in self.as_dict().items() if k != "extra"}
-        if "hessian_approximation" in values:
-            del own["hessian"]
         values = dict(values)
         # ``values``' own extra options are options of ``values``: they replace these options'
-        # (they went to the top level beside these, and these won)
-        given = _extra_beside(values) | values
+        # (they went to the top level beside these, and these won); a field among them is
+        # refused, as `from_dict` refuses it
+        extra = _extra_beside(values)
+        for key in extra:
+            if key in _FIELDS or key == "hessian_approximation":
+                raise InvalidOptionError(f"Ipopt option {key!r} has its own field: use IpoptOptions({_field_for(key)}=...)")
+        given = extra | values
+        if "hessian_approximation" in given:
+            del own["hessian"]
         return IpoptOptions.from_dict({**own, **self.extra, **given})
 
     def to_ipopt(self) -> dict[str, Any]:

@@ -176,6 +176,10 @@ def linear_solver_available(name: str) -> bool:
 
 #: Ipopt's status for an option value it cannot use (Invalid_Option)
 _INVALID_OPTION = -12
+#: the string options some of whose values need a library Ipopt loads at run time (HSL's MC19),
+#: probed by `value_usable` (a probe of every option's values set off the tiny problem's
+#: missing Hessian, with a cyipopt error line, and refused values for other reasons)
+_LIBRARY_OPTIONS = ("nlp_scaling_method", "linear_system_scaling")
 
 
 @functools.lru_cache(maxsize=None)
@@ -185,7 +189,11 @@ def value_usable(name: str, value: str) -> bool:
     equilibration-based`` and ``linear_system_scaling=mc19`` need HSL's MC19), and without it a
     solve stops at its start with "Invalid option encountered.", naming none."""
     p = _problem()
-    for key, v in ((name, value), ("print_level", 0), ("sb", "yes"), ("max_iter", 1)):
+    try:
+        p.add_option(name, value)
+    except TypeError:  # cyipopt's refusal of a value Ipopt does not take
+        return False
+    for key, v in (("print_level", 0), ("sb", "yes"), ("max_iter", 1)):
         p.add_option(key, v)
     with _captured_stdout():
         _, info = p.solve(np.array([0.5]))
@@ -248,8 +256,8 @@ def check(name: str, value: Any) -> Any:
             raise IpoptOptionError(name, value, "not available in this Ipopt build (its library is not installed); expected mumps")
         if value and name in _FILE_OPTIONS:
             _check_file_option(name, value)
-        elif spec.values is not None and not value_usable(name, value.lower()):
-            raise IpoptOptionError(name, value, "this Ipopt build cannot use it (it needs a library that is not installed, such as HSL's); Ipopt would stop with 'Invalid option encountered.'")
+        elif name in _LIBRARY_OPTIONS and not value_usable(name, value.lower()):
+            raise IpoptOptionError(name, value, "this Ipopt build cannot use it (it needs a library that is not installed, such as HSL's MC19); Ipopt would stop with 'Invalid option encountered.'")
         return value
     real = _is_real(name)
     number_types = (int, float, np.integer, np.floating) if real else (int, np.integer)
