@@ -734,10 +734,10 @@ def _check_inputs(args: argparse.Namespace) -> None:
         if args.workers > 1 and args.executor != "local":
             raise InputError("--workers", args.workers, "is for --executor local; with --executor ray each group is a Ray task and the cluster runs as many at once as it has CPUs")
         _check_out(args.out)
-        if cmd == "compare":
-            _check_out_files(args.out, ("table_iv.json", "table_iv.md", "comparison.png", "provenance.json"))
-        else:
-            _check_out_files(args.out, ("table_iii.json", "table_iii.md", "fig2.png", "provenance.json"))  # runs.jsonl: check_runs_file
+        from jtraj.experiments import COMPARE_OUTPUTS, ROBUSTNESS_OUTPUTS
+
+        # (runs.jsonl: check_runs_file)
+        _check_out_files(args.out, (*(COMPARE_OUTPUTS if cmd == "compare" else ROBUSTNESS_OUTPUTS), "provenance.json"))
         if args.executor == "ray":  # Ray installed and its cluster reached, before OUT is written
             from jtraj.executors import RayExecutor
 

@@ -22,7 +22,7 @@ import sys
 import zlib
 from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import TextIO
+from typing import Any, TextIO
 
 import jax
 import jax.numpy as jnp
@@ -121,7 +121,7 @@ def compare(
     # an earlier call's table, and `jtraj plot OUT`'s figure of it: this call writes its own
     # table as its cells finish (an interrupt before the first left the earlier one in OUT,
     # which then read as this call's)
-    _clear_outputs("compare", out, ("table_iv.json", "table_iv.md", "comparison.png"))
+    _clear_outputs("compare", out, COMPARE_OUTPUTS)
     in_process = executor == "local" and workers <= 1
     cells = ((i, _compare_one(*job, progress=progress)) for i, job in enumerate(jobs)) if in_process else executor_for(executor, workers, ray_address).map(_compare_one, jobs)
     done: dict[int, dict] = {}
@@ -464,7 +464,13 @@ def run_key(row: dict) -> tuple:
     """The identity of a robustness run: (task content hash, parameterization, variables, Hessian
     mode, solver-options hash, seed, sigma, replicate, solver); a row without a solver (an
     earlier file's) is an Ipopt run."""
-    return tuple(row.get(k, _KEY_DEFAULTS.get(k)) for k in RUN_KEY)
+    return tuple(_key_value(row, k) for k in RUN_KEY)
+
+
+def _key_value(row: dict, field: str) -> Any:
+    """A run's value of the key field ``field``, or what an earlier file's row without it means
+    (`_KEY_DEFAULTS`)."""
+    return row.get(field, _KEY_DEFAULTS.get(field))
 
 
 #: the fields of a run that the tables read, beside those of its key
@@ -764,7 +770,7 @@ def robustness(
     # an earlier call's tables and figure, perhaps of other settings: this call's are written
     # at its checkpoints and its end (the figure at the end only, and with workers or Ray the
     # tables too), and an interrupt before them left the earlier ones in OUT as if this call's
-    _clear_outputs("robustness", out, ("table_iii.json", "table_iii.md", "fig2.png"))
+    _clear_outputs("robustness", out, ROBUSTNESS_OUTPUTS)
     if executor == "local" and workers <= 1:
         for k, a in enumerate(args):
             _robustness_group(*a, progress=progress)
@@ -798,6 +804,12 @@ def robustness(
     return runs
 
 
+#: the files a call of `compare` / `robustness` writes into its folder beside the runs (an
+#: earlier call's are removed as it starts; the command line checks them before it writes OUT)
+COMPARE_OUTPUTS = ("table_iv.json", "table_iv.md", "comparison.png")
+ROBUSTNESS_OUTPUTS = ("table_iii.json", "table_iii.md", "fig2.png")
+
+
 def _clear_outputs(who: str, out: Path, names: tuple[str, ...]) -> None:
     """Remove an earlier call's output files ``names`` from ``out``; a folder in the place of
     one is refused (`ValueError`) before anything is solved (writing the file failed after
@@ -820,7 +832,7 @@ _SETTING_NAMES = {
 
 def _settings_key(row: dict) -> tuple:
     """A run's key without its sigma and replicate: the settings of its group."""
-    return tuple(row.get(k, _KEY_DEFAULTS.get(k)) for k in RUN_KEY if k not in ("sigma", "replicate"))
+    return tuple(_key_value(row, k) for k in RUN_KEY if k not in ("sigma", "replicate"))
 
 
 def _settings_differ(runs: list[dict], bases: list[dict]) -> str:
@@ -831,7 +843,7 @@ def _settings_differ(runs: list[dict], bases: list[dict]) -> str:
         for r in runs:
             if (r["task_hash"], r["parameterization"]) == (base["task_hash"], base["parameterization"]):
                 for k, name in _SETTING_NAMES.items():
-                    if r.get(k, _KEY_DEFAULTS.get(k)) != base.get(k, _KEY_DEFAULTS.get(k)):
+                    if _key_value(r, k) != _key_value(base, k):
                         names[name] = None
     return ", ".join(names)
 
@@ -927,7 +939,7 @@ def _refuse_mixed_settings(runs: list[dict], task: str, p: str, sigma: float) ->
     earlier settings beside a study's, `robustness`): counted together, the cell's rates had a
     mixed denominator. A field an earlier file did not record (null) matches any value."""
     for field in _CELL_SETTINGS:
-        values = sorted({str(v) for r in runs if (v := r.get(field, _KEY_DEFAULTS.get(field))) is not None})
+        values = sorted({str(v) for r in runs if (v := _key_value(r, field)) is not None})
         if len(values) > 1:
             raise ValueError(
                 f"Table III: the runs of {task} / {p} at sigma {sigma:g} differ in {field} ({', '.join(values[:4])}{', ...' if len(values) > 4 else ''}); "

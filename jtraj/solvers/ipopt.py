@@ -137,7 +137,7 @@ class IpoptOptions(AbstractOptions):
             if not isinstance(key, str) or not isinstance(value, (str, int, float, bool, np.integer, np.floating)):
                 raise InvalidOptionError(f"Ipopt option {key!r}={value!r}: expected a string, integer, float or boolean value")
             if key in _FIELDS or key == "hessian_approximation":
-                raise InvalidOptionError(f"Ipopt option {key!r} has its own field: use IpoptOptions({_field_for(key)}=...)")
+                raise _own_field_error(key)
         if self.extra:
             # against the bundled Ipopt's option list, here rather than when a solve starts (after
             # the compile), with Ipopt's value types (an integer for a real option becomes a float)
@@ -196,7 +196,7 @@ class IpoptOptions(AbstractOptions):
         extra = _extra_beside(values)
         for key in extra:
             if key in _FIELDS or key == "hessian_approximation":
-                raise InvalidOptionError(f"Ipopt option {key!r} has its own field: use IpoptOptions({_field_for(key)}=...)")
+                raise _own_field_error(key)
         given = extra | values
         if "hessian_approximation" in given:
             del own["hessian"]
@@ -225,6 +225,11 @@ class IpoptOptions(AbstractOptions):
 _FIELDS = {f.name for f in dataclasses.fields(IpoptOptions)} - {"extra"}
 #: Ipopt's string options among `from_dict`'s names, whose values Ipopt takes in any case
 _IPOPT_STRINGS = ("linear_solver", "nlp_scaling_method", "hessian_approximation")
+
+
+def _own_field_error(key: str) -> InvalidOptionError:
+    """The error for an Ipopt option given among the extra ones that has its own field."""
+    return InvalidOptionError(f"Ipopt option {key!r} has its own field: use IpoptOptions({_field_for(key)}=...)")
 
 
 def _field_for(key: str) -> str:

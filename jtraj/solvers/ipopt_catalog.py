@@ -166,12 +166,18 @@ def linear_solver_available(name: str) -> bool:
     others are loaded at run time from libraries that may be absent)."""
     if name == "mumps":
         return True
+    return _probe_status(("linear_solver", name)) in (0, 1)
+
+
+def _probe_status(*options: tuple[str, Any]) -> int:
+    """Ipopt's return status on the tiny problem with ``options`` (quiet, what it prints
+    captured); cyipopt's TypeError for a value it refuses is raised as it is."""
     p = _problem()
-    for key, value in (("linear_solver", name), ("print_level", 0), ("sb", "yes")):
+    for key, value in (*options, ("print_level", 0), ("sb", "yes")):
         p.add_option(key, value)
     with _captured_stdout():
         _, info = p.solve(np.array([0.5]))
-    return info["status"] in (0, 1)
+    return info["status"]
 
 
 #: Ipopt's status for an option value it cannot use (Invalid_Option)
@@ -188,16 +194,10 @@ def value_usable(name: str, value: str) -> bool:
     list): some values need a library it loads at run time (``nlp_scaling_method=
     equilibration-based`` and ``linear_system_scaling=mc19`` need HSL's MC19), and without it a
     solve stops at its start with "Invalid option encountered.", naming none."""
-    p = _problem()
     try:
-        p.add_option(name, value)
+        return _probe_status((name, value), ("max_iter", 1)) != _INVALID_OPTION
     except TypeError:  # cyipopt's refusal of a value Ipopt does not take
         return False
-    for key, v in (("print_level", 0), ("sb", "yes"), ("max_iter", 1)):
-        p.add_option(key, v)
-    with _captured_stdout():
-        _, info = p.solve(np.array([0.5]))
-    return info["status"] != _INVALID_OPTION
 
 
 def _range(spec: OptionSpec) -> str:
