@@ -3,30 +3,28 @@
 Ipopt knows its options (name, type, bounds, allowed strings) but reports a bad one only when
 a solve starts, and cyipopt then raises a bare ``TypeError``; an integer given for a real
 option (``tol=1``) is refused too, because cyipopt picks Ipopt's setter from the Python type.
-Here the catalog comes from Ipopt's ``print_options_documentation`` (printed once per process
-by a one-variable problem, captured from file descriptor 1), and `check` turns a user's
-``NAME=VALUE`` into the value Ipopt expects, or raises `IpoptOptionError` with one line.
-
-The printed documentation does not say whether a numeric option is an integer or a real
-(``max_iter`` and ``s_max`` both print ``100``-like defaults); `check` asks Ipopt by setting
-the option to its documented default as a float on a throwaway problem.
+Here the catalog comes from Ipopt's ``print_options_documentation`` (written once per process
+by a one-variable problem into a temporary file, Ipopt's ``output_file``: its text form for
+bounds and allowed strings, its doxygen form for which numbers are integers), and `check`
+turns a user's ``NAME=VALUE`` into the value Ipopt expects, or raises `IpoptOptionError` with
+one line. Nothing here redirects file descriptor 1.
 
 Linear solvers other than MUMPS are loaded by Ipopt at run time from libraries that may be
-absent; `linear_solver_available` solves the one-variable problem with one to find out.
+absent; `linear_solver_available` solves the one-variable problem with one, in a child
+process, to find out.
 """
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import difflib
 import functools
 import math
 import os
 import re
+import subprocess
 import sys
 import tempfile
-import threading
 from typing import Any
 
 import numpy as np
@@ -51,7 +49,7 @@ class IpoptOptionError(ValueError):
 
 @dataclasses.dataclass(frozen=True)
 class OptionSpec:
-    """One Ipopt option: ``kind`` is "number" (integer or real, see `check`) or "string"."""
+    """One Ipopt option: ``kind`` is "integer", "real" or "string"."""
 
     name: str
     kind: str
@@ -85,43 +83,46 @@ def _problem():
     return cyipopt.Problem(n=1, m=0, problem_obj=_Tiny(), lb=[-1.0], ub=[1.0], cl=[], cu=[])
 
 
-#: one capture of file descriptor 1 at a time: two threads' captures interleaved (building
-#: options in threads, the first use of `catalog`) saved and restored each other's redirection
-#: and could leave the process's stdout in a closed temporary file
-_CAPTURE_LOCK = threading.Lock()
-
-
-@contextlib.contextmanager
-def _captured_stdout():
-    """Capture what C code writes on file descriptor 1 (Ipopt prints there, not via Python);
-    one thread at a time (`_CAPTURE_LOCK`)."""
-    with _CAPTURE_LOCK, tempfile.TemporaryFile(mode="w+") as tmp:
-        sys.stdout.flush()
-        saved = os.dup(1)
-        os.dup2(tmp.fileno(), 1)
-        out: list[str] = []
-        try:
-            yield out
-        finally:
-            sys.stdout.flush()
-            os.dup2(saved, 1)
-            os.close(saved)
-            tmp.seek(0)
-            out.append(tmp.read())
+def _documentation(mode: str) -> str:
+    """Ipopt's option documentation in ``mode`` ("text" or "doxygen"), written by Ipopt to a
+    temporary file (its own ``output_file``): nothing goes to file descriptor 1, so another
+    thread's output meanwhile is not touched (a capture of descriptor 1 swallowed it)."""
+    with tempfile.TemporaryDirectory() as folder:
+        path = os.path.join(folder, "options.txt")
+        p = _problem()
+        for key, value in (
+            ("print_options_documentation", "yes"),
+            ("print_options_mode", mode),
+            ("print_advanced_options", "yes"),
+            ("max_iter", 0),
+            ("sb", "yes"),
+            ("print_level", 0),
+            ("output_file", path),
+            ("file_print_level", 3),
+        ):
+            p.add_option(key, value)
+        p.solve(np.array([0.5]))
+        with open(path) as f:
+            return f.read()
 
 
 _NUMBER = re.compile(r"^(\w+)\s+(\S+)\s+(<=|<)\s+\(\s*(\S+)\)\s+(<=|<)\s+(\S+)\s*$")
 _STRING = re.compile(r'^(\w+)\s+\("(.*)"\)\s*$')
 _VALUE = re.compile(r"^\s+- (\S+)")
+#: the doxygen form's option name and, later in its paragraph, its type
+_DOXYGEN_TYPE = re.compile(r"<strong>(\w+)</strong>(?:(?!<strong>).)*?this (integer|real|string) option", re.S)
 
 
-def _parse(text: str) -> dict[str, OptionSpec]:
+def _parse(text: str, types: dict[str, str]) -> dict[str, OptionSpec]:
     specs: dict[str, OptionSpec] = {}
     current: str | None = None
     for line in text.splitlines():
         if m := _NUMBER.match(line):
             lo, hi = (float(v) for v in (m.group(2), m.group(6)))
-            specs[m.group(1)] = OptionSpec(m.group(1), "number", m.group(4), lo, hi, m.group(3) == "<", m.group(5) == "<")
+            kind = types.get(m.group(1))
+            if kind not in ("integer", "real"):  # a format change: fail loudly, not guess
+                raise RuntimeError(f"could not read the type of Ipopt's option {m.group(1)!r}")
+            specs[m.group(1)] = OptionSpec(m.group(1), kind, m.group(4), lo, hi, m.group(3) == "<", m.group(5) == "<")
             current = None
         elif m := _STRING.match(line):
             specs[m.group(1)] = OptionSpec(m.group(1), "string", m.group(2), values=())
@@ -138,45 +139,53 @@ def _parse(text: str) -> dict[str, OptionSpec]:
 @functools.lru_cache(maxsize=1)
 def catalog() -> dict[str, OptionSpec]:
     """Every option of the bundled Ipopt, advanced ones included, by name."""
-    p = _problem()
-    for key, value in (("print_options_documentation", "yes"), ("print_advanced_options", "yes"), ("max_iter", 0), ("sb", "yes")):
-        p.add_option(key, value)
-    with _captured_stdout() as out:
-        p.solve(np.array([0.5]))
-    specs = _parse(out[0])
+    # the text form gives bounds and allowed strings; the doxygen form says which numbers are
+    # integers (the text form prints max_iter's and s_max's defaults alike), and cyipopt picks
+    # Ipopt's setter from the Python type, so tol=1 must become 1.0
+    types = {m.group(1): m.group(2) for m in _DOXYGEN_TYPE.finditer(_documentation("doxygen"))}
+    specs = _parse(_documentation("text"), types)
     if len(specs) < 100:  # a different print format: better to fail loudly than check nothing
         raise RuntimeError(f"could not read Ipopt's option list ({len(specs)} options parsed)")
     return specs
 
 
-@functools.lru_cache(maxsize=None)
-def _is_real(name: str) -> bool:
-    spec = catalog()[name]
-    with _captured_stdout():  # Ipopt prints why it refuses
-        try:
-            _problem().add_option(name, float(spec.default))
-            return True
-        except TypeError:
-            return False
+#: run in a child process by `linear_solver_available`: this file loaded alone (not the jtraj
+#: package, which imports JAX), the probe's status printed, and the child ended at once
+_CHILD_PROBE = """
+import importlib.util, os, sys
+spec = importlib.util.spec_from_file_location("_jtraj_ipopt_probe", sys.argv[1])
+module = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(module)
+print(module._probe_status(("linear_solver", sys.argv[2])), flush=True)
+os._exit(0)
+"""
 
 
 @functools.lru_cache(maxsize=None)
 def linear_solver_available(name: str) -> bool:
     """Whether this Ipopt can solve with ``linear_solver=name`` (MUMPS is built in; the
-    others are loaded at run time from libraries that may be absent)."""
+    others are loaded at run time from libraries that may be absent).
+
+    Probed in a child process: with HSL absent, Ipopt's MA97 interface crashes the process
+    (segmentation fault) when the problem that tried to load it is freed."""
     if name == "mumps":
         return True
-    return _probe_status(("linear_solver", name)) in (0, 1)
+    try:
+        child = subprocess.run([sys.executable, "-c", _CHILD_PROBE, os.path.abspath(__file__), name], capture_output=True, text=True, timeout=120)
+    except (OSError, subprocess.TimeoutExpired):
+        return False
+    lines = child.stdout.split()
+    return bool(lines) and lines[-1] in ("0", "1")
 
 
 def _probe_status(*options: tuple[str, Any]) -> int:
-    """Ipopt's return status on the tiny problem with ``options`` (quiet, what it prints
-    captured); cyipopt's TypeError for a value it refuses is raised as it is."""
+    """Ipopt's return status on the tiny problem with ``options``, quiet (``print_level`` 0:
+    Ipopt prints nothing); cyipopt's TypeError for a value it refuses is raised as it is (and
+    Ipopt prints why on file descriptor 1, so give only values its list allows)."""
     p = _problem()
     for key, value in (*options, ("print_level", 0), ("sb", "yes")):
         p.add_option(key, value)
-    with _captured_stdout():
-        _, info = p.solve(np.array([0.5]))
+    _, info = p.solve(np.array([0.5]))
     return info["status"]
 
 
@@ -194,6 +203,9 @@ def value_usable(name: str, value: str) -> bool:
     list): some values need a library it loads at run time (``nlp_scaling_method=
     equilibration-based`` and ``linear_system_scaling=mc19`` need HSL's MC19), and without it a
     solve stops at its start with "Invalid option encountered.", naming none."""
+    spec = catalog().get(name)
+    if spec is None or spec.kind != "string" or (spec.values is not None and value not in spec.values):
+        return False  # Ipopt would refuse it (and print why on file descriptor 1)
     try:
         return _probe_status((name, value), ("max_iter", 1)) != _INVALID_OPTION
     except TypeError:  # cyipopt's refusal of a value Ipopt does not take
@@ -259,7 +271,7 @@ def check(name: str, value: Any) -> Any:
         elif name in _LIBRARY_OPTIONS and not value_usable(name, value.lower()):
             raise IpoptOptionError(name, value, "this Ipopt build cannot use it (it needs a library that is not installed, such as HSL's MC19); Ipopt would stop with 'Invalid option encountered.'")
         return value
-    real = _is_real(name)
+    real = spec.kind == "real"
     number_types = (int, float, np.integer, np.floating) if real else (int, np.integer)
     if isinstance(value, bool) or not isinstance(value, number_types):
         raise IpoptOptionError(name, value, f"expected {'a real number' if real else 'an integer'} in {_range(spec)}")
