@@ -866,7 +866,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     args.argv = sys.argv[1:] if argv is None else list(argv)  # provenance.json's command
     if _loads_mujoco(args) and (refused := _mujoco_gl_refused()):
-        print(f"jtraj {args.command}: {refused}; expected egl, osmesa or glfw, or leave it unset (jtraj then takes egl where there is no display)", file=sys.stderr)
+        _tell(f"jtraj {args.command}: {refused}; expected egl, osmesa or glfw, or leave it unset (jtraj then takes egl where there is no display)")
         return EXIT_BAD_INPUT
     # one handler for every input error, wherever it is found: one line, exit status 2
     from jtraj.executors import WorkerLostError
@@ -877,32 +877,42 @@ def main(argv: list[str] | None = None) -> int:
         _check_inputs(args)
         return int(args.func(args) or 0)
     except _input_errors() as e:
-        print(f"jtraj {args.command}: {e}", file=sys.stderr)
+        _tell(f"jtraj {args.command}: {e}")
         return EXIT_BAD_INPUT
     except WorkerLostError as e:  # its message says what was kept and how to go on
-        print(f"jtraj {args.command}: {e}", file=sys.stderr)
+        _tell(f"jtraj {args.command}: {e}")
         return 1
     except KeyboardInterrupt as e:
-        print(f"jtraj {args.command}: {'terminated (SIGTERM)' if terminated else 'interrupted'}{_kept(args, e)}", file=sys.stderr)
+        _tell(f"jtraj {args.command}: {'terminated (SIGTERM)' if terminated else 'interrupted'}{_kept(args, e)}")
         return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
     except BrokenPipeError as e:
         # its output was closed (`| head`, a `tee` ended by Ctrl-C): one line, what was kept
         # (a traceback before; and Python's flush of stdout at exit would fail again)
         _stdout_to_devnull()
         notes = getattr(e, "__notes__", [])
-        print(f"jtraj {args.command}: stopped: its output was closed (broken pipe){_kept(args, KeyboardInterrupt(*notes[-1:]))}", file=sys.stderr)
+        _tell(f"jtraj {args.command}: stopped: its output was closed (broken pipe){_kept(args, KeyboardInterrupt(*notes[-1:]))}")
         return 1
     finally:
         restore()
 
 
-def _stdout_to_devnull() -> None:
-    """Point stdout's file descriptor at /dev/null (Python's advice for a closed pipe: its
-    flush at exit would raise again); nothing where stdout has no descriptor (a test's)."""
+def _tell(message: str) -> None:
+    """``message`` on stderr, the command's last word; where stderr is a closed pipe as well
+    (``2>&1 | head``) it is dropped, not raised out of `main` as a traceback."""
+    try:
+        print(message, file=sys.stderr, flush=True)
+    except (BrokenPipeError, ValueError):  # ValueError: stderr closed
+        _stdout_to_devnull(sys.stderr)
+
+
+def _stdout_to_devnull(stream=None) -> None:
+    """Point stdout's (or ``stream``'s) file descriptor at /dev/null (Python's advice for a
+    closed pipe: its flush at exit would raise again); nothing where it has no descriptor (a
+    test's)."""
     import os
 
     try:
-        fd = sys.stdout.fileno()
+        fd = (sys.stdout if stream is None else stream).fileno()
     except (AttributeError, OSError, ValueError):
         return
     devnull = os.open(os.devnull, os.O_WRONLY)

@@ -904,3 +904,26 @@ def test_a_closed_output_stops_a_sweep_with_one_line(monkeypatch, tmp_path, caps
         else f"{tmp_path / 'o' / 'table_iv.json'} holds the 1 of 2 cells finished before it (the same command again solves every cell)"
     )
     assert code == 1 and err == f"jtraj {command}: stopped: its output was closed (broken pipe); {kept}\n"
+
+
+def test_a_closed_stderr_too_ends_with_status_1_not_a_traceback(monkeypatch, tmp_path):
+    """`jtraj robustness ... 2>&1 | head`: stderr is the closed pipe too, and the one line that
+    says what was kept raised a second BrokenPipeError out of main (a traceback)."""
+    import io
+
+    import jtraj.experiments
+
+    class Closed(io.StringIO):
+        def write(self, s):
+            raise BrokenPipeError(32, "Broken pipe")
+
+        def fileno(self):  # a test's stream: no descriptor to point at /dev/null
+            raise io.UnsupportedOperation("fileno")
+
+    def closed(*args, **kwargs):
+        print("a progress line")  # the first write to the closed pipe
+
+    monkeypatch.setattr(jtraj.experiments, "robustness", closed)
+    monkeypatch.setattr(sys, "stdout", Closed())
+    monkeypatch.setattr(sys, "stderr", Closed())
+    assert cli.main(["robustness", "--tasks", "big_jump", "--params", "se3", "--out", str(tmp_path / "o")]) == 1
