@@ -927,3 +927,14 @@ def test_a_closed_stderr_too_ends_with_status_1_not_a_traceback(monkeypatch, tmp
     monkeypatch.setattr(sys, "stdout", Closed())
     monkeypatch.setattr(sys, "stderr", Closed())
     assert cli.main(["robustness", "--tasks", "big_jump", "--params", "se3", "--out", str(tmp_path / "o")]) == 1
+
+
+def test_python_dash_m_jtraj_is_the_command(capsys):
+    """`python -m jtraj` (no jtraj/__main__.py before: "No module named jtraj.__main__")."""
+    import subprocess
+
+    child = subprocess.run([sys.executable, "-m", "jtraj", "params", "--seed", "3"], capture_output=True, text=True, timeout=300)
+    assert cli.main(["params", "--seed", "3"]) == child.returncode == 0, child.stderr[-2000:]
+    ours = capsys.readouterr().out.splitlines()
+    # the same pose and rows (the last digits of the errors may follow this process's XLA flags)
+    assert child.stdout.splitlines()[0] == ours[0] and [r.split()[0] for r in child.stdout.splitlines()] == [r.split()[0] for r in ours]
