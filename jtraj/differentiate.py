@@ -47,6 +47,8 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import sys
+import time
 import warnings
 from collections.abc import Mapping
 from typing import Any
@@ -140,7 +142,7 @@ class DifferentiableTask:
         last_solution: the backend's `jtraj.solvers.Solution` of the latest forward solve.
     """
 
-    def __init__(self, tr: Transcription, nlp: KnotNLP, backend: solvers.AbstractSolver, options: solvers.AbstractOptions, weak_tol: float):
+    def __init__(self, tr: Transcription, nlp: KnotNLP, backend: solvers.AbstractSolver, options: solvers.AbstractOptions, weak_tol: float, say: Any = None):
         self.transcription = tr
         self.nlp = nlp
         self.theta = tr.default_theta()
@@ -181,9 +183,18 @@ class DifferentiableTask:
                 )
             return sol.x, sol.mult_g
 
+        first = [True]  # the first forward solve compiles the NLP's functions: said when `say` is given
+
         def forward(theta):
             theta, x0 = prepare(theta)
+            announce = say is not None and first[0]
+            if announce:
+                say(f"jtraj.differentiable: {tr.task.name}: first forward solve with {backend.name} (compiles the NLP's functions, once)")
+            t0 = time.perf_counter()
             sol = backend.solve(nlp, x0, theta, self.options)
+            if announce:
+                first[0] = False
+                say(f"jtraj.differentiable: {tr.task.name}: {sol.status.value} in {sol.stats.iterations} iterations, {time.perf_counter() - t0:.1f} s")
             self.last_solution = sol
             out = checked(sol)
             self._x_warm = sol.x
@@ -210,7 +221,8 @@ class DifferentiableTask:
             self._x_warm = solutions[-1].x
             return outs
 
-        self._solution = implicit_solution(nlp, forward, weak_tol=weak_tol, forward_many=forward_many)
+        first_derivative = None if say is None else f"jtraj.differentiable: {tr.task.name}: first derivative (compiles the implicit function theorem's tangent and the KKT system's functions, once)"
+        self._solution = implicit_solution(nlp, forward, weak_tol=weak_tol, forward_many=forward_many, say=say, first_derivative=first_derivative)
 
     @property
     def options(self) -> solvers.AbstractOptions:
@@ -308,6 +320,7 @@ def differentiable(
     force_weight: float = 1e-3,
     weak_tol: float = 1e-6,
     layout: str | TranscriptionOptions | None = None,
+    progress: bool = True,
 ) -> DifferentiableTask:
     """``f(theta) -> OptimalMotion``, the task's optimal motion as a differentiable function.
 
@@ -334,6 +347,11 @@ def differentiable(
         weak_tol: tolerance of the weak-activity (degeneracy) test, relative to the largest
             multiplier (see `jtraj.sensitivity.active_set`).
         layout: the former name of ``variables`` (deprecated: warns).
+        progress: True (default) says on stderr, one line each, what compiles before it does:
+            the exact Hessian here, the NLP's functions at the first forward solve, and the
+            tangent's program and the KKT system's functions at the first derivative (each
+            about a minute for a small Go2 hop on a 2-core CPU without the compilation cache);
+            False: silent.
 
     Returns:
         a `DifferentiableTask`: call it with a `TaskParams` (``f.theta`` is the task's).
@@ -342,6 +360,9 @@ def differentiable(
     if not is_real(force_weight) or not (math.isfinite(force_weight) and force_weight > 0):
         raise ValueError(f"force_weight must be a finite number > 0 (it makes the contact forces unique), got {force_weight!r}")
     check_weak_tol(weak_tol)
+    if not isinstance(progress, (bool, np.bool_)):
+        raise ValueError(f"progress={progress!r}: expected True or False")
+    say = _say if progress else None
     backend = solvers.get(solver)  # unknown names and options fail here, before building anything
     opts = forward_options(backend, options)
     # a bad parameterization or variables name was refused only after the task and the robot
@@ -360,8 +381,18 @@ def differentiable(
         lambda theta: tr.bounds(theta)[0], lambda theta: tr.bounds(theta)[1],
         theta=tr.default_theta(), structure=tr.structure,
     )
+    if say is not None:
+        say(f"jtraj.differentiable: {task.name} on {robot.name} with {param.label}: {nlp.n} variables, {nlp.m} constraints; compiling the exact Hessian (once)")
+    t0 = time.perf_counter()
     nlp.build_hessian()
-    return DifferentiableTask(tr, nlp, backend, opts, weak_tol)
+    if say is not None:
+        say(f"jtraj.differentiable: {task.name}: the exact Hessian built in {time.perf_counter() - t0:.1f} s")
+    return DifferentiableTask(tr, nlp, backend, opts, weak_tol, say)
+
+
+def _say(text: str) -> None:
+    """`differentiable`'s progress line, on stderr."""
+    print(text, file=sys.stderr, flush=True)
 
 
 def forward_options(backend: solvers.AbstractSolver, options: solvers.AbstractOptions | dict[str, Any] | None) -> solvers.AbstractOptions:

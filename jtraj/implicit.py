@@ -144,6 +144,8 @@ def implicit_solution(
     kkt_tol: float | None = KKT_TOL,
     cache_size: int = 16,
     forward_many: Callable[[list[Any]], list[tuple[np.ndarray, np.ndarray]]] | None = None,
+    say: Callable[[str], None] | None = None,
+    first_derivative: str | None = None,
 ) -> Callable[[Any], ImplicitSolution]:
     """``theta -> ImplicitSolution`` solving ``nlp`` with ``forward`` and differentiable in theta.
 
@@ -164,6 +166,8 @@ def implicit_solution(
             solving several parameter sets in one call (e.g. side by side). Given, ``jax.vmap``
             over theta hands the whole batch to it; otherwise the batch's members go to
             ``forward`` one after another.
+        say, first_derivative: given both, ``say(first_derivative)`` as the first derivative
+            is taken (its compiles follow), once.
     """
     # checked here: a negative size failed at the first solve with a bare KeyError, a
     # negative or NaN weak_tol was taken without a word
@@ -304,10 +308,15 @@ def implicit_solution(
     def solution(theta):
         return primal(theta)
 
+    told = [say is None or first_derivative is None]
+
     @solution.defjvp
     def solution_jvp(primals, tangents):
         (theta,), (dtheta,) = primals, tangents
         sol = primal(theta)
+        if not told[0]:
+            told[0] = True
+            say(first_derivative)
         dz = tangent(sol, theta, dtheta)
         zero = jax.tree_util.tree_map(lambda a: np.zeros(np.shape(a), jax.dtypes.float0), (sol.degenerate, sol.active, sol.token))
         return sol, ImplicitSolution(dz[:n], dz[n:], zero[0], zero[1], zero[2])

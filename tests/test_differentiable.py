@@ -21,14 +21,39 @@ FEET = ("FL_foot", "FR_foot", "RL_foot", "RR_foot")
 TAKE_OFF = 3  # first knot of the flight phase: its velocity is the take-off velocity
 
 
+#: what `hop`'s differentiable() said on stderr as it was built (this process's fixture)
+BUILD_LINES: list[str] = []
+
+
 @pytest.fixture(scope="module")
 def hop():
+    import contextlib
+    import io
+
     task = Task(
         name="hop", robot="go2", timestep=0.05,
         phases=(Phase(FEET, 0.15), Phase((), 0.1), Phase(FEET, 0.15)),
         target_translation=(0.1, 0.0, 0.0), configuration_weight=1.0, acceleration_weight=1e-3,
     )
-    return differentiable(task)
+    with contextlib.redirect_stderr(io.StringIO()) as err:
+        f = differentiable(task)
+    BUILD_LINES[:] = err.getvalue().splitlines()
+    return f
+
+
+def test_what_compiles_is_said_before_it_does(hop):
+    """The exact Hessian's build and the first forward solve compiled for minutes without a
+    line (the first derivative's line: tests/test_sensitivity.py)."""
+    from jtraj.differentiate import DifferentiableTask
+
+    assert len(BUILD_LINES) == 2 and "hop on go2 with SE(3) tangent" in BUILD_LINES[0] and "compiling the exact Hessian" in BUILD_LINES[0]
+    assert BUILD_LINES[1].startswith("jtraj.differentiable: hop: the exact Hessian built in ")
+    said: list[str] = []
+    f = DifferentiableTask(hop.transcription, hop.nlp, hop.backend, hop.options, 1e-6, said.append)
+    f()
+    f()
+    assert len(said) == 2 and said[0] == "jtraj.differentiable: hop: first forward solve with ipopt (compiles the NLP's functions, once)"
+    assert said[1].startswith("jtraj.differentiable: hop: solved in ") and " iterations, " in said[1]
 
 
 def peak_joint_torque(m):
@@ -142,6 +167,7 @@ def test_bad_arguments_are_refused_before_building(monkeypatch):
         ({"force_weight": 0.0}, "force_weight must be a finite number > 0"),
         ({"weak_tol": -1}, r"weak_tol must be a number in \[0, 1\)"),
         ({"weak_tol": "x"}, r"weak_tol must be a number in \[0, 1\)"),
+        ({"progress": "no"}, r"progress='no': expected True or False"),
     ]:
         with pytest.raises(ValueError, match=match):
             differentiable("hop", **kwargs)

@@ -446,3 +446,22 @@ def test_kkt_system_evaluates_the_point_once():
         assert np.array_equal(getattr(system.active, field.name), getattr(plain.active, field.name)), field.name
     np.testing.assert_array_equal(system.solve(np.ones(2)), plain.solve(np.ones(2)))
     assert system.active.row_active.tolist() == [True]
+
+
+def test_the_first_derivative_is_announced_once():
+    """`jtraj.differentiable`'s first derivative compiled for about a minute without a word:
+    ``say`` is told ``first_derivative`` once, as the first derivative is taken."""
+    nlp = DenseNLP(
+        lambda x, th: jnp.sum((x - th) ** 2),
+        lambda x, th: jnp.zeros(0),
+        lambda th: (jnp.array([0.0, -jnp.inf]), jnp.full(2, jnp.inf), jnp.zeros(0), jnp.zeros(0)),
+        2, 0,
+    )
+    said = []
+    solve = implicit_solution(nlp, ipopt_forward(nlp, np.ones(2)), say=said.append, first_derivative="first derivative")
+    solve(jnp.array([-1.0, 0.5]))
+    assert said == []  # a forward solve alone compiles no derivative
+    for _ in range(2):
+        J = jax.jacobian(lambda t: solve(t).x)(jnp.array([-1.0, 0.5]))
+    np.testing.assert_allclose(np.asarray(J), np.diag([0.0, 1.0]), atol=1e-8)
+    assert said == ["first derivative"]
