@@ -29,6 +29,7 @@ import io
 import json
 import os
 import pathlib
+import re
 import shutil
 import tempfile
 import tomllib
@@ -469,7 +470,10 @@ def _resolve_meshes(geom: ET.Element, mesh_root: pathlib.Path | None) -> list[ET
     Collada mesh was converted (see `_collada_parts`)."""
     meshes = list(geom.iter("mesh"))
     for mesh in meshes:
-        filename = mesh.get("filename", "")
+        # talos_full_v2.urdf writes most of its meshes "package:///example-robot-data/...":
+        # read as any other package URL (they were dropped, and the study's Talos was drawn as
+        # its feet alone)
+        filename = re.sub(r"^package:/+", "package://", mesh.get("filename", ""))
         prefix = "package://example-robot-data/robots/"
         if filename.startswith(prefix) and mesh_root is not None:
             path = mesh_root / filename[len(prefix) :]
