@@ -12,9 +12,13 @@ _os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import jax as _jax  # noqa: E402
 
 # MuJoCo picks its OpenGL backend when imported: without a display, software EGL (Mesa's
-# llvmpipe) lets jtraj.render draw offscreen. An explicit MUJOCO_GL is left alone.
-if _sys.platform.startswith("linux") and not _os.environ.get("DISPLAY") and not _os.environ.get("WAYLAND_DISPLAY"):
-    _os.environ.setdefault("MUJOCO_GL", "egl")
+# llvmpipe) lets jtraj.render draw offscreen, or OSMesa; where neither loads, none (drawing
+# then says what to install; EGL set without its library broke `import mujoco` itself). An
+# explicit MUJOCO_GL is left alone.
+if _sys.platform.startswith("linux") and not _os.environ.get("DISPLAY") and not _os.environ.get("WAYLAND_DISPLAY") and "MUJOCO_GL" not in _os.environ:
+    from jtraj import _gl
+
+    _gl.chosen = _os.environ["MUJOCO_GL"] = _gl.headless_backend()
 
 # All numerics in float64: interior-point solves and Lie-group series need the digits.
 _jax.config.update("jax_enable_x64", True)

@@ -850,14 +850,26 @@ def _loads_mujoco(args: argparse.Namespace) -> bool:
 
 
 def _mujoco_gl_refused() -> str | None:
-    """MuJoCo's refusal of the ``MUJOCO_GL`` variable, which it raises when it is imported (so
-    every command ended in a traceback); None when MuJoCo imports."""
+    """MuJoCo's refusal of the ``MUJOCO_GL`` variable, or its failure to load that backend's
+    library, both raised when it is imported (so every command ended in a traceback), as the
+    line to print; None when MuJoCo imports."""
+    import os
+
+    setting = os.environ.get("MUJOCO_GL")
     try:
         import mujoco  # noqa: F401
     except RuntimeError as e:
         if "MUJOCO_GL" not in str(e):
             raise
-        return str(e)
+        return f"{e}; expected egl, osmesa or glfw, or leave it unset (jtraj then takes egl or osmesa where there is no display and their libraries load)"
+    except (AttributeError, ImportError, OSError) as e:  # PyOpenGL without the backend's library
+        if not setting:
+            raise
+        return (
+            f"MUJOCO_GL={setting!r}: MuJoCo could not load that OpenGL backend ({type(e).__name__}: {e}); install its library "
+            "(egl: apt-get install libegl1 libopengl0; osmesa: apt-get install libosmesa6) or leave MUJOCO_GL unset "
+            "(jtraj then takes a backend whose library loads, or none: everything but drawing works)"
+        )
     return None
 
 
@@ -866,7 +878,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     args.argv = sys.argv[1:] if argv is None else list(argv)  # provenance.json's command
     if _loads_mujoco(args) and (refused := _mujoco_gl_refused()):
-        _tell(f"jtraj {args.command}: {refused}; expected egl, osmesa or glfw, or leave it unset (jtraj then takes egl where there is no display)")
+        _tell(f"jtraj {args.command}: {refused}")
         return EXIT_BAD_INPUT
     # one handler for every input error, wherever it is found: one line, exit status 2
     from jtraj.executors import WorkerLostError

@@ -13,7 +13,8 @@ standing height), a label that marks the flight phases, and a camera that follow
 Headless machines: MuJoCo picks its OpenGL backend when it is imported, from ``MUJOCO_GL``.
 ``import jtraj`` sets ``MUJOCO_GL=egl`` when the variable is unset and there is no display, so
 Mesa's software EGL (llvmpipe) draws without a GPU; ``MUJOCO_GL=osmesa`` works too where
-libOSMesa is installed. Writing MP4 needs ``imageio-ffmpeg`` (the ``render`` extra); GIF and
+libOSMesa is installed (jtraj takes it where libEGL does not load, and ``disable`` where
+neither does: `jtraj._gl`). Writing MP4 needs ``imageio-ffmpeg`` (the ``render`` extra); GIF and
 PNG are written with Pillow (a matplotlib dependency).
 """
 
@@ -148,8 +149,11 @@ def _mujoco():
     from mujoco import gl_context
 
     if getattr(gl_context, "GLContext", None) is None:
+        from jtraj import _gl
+
+        why = "; jtraj found neither libEGL with libOpenGL or libGL nor libOSMesa to load" if _gl.chosen == "disable" and os.environ.get("MUJOCO_GL") == "disable" else ""
         raise RenderError(
-            f"MuJoCo has no OpenGL backend ({_gl_setting()}); on a machine without "
+            f"MuJoCo has no OpenGL backend ({_gl_setting()}{why}); on a machine without "
             "display set MUJOCO_GL=egl (Mesa's libEGL: apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri) or "
             "MUJOCO_GL=osmesa (apt-get install libosmesa6) before importing mujoco"
         )

@@ -669,7 +669,68 @@ def test_a_mujoco_gl_that_mujoco_refuses_is_one_line():
     env = {**os.environ, "MUJOCO_GL": "foo"}
     done = subprocess.run([sys.executable, "-m", "jtraj.cli", "solve", "big_jump"], env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == cli.EXIT_BAD_INPUT, done.stderr
-    assert done.stderr == "jtraj solve: invalid value for environment variable MUJOCO_GL: foo; expected egl, osmesa or glfw, or leave it unset (jtraj then takes egl where there is no display)\n"
+    assert done.stderr == "jtraj solve: invalid value for environment variable MUJOCO_GL: foo; expected egl, osmesa or glfw, or leave it unset (jtraj then takes egl or osmesa where there is no display and their libraries load)\n"
+
+
+#: run first in a child process: OpenGL's libraries fail to load, as on a machine without them
+_NO_GL_LIBRARIES = """
+import ctypes, os, sys
+_cdll = ctypes.CDLL.__init__
+def _refuse(self, name, *args, **kwargs):
+    if name and any(lib in str(name) for lib in ("libEGL", "libOpenGL", "libGL.", "libOSMesa")):
+        raise OSError(f"{name}: cannot open shared object file (test)")
+    _cdll(self, name, *args, **kwargs)
+ctypes.CDLL.__init__ = _refuse
+"""
+
+
+def test_without_opengl_libraries_everything_but_drawing_works():
+    """`import jtraj` set MUJOCO_GL=egl wherever there was no display; without libEGL that made
+    `import mujoco` fail (PyOpenGL's AttributeError), and with it every robot. It now takes
+    osmesa or, failing that, none: robots load, and drawing says what to install."""
+    import os
+    import subprocess
+
+    env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "DISPLAY", "WAYLAND_DISPLAY")}
+    script = _NO_GL_LIBRARIES + (
+        "import jtraj, mujoco\n"
+        "from jtraj import robot, render\n"
+        "print(os.environ['MUJOCO_GL'], robot.load('go2').nv)\n"
+        "try:\n    render._mujoco()\nexcept render.RenderError as e:\n    print(e)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    first, message = done.stdout.splitlines()
+    assert first == "disable 18"
+    assert message.startswith("MuJoCo has no OpenGL backend (MUJOCO_GL='disable'; jtraj found neither libEGL with libOpenGL or libGL nor libOSMesa to load)")
+
+
+def test_a_mujoco_gl_whose_library_is_missing_is_one_line():
+    """MUJOCO_GL=egl (or osmesa) set by the user where its library does not load: every command
+    that loads a robot ended in PyOpenGL's AttributeError traceback."""
+    import os
+    import subprocess
+
+    env = {**os.environ, "MUJOCO_GL": "egl"}
+    script = _NO_GL_LIBRARIES + "from jtraj import cli\nsys.exit(cli.main(['solve', 'big_jump']))\n"
+    done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == cli.EXIT_BAD_INPUT, done.stderr[-3000:]
+    assert done.stderr.startswith("jtraj solve: MUJOCO_GL='egl': MuJoCo could not load that OpenGL backend (") and done.stderr.count("\n") == 1, done.stderr
+    assert "apt-get install libegl1 libopengl0" in done.stderr
+
+
+def test_the_headless_backend_is_one_whose_libraries_load():
+    from jtraj._gl import headless_backend
+
+    for present, backend in [
+        ({"EGL", "OpenGL", "GL", "OSMesa"}, "egl"),
+        ({"EGL", "GL"}, "egl"),
+        ({"EGL", "OSMesa"}, "osmesa"),  # libEGL alone: PyOpenGL's EGL backend needs an OpenGL library too
+        ({"OSMesa"}, "osmesa"),
+        ({"EGL"}, "disable"),
+        (set(), "disable"),
+    ]:
+        assert headless_backend(present.__contains__) == backend, present
 
 
 def test_attitude_render_refuses_a_mujoco_gl_that_mujoco_refuses_before_solving(tmp_path):
