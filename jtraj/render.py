@@ -161,17 +161,27 @@ def _mujoco():
 
 
 def _renderer(model, width: int, height: int):
+    """An offscreen renderer of ``width`` x ``height`` pixels. The model is shared (`scene_model`
+    is cached): its offscreen size is set for this renderer's framebuffer and put back after,
+    so one large (or failed) request does not size every later renderer's framebuffer."""
     mujoco = _mujoco()
-    model.vis.global_.offwidth = max(int(model.vis.global_.offwidth), width)
-    model.vis.global_.offheight = max(int(model.vis.global_.offheight), height)
+    saved = int(model.vis.global_.offwidth), int(model.vis.global_.offheight)
+    model.vis.global_.offwidth, model.vis.global_.offheight = width, height
     try:
         return mujoco.Renderer(model, height=height, width=width)
     except Exception as err:  # the GL backends raise their own error types
+        if "framebuffer" in str(err).lower():  # the context opened; this size did not fit
+            raise RenderError(
+                f"MuJoCo could not make an offscreen framebuffer of {width}x{height} pixels with {_gl_setting()}: {err}; "
+                "expected a size this OpenGL can allocate: draw smaller images (width, height)"
+            ) from err
         raise RenderError(
             f"MuJoCo could not open an offscreen OpenGL context with {_gl_setting()}: {err}. "
             "Without display or GPU use MUJOCO_GL=egl with Mesa (apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri) or "
             "MUJOCO_GL=osmesa (apt-get install libosmesa6)"
         ) from err
+    finally:
+        model.vis.global_.offwidth, model.vis.global_.offheight = saved
 
 
 # ----------------------------------------------------------------------------------------

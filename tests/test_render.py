@@ -603,3 +603,19 @@ def test_force_arrows_are_scaled_by_the_weight_of_the_masses_solved_at(result):
             assert painter.weight == pytest.approx(scale * go2.total_mass * go2.gravity)
         finally:
             painter.close()
+
+
+def test_an_image_too_large_for_opengl_leaves_later_renders_alone():
+    """The shared (cached) scene model's offscreen size was raised for each renderer and never
+    lowered: after one request larger than OpenGL allows, every later render of that robot in
+    the process failed too, with advice to install Mesa."""
+    from jtraj.render import RenderError, render, scene_model
+
+    r = _result()
+    model = scene_model("go2")
+    size = int(model.vis.global_.offwidth), int(model.vis.global_.offheight)
+    with pytest.raises(RenderError, match=r"offscreen framebuffer of 262144x16 pixels .*draw smaller images"):
+        render(r, width=262144, height=16, fps=2, shadows=False)
+    assert (int(model.vis.global_.offwidth), int(model.vis.global_.offheight)) == size
+    frames = render(r, width=160, height=120, fps=2, shadows=False)
+    assert frames.shape == (2, 120, 160, 3) and frames.std() > 10
