@@ -695,6 +695,9 @@ def _check_inputs(args: argparse.Namespace) -> None:
             _check_euler_warm_start([args.task_checked], args.variables)
         args.out_checked = _solve_out(args)
         _check_out(args.out_checked)
+        from jtraj.result import RESULT_FOLDER_FILES
+
+        _check_out_files(args.out_checked, RESULT_FOLDER_FILES)  # saving the result removes or writes each (after the solve)
         if not (math.isfinite(args.noise) and args.noise >= 0):
             raise InputError("--noise", args.noise, "expected a standard deviation >= 0")
         if args.seed is not None and not args.noise:  # (it was ignored, as --replicate is refused)

@@ -68,6 +68,19 @@ PROVENANCE_FILE = "provenance.json"
 #: attitude``'s (``plot.png``) and ``--render``'s video and strip (``motion.mp4``,
 #: ``keyframes.png``). `Result.save` removes them: they are of the result it replaces.
 DERIVED_FILES = ("trajectory.png", "convergence.png", "solution.png", "plot.png", "motion.mp4", "keyframes.png")
+#: every file `Result.save` writes or removes in a result's folder
+RESULT_FOLDER_FILES = (RESULT_FILE, TRAJECTORY_FILE, PROVENANCE_FILE, *DERIVED_FILES)
+
+
+def folder_in_the_way(directory: str | Path) -> str | None:
+    """What stops `Result.save` in ``directory`` ("D/motion.mp4 is a folder; expected room for
+    the file motion.mp4"), or None: a folder at one of `RESULT_FOLDER_FILES` (it failed with
+    IsADirectoryError after the solve). Checked before a solve that saves there."""
+    for name in RESULT_FOLDER_FILES:
+        if (Path(directory) / name).is_dir():
+            return f"{Path(directory) / name} is a folder; expected room for the file {name}"
+    return None
+
 
 
 class Outcome(MessageEnum):
@@ -276,6 +289,8 @@ class Result:
         ``provenance.json`` (the record of the run that wrote it) are removed before either
         file is written; without a trajectory, an older ``trajectory.npz`` is removed."""
         d = Path(directory)
+        if (problem := folder_in_the_way(d)) is not None:  # before anything there is removed
+            raise ValueError(f"Result.save: {problem}")
         d.mkdir(parents=True, exist_ok=True)
         arrays = None if self.trajectory is None else _trajectory_arrays(self.trajectory)
         data = self.to_json()

@@ -21,7 +21,7 @@ from jtraj.deprecation import renamed_argument, warn_renamed
 from jtraj.nlp import KnotNLP
 from jtraj.numbers import is_seed, is_whole
 from jtraj.registry import lookup
-from jtraj.result import Outcome, Result
+from jtraj.result import Outcome, Result, folder_in_the_way
 from jtraj.solvers.base import initial_guess
 from jtraj.success import FEASIBILITY_TOL
 from jtraj.success import evaluate as check_motion
@@ -313,7 +313,7 @@ def solve(
         raise ValueError(f"solve: seed={seed!r}: expected a 64-bit integer (below 2**63 in magnitude)")
     if noise and replicate is None and seed < 0:
         raise ValueError(f"solve: seed={seed!r}: expected a seed >= 0 for numpy's default_rng, which draws this noise (replicate= draws with JAX, which takes any)")
-    if out is not None and (problem := jio.output_folder_problem(out)) is not None:  # (not after the solve)
+    if out is not None and (problem := jio.output_folder_problem(out) or folder_in_the_way(out)) is not None:  # (not after the solve)
         raise ValueError(f"solve: out={out!r}: {problem}")
     # how the start is drawn, and theta's form and names (its values need the task's shapes)
     if replicate is not None and (warm_start is not None or theta is not None):

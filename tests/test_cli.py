@@ -907,6 +907,23 @@ def test_sweeps_refuse_a_folder_where_an_output_file_goes(monkeypatch, tmp_path,
     assert [p.name for p in (tmp_path / "o").iterdir()] == [name]  # no provenance.json
 
 
+@pytest.mark.parametrize("name", ["motion.mp4", "result.json", "convergence.png"])
+def test_solve_refuses_a_folder_where_a_result_file_goes(monkeypatch, tmp_path, capsys, name):
+    """A folder at OUT/motion.mp4 (any of the files a result's folder holds, which saving it
+    removes or writes, --render or not) ended jtraj solve, and jtraj.solve(out=...), in an
+    IsADirectoryError after the solve, its solution unsaved."""
+    import jtraj
+    import jtraj.solver
+
+    monkeypatch.setattr(jtraj.solver, "prepare", lambda *a, **k: pytest.fail("solved after a bad input"))
+    (tmp_path / "o" / name).mkdir(parents=True)
+    code, err = _run(["solve", "big_jump", "--out", str(tmp_path / "o")], capsys)
+    assert code == 2 and err == f"jtraj solve: --out: '{tmp_path / 'o'}': {tmp_path / 'o' / name} is a folder; expected room for the file {name}\n"
+    with pytest.raises(ValueError, match=rf"solve: out=.*{name} is a folder; expected room for the file {name}"):
+        jtraj.solve("big_jump", out=tmp_path / "o")
+    assert [p.name for p in (tmp_path / "o").iterdir()] == [name]
+
+
 def test_attitude_refuses_a_folder_where_its_files_go_and_a_variant_with_all(tmp_path, capsys, monkeypatch):
     """A folder at OUT/BENCH_VARIANT/plot.png (or result.json, or table.md with all) failed
     jtraj attitude after its solve with a traceback, its provenance left unfinished;

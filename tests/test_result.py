@@ -415,3 +415,15 @@ def test_from_solution_needs_convergence_and_a_violation_below_the_tolerance(sta
     )
     assert result.status is outcome and result.solver_status is status
     assert result.converged == status.converged and result.constraint_violation == violation and result.n_constraints == m
+
+
+def test_save_refuses_a_folder_where_its_files_go_before_removing_anything(tmp_path):
+    """A folder at keyframes.png (a file save removes) failed with IsADirectoryError half way,
+    after the earlier files had been removed."""
+    r = make_result(state_trajectory())
+    r.save(tmp_path / "r")
+    (tmp_path / "r" / "trajectory.png").write_bytes(b"an earlier figure")
+    (tmp_path / "r" / "keyframes.png").mkdir()
+    with pytest.raises(ValueError, match=r"Result.save: .*keyframes.png is a folder; expected room for the file keyframes.png"):
+        r.save(tmp_path / "r")
+    assert sorted(p.name for p in (tmp_path / "r").iterdir()) == ["keyframes.png", "result.json", "trajectory.npz", "trajectory.png"]
