@@ -154,6 +154,26 @@ def test_keyframe_strips(result):
             keyframe_strip(result, bad, options=SMALL)
 
 
+def test_the_overlay_draws_the_earlier_keyframes_too(result, monkeypatch):
+    """The overlay's earlier keyframes are copies added to the last one's scene: the strip
+    test's ``std() > 10`` held with none of them drawn (one pose on sky and ground)."""
+    import jtraj.render as render_module
+
+    draw, calls = render_module._Painter.draw, []
+
+    def spy(self, *args, **kwargs):
+        image = draw(self, *args, **kwargs)
+        calls.append((image, draw(self, *args, **{**kwargs, "extra_poses": ()})))  # the last keyframe alone
+        return image
+
+    monkeypatch.setattr(render_module._Painter, "draw", spy)
+    overlay = keyframe_strip(result, 4, layout="overlay", options=SMALL, forces=False)
+    ((image, alone),) = calls
+    assert np.array_equal(overlay, image)
+    changed = np.abs(image.astype(int) - alone.astype(int)).max(axis=-1) > 30
+    assert changed.mean() > 0.01, changed.mean()
+
+
 def test_keyframes_spread_along_the_motion_not_the_clock():
     traj = _result().trajectory
     # the base stands still for the first half, then moves: keyframes gather in the second half
