@@ -333,7 +333,12 @@ Task.warm_start = property(_former_warm_start)  # type: ignore[attr-defined]
 
 # ------------------------------------------------------------------ checks
 def _is_real(x: Any) -> bool:
-    return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, (bool, np.bool_)) and math.isfinite(float(x))
+    if not isinstance(x, (int, float, np.integer, np.floating)) or isinstance(x, (bool, np.bool_)):
+        return False
+    try:
+        return math.isfinite(float(x))
+    except OverflowError:  # an integer past float's range (TOML reads any size): a traceback before
+        return False
 
 
 def _real(value: Any, field: str, expected: str = "expected a number", positive: bool = False, nonnegative: bool = False) -> float:
@@ -372,6 +377,11 @@ def _indices(value: Any, field: str, n_phases: int) -> tuple[int, ...]:
     return tuple(int(p) for p in items)
 
 
+#: the longest task name, in UTF-8 bytes: room in a 255-byte folder name for "_" and a
+#: parameterization's name, and for a sweep's suffixes
+MAX_NAME_BYTES = 200
+
+
 def _check_and_normalize(t: Task) -> None:
     """Check every field that does not need the robot model; store tuples and floats.
 
@@ -386,6 +396,10 @@ def _check_and_normalize(t: Task) -> None:
     # the name is a folder's in runs/ (runs/NAME_PARAM, a sweep's OUT/NAME_PARAM): "../x" wrote outside it
     if t.name.startswith(".") or any(sep in t.name for sep in ("/", "\\")) or not t.name.isprintable():
         raise TaskError("name", t.name, "expected a plain name for the run folders (e.g. my_jump): no '/' or '\\', no control characters, not starting with '.'")
+    # a folder name of NAME_PARAM must fit the file system's 255 bytes (300 characters ended
+    # jtraj solve in OSError "File name too long")
+    if len(t.name.encode()) > MAX_NAME_BYTES:
+        raise TaskError("name", t.name, f"expected a name of at most {MAX_NAME_BYTES} bytes (it names the run folders)")
     robots = robot_module.available()
     if t.robot not in robots:
         raise TaskError("robot", t.robot, f"expected one of {list(robots)}")

@@ -196,6 +196,11 @@ phases = [1]
         ('robot = "go2"', 'robot = "spot"', r"robot: 'spot': expected one of"),
         ('name = "x"', 'name = "../../escaped"', r"name: '../../escaped': expected a plain name for the run folders \(e.g. my_jump\)"),
         ('robot = "go2"', 'robot = "go2"\nspeed = 3', r"speed: unknown key: expected one of \["),  # (it said "unknown field" at the top level)
+        # integers past float's range (TOML reads any size), and a name too long for a folder:
+        # an OverflowError and an OSError ("File name too long") traceback before
+        ('robot = "go2"', 'robot = "go2"\nfriction = 1' + "0" * 400, r"friction: 10{400}: expected a positive friction coefficient"),
+        ("angle = 0.5", "angle = 1" + "0" * 400, r"warm_start_rules\[0\].angle: 10{400}: expected"),
+        ('name = "x"', 'name = "' + "a" * 201 + '"', r"name: 'a{201}': expected a name of at most 200 bytes \(it names the run folders\)"),
     ],
 )
 def test_task_file_errors_name_file_field_value_and_expectation(tmp_path, old, new, match):
