@@ -555,7 +555,14 @@ class Transcription:
         if np.any(off > tol):
             i = int(np.argmax(off))
             where = "above" if z[1, i] > h else "below"
-            return "last", f"puts {self.contact_names[i]} {abs(z[1, i] - h):.3g} m {where} the terrain at the last knot" + (f", where phase {len(task.phases) - 1} touches it" if last[i] else "")
+            said = f"puts {self.contact_names[i]} {abs(z[1, i] - h):.3g} m {where} the terrain at the last knot" + (f", where phase {len(task.phases) - 1} touches it" if last[i] else "")
+            # where the last phase's contacts are level (new joint angles that lengthen or
+            # shorten the legs), the height that puts them on the terrain, to the digit: the
+            # 3 digits above did not reach the tolerance of 1e-6 m
+            shift = float(np.mean(z[1, last] - h)) if last.any() else 0.0
+            if last.any() and np.ptp(z[1, last]) <= HEIGHT_TOLERANCE and not np.any(~last & (z[1] - shift < h - tol)):
+                said += f" (target translation z = {round(float(np.asarray(theta.target_translation)[2]) - shift, 9) + 0.0:.9g} puts them on it)"
+            return "last", said
         return None
 
     @cached_property
