@@ -30,10 +30,13 @@ What is differentiated and what is not:
 - the standing pose and the target place the fixed first and last knots, whose contact points
   must stay on the terrain (`jtraj.solve` refuses a theta that lifts them, and so does
   ``f``). A direction of theta that moves such a point (one standing joint alone, a target
-  height) leaves the problem infeasible on both sides, so it has no derivative; the value
-  ``f`` gives for it is that of the problem without those knots' contact rows, which the
-  fixed knots' bounds already meet at theta. Directions that keep the points on the terrain
-  (a target in the ground's plane, a yaw) are differentiable;
+  height) leaves the problem infeasible on both sides, so it has no derivative: ``jax.jvp``
+  along it raises `jtraj.sensitivity.SingularKKTError` naming the entries of theta without
+  one, and a gradient's entries along them are arbitrary numbers, which ``jax.grad`` says
+  with a `jtraj.sensitivity.NotDifferentiableWarning` naming them (on the Go2 hop of the
+  README: the target's height, roll and pitch, the standing base's tilt and the standing
+  joint angles); its other entries are exact. Directions that keep the points on the
+  terrain (a target in the ground's plane, a yaw) are differentiable;
 - derivatives are first order (no Hessians through the solver).
 
 A unique solution is needed for derivatives to exist: with four feet on the ground the
@@ -205,6 +208,10 @@ class DifferentiableTask:
             # where the backend runs as compiled JAX (`_side_by_side`), else one after another
             prepared = [prepare(theta) for theta in thetas]
             opts = self.options
+            announce = say is not None and first[0]
+            if announce:
+                say(f"jtraj.differentiable: {tr.task.name}: first forward solves, {len(prepared)} with {backend.name} (compile the NLP's functions, once)")
+            t0 = time.perf_counter()
             solve = lambda job: backend.solve(nlp, job[1], job[0], opts)  # noqa: E731
             if _side_by_side(backend) and len(prepared) > 1:
                 from concurrent.futures import ThreadPoolExecutor
@@ -214,6 +221,9 @@ class DifferentiableTask:
                     solutions = list(pool.map(solve, prepared))
             else:
                 solutions = [solve(job) for job in prepared]
+            if announce:
+                first[0] = False
+                say(f"jtraj.differentiable: {tr.task.name}: {len(solutions)} solves in {time.perf_counter() - t0:.1f} s")
             outs = []
             for i, sol in enumerate(solutions):  # a loop, not a comprehension: checked's stacklevel
                 self.last_solution = sol  # the failed member, if one fails

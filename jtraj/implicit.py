@@ -22,6 +22,7 @@ import contextlib
 import dataclasses
 import functools
 import itertools
+import warnings
 from collections.abc import Callable
 from typing import Any
 
@@ -30,7 +31,19 @@ import jax.numpy as jnp
 import numpy as np
 
 from jtraj.numbers import is_whole
-from jtraj.sensitivity import KKT_TOL, ActiveArrays, KKTSystem, ParametricNLP, check_kkt_tol, check_weak_tol, kkt_system, residual
+from jtraj.sensitivity import (
+    KKT_TOL,
+    ActiveArrays,
+    KKTSystem,
+    NotDifferentiableWarning,
+    ParametricNLP,
+    SingularKKTError,
+    check_kkt_tol,
+    check_weak_tol,
+    kkt_system,
+    residual,
+    undifferentiable_parameters,
+)
 
 __all__ = ["ImplicitSolution", "implicit_solution", "SecondOrderError"]
 
@@ -134,6 +147,12 @@ class _SystemCache:
         if system is not None:
             self.systems.move_to_end(token)
         return system
+
+
+def _listed(names: list[str], most: int = 12) -> str:
+    """``names`` joined, the first ``most`` and a count of the rest."""
+    shown = ", ".join(names[:most])
+    return shown + (f" and {len(names) - most} more" if len(names) > most else "")
 
 
 def implicit_solution(
@@ -261,13 +280,34 @@ def implicit_solution(
         for t in np.unique(tokens):
             rows = np.flatnonzero(tokens == t)
             system = cache.get(int(t))
+            i = rows[0]
+            th = jax.tree_util.tree_unflatten(treedef, [leaf.reshape((-1,) + leaf.shape[len(batch):])[i] for leaf in thetas])
             if system is None:  # evicted: rebuild from the solution it was made for
-                i = rows[0]
-                th = jax.tree_util.tree_unflatten(treedef, [leaf.reshape((-1,) + leaf.shape[len(batch):])[i] for leaf in thetas])
                 system = kkt_system(nlp, xs[i], lams[i], th, weak_tol=weak_tol, kkt_tol=None)  # checked by the forward pass
                 cache.restore(int(t), system)
-            out[rows] = system.solve(bb[rows], transpose=transpose)
+            try:
+                out[rows] = system.solve(bb[rows], transpose=transpose)
+            except SingularKKTError as e:
+                if transpose or not (names := _undifferentiable(system, xs[i], lams[i], th)):
+                    raise
+                raise SingularKKTError(f"{e}; the entries of theta without a derivative here: {_listed(names)}") from None
+            if transpose and (names := _undifferentiable(system, xs[i], lams[i], th)):
+                # the transposed system has solutions w + U c for every c: the gradient's
+                # components along these entries are whichever the LU gave (measured on a Go2
+                # hop: d cost / d target height -0.0085, -0.078 or +0.42 from three solutions)
+                warnings.warn(
+                    f"jtraj: {_listed(names)} of theta have no derivative at this solution (each alone leaves the "
+                    "linearized active constraints inconsistent): the gradient's components there are arbitrary, not "
+                    "derivatives (jax.jvp along them raises SingularKKTError); the others are exact",
+                    NotDifferentiableWarning,
+                    stacklevel=1,
+                )
         return out.reshape(batch + (b.shape[-1],))
+
+    def _undifferentiable(system, x, lam, theta) -> list[str]:
+        if system.undifferentiable is None:  # once per system (it costs a few solves and VJPs)
+            system.undifferentiable = undifferentiable_parameters(nlp, system, x, lam, theta)
+        return system.undifferentiable
 
     def linear_solve(sol: ImplicitSolution, theta, b, transpose: bool):
         @_first_order_only

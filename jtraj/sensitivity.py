@@ -64,7 +64,7 @@ import scipy.sparse.linalg as spla
 
 from jtraj.numbers import is_real
 
-__all__ = ["ParametricNLP", "DenseNLP", "ActiveSet", "ActiveArrays", "active_set", "active_arrays", "KKTSystem", "kkt_system", "residual", "check_weak_tol", "SingularKKTError", "NotAKKTPointError", "kkt_errors", "check_kkt_point", "check_kkt_tol", "KKT_TOL"]
+__all__ = ["ParametricNLP", "DenseNLP", "ActiveSet", "ActiveArrays", "active_set", "active_arrays", "KKTSystem", "kkt_system", "residual", "check_weak_tol", "SingularKKTError", "NotDifferentiableWarning", "undifferentiable_parameters", "NotAKKTPointError", "kkt_errors", "check_kkt_point", "check_kkt_tol", "KKT_TOL"]
 
 
 class NotAKKTPointError(ValueError):
@@ -92,6 +92,15 @@ class SingularKKTError(RuntimeError):
     error; the Go2 hop with a zero acceleration weight, which `jtraj.differentiable` refuses,
     gave 0.025 and 0.034 for a derivative of 0.037). The NLP must have a unique optimum.
     """
+
+
+class NotDifferentiableWarning(RuntimeWarning):
+    """A gradient (a reverse-mode derivative) whose components along some of theta's entries
+    are not derivatives: the solution has none along them at this theta (moving one of them
+    alone leaves the linearized active constraints inconsistent), and the sensitivity system's
+    transposed solve, which always has solutions then, gave those components an arbitrary
+    value. Forward mode along them raises `SingularKKTError`. The warning names the entries
+    (`undifferentiable_parameters`); a ``warnings`` filter "error" makes it an exception."""
 
 
 class ParametricNLP(Protocol):
@@ -335,10 +344,61 @@ class KKTSystem:
     active: ActiveSet
     matrix: sp.csc_matrix
     _lu: Any = None
+    _null: np.ndarray | None = None
+    #: `undifferentiable_parameters` of this system, once computed (by `jtraj.implicit`)
+    undifferentiable: list[str] | None = None
 
     @property
     def degenerate(self) -> bool:
         return self.active.degenerate
+
+    def _factor(self) -> tuple[Any, float, np.ndarray]:
+        """The LU of K with ``-delta`` on the active rows' diagonal (`solve`), delta and the
+        mask of those rows."""
+        n = self.active.at_bound.size
+        delta = 1e-10 * max(1.0, float(np.abs(self.matrix.data).max(initial=0.0)))
+        rows = np.zeros(self.matrix.shape[0])
+        rows[n:][self.active.row_active] = 1.0
+        if self._lu is None:
+            try:
+                self._lu = spla.splu((self.matrix - delta * sp.diags(rows)).tocsc())
+            except RuntimeError as e:  # "Factor is exactly singular"
+                raise SingularKKTError(
+                    f"the sensitivity system is singular ({e}) at this solution ({self.active.summary()}): the reduced "
+                    f"Hessian is singular on the active constraints' null space (the optimum is not unique)"
+                ) from None
+        return self._lu, delta, rows
+
+    def left_null_space(self) -> np.ndarray:
+        """An orthonormal basis U (n + m, k) of K's left null space (``U^T K = 0``; k = 0 where
+        the active rows are independent). A tangent ``K dz = rhs`` has a solution only where
+        ``U^T rhs = 0``, and a cotangent's ``K^T w = b`` has solutions ``w + U c`` for every c.
+
+        Found by subspace iteration on ``u -> -delta K_reg^-T D u`` (K_reg the factorized
+        matrix, D the active rows' mask), whose fixed points are exactly the vectors of the
+        left null space (``K_reg^T u = K^T u - delta D u``); its other eigenvalues are about
+        delta over K's smallest other singular values, so a few steps separate them (on the
+        Go2 hop: 12 null vectors, ``|K^T u|`` 1e-17 of ``max|K|`` against 4e-4 and more for
+        the rest)."""
+        if self._null is not None:
+            return self._null
+        lu, delta, rows = self._factor()
+        size, scale = self.matrix.shape[0], delta / 1e-10
+        rng = np.random.default_rng(0)
+        p = min(16, size)
+        while True:
+            X = rng.standard_normal((size, p))
+            for _ in range(6):
+                X = -delta * lu.solve(np.ascontiguousarray(rows[:, None] * X), trans="T")
+                X /= np.maximum(np.linalg.norm(X, axis=0), np.finfo(float).tiny)
+            Q, _ = np.linalg.qr(X)
+            _, sv, Vt = np.linalg.svd(np.asarray(self.matrix.T @ Q), full_matrices=False)
+            null = sv <= 1e-10 * scale
+            # every vector null: there may be more than p of them
+            if null.sum() < p or p == size:
+                self._null = Q @ Vt[null].T
+                return self._null
+            p = min(2 * p, size)
 
     def solve(self, rhs: np.ndarray, transpose: bool = False, refinements: int = 3) -> np.ndarray:
         """K^{-1} rhs (or K^{-T} rhs); rhs (n + m,) or (batch, n + m).
@@ -352,18 +412,7 @@ class KKTSystem:
         size = self.matrix.shape[0]
         if np.ndim(rhs) not in (1, 2) or np.shape(rhs)[-1] != size:  # scipy said only "b is of incompatible size"
             raise ValueError(f"rhs of shape {np.shape(rhs)}; expected ({size},) or (batch, {size}): n + m, the system's size")
-        if self._lu is None:
-            n = self.active.at_bound.size
-            delta = 1e-10 * max(1.0, float(np.abs(self.matrix.data).max(initial=0.0)))
-            reg = np.zeros(self.matrix.shape[0])
-            reg[n:][self.active.row_active] = -delta
-            try:
-                self._lu = spla.splu((self.matrix + sp.diags(reg)).tocsc())
-            except RuntimeError as e:  # "Factor is exactly singular"
-                raise SingularKKTError(
-                    f"the sensitivity system is singular ({e}) at this solution ({self.active.summary()}): the reduced "
-                    f"Hessian is singular on the active constraints' null space (the optimum is not unique)"
-                ) from None
+        self._factor()
         rhs = np.asarray(rhs, float)
         K = self.matrix.T if transpose else self.matrix
         trans = "T" if transpose else "N"
@@ -376,11 +425,40 @@ class KKTSystem:
         # SingularKKTError)
         residual = np.abs(B - K @ Z).max(axis=0, initial=0.0)
         if not (np.all(np.isfinite(Z)) and np.all(residual <= 1e-6 * np.abs(B).max(axis=0, initial=0.0))):
-            raise SingularKKTError(
-                f"the sensitivity system could not be solved at this solution (residual {residual.max():.1e}; {self.active.summary()}): "
-                f"the solution is not differentiable here"
+            why = (
+                # K's null space lies in the multipliers: a cotangent that reaches them
+                "the output's cotangent reaches multipliers (lam) of linearly dependent active rows, which are not unique "
+                "here: lam has no derivative at this solution (x has)"
+                if transpose
+                else "the direction of theta leaves the linearized active constraints inconsistent: the solution has no "
+                "derivative along it here"
             )
+            raise SingularKKTError(f"the sensitivity system could not be solved at this solution (residual {residual.max():.1e}; {self.active.summary()}): {why}")
         return Z.T.reshape(rhs.shape)
+
+
+def undifferentiable_parameters(nlp: ParametricNLP, system: KKTSystem, x: Any, lam: Any, theta: Any) -> list[str]:
+    """The entries of theta along which the solution ``(x, lam)`` has no derivative, named as
+    ``field[index]`` (``target_translation[2]``; a scalar field by its name): those whose
+    unit direction ``e`` leaves ``K dz = -dr/dtheta e`` inconsistent, that is where
+    ``(dr/dtheta)^T U`` (U: `KKTSystem.left_null_space`) has a nonzero row. A gradient's
+    components there are arbitrary (`NotDifferentiableWarning`)."""
+    U = system.left_null_space()
+    if U.shape[1] == 0:
+        return []
+    act = active_arrays(system.active)
+    lam_a = np.where(system.active.row_active, np.asarray(lam, float), 0.0)
+    theta = jax.tree_util.tree_map(jnp.asarray, theta)
+    _, vjp = jax.vjp(lambda th: residual(nlp, jnp.asarray(x, float), jnp.asarray(lam_a), th, act), theta)
+    A = jax.vmap(lambda u: vjp(u)[0])(jnp.asarray(U.T))  # theta's pytree, each leaf with k rows in front
+    leaves = [np.abs(np.asarray(leaf)).reshape(U.shape[1], -1).max(axis=0) for leaf in jax.tree_util.tree_leaves(A)]
+    largest = max((float(a.max(initial=0.0)) for a in leaves), default=0.0)
+    names = []
+    for (path, leaf), rows in zip(jax.tree_util.tree_flatten_with_path(theta)[0], leaves, strict=True):
+        field = jax.tree_util.keystr(path).lstrip(".") or "theta"  # (theta an array itself)
+        for i in np.flatnonzero(rows > max(1e-8 * largest, 1e-9)):  # (rounding leaves about 1e-14)
+            names.append(field if np.ndim(leaf) == 0 else f"{field}[{', '.join(str(int(j)) for j in np.unravel_index(i, np.shape(leaf)))}]")
+    return names
 
 
 def kkt_errors(nlp: ParametricNLP, x: Any, lam: Any, theta: Any, jac_values: np.ndarray | None = None) -> dict[str, float]:

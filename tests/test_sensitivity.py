@@ -465,3 +465,58 @@ def test_the_first_derivative_is_announced_once():
         J = jax.jacobian(lambda t: solve(t).x)(jnp.array([-1.0, 0.5]))
     np.testing.assert_allclose(np.asarray(J), np.diag([0.0, 1.0]), atol=1e-8)
     assert said == ["first derivative"]
+
+
+def _duplicated_row():
+    """One equality row written twice, with right-hand sides theta[0] and theta[1] (equal at
+    the point): dependent active rows, so only directions that keep them equal have a
+    derivative; x = (t, t) / 2 along those."""
+    nlp = DenseNLP(
+        lambda x, th: jnp.sum(x**2),
+        lambda x, th: jnp.array([x[0] + x[1], x[0] + x[1]]),
+        lambda th: (jnp.full(2, -jnp.inf), jnp.full(2, jnp.inf), th, th),
+        2, 2,
+    )
+    return nlp, implicit_solution(nlp, ipopt_forward(nlp, np.zeros(2))), jnp.array([1.0, 1.0])
+
+
+def test_a_gradient_along_entries_without_a_derivative_warns_and_names_them():
+    """jax.grad returned a number for every entry of theta, also where the solution has no
+    derivative (jax.jvp raised there): which of the transposed system's solutions the LU picked
+    set them. It now warns, naming those entries; the exact combinations stay exact."""
+    from jtraj.sensitivity import NotDifferentiableWarning, SingularKKTError
+
+    _, solve, th = _duplicated_row()
+    with pytest.warns(NotDifferentiableWarning, match=r"theta\[0\], theta\[1\] of theta have no derivative at this solution"):
+        g = jax.grad(lambda t: solve(t).x[0])(th)
+    assert float(g.sum()) == pytest.approx(0.5, abs=1e-8)  # along (1, 1): the derivative, 1/2
+    np.testing.assert_allclose(jax.jvp(lambda t: solve(t).x, (th,), (jnp.ones(2),))[1], [0.5, 0.5], atol=1e-8)
+    # (raised in JAX's callback: a JaxRuntimeError, or a ValueError with the test suite's XLA
+    # flags, whose message ends with the SingularKKTError's)
+    raised = (SingularKKTError, jax.errors.JaxRuntimeError, ValueError)
+    with pytest.raises(raised, match=r"inconsistent: the solution has no derivative along it here; the entries of theta without a derivative here: theta\[0\], theta\[1\]"):
+        jax.jvp(lambda t: solve(t).x, (th,), (jnp.array([1.0, 0.0]),))
+    # the multipliers of the two rows are not unique: their derivative is refused, saying so
+    with pytest.raises(raised, match=r"reaches multipliers \(lam\) of linearly dependent active rows"):
+        jax.grad(lambda t: solve(t).lam[0])(th)
+
+
+def test_left_null_space_is_exact_and_empty_where_rows_are_independent():
+    import warnings
+
+    from jtraj.sensitivity import undifferentiable_parameters
+
+    nlp, _, th = _duplicated_row()
+    x, lam = ipopt_forward(nlp, np.zeros(2))(np.asarray(th))
+    system = kkt_system(nlp, x, lam, np.asarray(th))
+    U = system.left_null_space()
+    assert U.shape == (4, 1) and np.abs(system.matrix.T @ U).max() < 1e-12 and np.linalg.norm(U) == pytest.approx(1.0)
+    assert undifferentiable_parameters(nlp, system, x, lam, np.asarray(th)) == ["theta[0]", "theta[1]"]
+    nlp, theta, x0 = nonlinear()
+    x, lam = ipopt_forward(nlp, x0)(theta)
+    system = kkt_system(nlp, x, lam, theta)
+    assert system.left_null_space().shape == (5, 0) and undifferentiable_parameters(nlp, system, x, lam, theta) == []
+    solve = implicit_solution(nlp, ipopt_forward(nlp, x0))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no warning where every entry has its derivative
+        jax.grad(lambda t: solve(t).x.sum())(jnp.asarray(theta))
