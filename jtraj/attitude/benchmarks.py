@@ -210,7 +210,9 @@ class QuadrotorFlip(Benchmark):
         the four others make the flip. Every waypoint attitude is a HARD attitude target, every
         waypoint position a soft cost (weight 10 per m^2, as the code's waypoint costs are soft),
         and the goal (position, velocity, angular velocity and the 360 degree attitude) is hard.
-        The floor is ``z >= 0``. Stage costs: 1/2 (1e-3 |v|^2 + 1e-2 |omega|^2 + 1e-2 |u - u_hover|^2)
+        The floor is ``z >= 0``. These are choices of jtraj's, not the code's: there the waypoint
+        attitudes are soft costs too, the goal constraint and the floor bound are commented out,
+        and the default integrator is RK3 (RK4 here). Stage costs: 1/2 (1e-3 |v|^2 + 1e-2 |omega|^2 + 1e-2 |u - u_hover|^2)
         and an attitude weight of 1e-2 toward the goal attitude. Warm start (dynamically
         infeasible, as in the paper): position linear from start to goal, attitude turning
         uniformly through 360 degrees about x, v = omega = 0, hover thrust.
@@ -308,7 +310,9 @@ class BarrelRoll(Benchmark):
         From (-3, 0, 1.5) in level trimmed flight at 5 m/s (`jtraj.attitude.models.Airplane.trim`)
         to (3, 0, 1.5) at 5 m/s along +x, ``omega = 0`` and upside down: the trim attitude rolled
         180 degrees about the body x axis (nose still up by the trim angle of attack, which is
-        what inverted level flight needs), in ``tf`` = 1.25 s with N = 101 knots. The goal is hard.
+        what inverted level flight needs), in ``tf`` = 1.25 s with N = 101 knots. The goal is hard
+        (as the paper's code's goal constraint; its text speaks of a high terminal cost for
+        being upside down).
         Stage costs: 1/2 (0.1 |v - v_goal|^2 + 0.1 |omega|^2) and an attitude weight of 0.1 toward
         the goal attitude (pulling the roll along), plus 1/2 R |u - u_trim|^2 with
         R = (10, 1, 1, 1) per N^2 / rad^2. Limits: thrust in [0, 2] N, surface deflections within
@@ -414,8 +418,9 @@ class SatelliteSlew(Benchmark):
         N = 401 knots (h = 0.25 s); wheel torques ``|u_i| <= 0.5`` N m; the camera axis
         (0.360, -0.930, 0.079) must stay ``keep_out_deg`` (40) degrees or more from the sun
         direction (1, 0, 0) at every knot (eq. 43; an angle in [0, 180), None drops it). The geodesic (constant-axis)
-        slew passes 35 degrees from the sun, so the constraint is active. Stage costs (documented
-        choices): 1/2 (10 |omega|^2 + 10 |eta|^2 + 10 |eta_dot|^2 + |u|^2) and an attitude weight
+        slew passes 35 degrees from the sun, so the constraint is active. The goal is hard, a
+        choice of jtraj's (the paper's code has an LQR objective and no goal constraint). Stage
+        costs (documented choices): 1/2 (10 |omega|^2 + 10 |eta|^2 + 10 |eta_dot|^2 + |u|^2) and an attitude weight
         of 1 toward the goal. Warm start: at rest at the initial attitude, zero torques (the
         rollout of zero inputs, as ALTRO starts).
 
