@@ -251,7 +251,7 @@ def test_sun_angle():
     sun = np.array([1.0, 0.0, 0.0])
     identity = jnp.array([1.0, 0.0, 0.0, 0.0])
     angle = M.FlexibleSpacecraft.sun_angle(identity, jnp.asarray(cam), jnp.asarray(sun))
-    np.testing.assert_allclose(angle, math.acos(cam[0]), atol=1e-15)  # 69 degrees at the start
+    np.testing.assert_allclose(angle, math.acos(cam[0]), atol=1e-15)  # 69 degrees at the identity (the goal)
     for target_deg in (0.0, 40.0, 120.0):
         target = np.array([math.cos(math.radians(target_deg)), math.sin(math.radians(target_deg)), 0.0])
         axis = np.cross(cam, target)
