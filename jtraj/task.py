@@ -19,10 +19,10 @@ TOML form (see ``tasks/big_jump.toml``)::
     terrain_height = 0.0             # optional: height of the flat ground (m)
     description = "..."              # optional, free text (not part of the content hash)
     flip_axis = [0.0, 1.0, 0.0]      # optional: the task is a flip about this world axis
-    flip_turns = -1                  # its expected signed turns (right-hand rule about flip_axis)
+    flip_turns = -1                  # its expected signed turns (right-hand rule; whole, with no rotation_rpy)
     [target]
     translation = [1.0, 0.0, 0.0]    # base displacement from the standing pose, world frame (m)
-    rotation_rpy = [0.0, 0.0, 0.0]   # base rotation from the standing pose (rad)
+    rotation_rpy = [0.0, 0.0, 0.0]   # base rotation from the standing pose (rad, each in [-pi, pi])
     joints = [0.0, ...]              # optional: the final joint angles, one per joint (rad)
     [costs]
     configuration = 0.0              # 1/2 w |q_joints - q_joints_standing|^2 per knot
@@ -442,6 +442,13 @@ def _check_and_normalize(t: Task) -> None:
         raise TaskError(f"phases[{len(checked) - 1}].contacts", _Raw("[]"), "expected the task to end in contact (it ends at rest)")
     put("target_translation", _vector(t.target_translation, "target_translation"))
     put("target_rotation_rpy", _vector(t.target_rotation_rpy, "target_rotation_rpy"))
+    # an angle past half a turn is the attitude of a smaller one: [0, 0, 2 pi] (a spin meant)
+    # solved as a plain hop, and degrees typed for radians (90) as 116.6 degrees
+    if any(abs(a) > math.pi + 1e-12 for a in t.target_rotation_rpy):
+        raise TaskError(
+            "target_rotation_rpy", list(t.target_rotation_rpy),
+            "expected angles (rad) within [-pi, pi]: the target is an attitude, so a larger angle is a smaller one's attitude; whole turns on the way are flip_axis and flip_turns",
+        )
     if t.target_joints is not None:
         tj = t.target_joints
         if isinstance(tj, (str, bytes)) or not hasattr(tj, "__iter__") or not all(_is_real(x) for x in tj):
@@ -454,10 +461,19 @@ def _check_and_normalize(t: Task) -> None:
     put("configuration_weight", _real(t.configuration_weight, "configuration_weight", "expected a weight >= 0", nonnegative=True))
     put("acceleration_weight", _real(t.acceleration_weight, "acceleration_weight", "expected a weight >= 0", nonnegative=True))
     rules = []
+    # one rule, or None, in place of the tuple: "'RotationRule' object is not iterable" before
+    if isinstance(t.warm_start_rules, (str, bytes, RotationRule)) or not hasattr(t.warm_start_rules, "__iter__"):
+        raise TaskError("warm_start_rules", t.warm_start_rules, "expected a list of RotationRule (empty: none)")
+    if isinstance(t.warm_start_joints, (str, bytes, JointRule)) or not hasattr(t.warm_start_joints, "__iter__"):
+        raise TaskError("warm_start_joints", t.warm_start_joints, "expected a list of JointRule (empty: none)")
     for i, rule in enumerate(tuple(t.warm_start_rules)):
         if not isinstance(rule, RotationRule):
             raise TaskError(f"warm_start_rules[{i}]", rule, "expected a RotationRule(profile, axis, angle, phases)")
-        if not isinstance(rule.profile, Profile):
+        profile = rule.profile
+        if isinstance(profile, str) and profile in {p.value for p in Profile}:  # "ramp" was refused as not 'ramp'
+            profile = Profile(profile)
+            rule = dataclasses.replace(rule, profile=profile)
+        if not isinstance(profile, Profile):
             raise TaskError(f"warm_start_rules[{i}].profile", rule.profile, "expected 'ramp' or 'hold'")
         axis = _vector(rule.axis, f"warm_start_rules[{i}].axis", nonzero=True)
         angle = _real(rule.angle, f"warm_start_rules[{i}].angle", "expected an angle in radians")
@@ -498,6 +514,9 @@ def _check_and_normalize(t: Task) -> None:
         put("flip_turns", _real(t.flip_turns, "flip_turns", "expected the signed number of turns about flip_axis (e.g. -1 for a back-flip about +y), nonzero"))
         if t.flip_turns == 0:
             raise TaskError("flip_turns", t.flip_turns, "expected a nonzero signed number of turns (a task without a flip has no flip_axis)")
+        if not any(t.target_rotation_rpy) and abs(t.flip_turns - round(t.flip_turns)) > 1e-9:
+            # the motion ends at the target's attitude: with an upright target it turns whole turns
+            raise TaskError("flip_turns", t.flip_turns, "expected a whole number of turns: the target's attitude is the standing one (target.rotation_rpy zero), where the motion ends")
     elif t.flip_turns is not None:
         raise TaskError("flip_turns", t.flip_turns, "expected no flip_turns without a flip_axis")
     if isinstance(t.max_iter, bool) or not isinstance(t.max_iter, (int, np.integer)) or not 1 <= t.max_iter <= MAX_ITER:

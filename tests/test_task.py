@@ -201,6 +201,12 @@ phases = [1]
         ('robot = "go2"', 'robot = "go2"\nfriction = 1' + "0" * 400, r"friction: 10{400}: expected a positive friction coefficient"),
         ("angle = 0.5", "angle = 1" + "0" * 400, r"warm_start_rules\[0\].angle: 10{400}: expected"),
         ('name = "x"', 'name = "' + "a" * 201 + '"', r"name: 'a{201}': expected a name of at most 200 bytes \(it names the run folders\)"),
+        # an angle past half a turn is a smaller one's attitude: [0, 0, 2 pi] (a spin meant)
+        # solved as a plain hop, 90 (degrees meant) as 116.6 degrees
+        ("[target]\n", "[target]\nrotation_rpy = [0.0, 0.0, 6.283185307179586]\n", r"target.rotation_rpy: \[0.0, 0.0, 6.283185307179586\]: expected angles \(rad\) within \[-pi, pi\]: .* whole turns on the way are flip_axis and flip_turns"),
+        ("[target]\n", "[target]\nrotation_rpy = [0.0, 90.0, 0.0]\n", r"target.rotation_rpy: \[0.0, 90.0, 0.0\]: expected angles \(rad\) within \[-pi, pi\]"),
+        # half a turn with an upright target can never end as its success check expects
+        ('robot = "go2"', 'robot = "go2"\nflip_axis = [0, 1, 0]\nflip_turns = 0.5', r"flip_turns: 0.5: expected a whole number of turns: the target's attitude is the standing one"),
     ],
 )
 def test_task_file_errors_name_file_field_value_and_expectation(tmp_path, old, new, match):
@@ -430,3 +436,17 @@ def test_a_tasks_own_errors_name_its_file_and_toml_keys(tmp_path):
     assert str(error) == f"{path}: target.joints[3]: 1.5: expected a value in the joint's limits"
     built = dataclasses.replace(tasks.load("big_jump"))  # not from a file: no source
     assert built.error("timestep", 0.0, "expected > 0").source is None
+
+
+def test_rules_given_in_python_as_a_user_would_write_them():
+    """A profile given as "ramp" was refused as "expected 'ramp' or 'hold'", and one rule (or
+    None) in place of the tuple raised "object is not iterable"."""
+    from jtraj.task import Profile, RotationRule
+
+    rule = RotationRule("ramp", (0.0, 1.0, 0.0), 0.5, (1,))  # type: ignore[arg-type]
+    assert small_task(warm_start_rules=(rule,)).warm_start_rules[0].profile is Profile.RAMP
+    for field, value in (("warm_start_rules", rule), ("warm_start_rules", None), ("warm_start_joints", None)):
+        with pytest.raises(TaskError, match=rf"^{field}: .*: expected a list of \w+ \(empty: none\)$"):
+            small_task(**{field: value})
+    with pytest.raises(TaskError, match=r"warm_start_rules\[0\].profile: 'spin': expected 'ramp' or 'hold'"):
+        small_task(warm_start_rules=(RotationRule("spin", (0.0, 1.0, 0.0), 0.5, (1,)),))  # type: ignore[arg-type]
