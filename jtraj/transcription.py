@@ -590,10 +590,11 @@ class Transcription:
                     "phases[0].contacts", list(task.phases[0].contacts),
                     f"the standing pose of {self.robot.name!r} {said}; expected the contacts of phase 0 to be the lowest points of the standing pose",
                 )
-            # the key most likely at fault: a height, else a rotation, else the target joints
+            # the key most likely at fault: a height, else a roll or pitch (a yaw about the
+            # vertical lifts no foot: with new joints it was blamed for theirs), else the joints
             if task.target_translation[2] != 0:
                 field, value = "target_translation", list(task.target_translation)
-            elif any(task.target_rotation_rpy):
+            elif any(task.target_rotation_rpy[:2]) or (any(task.target_rotation_rpy) and task.target_joints is None):
                 field, value = "target_rotation_rpy", list(task.target_rotation_rpy)
             elif task.target_joints is not None:
                 field, value = "target_joints", _Raw(f"{len(task.target_joints)} joint angles")

@@ -195,3 +195,18 @@ def test_the_euler_rule_check_reads_the_axis_direction(tmp_path, axis, principal
         with pytest.raises(TaskError, match=r"warm_start_rules\[0\].axis"):
             tr.warm_start()
 
+
+
+def test_a_yaw_is_not_blamed_for_what_the_target_joints_do(tmp_path):
+    """Target joints that lift a foot, with a yaw beside them: the message blamed
+    target.rotation_rpy, which turns about the vertical and lifts nothing."""
+    path = tmp_path / "hop_yaw.toml"
+    path.write_text(
+        'name = "hop_yaw"\nrobot = "go2"\ntimestep = 0.05\n[target]\ntranslation = [0.1, 0.05, 0.0]\nrotation_rpy = [0.0, 0.0, 0.3]\n'
+        "joints = [0.1, 0.8, -1.5, -0.1, 0.8, -1.5, 0.1, 1.0, -1.5, -0.1, 1.0, -1.5]\n"
+        '[[phases]]\ncontacts = ["FL_foot", "FR_foot", "RL_foot", "RR_foot"]\nduration = 0.2\n'
+        "[[phases]]\ncontacts = []\nduration = 0.1\n"
+        '[[phases]]\ncontacts = ["FL_foot", "FR_foot", "RL_foot", "RR_foot"]\nduration = 0.2\n'
+    )
+    with pytest.raises(TaskError, match=r": target.joints: 12 joint angles: puts \w+ 0.0203 m above the terrain at the last knot"):
+        _transcription(tasks.load(str(path))).build_nlp()
