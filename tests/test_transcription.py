@@ -656,3 +656,25 @@ def test_the_world_mass_rule_keeps_the_rounding_of_the_whole_sum():
     f = tr.warm_start()[:, tr.layout.slice("f")].reshape(tr.N + 1, tr.P, 3)[..., 2]
     touching = tr.schedule.in_contact
     np.testing.assert_array_equal(f[touching], np.broadcast_to((float(np.sum(masses)) * GRAVITY / np.maximum(touching.sum(axis=1), 1))[:, None], touching.shape)[touching])
+
+
+def test_a_higher_terrain_is_the_same_problem_moved_up():
+    """Every terrain check compared with HOP's terrain height, 0, so a row that ignored
+    terrain_height would have passed. At 0.3 m the warm start is the same one 0.3 m up, and
+    every row takes the same value there (a row that ignored the height would be off by 0.3)."""
+    import jax.numpy as jnp
+
+    low, high = prepare(HOP, "se3", "paper"), prepare(dataclasses.replace(HOP, terrain_height=0.3), "se3", "paper")
+    x_low, x_high = (p.transcription.warm_start() for p in (low, high))
+    assert high.transcription.initial_xyz_wxyz[2] - low.transcription.initial_xyz_wxyz[2] == pytest.approx(0.3, abs=1e-12)
+
+    def rows_from_their_bounds(p, x):  # each row's value less its finite bound (the clearance's is the height)
+        g = np.asarray(p.nlp.constraints(jnp.asarray(x.reshape(-1)), p.nlp.theta))
+        _, _, gl, gu = (np.asarray(b) for b in p.nlp.bounds(p.nlp.theta))
+        return g - np.where(np.isfinite(gl), gl, np.where(np.isfinite(gu), gu, 0.0))
+
+    np.testing.assert_allclose(rows_from_their_bounds(high, x_high), rows_from_their_bounds(low, x_low), rtol=0, atol=1e-9)
+    # and the bounds of the fixed knots' base height follow it
+    lb_low, lb_high = (np.asarray(p.nlp.bounds(p.nlp.theta)[0]).reshape(x.shape) for p, x in ((low, x_low), (high, x_high)))
+    z = low.transcription.layout.slice("q").start + 2  # the base's height (the fixed first knot's, in the chart)
+    assert lb_high[0, z] - lb_low[0, z] == pytest.approx(0.3, abs=1e-9)
