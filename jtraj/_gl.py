@@ -13,6 +13,8 @@ from __future__ import annotations
 import ctypes
 from collections.abc import Callable
 
+__all__ = ["chosen", "headless_backend"]
+
 #: what `headless_backend` chose in this process (None: MUJOCO_GL was set, or a display is there)
 chosen: str | None = None
 

@@ -301,7 +301,7 @@ def test_theta_values_no_task_can_have_are_refused():
         ({"q_joints_standing": calf}, r"^theta.q_joints_standing and theta.base_xyz_wxyz_standing: the pose they give puts the contact points of phase 0 5\d.\d mm apart in height"),
         ({"q_joints_standing": nudged}, r"^theta.q_joints_standing and theta.base_xyz_wxyz_standing: the pose they give puts the contact points of phase 0 0.1\d+ mm apart in height \(on flat ground: within 0.1 mm, which the fixed first knot's contact rows allow\)"),
         ({"base_xyz_wxyz_standing": roll}, r"^theta.q_joints_standing and theta.base_xyz_wxyz_standing: the pose they give puts the contact points of phase 0 \d+.\d mm apart"),
-        ({"target_translation": [0.3, 0.0, 0.1]}, r"^theta.q_joints_standing and theta.base_xyz_wxyz_standing, theta.target_translation and theta.target_rotation_rpy: the pose they give puts \w+ 0.1 m above the terrain at the last knot, where phase \d touches it; expected the fixed last knot"),
+        ({"target_translation": [0.3, 0.0, 0.1]}, r"^theta.q_joints_standing and theta.base_xyz_wxyz_standing, theta.target_translation and theta.target_rotation_rpy: the pose they give puts \w+ 0.1 m above the terrain at the last knot, where phase \d touches it \(target translation z = 0 puts them on it\); expected the fixed last knot"),
     ):
         with pytest.raises(ValueError, match=message):
             tr.check_boundaries(tr.resolve_theta(bad))
