@@ -511,10 +511,11 @@ def _check_and_normalize(t: Task) -> None:
     put("warm_start_joints", tuple(joint_rules))
     if t.flip_axis is not None:
         put("flip_axis", _vector(t.flip_axis, "flip_axis", nonzero=True))
-        put("flip_turns", _real(t.flip_turns, "flip_turns", "expected the signed number of turns about flip_axis (e.g. -1 for a back-flip about +y), nonzero"))
-        if t.flip_turns == 0:
+        turns = _real(t.flip_turns, "flip_turns", "expected the signed number of turns about flip_axis (e.g. -1 for a back-flip about +y), nonzero")
+        put("flip_turns", turns)
+        if turns == 0:
             raise TaskError("flip_turns", t.flip_turns, "expected a nonzero signed number of turns (a task without a flip has no flip_axis)")
-        if not any(t.target_rotation_rpy) and abs(t.flip_turns - round(t.flip_turns)) > 1e-9:
+        if not any(t.target_rotation_rpy) and abs(turns - round(turns)) > 1e-9:
             # the motion ends at the target's attitude: with an upright target it turns whole turns
             raise TaskError("flip_turns", t.flip_turns, "expected a whole number of turns: the target's attitude is the standing one (target.rotation_rpy zero), where the motion ends")
     elif t.flip_turns is not None:
