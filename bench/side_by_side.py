@@ -48,6 +48,7 @@ import jtraj
 from jtraj import io, success
 from jtraj.cli import InputError, _check_names, _check_robots, _load_valid_task
 from jtraj.provenance import begin_run, end_run
+from jtraj.provenance import source as provenance_source
 from jtraj.solver import VARIABLES, with_changes
 from jtraj.task import Task, TaskError, available, retarget
 from jtraj.task import load as load_task
@@ -388,11 +389,20 @@ def main(argv: list[str] | None = None) -> None:
         checked = args.sigma and builtin_task(task).flip_axis is not None
         return dict(runner=runner, **({"peer_src": str(args.peer_src)} if checked else {}))
 
-    done = {
-        (r["code"], r["task"], r["sigma"], r["seed"])
-        for r in rows
-        if r["task"] in tasks and r.get("status") != "error" and (r["code"] != "paper" or all(r.get(k) == v for k, v in peer_fields(r["task"]).items()))
-    }
+    # ... nor is a jtraj row of other code: it was reused whatever commit solved it (rows kept
+    # no commit), and the table, stamped with this run's provenance, set old iterations beside
+    # a new peer run. One solved by this commit, from a clean checkout, is done.
+    here = provenance_source()
+    ours = here if here is not None and not here.get("dirty") else None
+
+    def resumable(r: dict) -> bool:
+        if r["task"] not in tasks or r.get("status") == "error":
+            return False
+        if r["code"] == "paper":
+            return all(r.get(k) == v for k, v in peer_fields(r["task"]).items())
+        return ours is not None and r.get("source") == ours
+
+    done = {(r["code"], r["task"], r["sigma"], r["seed"]) for r in rows if resumable(r)}
     failed: list[str] = []
     seeds = args.seeds if args.sigma else [0]
     for task in tasks:
@@ -418,6 +428,8 @@ def main(argv: list[str] | None = None) -> None:
                     row = _error_row(task, args.sigma, seed, _error_text(e), code)
                 if code == "paper":
                     row.update(peer_fields(task))
+                else:
+                    row["source"] = here  # the commit (and whether the checkout differed) that solved it
                 print(json.dumps(row), flush=True)
                 old = [i for i, r in enumerate(rows) if (r["code"], r["task"], r["sigma"], r["seed"]) == key]  # a failed one
                 if old:

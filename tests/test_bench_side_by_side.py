@@ -217,3 +217,34 @@ def test_relative_code_paths_reach_the_code_as_absolute_ones(sbs, monkeypatch, t
     with pytest.raises(SystemExit):
         sbs.main(argv)
     assert seen == [(tmp_path / "src", tmp_path / "python")]
+
+
+def test_jtraj_rows_of_other_code_are_solved_again(sbs, monkeypatch, tmp_path):
+    """A jtraj row was resumed whatever commit solved it (rows kept none), so a run re-solved
+    only the peer and tabled it beside old jtraj iterations under this run's provenance. A row
+    is resumed only when this commit, from a clean checkout, solved it."""
+    solved = []
+
+    def run_jtraj(task, variables, sigma, seed, *args):
+        solved.append(task)
+        return dict(code=f"jtraj {variables}", task=task, sigma=sigma, seed=seed, status="solved", converged=True, iterations=12)
+
+    monkeypatch.setattr(sbs, "run_jtraj", run_jtraj)
+    out = tmp_path / "out"
+    argv = ["--tasks", "walk", "--variables", "paper", "--peer", "", "--out", str(out)]
+    clean = {"commit": "a" * 40, "dirty": False}
+    monkeypatch.setattr(sbs, "provenance_source", lambda: clean)
+    sbs.main(argv)
+    assert solved == ["walk"] and _rows(out)[0]["source"] == clean
+    sbs.main(argv)  # the same clean commit: resumed
+    assert solved == ["walk"]
+    for other in ({"commit": "b" * 40, "dirty": False}, {"commit": "b" * 40, "dirty": True}, None):
+        monkeypatch.setattr(sbs, "provenance_source", lambda other=other: other)
+        sbs.main(argv)  # another commit, a changed checkout, no checkout: solved again
+    assert solved == ["walk"] * 4 and len(_rows(out)) == 1 and _rows(out)[0]["source"] is None
+    rows = _rows(out)
+    del rows[0]["source"]  # a row from before rows kept it
+    (out / "side_by_side.json").write_text(json.dumps(rows))
+    monkeypatch.setattr(sbs, "provenance_source", lambda: clean)
+    sbs.main(argv)
+    assert solved == ["walk"] * 5
