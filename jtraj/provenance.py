@@ -74,8 +74,12 @@ def source(root: str | Path | None = None) -> dict | None:
     if not (root / ".git").exists():
         return None
     try:
+        # git's own variables (GIT_DIR, GIT_WORK_TREE, GIT_INDEX_FILE: set in hooks and some
+        # shells) pointed it at another repository or index: its commit was recorded
+        env = {k: v for k, v in os.environ.items() if not k.startswith("GIT_")}
+
         def git(*args: str) -> str:
-            return subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True, timeout=20, check=True).stdout.strip()
+            return subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True, timeout=20, check=True, env=env).stdout.strip()
 
         changed = bool(git("status", "--porcelain", "--untracked-files=no"))
         untracked = git("ls-files", "--others", "--exclude-standard", "--", *LOADED_FOLDERS).splitlines()

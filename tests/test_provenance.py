@@ -98,3 +98,22 @@ def test_command_keeps_its_program(argv):
 def test_an_empty_command_line_is_recorded_as_empty():
     # argv=[] (no program name, as an embedding host may give) raised IndexError
     assert prov.provenance([])["command"] == ""
+
+
+def test_gits_own_variables_do_not_point_the_record_at_another_repository(monkeypatch, tmp_path):
+    """GIT_DIR (set in git hooks and some shells) made source() record another repository's
+    HEAD, and GIT_INDEX_FILE called a clean checkout dirty."""
+    def git(folder, *args):
+        return subprocess.run(["git", "-C", str(folder), *args], capture_output=True, text=True, check=True).stdout.strip()
+
+    for folder, text in ((tmp_path / "ours", "a"), (tmp_path / "other", "b")):
+        (folder / "jtraj").mkdir(parents=True)
+        (folder / "jtraj" / "provenance.py").write_text(text)
+        git(folder, "init", "-q")
+        git(folder, "add", ".")
+        git(folder, "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-q", "-m", text)
+    ours = git(tmp_path / "ours", "rev-parse", "HEAD")
+    monkeypatch.setattr(prov, "__file__", str(tmp_path / "ours" / "jtraj" / "provenance.py"))
+    monkeypatch.setenv("GIT_DIR", str(tmp_path / "other" / ".git"))
+    monkeypatch.setenv("GIT_INDEX_FILE", str(tmp_path / "no-index"))
+    assert prov.source() == {"commit": ours, "dirty": False}
