@@ -269,10 +269,14 @@ def plot_comparison(directory: str | Path, path: str | Path | None = None):
             except jio.FileFormatError:
                 top.set_title(f"{task} [{param}]: unreadable result", fontsize=8)
                 continue
-            if (result.status.value, result.iterations) != (row.get("status"), row.get("iterations")):
+            # (the solver too: a cell of another solver with the same status and iterations was drawn)
+            if (result.status.value, result.iterations, result.solver) != (row.get("status"), row.get("iterations"), row.get("solver", result.solver)):
                 top.set_title(f"{task} [{param}]: saved run is not the table's", fontsize=8)
                 continue
             t = result.trajectory
+            if t is None:  # result.json saved without one beside an older trajectory.npz (load drops it)
+                top.set_title(f"{task} [{param}]: no trajectory", fontsize=8)
+                continue
             touching = t.in_contact.any(axis=1)
             for ax in (top, bottom):
                 _flight_shading(ax, t.t, touching)

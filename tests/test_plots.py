@@ -151,3 +151,20 @@ def test_friction_of_a_result_without_theta_is_its_builtin_tasks(monkeypatch):
     monkeypatch.setattr(tasks, "load", broken)
     with pytest.raises(tasks.TaskError, match="a positive duration"):
         plots._task_friction("big_jump")
+
+
+def test_comparison_cells_without_a_trajectory_or_of_another_solver(result, tmp_path):
+    """A cell whose result.json was saved without a trajectory beside an older trajectory.npz
+    (Result.load drops that one) ended jtraj plot in AttributeError on None; a cell saved by
+    another solver with the table's status and iterations was drawn as the table's."""
+    import dataclasses
+
+    result.save(tmp_path / "made_up_flip_se3")
+    dataclasses.replace(result, trajectory=None).save(tmp_path / "made_up_flip_euler")
+    (tmp_path / "made_up_flip_euler" / "trajectory.npz").write_bytes((tmp_path / "made_up_flip_se3" / "trajectory.npz").read_bytes())
+    rows = [{"task": "made_up_flip", "parameterization": p, "status": result.status.value, "iterations": result.iterations, "solver": s} for p, s in (("se3", "jtraj"), ("euler", result.solver))]
+    (tmp_path / "table_iv.json").write_text(json.dumps(rows))
+    fig = plot_comparison(tmp_path)
+    (se3_top, euler_top), _ = np.reshape(fig.axes, (2, 2))
+    assert result.solver != "jtraj" and se3_top.get_title() == "made_up_flip [se3]: saved run is not the table's"
+    assert euler_top.get_title() == "made_up_flip [euler]: no trajectory"
