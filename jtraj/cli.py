@@ -162,7 +162,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
 
     run = begin_run(args.out, ["jtraj", *args.argv])
     args.compare_rows = None  # OUT/provenance.json is written: what an interrupt says (_kept)
-    rows = compare(args.tasks_checked, _split(args.params), out=args.out, variables=args.variables, exact_hessian=args.exact_hessian, save_trajectories=not args.no_trajectories, executor=args.executor, workers=args.workers, ray_address=args.ray_address, solver=args.solver)
+    rows = compare(args.tasks_checked, _split(args.params), out=args.out, variables=args.variables, exact_hessian=args.exact_hessian, save_trajectories=not args.no_trajectories, executor=args.executor, workers=args.workers, ray_address=args.ray_address, solver=args.solver, record_run=False)
     args.compare_rows = rows
     end_run(args.out, run)
     print((__import__("pathlib").Path(args.out) / "table_iv.md").read_text())
@@ -175,7 +175,7 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
 
     sigmas = args.sigmas_checked
     run = begin_run(args.out, ["jtraj", *args.argv])
-    robustness(args.tasks_checked, _split(args.params), sigmas, replicates=args.replicates, seed=args.seed, out=args.out, variables=args.variables, workers=args.workers, resume=not args.no_resume, ipopt_options=args.ipopt_checked or None, executor=args.executor, ray_address=args.ray_address, solver=args.solver, noise_chart=args.noise_chart)
+    robustness(args.tasks_checked, _split(args.params), sigmas, replicates=args.replicates, seed=args.seed, out=args.out, variables=args.variables, workers=args.workers, resume=not args.no_resume, ipopt_options=args.ipopt_checked or None, executor=args.executor, ray_address=args.ray_address, solver=args.solver, noise_chart=args.noise_chart, record_run=False)
     end_run(args.out, run)
     print((__import__("pathlib").Path(args.out) / "table_iii.md").read_text())
     return 0

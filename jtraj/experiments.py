@@ -34,6 +34,7 @@ from jtraj.deprecation import renamed_argument
 from jtraj.executors import WorkerLostError, check_executor_name, executor_for
 from jtraj.numbers import is_real, is_seed, is_whole
 from jtraj.parameterization import PARAMETERIZATIONS, AbstractParameterization
+from jtraj.provenance import begin_run, end_run
 from jtraj.result import Outcome
 from jtraj.solver import evaluate, prepare, solve, solver_options, transcription_options, variables_label
 from jtraj.success import FEASIBILITY_TOL
@@ -75,6 +76,7 @@ def compare(
     ray_address: str | None = None,
     layout: str | None = None,
     solver: str = "ipopt",
+    record_run: bool = True,
 ) -> list[dict]:
     """Table IV: solve every task with every parameterization; write table_iv.{json,md}.
 
@@ -98,7 +100,9 @@ def compare(
     interrupt, stops the other cells, and the tables hold the cells finished before it. An
     earlier call's tables and their figure (``comparison.png``, from ``jtraj plot OUT``) are
     removed as the sweep starts (a folder in the place of one is refused then, not after the
-    solves).
+    solves). ``record_run`` (default True) writes ``out/provenance.json`` (`jtraj.provenance`:
+    unfinished until the tables are written; the command line, which writes its own, passes
+    False).
     """
     variables = renamed_argument(variables, layout, "variables", "layout", "paper")
     progress = _progress_stream(progress)
@@ -122,6 +126,8 @@ def compare(
     # table as its cells finish (an interrupt before the first left the earlier one in OUT,
     # which then read as this call's)
     _clear_outputs("compare", out, COMPARE_OUTPUTS)
+    # called from Python, an earlier command's complete record stayed beside this call's tables
+    run = _begin_call(out, "compare", record_run)
     in_process = executor == "local" and workers <= 1
     cells = ((i, _compare_one(*job, progress=progress)) for i, job in enumerate(jobs)) if in_process else executor_for(executor, workers, ray_address).map(_compare_one, jobs)
     done: dict[int, dict] = {}
@@ -145,7 +151,15 @@ def compare(
         if isinstance(e, BrokenPipeError):  # (the progress stream closed) the command line says it too
             e.add_note(kept)
         raise
+    if run is not None:
+        end_run(out, run)
     return [done[k] for k in sorted(done)]
+
+
+def _begin_call(out: Path, function: str, record_run: bool) -> dict | None:
+    """`jtraj.provenance.begin_run` for a sweep called from Python (its command is the
+    process's, and ``"call"`` names the function), or None without ``record_run``."""
+    return begin_run(out, None, {"call": {"function": f"jtraj.experiments.{function}"}}) if record_run else None
 
 
 class RepeatedValueError(ValueError):
@@ -676,6 +690,7 @@ def robustness(
     layout: str | None = None,
     solver: str = "ipopt",
     noise_chart: str | None = None,
+    record_run: bool = True,
 ) -> list[dict]:
     """Table III and Fig. 2: converged and task-success rates and iterations under warm-start noise.
 
@@ -714,6 +729,10 @@ def robustness(
     in that chart's coordinates and gives every parameterization the same noisy poses
     (`chart_noisy_warm_starts`): the study adds sigma to each chart's own coordinates, which
     turns a quaternion's base further than SE(3)'s or Euler's. Runs record it in their key.
+
+    ``record_run`` (default True) writes ``out/provenance.json`` (`jtraj.provenance`:
+    unfinished until the tables and figure are written; an earlier record is kept under
+    ``earlier``); the command line, which writes its own, passes False.
     """
     variables = renamed_argument(variables, layout, "variables", "layout", "paper")
     sigmas = [float(s) for s in sigmas]
@@ -771,6 +790,7 @@ def robustness(
     # at its checkpoints and its end (the figure at the end only, and with workers or Ray the
     # tables too), and an interrupt before them left the earlier ones in OUT as if this call's
     _clear_outputs("robustness", out, ROBUSTNESS_OUTPUTS)
+    run = _begin_call(out, "robustness", record_run)
     if executor == "local" and workers <= 1:
         for k, a in enumerate(args):
             _robustness_group(*a, progress=progress)
@@ -801,6 +821,8 @@ def robustness(
             raise WorkerLostError(f"{e}; the runs finished before it are kept in {runs_path}, and {again}") from e.__cause__
     runs = [r for a in args for r in _select(read_runs(runs_path, progress), *a[:10])]
     _write_robustness_outputs(runs, sigmas, out)
+    if run is not None:
+        end_run(out, run)
     return runs
 
 

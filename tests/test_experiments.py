@@ -41,8 +41,23 @@ def test_noisy_warm_starts_are_vmapped_draws():
     np.testing.assert_array_equal(draws, noisy_warm_starts(x0, [1e-6, 0.5], replicates=400, seed=3))
 
 
+def _an_earlier_commands_record(folder):
+    """A complete provenance.json of another command in ``folder``, as a reused folder has."""
+    (folder / "provenance.json").write_text(json.dumps({"command": "jtraj robustness --replicates 7", "complete": True}))
+
+
+def _this_calls_record(folder, function):
+    """Called from Python, the sweeps wrote no provenance.json and left an earlier command's
+    complete record beside their own tables; now it is this call's, the earlier one kept."""
+    record = json.loads((folder / "provenance.json").read_text())
+    assert record["complete"] is True and record["call"] == {"function": f"jtraj.experiments.{function}"}
+    assert [r["command"] for r in record["earlier"]] == ["jtraj robustness --replicates 7"]
+
+
 def test_robustness_study_writes_tables_and_figure(tmp_path):
+    _an_earlier_commands_record(tmp_path)
     runs = robustness([HOP], ["se3"], sigmas=[1e-6, 1e-2], replicates=2, out=tmp_path, progress=None)
+    _this_calls_record(tmp_path, "robustness")
     assert len(runs) == 4
     summary = json.loads((tmp_path / "table_iii.json").read_text())
     assert [(r["sigma"], r["runs"]) for r in summary] == [(1e-6, 2), (1e-2, 2)]
@@ -512,7 +527,9 @@ def test_robustness_with_worker_processes_matches_in_process(tmp_path):
 
 
 def test_compare_writes_table_iv_and_plots(tmp_path, capsys):
+    _an_earlier_commands_record(tmp_path)
     rows = compare([HOP], ["se3"], out=tmp_path)
+    _this_calls_record(tmp_path, "compare")
     assert rows[0]["task"] == "test_hop" and rows[0]["converged"]
     # the default progress prints to the sys.stdout of the call (capsys's), not of the import
     assert "jtraj: test_hop on go2" in capsys.readouterr().out
@@ -762,7 +779,7 @@ def test_compare_removes_the_figure_of_the_table_it_replaces(tmp_path, monkeypat
     (tmp_path / "comparison.png").write_bytes(b"the earlier table's")
     (tmp_path / "notes.txt").write_text("mine")
     compare(["walk"], ["euler"], out=tmp_path, progress=None, save_trajectories=False)
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt", "table_iv.json", "table_iv.md"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt", "provenance.json", "table_iv.json", "table_iv.md"]
     (tmp_path / "table_iv.md").unlink()
     (tmp_path / "table_iv.md").mkdir()  # refused before the first solve, not after the last
     with pytest.raises(ValueError, match=r"^compare: .*table_iv.md is a folder; expected room for the file table_iv.md$"):
@@ -1263,7 +1280,8 @@ def test_robustness_removes_an_earlier_calls_tables_before_it_solves(tmp_path, m
     monkeypatch.setattr(experiments, "_robustness_group", interrupted)
     with pytest.raises(KeyboardInterrupt):
         robustness([HOP], ["se3"], [0.1], replicates=2, out=tmp_path, progress=None)
-    assert len(groups) == 1 and sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
+    assert len(groups) == 1 and sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt", "provenance.json"]
+    assert json.loads((tmp_path / "provenance.json").read_text())["complete"] is False  # this call's, unfinished
     (tmp_path / "fig2.png").mkdir()
     with pytest.raises(ValueError, match=r"^robustness: .*fig2.png is a folder; expected room for the file fig2.png$"):
         robustness([HOP], ["se3"], [0.1], replicates=2, out=tmp_path, progress=None)
