@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import hashlib
 import json
 import math
@@ -60,7 +61,35 @@ def _row(result) -> dict:
     row["status"] = result.status.value
     row["solver_status"] = result.solver_status.value
     row["task_check"] = result.metrics.get("task_check") or None  # why the task check failed
+    # the code that solved it (not part of the run's key): a study resumed after a change of
+    # code mixed two commits' runs in one table, and nothing said which run was whose
+    row["source"] = _code_source()
     return row
+
+
+@functools.lru_cache(maxsize=1)
+def _code_source() -> dict | None:
+    """`jtraj.provenance.source` of this process (its commit and whether the checkout differs),
+    asked once: the code does not change while a process runs."""
+    from jtraj.provenance import source
+
+    return source()
+
+
+def _other_code_note(resumed: list[dict]) -> str | None:
+    """A note when runs a study resumes were solved at another commit than this process's code
+    (or before runs recorded theirs), else None (also where this process's commit is unknown)."""
+    here = _code_source()
+    if here is None:
+        return None
+    others = [r for r in resumed if (r.get("source") or {}).get("commit") != here["commit"]]
+    if not others:
+        return None
+    commits = sorted({((r.get("source") or {}).get("commit") or "unrecorded")[:7] for r in others})
+    return (
+        f"note: {len(others)} of the resumed runs were solved at another commit ({', '.join(commits)}) than this call's "
+        f"{here['commit'][:7]}; their rows are kept in the tables (without resume, all are solved again)"
+    )
 
 
 def compare(
@@ -783,6 +812,8 @@ def robustness(
             kept += [f"{elsewhere} runs of these settings at other noise levels or replicates"] if elsewhere else []
             kept_text = f"; its {' and '.join(kept)} are kept" if kept else ""
             print(f"resuming: {len(wanted & done)} of this call's {len(wanted)} runs already in {runs_path}{kept_text}", file=progress, flush=True)
+            if note := _other_code_note([r for r in known if run_key(r) in wanted]):
+                print(note, file=progress, flush=True)
             if not wanted & done and (differ := _settings_differ(known, bases)):
                 # a forgotten --seed or --ipopt solved the whole study again without a word
                 print(f"note: none of them is this call's: the file's runs of these tasks and parameterizations differ in {differ}", file=progress, flush=True)

@@ -66,6 +66,25 @@ def test_robustness_study_writes_tables_and_figure(tmp_path):
     assert (tmp_path / "fig2.png").stat().st_size > 1000
 
 
+def test_a_resumed_study_says_which_runs_other_code_solved(tmp_path, monkeypatch):
+    """A study resumed after a change of code mixed two commits' runs in one table without a
+    word, and no run said which code solved it. Each run records its source, and resuming runs
+    of another commit (or of none recorded) says so."""
+    import io as stdio
+
+    first = {"commit": "a" * 40, "dirty": False}
+    monkeypatch.setattr(experiments, "_code_source", lambda: first)
+    runs = robustness([HOP], ["se3"], sigmas=[1e-3], replicates=1, seed=5, out=tmp_path, progress=None)
+    assert runs[0]["source"] == first
+    said = stdio.StringIO()
+    robustness([HOP], ["se3"], sigmas=[1e-3], replicates=1, seed=5, out=tmp_path, progress=said)
+    assert "resuming: 1 of this call's 1 runs" in said.getvalue() and "note:" not in said.getvalue()  # the same commit
+    monkeypatch.setattr(experiments, "_code_source", lambda: {"commit": "b" * 40, "dirty": True})
+    said = stdio.StringIO()
+    robustness([HOP], ["se3"], sigmas=[1e-3], replicates=1, seed=5, out=tmp_path, progress=said)
+    assert f"note: 1 of the resumed runs were solved at another commit ({'a' * 7}) than this call's {'b' * 7}; their rows are kept" in said.getvalue()
+
+
 def test_robustness_resumes_a_stopped_study(tmp_path):
     first = robustness([HOP], ["se3"], sigmas=[1e-3], replicates=1, seed=5, out=tmp_path, progress=None)
     more = robustness([HOP], ["se3"], sigmas=[1e-3], replicates=2, seed=5, out=tmp_path, progress=None)
