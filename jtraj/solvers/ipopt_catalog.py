@@ -150,15 +150,40 @@ def catalog() -> dict[str, OptionSpec]:
 
 
 #: run in a child process by `linear_solver_available`: this file loaded alone (not the jtraj
-#: package, which imports JAX), the probe's status printed, and the child ended at once
+#: package, which imports JAX; registered in sys.modules, as its dataclasses need), the probe's
+#: status printed, and the child ended at once
 _CHILD_PROBE = """
 import importlib.util, os, sys
 spec = importlib.util.spec_from_file_location("_jtraj_ipopt_probe", sys.argv[1])
 module = importlib.util.module_from_spec(spec)
+sys.modules[spec.name] = module
 spec.loader.exec_module(module)
-print(module._probe_status(("linear_solver", sys.argv[2])), flush=True)
+try:
+    status = module._probe_status(("linear_solver", sys.argv[2]))
+except TypeError:  # cyipopt's refusal of a value this Ipopt does not list (spral, wsmp)
+    status = "refused"
+print(status, flush=True)
 os._exit(0)
 """
+
+
+def _child_status(name: str) -> int | None:
+    """Ipopt's status on the tiny problem with ``linear_solver=name``, solved in a child
+    process; None where this Ipopt refuses the name, or the child died of a signal (a crash in
+    the solver's library: MA97 without HSL) or did not answer in time. A child that failed
+    otherwise raises, with its error."""
+    try:
+        child = subprocess.run(
+            [sys.executable, "-c", _CHILD_PROBE, os.path.abspath(__file__), name], capture_output=True, text=True, timeout=120
+        )
+    except subprocess.TimeoutExpired:
+        return None
+    last = (child.stdout.split() or [""])[-1]
+    if last.lstrip("-").isdigit():
+        return int(last)
+    if last == "refused" or child.returncode < 0:
+        return None
+    raise RuntimeError(f"the probe of Ipopt's linear_solver={name!r} failed (exit status {child.returncode}): {child.stderr.strip()[-2000:]}")
 
 
 @functools.lru_cache(maxsize=None)
@@ -166,16 +191,11 @@ def linear_solver_available(name: str) -> bool:
     """Whether this Ipopt can solve with ``linear_solver=name`` (MUMPS is built in; the
     others are loaded at run time from libraries that may be absent).
 
-    Probed in a child process: with HSL absent, Ipopt's MA97 interface crashes the process
-    (segmentation fault) when the problem that tried to load it is freed."""
+    Probed in a child process (`_child_status`): with HSL absent, Ipopt's MA97 interface
+    crashes the process (segmentation fault) when the problem that tried to load it is freed."""
     if name == "mumps":
         return True
-    try:
-        child = subprocess.run([sys.executable, "-c", _CHILD_PROBE, os.path.abspath(__file__), name], capture_output=True, text=True, timeout=120)
-    except (OSError, subprocess.TimeoutExpired):
-        return False
-    lines = child.stdout.split()
-    return bool(lines) and lines[-1] in ("0", "1")
+    return _child_status(name) in (0, 1)
 
 
 def _probe_status(*options: tuple[str, Any]) -> int:
