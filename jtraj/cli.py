@@ -866,7 +866,9 @@ def _mujoco_gl_refused() -> str | None:
             raise
         return f"{e}; expected egl, osmesa or glfw, or leave it unset (jtraj then takes egl or osmesa where there is no display and their libraries load)"
     except (AttributeError, ImportError, OSError) as e:  # PyOpenGL without the backend's library
-        if not setting:
+        # only a failure in the OpenGL backend's import (another, a broken MuJoCo install, is
+        # no MUJOCO_GL matter and keeps its traceback)
+        if not setting or not _raised_in_opengl(e):
             raise
         return (
             f"MUJOCO_GL={setting!r}: MuJoCo could not load that OpenGL backend ({type(e).__name__}: {e}); install its library "
@@ -874,6 +876,15 @@ def _mujoco_gl_refused() -> str | None:
             "(jtraj then takes a backend whose library loads, or none: everything but drawing works)"
         )
     return None
+
+
+def _raised_in_opengl(error: BaseException) -> bool:
+    """Whether ``error`` came from PyOpenGL or MuJoCo's OpenGL backends (mujoco.egl,
+    mujoco.osmesa, mujoco.glfw)."""
+    import traceback
+
+    where = [frame.filename.replace("\\", "/") for frame in traceback.extract_tb(error.__traceback__)]
+    return any("/OpenGL/" in f or any(f"/mujoco/{b}" in f for b in ("egl", "osmesa", "glfw")) for f in where)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -63,6 +63,12 @@ def vector_extension(cpuinfo: str) -> str | None:
 LOADED_FOLDERS = ("jtraj", "tasks", "robots")
 
 
+#: git's environment variables that choose the repository, index or objects it reads
+_REPOSITORY_VARIABLES = frozenset(
+    ("GIT_DIR", "GIT_WORK_TREE", "GIT_INDEX_FILE", "GIT_OBJECT_DIRECTORY", "GIT_ALTERNATE_OBJECT_DIRECTORIES", "GIT_COMMON_DIR", "GIT_NAMESPACE", "GIT_PREFIX", "GIT_CEILING_DIRECTORIES", "GIT_DISCOVERY_ACROSS_FILESYSTEM")
+)
+
+
 def source(root: str | Path | None = None) -> dict | None:
     """The git commit jtraj runs from (or the checkout at ``root``) and whether the run's code
     differs from it (``dirty``):
@@ -74,9 +80,10 @@ def source(root: str | Path | None = None) -> dict | None:
     if not (root / ".git").exists():
         return None
     try:
-        # git's own variables (GIT_DIR, GIT_WORK_TREE, GIT_INDEX_FILE: set in hooks and some
-        # shells) pointed it at another repository or index: its commit was recorded
-        env = {k: v for k, v in os.environ.items() if not k.startswith("GIT_")}
+        # git's variables that choose the repository (set in hooks and some shells) pointed it
+        # at another repository or index, whose commit was recorded; the others (a container's
+        # GIT_CONFIG_* for safe.directory) stay
+        env = {k: v for k, v in os.environ.items() if k not in _REPOSITORY_VARIABLES}
 
         def git(*args: str) -> str:
             return subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True, timeout=20, check=True, env=env).stdout.strip()

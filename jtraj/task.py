@@ -444,7 +444,7 @@ def _check_and_normalize(t: Task) -> None:
     put("target_rotation_rpy", _vector(t.target_rotation_rpy, "target_rotation_rpy"))
     # an angle past half a turn is the attitude of a smaller one: [0, 0, 2 pi] (a spin meant)
     # solved as a plain hop, and degrees typed for radians (90) as 116.6 degrees
-    if any(abs(a) > math.pi + 1e-12 for a in t.target_rotation_rpy):
+    if any(abs(a) > math.pi + 1e-3 for a in t.target_rotation_rpy):  # (3.1416, float32's pi: half a turn)
         raise TaskError(
             "target_rotation_rpy", list(t.target_rotation_rpy),
             "expected angles (rad) within [-pi, pi]: the target is an attitude, so a larger angle is a smaller one's attitude; whole turns on the way are flip_axis and flip_turns",

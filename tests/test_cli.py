@@ -1016,3 +1016,19 @@ def test_python_dash_m_jtraj_is_the_command(capsys):
     ours = capsys.readouterr().out.splitlines()
     # the same pose and rows (the last digits of the errors may follow this process's XLA flags)
     assert child.stdout.splitlines()[0] == ours[0] and [r.split()[0] for r in child.stdout.splitlines()] == [r.split()[0] for r in ours]
+
+
+def test_a_broken_mujoco_is_not_called_a_bad_mujoco_gl(tmp_path):
+    """import jtraj sets MUJOCO_GL on a machine without a display, and every failure to import
+    MuJoCo (a broken install, a C++ library mismatch) was reported as that backend's missing
+    library, exit status 2, with advice to install libegl1: only the OpenGL backend's own
+    failures are, the others keep their traceback."""
+    import os
+    import subprocess
+
+    (tmp_path / "mujoco").mkdir()
+    (tmp_path / "mujoco" / "__init__.py").write_text("raise ImportError(\"libstdc++.so.6: version `GLIBCXX_3.4.32' not found\")\n")
+    env = {**os.environ, "MUJOCO_GL": "egl", "PYTHONPATH": str(tmp_path)}
+    done = subprocess.run([sys.executable, "-c", "import sys; from jtraj import cli; sys.exit(cli.main(['solve', 'big_jump']))"], env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 1 and "GLIBCXX_3.4.32" in done.stderr and "Traceback" in done.stderr, done.stderr[-2000:]
+    assert "could not load that OpenGL backend" not in done.stderr

@@ -3,6 +3,7 @@ name the field and what was expected."""
 
 import dataclasses
 import importlib.resources
+import math
 import re
 import tomllib
 
@@ -450,3 +451,13 @@ def test_rules_given_in_python_as_a_user_would_write_them():
             small_task(**{field: value})
     with pytest.raises(TaskError, match=r"warm_start_rules\[0\].profile: 'spin': expected 'ramp' or 'hold'"):
         small_task(warm_start_rules=(RotationRule("spin", (0.0, 1.0, 0.0), 0.5, (1,)),))  # type: ignore[arg-type]
+
+
+def test_half_a_turn_as_typed_is_accepted():
+    """The range check of target.rotation_rpy refused 3.1416 and float32's pi, both half a
+    turn as people write it."""
+    for yaw in (3.1416, float(np.float32(np.pi)), -math.pi):
+        assert small_task(target_rotation_rpy=(0.0, 0.0, yaw)).target_rotation_rpy[2] == yaw
+    with pytest.raises(TaskError, match=r"expected angles \(rad\) within \[-pi, pi\]"):
+        small_task(target_rotation_rpy=(0.0, 0.0, 3.15))
+
