@@ -483,9 +483,10 @@ def _check_out(path: str | None, field: str = "--out", shown: str | None = None)
 def _check_out_files(folder: str, names: tuple[str, ...], field: str = "--out") -> None:
     """The files a command writes into ``folder`` must not be folders (one failed after the
     files before it were written)."""
-    for name in names:
-        if (Path(folder) / name).is_dir():
-            raise InputError(field, folder, f"{Path(folder) / name} is a folder; expected room for the file {name}")
+    from jtraj.result import folder_in_the_way
+
+    if (problem := folder_in_the_way(folder, names)) is not None:
+        raise InputError(field, folder, problem)
 
 
 def _check_names(field: str, text: str, known: list[str], what: str, allow_files: bool = False) -> list[str]:
@@ -800,7 +801,9 @@ def _check_inputs(args: argparse.Namespace) -> None:
             for variant in ("naive", "attitude") if args.bench == "all" else (args.variant or "attitude",):
                 folder = str(Path(args.out) / f"{bench}_{variant}")
                 _check_out(folder)
-                _check_out_files(folder, ("result.json", "trajectory.npz", "plot.png", *(("motion.mp4", "keyframes.png") if args.render else ())))
+                from jtraj.result import RESULT_FOLDER_FILES
+
+                _check_out_files(folder, RESULT_FOLDER_FILES)  # Result.save refuses a folder at any of them
         _check_out_files(args.out, ("provenance.json", *(("table.json", "table.md") if args.bench == "all" else ())))
 
 

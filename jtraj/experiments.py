@@ -70,25 +70,30 @@ def _row(result) -> dict:
 @functools.lru_cache(maxsize=1)
 def _code_source() -> dict | None:
     """`jtraj.provenance.source` of this process (its commit and whether the checkout differs),
-    asked once: the code does not change while a process runs."""
+    asked once, before a process's first solve (`_compare_one`, `_robustness_rows`): the code
+    it imported does not change while it runs."""
     from jtraj.provenance import source
 
     return source()
 
 
 def _other_code_note(resumed: list[dict]) -> str | None:
-    """A note when runs a study resumes were solved at another commit than this process's code
-    (or before runs recorded theirs), else None (also where this process's commit is unknown)."""
+    """A note when runs a study resumes were solved by other code than this process's: another
+    commit, or a changed checkout on either side, or before runs recorded theirs; else None
+    (also where this process's commit is unknown)."""
     here = _code_source()
     if here is None:
         return None
-    others = [r for r in resumed if (r.get("source") or {}).get("commit") != here["commit"]]
+    others = [r for r in resumed if r.get("source") != here or here.get("dirty")]
     if not others:
         return None
-    commits = sorted({((r.get("source") or {}).get("commit") or "unrecorded")[:7] for r in others})
+
+    def named(source: dict | None) -> str:
+        return "unrecorded" if not source else source["commit"][:7] + (" with changes" if source.get("dirty") else "")
+
     return (
-        f"note: {len(others)} of the resumed runs were solved at another commit ({', '.join(commits)}) than this call's "
-        f"{here['commit'][:7]}; their rows are kept in the tables (without resume, all are solved again)"
+        f"note: {len(others)} of the resumed runs were solved by other code ({', '.join(sorted({named(r.get('source')) for r in others}))}) "
+        f"than this call's ({named(here)}), or code that may differ; their rows are kept in the tables (without resume, all are solved again)"
     )
 
 
@@ -265,6 +270,7 @@ def _why(row: dict) -> str:
 def _compare_one(task, p, variables, exact_hessian, solver, out, command=None, progress=None) -> dict:
     """One cell of Table IV (a module-level function: executors ship it to other processes);
     ``command``: what its folder's provenance.json names (the sweep's)."""
+    _code_source()  # read before the solve, as this process's code is (an edit during it is not)
     return _row(solve(task, p, variables=variables, solver=solver, exact_hessian=exact_hessian, progress=progress, progress_every=10, out=out, command=command))
 
 
@@ -635,6 +641,7 @@ def _robustness_rows(task, p, sigmas, replicates, seed, variables, exact_hessian
     solves each sigma's missing replicates in one batched call (one vmapped program on an
     accelerator, the one-problem program on every core of a CPU), with one compile per group;
     Ipopt solves them one by one. ``noise_chart`` as in `robustness`."""
+    _code_source()  # read before the solves, as this process's code is (an edit during them is not)
     task = load_task(task)
     base = _group_key(task, p, variables, exact_hessian, options, seed, solver, noise_chart)
     todo = [(s, r) for s in sigmas for r in range(replicates) if run_key(base | {"sigma": float(s), "replicate": r}) not in done]

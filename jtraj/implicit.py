@@ -288,7 +288,8 @@ def implicit_solution(
             try:
                 out[rows] = system.solve(bb[rows], transpose=transpose)
             except SingularKKTError as e:
-                if transpose or not (names := _undifferentiable(system, xs[i], lams[i], th)):
+                # (not where the factorization itself failed: the names need it)
+                if transpose or system._lu is None or not (names := _undifferentiable(system, xs[i], lams[i], th)):
                     raise
                 raise SingularKKTError(f"{e}; the entries of theta without a derivative here: {_listed(names)}") from None
             if transpose and (names := _undifferentiable(system, xs[i], lams[i], th)):
@@ -297,8 +298,8 @@ def implicit_solution(
                 # hop: d cost / d target height -0.0085, -0.078 or +0.42 from three solutions)
                 warnings.warn(
                     f"jtraj: {_listed(names)} of theta have no derivative at this solution (each alone leaves the "
-                    "linearized active constraints inconsistent): the gradient's components there are arbitrary, not "
-                    "derivatives (jax.jvp along them raises SingularKKTError); the others are exact",
+                    "linearized active constraints inconsistent): where a gradient's entries there are used, they are "
+                    "arbitrary, not derivatives (jax.jvp along them raises SingularKKTError); the others are exact",
                     NotDifferentiableWarning,
                     stacklevel=1,
                 )

@@ -72,11 +72,12 @@ DERIVED_FILES = ("trajectory.png", "convergence.png", "solution.png", "plot.png"
 RESULT_FOLDER_FILES = (RESULT_FILE, TRAJECTORY_FILE, PROVENANCE_FILE, *DERIVED_FILES)
 
 
-def folder_in_the_way(directory: str | Path) -> str | None:
-    """What stops `Result.save` in ``directory`` ("D/motion.mp4 is a folder; expected room for
-    the file motion.mp4"), or None: a folder at one of `RESULT_FOLDER_FILES` (it failed with
-    IsADirectoryError after the solve). Checked before a solve that saves there."""
-    for name in RESULT_FOLDER_FILES:
+def folder_in_the_way(directory: str | Path, names: tuple[str, ...] = RESULT_FOLDER_FILES) -> str | None:
+    """What stops a write of ``names`` into ``directory`` ("D/motion.mp4 is a folder; expected
+    room for the file motion.mp4"), or None: a folder at one of them (by default
+    `RESULT_FOLDER_FILES`, where `Result.save` failed with IsADirectoryError after the solve).
+    Checked before a solve that saves there (`jtraj.solve`, the command line)."""
+    for name in names:
         if (Path(directory) / name).is_dir():
             return f"{Path(directory) / name} is a folder; expected room for the file {name}"
     return None

@@ -931,7 +931,16 @@ def test_attitude_refuses_a_folder_where_its_files_go_and_a_variant_with_all(tmp
     import jtraj.attitude.cli
 
     monkeypatch.setattr(jtraj.attitude.cli, "main", lambda *a, **k: pytest.fail("solved after a bad input"))
-    for where, argv in (("quadflip_attitude/plot.png", ["quadflip"]), ("quadflip_naive/result.json", ["quadflip", "--variant", "naive"]), ("table.md", ["all"]), ("satellite_attitude/motion.mp4", ["satellite", "--render"])):
+    # (a folder at a file Result.save removes, provenance.json or trajectory.png, passed the
+    # check and failed after the solve: the check lists every file of a result's folder now)
+    for where, argv in (
+        ("quadflip_attitude/plot.png", ["quadflip"]),
+        ("quadflip_naive/result.json", ["quadflip", "--variant", "naive"]),
+        ("table.md", ["all"]),
+        ("satellite_attitude/motion.mp4", ["satellite", "--render"]),
+        ("barrelroll_attitude/trajectory.png", ["barrelroll"]),
+        ("barrelroll_attitude/provenance.json", ["barrelroll"]),
+    ):
         out = tmp_path / where.replace("/", "_")
         (out / where).mkdir(parents=True)
         folder = out / where.rsplit("/", 1)[0] if "/" in where else out

@@ -82,7 +82,7 @@ def test_a_resumed_study_says_which_runs_other_code_solved(tmp_path, monkeypatch
     monkeypatch.setattr(experiments, "_code_source", lambda: {"commit": "b" * 40, "dirty": True})
     said = stdio.StringIO()
     robustness([HOP], ["se3"], sigmas=[1e-3], replicates=1, seed=5, out=tmp_path, progress=said)
-    assert f"note: 1 of the resumed runs were solved at another commit ({'a' * 7}) than this call's {'b' * 7}; their rows are kept" in said.getvalue()
+    assert f"note: 1 of the resumed runs were solved by other code ({'a' * 7}) than this call's ({'b' * 7} with changes), or code that may differ; their rows are kept" in said.getvalue()
 
 
 def test_robustness_resumes_a_stopped_study(tmp_path):
