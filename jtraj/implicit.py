@@ -289,10 +289,10 @@ def implicit_solution(
                 out[rows] = system.solve(bb[rows], transpose=transpose)
             except SingularKKTError as e:
                 # (not where the factorization itself failed: the names need it)
-                if transpose or system._lu is None or not (names := _undifferentiable(system, xs[i], lams[i], th)):
+                if transpose or system._lu is None or not (names := undifferentiable_parameters(nlp, system, xs[i], lams[i], th)):
                     raise
                 raise SingularKKTError(f"{e}; the entries of theta without a derivative here: {_listed(names)}") from None
-            if transpose and (names := _undifferentiable(system, xs[i], lams[i], th)):
+            if transpose and (names := undifferentiable_parameters(nlp, system, xs[i], lams[i], th)):
                 # the transposed system has solutions w + U c for every c: the gradient's
                 # components along these entries are whichever the LU gave (measured on a Go2
                 # hop: d cost / d target height -0.0085, -0.078 or +0.42 from three solutions)
@@ -304,11 +304,6 @@ def implicit_solution(
                     stacklevel=1,
                 )
         return out.reshape(batch + (b.shape[-1],))
-
-    def _undifferentiable(system, x, lam, theta) -> list[str]:
-        if system.undifferentiable is None:  # once per system (it costs a few solves and VJPs)
-            system.undifferentiable = undifferentiable_parameters(nlp, system, x, lam, theta)
-        return system.undifferentiable
 
     def linear_solve(sol: ImplicitSolution, theta, b, transpose: bool):
         @_first_order_only

@@ -345,8 +345,7 @@ class KKTSystem:
     matrix: sp.csc_matrix
     _lu: Any = None
     _null: np.ndarray | None = None
-    #: `undifferentiable_parameters` of this system, once computed (by `jtraj.implicit`)
-    undifferentiable: list[str] | None = None
+    _undifferentiable: list[str] | None = None  # `undifferentiable_parameters`, once computed
 
     @property
     def degenerate(self) -> bool:
@@ -442,7 +441,14 @@ def undifferentiable_parameters(nlp: ParametricNLP, system: KKTSystem, x: Any, l
     ``field[index]`` (``target_translation[2]``; a scalar field by its name): those whose
     unit direction ``e`` leaves ``K dz = -dr/dtheta e`` inconsistent, that is where
     ``(dr/dtheta)^T U`` (U: `KKTSystem.left_null_space`) has a nonzero row. A gradient's
-    components there are arbitrary (`NotDifferentiableWarning`)."""
+    components there are arbitrary (`NotDifferentiableWarning`). Computed once per system (a
+    few solves and VJPs), for the solution it was built at."""
+    if system._undifferentiable is None:
+        system._undifferentiable = _undifferentiable(nlp, system, x, lam, theta)
+    return system._undifferentiable
+
+
+def _undifferentiable(nlp: ParametricNLP, system: KKTSystem, x: Any, lam: Any, theta: Any) -> list[str]:
     U = system.left_null_space()
     if U.shape[1] == 0:
         return []
