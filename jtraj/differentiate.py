@@ -188,16 +188,25 @@ class DifferentiableTask:
 
         first = [True]  # the first forward solve compiles the NLP's functions: said when `say` is given
 
+        def first_said(run, started: str, ended):
+            """``run()``, and on the first forward call (with `say`) ``started`` before it and
+            ``ended(its result, seconds)`` after."""
+            if say is None or not first[0]:
+                return run()
+            say(f"jtraj.differentiable: {tr.task.name}: {started}")
+            t0 = time.perf_counter()
+            out = run()
+            first[0] = False
+            say(f"jtraj.differentiable: {tr.task.name}: {ended(out, time.perf_counter() - t0)}")
+            return out
+
         def forward(theta):
             theta, x0 = prepare(theta)
-            announce = say is not None and first[0]
-            if announce:
-                say(f"jtraj.differentiable: {tr.task.name}: first forward solve with {backend.name} (compiles the NLP's functions, once)")
-            t0 = time.perf_counter()
-            sol = backend.solve(nlp, x0, theta, self.options)
-            if announce:
-                first[0] = False
-                say(f"jtraj.differentiable: {tr.task.name}: {sol.status.value} in {sol.stats.iterations} iterations, {time.perf_counter() - t0:.1f} s")
+            sol = first_said(
+                lambda: backend.solve(nlp, x0, theta, self.options),
+                f"first forward solve with {backend.name} (compiles the NLP's functions, once)",
+                lambda sol, seconds: f"{sol.status.value} in {sol.stats.iterations} iterations, {seconds:.1f} s",
+            )
             self.last_solution = sol
             out = checked(sol)
             self._x_warm = sol.x
@@ -208,22 +217,22 @@ class DifferentiableTask:
             # where the backend runs as compiled JAX (`_side_by_side`), else one after another
             prepared = [prepare(theta) for theta in thetas]
             opts = self.options
-            announce = say is not None and first[0]
-            if announce:
-                say(f"jtraj.differentiable: {tr.task.name}: first forward solves, {len(prepared)} with {backend.name} (compile the NLP's functions, once)")
-            t0 = time.perf_counter()
             solve = lambda job: backend.solve(nlp, job[1], job[0], opts)  # noqa: E731
-            if _side_by_side(backend) and len(prepared) > 1:
-                from concurrent.futures import ThreadPoolExecutor
 
-                # the first to need the program compiles it; the others wait for it
-                with ThreadPoolExecutor(min(len(prepared), os.cpu_count() or 1)) as pool:
-                    solutions = list(pool.map(solve, prepared))
-            else:
-                solutions = [solve(job) for job in prepared]
-            if announce:
-                first[0] = False
-                say(f"jtraj.differentiable: {tr.task.name}: {len(solutions)} solves in {time.perf_counter() - t0:.1f} s")
+            def solve_all():
+                if _side_by_side(backend) and len(prepared) > 1:
+                    from concurrent.futures import ThreadPoolExecutor
+
+                    # the first to need the program compiles it; the others wait for it
+                    with ThreadPoolExecutor(min(len(prepared), os.cpu_count() or 1)) as pool:
+                        return list(pool.map(solve, prepared))
+                return [solve(job) for job in prepared]
+
+            solutions = first_said(
+                solve_all,
+                f"first forward solves, {len(prepared)} with {backend.name} (compile the NLP's functions, once)",
+                lambda solutions, seconds: f"{len(solutions)} solves in {seconds:.1f} s",
+            )
             outs = []
             for i, sol in enumerate(solutions):  # a loop, not a comprehension: checked's stacklevel
                 self.last_solution = sol  # the failed member, if one fails
