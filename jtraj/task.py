@@ -341,6 +341,12 @@ def _is_real(x: Any) -> bool:
         return False
 
 
+def _is_list(value: Any, *single: type) -> bool:
+    """Whether ``value`` is a list of items: iterable, and not a string (whose characters would
+    be the items) nor one item of the types ``single`` given in place of the list."""
+    return not isinstance(value, (str, bytes, *single)) and hasattr(value, "__iter__")
+
+
 def _real(value: Any, field: str, expected: str = "expected a number", positive: bool = False, nonnegative: bool = False) -> float:
     if not _is_real(value):
         raise TaskError(field, value, expected)
@@ -369,7 +375,7 @@ def _vector(value: Any, field: str, n: int = 3, nonzero: bool = False) -> tuple[
 
 def _indices(value: Any, field: str, n_phases: int) -> tuple[int, ...]:
     expected = f"expected a non-empty list of phase indices in 0..{n_phases - 1}"
-    if isinstance(value, (str, bytes)) or not hasattr(value, "__iter__"):
+    if not _is_list(value):
         raise TaskError(field, value, expected)
     items = tuple(value)
     if not items or not all(isinstance(p, (int, np.integer)) and not isinstance(p, bool) and 0 <= p < n_phases for p in items):
@@ -404,7 +410,7 @@ def _check_and_normalize(t: Task) -> None:
     if t.robot not in robots:
         raise TaskError("robot", t.robot, f"expected one of {list(robots)}")
     put("timestep", _real(t.timestep, "timestep", "expected a positive number of seconds", positive=True))
-    if isinstance(t.phases, (str, bytes)) or not hasattr(t.phases, "__iter__"):
+    if not _is_list(t.phases):
         raise TaskError("phases", t.phases, "expected a list of phases (each with contacts and duration)")
     phases = tuple(t.phases)
     if not phases:
@@ -414,7 +420,7 @@ def _check_and_normalize(t: Task) -> None:
         if not isinstance(phase, Phase):
             raise TaskError(f"phases[{i}]", phase, "expected a Phase(contacts, duration)")
         contacts = phase.contacts
-        if isinstance(contacts, (str, bytes)) or not hasattr(contacts, "__iter__") or not all(isinstance(c, str) for c in contacts):
+        if not _is_list(contacts) or not all(isinstance(c, str) for c in contacts):
             raise TaskError(f"phases[{i}].contacts", contacts, 'expected a list of contact names, e.g. ["FL_foot", "FR_foot"] ([] for flight)')
         duration = _real(phase.duration, f"phases[{i}].duration", "expected a positive number of seconds", positive=True)
         knots = duration / t.timestep
@@ -451,7 +457,7 @@ def _check_and_normalize(t: Task) -> None:
         )
     if t.target_joints is not None:
         tj = t.target_joints
-        if isinstance(tj, (str, bytes)) or not hasattr(tj, "__iter__") or not all(_is_real(x) for x in tj):
+        if not _is_list(tj) or not all(_is_real(x) for x in tj):
             raise TaskError("target_joints", tj, "expected a list of joint angles (rad)")
         put("target_joints", tuple(float(x) for x in tj))
     put("friction", _real(t.friction, "friction", "expected a positive friction coefficient", positive=True))
@@ -462,9 +468,9 @@ def _check_and_normalize(t: Task) -> None:
     put("acceleration_weight", _real(t.acceleration_weight, "acceleration_weight", "expected a weight >= 0", nonnegative=True))
     rules = []
     # one rule, or None, in place of the tuple: "'RotationRule' object is not iterable" before
-    if isinstance(t.warm_start_rules, (str, bytes, RotationRule)) or not hasattr(t.warm_start_rules, "__iter__"):
+    if not _is_list(t.warm_start_rules, RotationRule):
         raise TaskError("warm_start_rules", t.warm_start_rules, "expected a list of RotationRule (empty: none)")
-    if isinstance(t.warm_start_joints, (str, bytes, JointRule)) or not hasattr(t.warm_start_joints, "__iter__"):
+    if not _is_list(t.warm_start_joints, JointRule):
         raise TaskError("warm_start_joints", t.warm_start_joints, "expected a list of JointRule (empty: none)")
     for i, rule in enumerate(tuple(t.warm_start_rules)):
         if not isinstance(rule, RotationRule):
