@@ -917,7 +917,7 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError as e:
         # its output was closed (`| head`, a `tee` ended by Ctrl-C): one line, what was kept
         # (a traceback before; and Python's flush of stdout at exit would fail again)
-        _stdout_to_devnull()
+        _to_devnull(sys.stdout)
         notes = getattr(e, "__notes__", [])
         _tell(f"jtraj {args.command}: stopped: its output was closed (broken pipe){_kept(args, KeyboardInterrupt(*notes[-1:]))}")
         return 1
@@ -931,17 +931,16 @@ def _tell(message: str) -> None:
     try:
         print(message, file=sys.stderr, flush=True)
     except (BrokenPipeError, ValueError):  # ValueError: stderr closed
-        _stdout_to_devnull(sys.stderr)
+        _to_devnull(sys.stderr)
 
 
-def _stdout_to_devnull(stream=None) -> None:
-    """Point stdout's (or ``stream``'s) file descriptor at /dev/null (Python's advice for a
-    closed pipe: its flush at exit would raise again); nothing where it has no descriptor (a
-    test's)."""
+def _to_devnull(stream) -> None:
+    """Point ``stream``'s file descriptor at /dev/null (Python's advice for a closed pipe: its
+    flush at exit would raise again); nothing where it has no descriptor (a test's)."""
     import os
 
     try:
-        fd = (sys.stdout if stream is None else stream).fileno()
+        fd = stream.fileno()
     except (AttributeError, OSError, ValueError):
         return
     devnull = os.open(os.devnull, os.O_WRONLY)

@@ -83,7 +83,6 @@ def folder_in_the_way(directory: str | Path, names: tuple[str, ...] = RESULT_FOL
     return None
 
 
-
 class Outcome(MessageEnum):
     """Did the solve do the task? From the solver's status, feasibility and the task check."""
 
