@@ -158,25 +158,25 @@ def _split(text: str) -> list[str]:
 
 def _cmd_compare(args: argparse.Namespace) -> int:
     from jtraj.experiments import compare
-    from jtraj.provenance import begin_run, end_run
+    from jtraj.provenance import end_run, recording
 
-    run = begin_run(args.out, ["jtraj", *args.argv])
-    args.compare_rows = None  # OUT/provenance.json is written: what an interrupt says (_kept)
-    rows = compare(args.tasks_checked, _split(args.params), out=args.out, variables=args.variables, exact_hessian=args.exact_hessian, save_trajectories=not args.no_trajectories, executor=args.executor, workers=args.workers, ray_address=args.ray_address, solver=args.solver, record_run=False)
-    args.compare_rows = rows
-    end_run(args.out, run)
+    with recording(args.out, ["jtraj", *args.argv]) as run:  # OUT held until the end (jtraj.provenance)
+        args.compare_rows = None  # OUT/provenance.json is written: what an interrupt says (_kept)
+        rows = compare(args.tasks_checked, _split(args.params), out=args.out, variables=args.variables, exact_hessian=args.exact_hessian, save_trajectories=not args.no_trajectories, executor=args.executor, workers=args.workers, ray_address=args.ray_address, solver=args.solver, record_run=False)
+        args.compare_rows = rows
+        end_run(args.out, run)
     print((__import__("pathlib").Path(args.out) / "table_iv.md").read_text())
     return 0 if rows else 1
 
 
 def _cmd_robustness(args: argparse.Namespace) -> int:
     from jtraj.experiments import robustness
-    from jtraj.provenance import begin_run, end_run
+    from jtraj.provenance import end_run, recording
 
     sigmas = args.sigmas_checked
-    run = begin_run(args.out, ["jtraj", *args.argv])
-    robustness(args.tasks_checked, _split(args.params), sigmas, replicates=args.replicates, seed=args.seed, out=args.out, variables=args.variables, workers=args.workers, resume=not args.no_resume, ipopt_options=args.ipopt_checked or None, executor=args.executor, ray_address=args.ray_address, solver=args.solver, noise_chart=args.noise_chart, record_run=False)
-    end_run(args.out, run)
+    with recording(args.out, ["jtraj", *args.argv]) as run:  # OUT held until the end (jtraj.provenance)
+        robustness(args.tasks_checked, _split(args.params), sigmas, replicates=args.replicates, seed=args.seed, out=args.out, variables=args.variables, workers=args.workers, resume=not args.no_resume, ipopt_options=args.ipopt_checked or None, executor=args.executor, ray_address=args.ray_address, solver=args.solver, noise_chart=args.noise_chart, record_run=False)
+        end_run(args.out, run)
     print((__import__("pathlib").Path(args.out) / "table_iii.md").read_text())
     return 0
 
@@ -194,11 +194,11 @@ def _cmd_wahba(args: argparse.Namespace) -> int:
     """``jtraj wahba``, with ``OUT/provenance.json`` (`jtraj.provenance`: unfinished until its
     three files are written), as the other commands write it (it wrote none)."""
     from jtraj.attitude.wahba import main_wahba
-    from jtraj.provenance import begin_run, end_run
+    from jtraj.provenance import end_run, recording
 
-    record = begin_run(args.out, ["jtraj", *args.argv])
-    main_wahba(args.out, trials=args.trials, iterations=args.iterations, seed=args.seed)
-    end_run(args.out, record)
+    with recording(args.out, ["jtraj", *args.argv]) as record:
+        main_wahba(args.out, trials=args.trials, iterations=args.iterations, seed=args.seed)
+        end_run(args.out, record)
     return 0
 
 
@@ -206,11 +206,11 @@ def _cmd_attitude(args: argparse.Namespace) -> int:
     """``jtraj attitude``, with ``OUT/provenance.json`` (`jtraj.provenance`: unfinished until
     the solves' files are written), as the sweeps and ``jtraj solve`` write it."""
     from jtraj.attitude.cli import main as attitude_main
-    from jtraj.provenance import begin_run, end_run
+    from jtraj.provenance import end_run, recording
 
-    record = begin_run(args.out, ["jtraj", *args.argv])
-    code = attitude_main(args.bench, args.variant or "attitude", args.out, n_knots=args.knots, solver=args.solver, render=args.render)
-    end_run(args.out, record)
+    with recording(args.out, ["jtraj", *args.argv]) as record:
+        code = attitude_main(args.bench, args.variant or "attitude", args.out, n_knots=args.knots, solver=args.solver, render=args.render)
+        end_run(args.out, record)
     return code
 
 
@@ -829,12 +829,14 @@ def _check_variable_changes(variables: str, items: list[str] | None):
 def _input_errors() -> tuple[type[BaseException], ...]:
     from jtraj.executors import ExecutorUnavailableError
     from jtraj.io import FileFormatError
+    from jtraj.provenance import FolderInUseError
     from jtraj.solvers.base import InvalidOptionError
     from jtraj.solvers.ipopt_catalog import IpoptOptionError
     from jtraj.task import TaskError
 
-    # InvalidOptionError: an option the options object refuses past the command line's checks
-    errors: tuple[type[BaseException], ...] = (InputError, TaskError, IpoptOptionError, InvalidOptionError, FileFormatError, ExecutorUnavailableError)
+    # InvalidOptionError: an option the options object refuses past the command line's checks;
+    # FolderInUseError: --out is held by another process's run (its command named)
+    errors: tuple[type[BaseException], ...] = (InputError, TaskError, IpoptOptionError, InvalidOptionError, FileFormatError, ExecutorUnavailableError, FolderInUseError)
     # jtraj.experiments imports MuJoCo (and its refusal of MUJOCO_GL) with the robot models: a
     # command that has not imported it (jtraj params, wahba) cannot have raised its errors
     if experiments := sys.modules.get("jtraj.experiments"):

@@ -35,7 +35,7 @@ from jtraj.deprecation import renamed_argument
 from jtraj.executors import WorkerLostError, check_executor_name, executor_for
 from jtraj.numbers import is_real, is_seed, is_whole
 from jtraj.parameterization import PARAMETERIZATIONS, AbstractParameterization
-from jtraj.provenance import begin_run, end_run
+from jtraj.provenance import begin_run, end_run, holding
 from jtraj.result import Outcome
 from jtraj.solver import evaluate, prepare, solve, solver_options, transcription_options, variables_label
 from jtraj.success import FEASIBILITY_TOL
@@ -159,34 +159,37 @@ def compare(
     # an earlier call's table, and `jtraj plot OUT`'s figure of it: this call writes its own
     # table as its cells finish (an interrupt before the first left the earlier one in OUT,
     # which then read as this call's)
-    _clear_outputs("compare", out, COMPARE_OUTPUTS)
-    # called from Python, an earlier command's complete record stayed beside this call's tables
-    run = _begin_call(out, "compare", record_run)
-    in_process = executor == "local" and workers <= 1
-    cells = ((i, _compare_one(*job, progress=progress)) for i, job in enumerate(jobs)) if in_process else executor_for(executor, workers, ray_address).map(_compare_one, jobs)
-    done: dict[int, dict] = {}
-    try:
-        with contextlib.closing(cells):  # stops the executor's other cells on the way out
-            for i, row in cells:
-                done[i] = row
-                if progress is not None and not in_process:  # a solve here prints its own lines
-                    print(f"{row['task']:10s} {row['parameterization']:6s}: {row['status']:26s} {row['iterations']:4d} it{_why(row)}", file=progress, flush=True)
-                _write_table_iv([done[k] for k in sorted(done)], out)
-    except BaseException as e:
-        # the cells finished so far, also one that arrived as the interrupt or a broken progress stream came
-        if done:
-            with contextlib.suppress(Exception):  # the first error is the one to report
-                _write_table_iv([done[k] for k in sorted(done)], out)
-        kept = f"{out / 'table_iv.json'} holds the {len(done)} of {len(jobs)} cells finished before it" if done else f"none of the {len(jobs)} cells had finished"
-        if isinstance(e, WorkerLostError):
-            raise WorkerLostError(f"{e}; {kept}") from e.__cause__  # one message, after the pool's own error
-        if isinstance(e, KeyboardInterrupt):  # the command line says what was kept (an earlier table_iv.json is not this call's)
-            raise KeyboardInterrupt(kept) from None
-        if isinstance(e, BrokenPipeError):  # (the progress stream closed) the command line says it too
-            e.add_note(kept)
-        raise
-    if run is not None:
-        end_run(out, run)
+    # held from here (`jtraj.provenance.hold`): another process's run in OUT is refused before
+    # this one clears its tables
+    with holding(out):
+        _clear_outputs("compare", out, COMPARE_OUTPUTS)
+        # called from Python, an earlier command's complete record stayed beside this call's tables
+        run = _begin_call(out, "compare", record_run)
+        in_process = executor == "local" and workers <= 1
+        cells = ((i, _compare_one(*job, progress=progress)) for i, job in enumerate(jobs)) if in_process else executor_for(executor, workers, ray_address).map(_compare_one, jobs)
+        done: dict[int, dict] = {}
+        try:
+            with contextlib.closing(cells):  # stops the executor's other cells on the way out
+                for i, row in cells:
+                    done[i] = row
+                    if progress is not None and not in_process:  # a solve here prints its own lines
+                        print(f"{row['task']:10s} {row['parameterization']:6s}: {row['status']:26s} {row['iterations']:4d} it{_why(row)}", file=progress, flush=True)
+                    _write_table_iv([done[k] for k in sorted(done)], out)
+        except BaseException as e:
+            # the cells finished so far, also one that arrived as the interrupt or a broken progress stream came
+            if done:
+                with contextlib.suppress(Exception):  # the first error is the one to report
+                    _write_table_iv([done[k] for k in sorted(done)], out)
+            kept = f"{out / 'table_iv.json'} holds the {len(done)} of {len(jobs)} cells finished before it" if done else f"none of the {len(jobs)} cells had finished"
+            if isinstance(e, WorkerLostError):
+                raise WorkerLostError(f"{e}; {kept}") from e.__cause__  # one message, after the pool's own error
+            if isinstance(e, KeyboardInterrupt):  # the command line says what was kept (an earlier table_iv.json is not this call's)
+                raise KeyboardInterrupt(kept) from None
+            if isinstance(e, BrokenPipeError):  # (the progress stream closed) the command line says it too
+                e.add_note(kept)
+            raise
+        if run is not None:
+            end_run(out, run)
     return [done[k] for k in sorted(done)]
 
 
@@ -791,76 +794,79 @@ def robustness(
     out = Path(out)
     check_runs_file(out, resume)
     out.mkdir(parents=True, exist_ok=True)
-    runs_path = out / RUNS_FILE
-    if not tasks or not params or not sigmas or replicates < 1:
-        raise ValueError("robustness: no runs (empty tasks, parameterizations or sigmas, or replicates < 1)")
-    if noise_chart is not None and progress is not None:
-        print(f"checking that the {noise_chart} chart's noisy poses can be written in the other charts", file=progress, flush=True)
-    check_noise_chart(tasks, params, variables, noise_chart)
-    before = read_runs(runs_path, progress) if resume else []
-    if not resume and runs_path.exists():
-        _move_aside(runs_path, "previous")
-    done = {run_key(r) for r in before}
-    args = [(t, p, tuple(sigmas), replicates, seed, variables, exact_hessian, ipopt_options, solver, noise_chart, done, runs_path) for t in tasks for p in params]
-    if progress is not None and before:
-        bases = [_group_key(*a[:2], variables, exact_hessian, ipopt_options, seed, solver, noise_chart) for a in args]
-        wanted = {run_key(base | {"sigma": s, "replicate": r}) for base in bases for s in sigmas for r in range(replicates)}
-        known = [r for r in before if all(k in r for k in _UNKNOWN_KEYS)]
-        unknown = len(before) - len(known)
-        settings = {_settings_key(base) for base in bases}
-        others = sum(1 for r in known if _settings_key(r) not in settings)
-        # (runs of this call's settings at noise levels or replicates it does not ask for were
-        # counted as runs of other settings)
-        elsewhere = sum(1 for r in known if _settings_key(r) in settings and run_key(r) not in wanted)
-        if unknown:
-            print(f"note: {unknown} runs in {runs_path} were written without the content of their variables or robot (before jtraj recorded it) and are not resumed", file=progress, flush=True)
-        if known:
-            kept = [f"{others} runs of other settings"] if others else []
-            kept += [f"{elsewhere} runs of these settings at other noise levels or replicates"] if elsewhere else []
-            kept_text = f"; its {' and '.join(kept)} are kept" if kept else ""
-            print(f"resuming: {len(wanted & done)} of this call's {len(wanted)} runs already in {runs_path}{kept_text}", file=progress, flush=True)
-            if note := _other_code_note([r for r in known if run_key(r) in wanted]):
-                print(note, file=progress, flush=True)
-            if not wanted & done and (differ := _settings_differ(known, bases)):
-                # a forgotten --seed or --ipopt solved the whole study again without a word
-                print(f"note: none of them is this call's: the file's runs of these tasks and parameterizations differ in {differ}", file=progress, flush=True)
-    # an earlier call's tables and figure, perhaps of other settings: this call's are written
-    # at its checkpoints and its end (the figure at the end only, and with workers or Ray the
-    # tables too), and an interrupt before them left the earlier ones in OUT as if this call's
-    _clear_outputs("robustness", out, ROBUSTNESS_OUTPUTS)
-    run = _begin_call(out, "robustness", record_run)
-    if executor == "local" and workers <= 1:
-        for k, a in enumerate(args):
-            _robustness_group(*a, progress=progress)
-            # a checkpoint: the table of every group so far, should the study stop here
-            runs = read_runs(runs_path, progress)
-            _write_robustness_outputs([r for b in args[: k + 1] for r in _select(runs, *b[:10])], sigmas, out, figure=False)
-    else:
-        try:
-            if executor == "local":
-                groups = executor_for("local", workers).map(_robustness_group_in_worker, [(*a, progress is not None) for a in args])
-                with contextlib.closing(groups):
-                    for _ in groups:
-                        pass
-            else:
-                # each row as it is solved on the cluster (a streaming task, on a machine that
-                # may not see the study's folder; it prints nothing, this process does): an
-                # interrupt or a failing group keeps the runs that came back (they came only at
-                # a group's end, and were lost with it)
-                rows = executor_for(executor, workers, ray_address).stream(_robustness_rows, [a[:-1] for a in args])
-                with contextlib.closing(rows):
-                    for _, row in rows:
-                        jio.append_jsonl(runs_path, row)
-                        if progress is not None:
-                            print(_run_line(row), file=progress, flush=True)
-        except WorkerLostError as e:
-            # without resume this call moved the earlier file aside: the same call again would too
-            again = "the same call again resumes from them" if resume else "the same call with resume=True (jtraj robustness without --no-resume) resumes from them"
-            raise WorkerLostError(f"{e}; the runs finished before it are kept in {runs_path}, and {again}") from e.__cause__
-    runs = [r for a in args for r in _select(read_runs(runs_path, progress), *a[:10])]
-    _write_robustness_outputs(runs, sigmas, out)
-    if run is not None:
-        end_run(out, run)
+    # held from here (`jtraj.provenance.hold`): another process's run in OUT is refused before
+    # this one reads, moves aside or appends to its runs
+    with holding(out):
+        runs_path = out / RUNS_FILE
+        if not tasks or not params or not sigmas or replicates < 1:
+            raise ValueError("robustness: no runs (empty tasks, parameterizations or sigmas, or replicates < 1)")
+        if noise_chart is not None and progress is not None:
+            print(f"checking that the {noise_chart} chart's noisy poses can be written in the other charts", file=progress, flush=True)
+        check_noise_chart(tasks, params, variables, noise_chart)
+        before = read_runs(runs_path, progress) if resume else []
+        if not resume and runs_path.exists():
+            _move_aside(runs_path, "previous")
+        done = {run_key(r) for r in before}
+        args = [(t, p, tuple(sigmas), replicates, seed, variables, exact_hessian, ipopt_options, solver, noise_chart, done, runs_path) for t in tasks for p in params]
+        if progress is not None and before:
+            bases = [_group_key(*a[:2], variables, exact_hessian, ipopt_options, seed, solver, noise_chart) for a in args]
+            wanted = {run_key(base | {"sigma": s, "replicate": r}) for base in bases for s in sigmas for r in range(replicates)}
+            known = [r for r in before if all(k in r for k in _UNKNOWN_KEYS)]
+            unknown = len(before) - len(known)
+            settings = {_settings_key(base) for base in bases}
+            others = sum(1 for r in known if _settings_key(r) not in settings)
+            # (runs of this call's settings at noise levels or replicates it does not ask for were
+            # counted as runs of other settings)
+            elsewhere = sum(1 for r in known if _settings_key(r) in settings and run_key(r) not in wanted)
+            if unknown:
+                print(f"note: {unknown} runs in {runs_path} were written without the content of their variables or robot (before jtraj recorded it) and are not resumed", file=progress, flush=True)
+            if known:
+                kept = [f"{others} runs of other settings"] if others else []
+                kept += [f"{elsewhere} runs of these settings at other noise levels or replicates"] if elsewhere else []
+                kept_text = f"; its {' and '.join(kept)} are kept" if kept else ""
+                print(f"resuming: {len(wanted & done)} of this call's {len(wanted)} runs already in {runs_path}{kept_text}", file=progress, flush=True)
+                if note := _other_code_note([r for r in known if run_key(r) in wanted]):
+                    print(note, file=progress, flush=True)
+                if not wanted & done and (differ := _settings_differ(known, bases)):
+                    # a forgotten --seed or --ipopt solved the whole study again without a word
+                    print(f"note: none of them is this call's: the file's runs of these tasks and parameterizations differ in {differ}", file=progress, flush=True)
+        # an earlier call's tables and figure, perhaps of other settings: this call's are written
+        # at its checkpoints and its end (the figure at the end only, and with workers or Ray the
+        # tables too), and an interrupt before them left the earlier ones in OUT as if this call's
+        _clear_outputs("robustness", out, ROBUSTNESS_OUTPUTS)
+        run = _begin_call(out, "robustness", record_run)
+        if executor == "local" and workers <= 1:
+            for k, a in enumerate(args):
+                _robustness_group(*a, progress=progress)
+                # a checkpoint: the table of every group so far, should the study stop here
+                runs = read_runs(runs_path, progress)
+                _write_robustness_outputs([r for b in args[: k + 1] for r in _select(runs, *b[:10])], sigmas, out, figure=False)
+        else:
+            try:
+                if executor == "local":
+                    groups = executor_for("local", workers).map(_robustness_group_in_worker, [(*a, progress is not None) for a in args])
+                    with contextlib.closing(groups):
+                        for _ in groups:
+                            pass
+                else:
+                    # each row as it is solved on the cluster (a streaming task, on a machine that
+                    # may not see the study's folder; it prints nothing, this process does): an
+                    # interrupt or a failing group keeps the runs that came back (they came only at
+                    # a group's end, and were lost with it)
+                    rows = executor_for(executor, workers, ray_address).stream(_robustness_rows, [a[:-1] for a in args])
+                    with contextlib.closing(rows):
+                        for _, row in rows:
+                            jio.append_jsonl(runs_path, row)
+                            if progress is not None:
+                                print(_run_line(row), file=progress, flush=True)
+            except WorkerLostError as e:
+                # without resume this call moved the earlier file aside: the same call again would too
+                again = "the same call again resumes from them" if resume else "the same call with resume=True (jtraj robustness without --no-resume) resumes from them"
+                raise WorkerLostError(f"{e}; the runs finished before it are kept in {runs_path}, and {again}") from e.__cause__
+        runs = [r for a in args for r in _select(read_runs(runs_path, progress), *a[:10])]
+        _write_robustness_outputs(runs, sigmas, out)
+        if run is not None:
+            end_run(out, run)
     return runs
 
 

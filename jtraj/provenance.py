@@ -6,20 +6,31 @@ can be traced to the run that produced it: when the run starts
 (``"complete": false``, so a table left by a stopped run is not taken for a finished one's) and
 again when it ends. A run that resumes a folder keeps the folder's earlier records under
 ``"earlier"``, oldest first: its tables may hold their runs.
+
+A run holds its folder (`hold`, which `begin_run` calls) until `end_run` or `release`: another
+process's run that begins in the same folder meanwhile raises `FolderInUseError` (an advisory
+``flock`` of the folder, which ends with the process; two runs in one folder appended to one
+``runs.jsonl``, solved the same cells twice and overwrote each other's tables and
+``provenance.json``). Within one process a folder may be held again (a thread's run, or one that
+raised before its `end_run`, does not lock its own process out); where the file system has no
+``flock`` nothing is locked.
 """
 
 from __future__ import annotations
 
+import contextlib
 import datetime
 import os
 import platform
 import shlex
 import subprocess
 import sys
+import threading
+from collections.abc import Iterator
 from importlib import metadata
 from pathlib import Path
 
-__all__ = ["begin_run", "end_run", "provenance", "write_provenance", "write_results", "source", "vector_extension", "VECTOR_EXTENSIONS"]
+__all__ = ["begin_run", "end_run", "hold", "holding", "release", "recording", "FolderInUseError", "provenance", "write_provenance", "write_results", "source", "vector_extension", "VECTOR_EXTENSIONS"]
 
 
 def _version(dist: str) -> str | None:
@@ -153,37 +164,128 @@ def write_provenance(out: str | Path, argv: list[str] | None = None) -> Path:
     return io.write_json(Path(out) / "provenance.json", provenance(argv))
 
 
+class FolderInUseError(RuntimeError):
+    """Another process's run holds the folder (between its `begin_run` and `end_run`)."""
+
+
+#: the folders this process holds: their real path -> the descriptor whose flock holds it
+_HELD: dict[str, int] = {}
+_HELD_GUARD = threading.Lock()
+
+
+def hold(out: str | Path) -> bool:
+    """Hold the folder ``out`` (made if missing) for this process's run (module docstring):
+    True where this call took it, False where this process held it already or the file system
+    cannot lock it. Raises `FolderInUseError`, naming the run that holds it (from its
+    ``provenance.json``, when that says the run is unfinished), where another process does."""
+    try:
+        import fcntl
+    except ImportError:  # not a POSIX system: nothing is locked
+        return False
+    Path(out).mkdir(parents=True, exist_ok=True)
+    key = os.path.realpath(out)
+    with _HELD_GUARD:
+        if key in _HELD:  # this process's own (a thread's, or a run that raised before its end)
+            return False
+        try:
+            fd = os.open(key, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+        except OSError:
+            return False
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            raise FolderInUseError(_in_use(Path(out))) from None
+        except OSError:  # a file system without flock (some network ones): nothing is locked
+            os.close(fd)
+            return False
+        _HELD[key] = fd
+        return True
+
+
+def _in_use(out: Path) -> str:
+    from jtraj import io
+
+    who = ""
+    with contextlib.suppress(OSError, ValueError, TypeError, KeyError):
+        record = io.read_json(out / "provenance.json")
+        if record.get("complete") is False:
+            who = f" ({record['command']!s}, begun {record['date_utc']!s})"
+    return f"{out} is in use by another run{who}: wait for it to end, or write to another folder"
+
+
+def release(out: str | Path) -> None:
+    """Let other processes' runs begin in ``out`` (`end_run` does it); nothing if this process
+    does not hold it."""
+    with _HELD_GUARD:
+        fd = _HELD.pop(os.path.realpath(out), None)
+    if fd is not None:
+        os.close(fd)  # (closing the descriptor ends its flock)
+
+
+@contextlib.contextmanager
+def recording(out: str | Path, argv: list[str] | None = None, fields: dict | None = None) -> Iterator[dict]:
+    """`begin_run` as a context: the block calls `end_run` when the run is complete (a block that
+    raises leaves the record unfinished), and the folder is released however the block ends
+    (where this context took it)."""
+    with holding(out):
+        yield begin_run(out, argv, fields)
+
+
+@contextlib.contextmanager
+def holding(out: str | Path) -> Iterator[None]:
+    """`hold` as a context: the folder is released as the block ends, where this context took it."""
+    took = hold(out)
+    try:
+        yield
+    finally:
+        if took:
+            release(out)
+
+
 def begin_run(out: str | Path, argv: list[str] | None = None, fields: dict | None = None) -> dict:
     """Write ``out/provenance.json`` as a sweep starts, marked ``"complete": false``, with
     ``fields`` added (e.g. `jtraj.solve`'s ``"call"``); an earlier record in the folder (of a
     run this one resumes or adds to) is kept under ``"earlier"``. Returns the record for
-    `end_run`."""
+    `end_run`.
+
+    The folder is held from here (`hold`) until `end_run` or `release`: raises
+    `FolderInUseError`, writing nothing, where another process's run holds it."""
     from jtraj import io
 
     path = Path(out) / "provenance.json"
     record = {**provenance(argv), **(fields or {})}
     record["complete"] = False
-    earlier: list = []
-    if path.is_file():
-        try:
-            previous = io.read_json(path)
-        except (OSError, ValueError):
-            previous = None  # an unreadable record is replaced
-        if isinstance(previous, dict):
-            earlier = list(previous.pop("earlier", []) or []) + [previous]
-    if earlier:
-        record["earlier"] = earlier
-    Path(out).mkdir(parents=True, exist_ok=True)
-    io.write_json(path, record)
+    took = hold(out)
+    try:
+        earlier: list = []
+        if path.is_file():
+            try:
+                previous = io.read_json(path)
+            except (OSError, ValueError):
+                previous = None  # an unreadable record is replaced
+            if isinstance(previous, dict):
+                earlier = list(previous.pop("earlier", []) or []) + [previous]
+        if earlier:
+            record["earlier"] = earlier
+        io.write_json(path, record)
+    except BaseException:
+        if took:
+            release(out)
+        raise
     return record
 
 
 def end_run(out: str | Path, record: dict) -> Path:
-    """Write ``record`` (from `begin_run`) again, marked complete with its end date."""
+    """Write ``record`` (from `begin_run`) again, marked complete with its end date, and
+    `release` the folder."""
     from jtraj import io
 
     record = {**record, "complete": True, "date_end_utc": _now()}
-    return io.write_json(Path(out) / "provenance.json", record)
+    try:
+        return io.write_json(Path(out) / "provenance.json", record)
+    finally:
+        release(out)
 
 
 def write_results(

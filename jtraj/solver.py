@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import threading
@@ -355,48 +356,51 @@ def solve(
     with _CACHE_LOCK:  # (two threads' solves both reported it)
         compile_time, prep.time_compile = prep.time_compile, 0.0  # counted once per process (by the first solve that gets this far)
     run = None
+    # the folder is held from here to the end, however the solve ends (`jtraj.provenance.hold`)
+    held = contextlib.ExitStack()
     if out is not None:  # the inputs are good: unfinished from here until the result is saved
-        from jtraj.provenance import begin_run
+        from jtraj.provenance import recording
 
         call = {"function": "jtraj.solve", "task": tr.task.name, "parameterization": tr.param.name, "solver": backend.name, "variables": dataclasses.asdict(tr.options), "theta_given": theta_given}
-        run = begin_run(out, command, {"call": call})
-    opts = solver_options(backend, options, ipopt_options, exact_hessian, tr.task.max_iter)
-    say = callback.write if isinstance(callback, solvers.PrintProgress) else None
-    if say is not None:
-        say(
-            f"jtraj: {tr.task.name} on {tr.robot.name} with {tr.param.label}: {nlp.n} variables, "
-            f"{nlp.m} constraints, {nlp.nnz_jac} Jacobian nonzeros, {tr.N + 1} knots"
-            + (f" (compiled in {compile_time:.1f} s)" if compile_time else "")
-        )
-    solution = backend.solve(nlp, x0.reshape(-1), theta, opts, callback)
-    compile_time += solution.time_compile  # the backend's own program (jtraj's solver)
-    traj = tr.decode(solution.x, theta)
-    # how the start was drawn (a seed that is not whole drew nothing: noise needs a whole one)
-    start = {"given": warm_start is not None, "noise": float(noise), "seed": int(seed) if is_whole(seed) else None, "replicate": None if replicate is None else int(replicate), "noise_chart": noise_chart}
-    settings = {"solver": backend.name, **opts.as_dict(), "layout": dataclasses.asdict(tr.options), "warm_start": start, "terrain_height": float(tr.task.terrain_height)}
-    result = evaluate(tr, solution, traj, compile_time, settings, nlp.nnz_jac, nlp.violation_by_group(solution.x, theta), theta, backend.name)
-    if not keep_trajectory:
-        result.trajectory = None
-    if say is not None:
-        say(result.summary())
-        if result.status is Outcome.TASK_FAILED:
-            say(f"  task check failed: {result.metrics['task_check']}")
-        elif result.status is Outcome.NOT_CONVERGED:
-            if result.converged:
-                say(f"  {backend.name} converged, but to a violation of {result.constraint_violation:.2e}, over the task check's {FEASIBILITY_TOL:g}")
-            else:
-                say(f"  {backend.name} stopped: {result.solver_status.value} ({result.solver_status.message})")
-                if result.solver_status is solvers.Status.INVALID_PROBLEM:  # the bound at fault is in the solver's own message
-                    say(f"  {result.status_msg}")
-            worst = sorted(result.violation_by_group.items(), key=lambda kv: -kv[1])[:3]
-            say("  largest violations: " + ", ".join(f"{k} {v:.2e}" for k, v in worst))
-    if out is not None:
-        from jtraj.provenance import end_run
+        run = held.enter_context(recording(out, command, {"call": call}))
+    with held:
+        opts = solver_options(backend, options, ipopt_options, exact_hessian, tr.task.max_iter)
+        say = callback.write if isinstance(callback, solvers.PrintProgress) else None
+        if say is not None:
+            say(
+                f"jtraj: {tr.task.name} on {tr.robot.name} with {tr.param.label}: {nlp.n} variables, "
+                f"{nlp.m} constraints, {nlp.nnz_jac} Jacobian nonzeros, {tr.N + 1} knots"
+                + (f" (compiled in {compile_time:.1f} s)" if compile_time else "")
+            )
+        solution = backend.solve(nlp, x0.reshape(-1), theta, opts, callback)
+        compile_time += solution.time_compile  # the backend's own program (jtraj's solver)
+        traj = tr.decode(solution.x, theta)
+        # how the start was drawn (a seed that is not whole drew nothing: noise needs a whole one)
+        start = {"given": warm_start is not None, "noise": float(noise), "seed": int(seed) if is_whole(seed) else None, "replicate": None if replicate is None else int(replicate), "noise_chart": noise_chart}
+        settings = {"solver": backend.name, **opts.as_dict(), "layout": dataclasses.asdict(tr.options), "warm_start": start, "terrain_height": float(tr.task.terrain_height)}
+        result = evaluate(tr, solution, traj, compile_time, settings, nlp.nnz_jac, nlp.violation_by_group(solution.x, theta), theta, backend.name)
+        if not keep_trajectory:
+            result.trajectory = None
+        if say is not None:
+            say(result.summary())
+            if result.status is Outcome.TASK_FAILED:
+                say(f"  task check failed: {result.metrics['task_check']}")
+            elif result.status is Outcome.NOT_CONVERGED:
+                if result.converged:
+                    say(f"  {backend.name} converged, but to a violation of {result.constraint_violation:.2e}, over the task check's {FEASIBILITY_TOL:g}")
+                else:
+                    say(f"  {backend.name} stopped: {result.solver_status.value} ({result.solver_status.message})")
+                    if result.solver_status is solvers.Status.INVALID_PROBLEM:  # the bound at fault is in the solver's own message
+                        say(f"  {result.status_msg}")
+                worst = sorted(result.violation_by_group.items(), key=lambda kv: -kv[1])[:3]
+                say("  largest violations: " + ", ".join(f"{k} {v:.2e}" for k, v in worst))
+        if out is not None:
+            from jtraj.provenance import end_run
 
-        result.save(out)
-        assert run is not None
-        run.pop("earlier", None)  # the saved result replaced the earlier solve's
-        end_run(out, run)
+            result.save(out)
+            assert run is not None
+            run.pop("earlier", None)  # the saved result replaced the earlier solve's
+            end_run(out, run)
     return result
 
 

@@ -1050,10 +1050,12 @@ def test_rows_that_are_not_runs_are_set_aside_with_the_torn_lines(tmp_path, fake
     assert len(path.read_text().splitlines()) == 4 and len(read_runs(path)) == 4
 
 
-def test_the_resume_note_tells_other_settings_from_other_noise_levels(tmp_path, fake_solves):
+def test_the_resume_note_tells_other_settings_from_other_noise_levels(tmp_path, fake_solves, monkeypatch):
     """The resume note counted runs of this call's settings at other noise levels or replicates
     as runs of other settings, and a call whose settings matched none of the file's runs (a
     forgotten --seed) solved the whole study again without saying why."""
+    # one clean commit for every call (a checkout with changes adds the other-code note)
+    monkeypatch.setattr(experiments, "_code_source", lambda: {"commit": "a" * 40, "dirty": False})
     path = tmp_path / RUNS_FILE
     robustness(["walk"], ["se3"], sigmas=[0.1, 0.5], replicates=2, seed=4, out=tmp_path, progress=None)
     robustness(["walk"], ["se3"], sigmas=[0.1], replicates=1, seed=5, out=tmp_path, progress=None)

@@ -117,3 +117,92 @@ def test_gits_own_variables_do_not_point_the_record_at_another_repository(monkey
     monkeypatch.setenv("GIT_DIR", str(tmp_path / "other" / ".git"))
     monkeypatch.setenv("GIT_INDEX_FILE", str(tmp_path / "no-index"))
     assert prov.source() == {"commit": ours, "dirty": False}
+
+
+HOLDER = """
+import sys
+from jtraj.provenance import begin_run
+begin_run(sys.argv[1], ["jtraj", "robustness", "--tasks", "walk"])
+print("holding", flush=True)
+sys.stdin.read()  # until the test closes our stdin
+"""
+
+
+@pytest.fixture
+def held_by_another_process(tmp_path):
+    """tmp_path/study, begun by a run in another Python process that holds it until the test ends."""
+    import sys
+
+    out = tmp_path / "study"
+    holder = subprocess.Popen([sys.executable, "-c", HOLDER, str(out)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout is not None and holder.stdout.readline() == "holding\n"
+        yield out
+    finally:
+        assert holder.stdin is not None
+        holder.stdin.close()
+        holder.wait(timeout=60)
+
+
+def _flock_free(folder: Path) -> bool:
+    """Whether another open description of ``folder`` (as another process has) can lock it now."""
+    import fcntl
+    import os
+
+    fd = os.open(folder, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        return True
+    except BlockingIOError:
+        return False
+    finally:
+        os.close(fd)
+
+
+def test_a_folder_another_process_is_running_in_is_refused_naming_that_run(held_by_another_process):
+    """Two runs in one folder appended to one runs.jsonl, solved the same runs twice and
+    overwrote each other's tables and provenance.json; the second now stops before writing."""
+    out = held_by_another_process
+    before = (out / "provenance.json").read_text()
+    with pytest.raises(prov.FolderInUseError, match=rf"^{re.escape(str(out))} is in use by another run \(jtraj robustness --tasks walk, begun \d{{4}}-.*Z\): wait for it to end, or write to another folder$"):
+        prov.begin_run(out, ["jtraj", "robustness", "--tasks", "big_jump"])
+    with pytest.raises(prov.FolderInUseError):
+        prov.hold(out)
+    assert (out / "provenance.json").read_text() == before
+
+
+def test_the_sweeps_and_the_command_line_refuse_it_before_touching_the_folder(held_by_another_process, capsys):
+    from jtraj import cli, experiments
+
+    out = held_by_another_process
+    (out / "runs.jsonl").write_text("")
+    (out / "table_iv.md").write_text("the other run's table\n")
+    with pytest.raises(prov.FolderInUseError):  # (before it moved the other run's runs aside)
+        experiments.robustness(["big_jump"], ["se3"], [0.1], replicates=1, out=out, resume=False, progress=None)
+    with pytest.raises(prov.FolderInUseError):  # (before it removed the other run's table)
+        experiments.compare(["big_jump"], ["se3"], out=out, progress=None)
+    assert sorted(p.name for p in out.iterdir()) == ["provenance.json", "runs.jsonl", "table_iv.md"]
+    code = cli.main(["robustness", "--tasks", "big_jump", "--params", "se3", "--sigmas", "0.1", "--replicates", "1", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == cli.EXIT_BAD_INPUT and err.startswith(f"jtraj robustness: {out} is in use by another run (jtraj robustness --tasks walk") and err.count("\n") == 1
+
+
+def test_a_run_holds_its_folder_until_it_ends_however_it_ends(tmp_path):
+    out = tmp_path / "study"
+    record = prov.begin_run(out, ["jtraj", "compare"])
+    assert not _flock_free(out)
+    assert prov.begin_run(out, ["jtraj", "compare"])["complete"] is False  # this process's own folder: begun again
+    prov.end_run(out, record)
+    assert _flock_free(out)
+    with pytest.raises(RuntimeError, match="a fault mid-run"):
+        with prov.recording(out, ["jtraj", "solve"]):
+            assert not _flock_free(out)
+            raise RuntimeError("a fault mid-run")
+    assert _flock_free(out) and json.loads((out / "provenance.json").read_text())["complete"] is False
+    # a folder held by an enclosing run stays held when an inner one ends without its end_run
+    with prov.holding(out):
+        with pytest.raises(KeyboardInterrupt):
+            with prov.holding(out):
+                raise KeyboardInterrupt
+        assert not _flock_free(out)
+    assert _flock_free(out)

@@ -300,6 +300,19 @@ def test_the_result_records_how_its_warm_start_was_made(tmp_path):
     assert r.options["terrain_height"] == HOP.terrain_height == Result.load(tmp_path / "r").options["terrain_height"]
     given = jtraj.solver.solve(HOP, warm_start=jtraj.solver.prepare(HOP).transcription.warm_start(), **quick)
     assert given.options["warm_start"] == {"given": True, "noise": 0.0, "seed": 0, "replicate": None, "noise_chart": None}
+    # the folder is held while the solve runs and let go however it ends (here: its progress
+    # stream fails): a solve that raised kept other processes' runs out of it
+    from test_provenance import _flock_free
+
+    class Failing:
+        def write(self, text):
+            assert not _flock_free(tmp_path / "r")
+            raise OSError("the progress stream failed")
+
+    assert _flock_free(tmp_path / "r")
+    with pytest.raises(OSError, match="the progress stream failed"):
+        jtraj.solver.solve(HOP, out=str(tmp_path / "r"), progress=Failing(), ipopt_options={"max_iter": 1})
+    assert _flock_free(tmp_path / "r")
 
 
 def test_solve_refuses_bad_starts_and_thetas_before_building_anything(monkeypatch):
