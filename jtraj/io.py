@@ -209,6 +209,8 @@ def output_folder_problem(path: str | Path) -> str | None:
         return "is a file; expected a folder (existing or to be created)"
     existing = p
     while not existing.exists():
+        if existing.is_symlink():  # a link to nothing: making the folder failed after the solve
+            return f"{existing} is a link to {os.readlink(existing)}, which does not exist; expected a folder"
         existing = existing.parent
     if not existing.is_dir():
         return f"{existing} is a file; expected a folder"

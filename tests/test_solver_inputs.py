@@ -264,11 +264,15 @@ def test_solve_checks_out_before_building_anything(tmp_path, monkeypatch):
     monkeypatch.setattr(jtraj.solver, "prepare", lambda *a, **k: pytest.fail("the NLP was built despite a bad out"))
     afile = tmp_path / "afile"
     afile.write_text("x")
+    (tmp_path / "link").symlink_to(tmp_path / "gone")
     for out, match in (
         (str(afile), r"is a file; expected a folder \(existing or to be created\)"),
         (str(afile / "sub"), rf"{afile} is a file; expected a folder"),
         (afile, r"is a file; expected a folder"),
         ("", r"expected a folder name"),
+        # a link to nothing passed, and making the folder failed after the compile
+        (str(tmp_path / "link"), rf"{tmp_path / 'link'} is a link to {tmp_path / 'gone'}, which does not exist; expected a folder"),
+        (str(tmp_path / "link" / "sub"), rf"{tmp_path / 'link'} is a link to"),
     ):
         with pytest.raises(ValueError, match=rf"^solve: out={re.escape(repr(out))}: {match}"):
             jtraj.solver.solve("big_jump", out=out)
