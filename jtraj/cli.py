@@ -742,6 +742,12 @@ def _check_inputs(args: argparse.Namespace) -> None:
 
         # (runs.jsonl: check_runs_file)
         _check_out_files(args.out, (*(COMPARE_OUTPUTS if cmd == "compare" else ROBUSTNESS_OUTPUTS), "provenance.json"))
+        if cmd == "compare" and not args.no_trajectories:  # each cell's folder, before the first solve
+            from jtraj.experiments import cell_folder_problem
+            from jtraj.task import load as load_task
+
+            if (problem := cell_folder_problem(args.out, [load_task(t).name for t in args.tasks_checked], params)) is not None:
+                raise InputError("--out", args.out, problem)
         if args.executor == "ray":  # Ray installed and its cluster reached, before OUT is written
             from jtraj.executors import RayExecutor
 

@@ -156,6 +156,10 @@ def compare(
     command = list(sys.argv)
     folder = out.absolute()  # not relative to a Ray worker's own folder
     jobs = [(task, p, variables, exact_hessian, solver, str(folder / f"{task.name}_{p}") if save_trajectories else None, command) for task in loaded for p in params]
+    # a cell folder that cannot take its result failed in its cell's solve, after the cells
+    # before it were solved
+    if save_trajectories and (problem := cell_folder_problem(folder, [t.name for t in loaded], params)) is not None:
+        raise ValueError(f"compare: out={str(out)!r}: {problem}")
     # an earlier call's table, and `jtraj plot OUT`'s figure of it: this call writes its own
     # table as its cells finish (an interrupt before the first left the earlier one in OUT,
     # which then read as this call's)
@@ -191,6 +195,21 @@ def compare(
         if run is not None:
             end_run(out, run)
     return [done[k] for k in sorted(done)]
+
+
+def cell_folder_problem(out: str | Path, tasks: Sequence[str], params: Sequence[str]) -> str | None:
+    """What stops `compare` from saving a cell's result into its folder ``out/{task}_{param}``
+    (a file in its place, a folder where one of its files goes, a folder this user cannot write
+    in), or None."""
+    from jtraj.io import output_folder_problem
+    from jtraj.result import folder_in_the_way
+
+    for task in tasks:
+        for p in params:
+            cell = Path(out) / f"{task}_{p}"
+            if (problem := output_folder_problem(cell) or folder_in_the_way(cell)) is not None:
+                return f"the cell folder {cell}: {problem}"
+    return None
 
 
 def _begin_call(out: Path, function: str, record_run: bool) -> dict | None:

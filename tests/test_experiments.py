@@ -1021,6 +1021,28 @@ def test_compare_refuses_repeated_tasks_and_parameterizations(tmp_path, fake_sol
     assert not fake_solves and not (tmp_path / "out").exists()
 
 
+def test_compare_checks_every_cell_folder_before_the_first_solve(tmp_path, fake_solves, capsys):
+    """A cell folder that could not take its result failed in that cell's solve, with a
+    traceback, after the cells before it were solved; the command line now refuses it in one
+    line, and without trajectories no cell folder is written, so none is checked."""
+    from jtraj import cli
+
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "walk_quat1").write_text("a file where the cell's folder goes")
+    (out / "walk_se3").mkdir()
+    (out / "walk_se3" / "result.json").mkdir()
+    for params, cell, problem in ((["se3", "quat1"], "walk_se3", "result.json is a folder; expected room for the file result.json"), (["quat1"], "walk_quat1", "is a file; expected a folder")):
+        with pytest.raises(ValueError, match=rf"^compare: out={re.escape(repr(str(out)))}: the cell folder {re.escape(str(out / cell))}: .*{re.escape(problem)}"):
+            compare(["walk"], params, out=out, progress=None)
+        code = cli.main(["compare", "--tasks", "walk", "--params", ",".join(params), "--out", str(out)])
+        err = capsys.readouterr().err
+        assert code == cli.EXIT_BAD_INPUT and err.startswith(f"jtraj compare: --out: {str(out)!r}: the cell folder {out / cell}") and err.count("\n") == 1
+    assert not fake_solves and sorted(p.name for p in out.iterdir()) == ["walk_quat1", "walk_se3"]
+    compare(["walk"], ["quat1"], out=out, progress=None, save_trajectories=False)
+    assert len(fake_solves) == 1
+
+
 def test_rows_that_are_not_runs_are_set_aside_with_the_torn_lines(tmp_path, fake_solves, capsys):
     """Lines that parse but are not runs (not an object, a row without a key field or without a
     field the tables read) are reported in the torn lines' warning and set aside with them, so
