@@ -246,7 +246,7 @@ def _check_executor(function: str, executor: str, workers: int, ray_address: str
     ignored without a word (the command line refuses them in its own words), before anything
     is written (the executor itself is made once the runs file is set up)."""
     check_executor_name(executor, function)
-    if workers < 1:
+    if not is_whole(workers) or workers < 1:  # (2.5 passed, and failed in the executor)
         raise ValueError(f"{function}: workers={workers!r}: expected an integer >= 1")
     if ray_address is not None and executor != "ray":
         raise ValueError(f"{function}: ray_address={ray_address!r}: needs executor='ray' (the local executor does not use a cluster)")
@@ -365,7 +365,7 @@ def noisy_warm_starts(x0: np.ndarray, sigmas: Sequence[float], replicates: int |
     """Warm starts plus zero-mean Gaussian noise, (len(sigmas), n_replicates, *x0.shape): the
     keys of `noise_key` and the draws in one vmapped call. ``replicates`` is a count (0..n-1)
     or the replicate numbers themselves."""
-    reps = np.arange(replicates) if isinstance(replicates, int) else np.asarray(list(replicates), int)
+    reps = np.arange(int(replicates)) if is_whole(replicates) else np.asarray(list(replicates), int)  # (a numpy count too)
     base = jnp.asarray(x0)
     bits = jnp.asarray([_sigma_bits(s) for s in sigmas], jnp.uint32)
     root = jax.random.PRNGKey(seed)
@@ -799,6 +799,10 @@ def robustness(
             raise ValueError(f"robustness: sigma={s!r}: expected noise levels (standard deviations) >= 0")
     if not is_seed(seed):
         raise ValueError(f"robustness: seed={seed!r}: expected a 64-bit integer (below 2**63 in magnitude)")
+    # 2.5 passed, cleared the folder's tables and failed at the first draw
+    if not is_whole(replicates) or replicates < 1:
+        raise ValueError(f"robustness: replicates={replicates!r}: expected an integer >= 1")
+    replicates = int(replicates)
     # names, as rows record them and runs are keyed: a solver or parameterization object in
     # the key matched no row, so nothing resumed (and the call returned none of its runs)
     params = _parameterization_names("robustness", params)
@@ -817,8 +821,8 @@ def robustness(
     # this one reads, moves aside or appends to its runs
     with holding(out):
         runs_path = out / RUNS_FILE
-        if not tasks or not params or not sigmas or replicates < 1:
-            raise ValueError("robustness: no runs (empty tasks, parameterizations or sigmas, or replicates < 1)")
+        if not tasks or not params or not sigmas:
+            raise ValueError("robustness: no runs (empty tasks, parameterizations or sigmas)")
         if noise_chart is not None and progress is not None:
             print(f"checking that the {noise_chart} chart's noisy poses can be written in the other charts", file=progress, flush=True)
         check_noise_chart(tasks, params, variables, noise_chart)

@@ -1157,6 +1157,7 @@ def test_a_runs_file_that_cannot_be_read_is_refused_before_anything_is_solved(tm
     [
         (dict(executor="dask"), "executor='dask': expected one of local, ray"),
         (dict(workers=0), "workers=0: expected an integer >= 1"),
+        (dict(workers=2.5), "workers=2.5: expected an integer >= 1"),
         (dict(ray_address="auto"), "ray_address='auto': needs executor='ray' (the local executor does not use a cluster)"),
         (dict(executor="ray", workers=2), "workers=2: is for executor='local'; with executor='ray' each group is a Ray task and the cluster runs as many at once as it has CPUs"),
     ],
@@ -1198,6 +1199,20 @@ def test_fig2_leaves_pyplot_alone(tmp_path):
     finally:
         plt.close("all")
         plt.switch_backend(backend)
+
+
+@pytest.mark.parametrize("replicates", [2.5, 0, True, "3"])
+def test_a_replicate_count_that_is_not_a_whole_number_is_refused_before_the_folder_is_touched(tmp_path, fake_solves, replicates):
+    """replicates=2.5 passed, removed the folder's earlier tables, wrote an unfinished
+    provenance.json, then failed at the first draw."""
+    study = tmp_path / "study"
+    study.mkdir()
+    (study / "table_iii.md").write_text("an earlier study's table\n")
+    with pytest.raises(ValueError, match=rf"^robustness: replicates={re.escape(repr(replicates))}: expected an integer >= 1$"):
+        robustness(["walk"], ["se3"], [0.1], replicates=replicates, out=study, progress=None)
+    assert sorted(p.name for p in study.iterdir()) == ["table_iii.md"] and not fake_solves
+    # a numpy count is a count (it was taken for a list of replicate numbers, and failed)
+    np.testing.assert_array_equal(noisy_warm_starts(np.zeros(2), [0.1], np.int64(3), seed=1), noisy_warm_starts(np.zeros(2), [0.1], 3, seed=1))
 
 
 @pytest.mark.parametrize("seed", [2**63, -(2**63) - 1, 1.5, True])
