@@ -47,7 +47,9 @@ import sys
 from collections.abc import Callable, Generator, Iterator, Sequence
 from typing import Any
 
-__all__ = ["AbstractExecutor", "LocalExecutor", "RayExecutor", "EXECUTORS", "ExecutorUnavailableError", "WorkerLostError", "GroupError", "check_executor_name", "executor_for"]
+from jtraj.numbers import is_whole
+
+__all__ = ["AbstractExecutor", "LocalExecutor", "RayExecutor", "EXECUTORS", "ExecutorUnavailableError", "WorkerLostError", "GroupError", "check_executor_name", "check_executor", "executor_for"]
 
 #: Names accepted by `executor_for` and the command line's ``--executor``.
 EXECUTORS = ("local", "ray")
@@ -398,7 +400,21 @@ def check_executor_name(name: str, where: str = "executor_for") -> None:
         raise ValueError(f"{where}: executor={name!r}: expected one of {', '.join(EXECUTORS)}")
 
 
+def check_executor(name: str, workers: int = 1, ray_address: str | None = None, where: str = "executor_for") -> None:
+    """A ValueError (its message begun by ``where``) for an unknown executor, a worker count that
+    is not an integer >= 1, or an option of the other executor (``ray_address`` without
+    ``"ray"``, ``workers`` > 1 with it), which would be ignored without a word."""
+    check_executor_name(name, where)
+    if not is_whole(workers) or workers < 1:
+        raise ValueError(f"{where}: workers={workers!r}: expected an integer >= 1")
+    if ray_address is not None and name != "ray":
+        raise ValueError(f"{where}: ray_address={ray_address!r}: needs executor='ray' (the local executor does not use a cluster)")
+    if workers > 1 and name != "local":
+        raise ValueError(f"{where}: workers={workers!r}: is for executor='local'; with executor={name!r} each group is a Ray task and the cluster runs as many at once as it has CPUs")
+
+
 def executor_for(name: str = "local", workers: int = 1, ray_address: str | None = None) -> AbstractExecutor:
-    """The executor called ``name`` (one of `EXECUTORS`)."""
-    check_executor_name(name)
-    return LocalExecutor(workers) if name == "local" else RayExecutor(ray_address)
+    """The executor called ``name`` (one of `EXECUTORS`), checked by `check_executor`
+    (``executor_for("ray", workers=4)`` ran one task at a time per CPU without a word)."""
+    check_executor(name, workers, ray_address)
+    return LocalExecutor(int(workers)) if name == "local" else RayExecutor(ray_address)

@@ -32,7 +32,7 @@ import numpy as np
 from jtraj import io as jio
 from jtraj import solvers
 from jtraj.deprecation import renamed_argument
-from jtraj.executors import WorkerLostError, check_executor_name, executor_for
+from jtraj.executors import WorkerLostError, check_executor, executor_for
 from jtraj.numbers import is_real, is_seed, is_whole
 from jtraj.parameterization import PARAMETERIZATIONS, AbstractParameterization
 from jtraj.provenance import begin_run, end_run, holding
@@ -241,17 +241,10 @@ def _refuse_repeats(where: str, given: Sequence, keys: Sequence, what: str) -> N
 
 
 def _check_executor(function: str, executor: str, workers: int, ray_address: str | None = None) -> None:
-    """A ValueError for an unknown executor, a worker count below 1, or an option of the other
-    executor (``ray_address`` without ``"ray"``, ``workers`` > 1 with it), which would be
-    ignored without a word (the command line refuses them in its own words), before anything
-    is written (the executor itself is made once the runs file is set up)."""
-    check_executor_name(executor, function)
-    if not is_whole(workers) or workers < 1:  # (2.5 passed, and failed in the executor)
-        raise ValueError(f"{function}: workers={workers!r}: expected an integer >= 1")
-    if ray_address is not None and executor != "ray":
-        raise ValueError(f"{function}: ray_address={ray_address!r}: needs executor='ray' (the local executor does not use a cluster)")
-    if workers > 1 and executor != "local":
-        raise ValueError(f"{function}: workers={workers!r}: is for executor='local'; with executor={executor!r} each group is a Ray task and the cluster runs as many at once as it has CPUs")
+    """`jtraj.executors.check_executor` in ``function``'s words, before anything is written (the
+    command line refuses the same in its own; the executor itself is made once the runs file is
+    set up)."""
+    check_executor(executor, workers, ray_address, function)
 
 
 def _parameterization_names(function: str, params: Sequence) -> list[str]:

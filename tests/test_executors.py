@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import operator
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -17,6 +18,7 @@ import time
 import types
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from jtraj.executors import EXECUTORS, ExecutorUnavailableError, GroupError, LocalExecutor, RayExecutor, WorkerLostError, executor_for
@@ -536,6 +538,16 @@ def test_executor_for_names():
     assert set(EXECUTORS) == {"local", "ray"}
     with pytest.raises(ValueError, match=r"^executor_for: executor='dask': expected one of local, ray$"):  # the message of compare's and robustness's check
         executor_for("dask")
+    # an option of the other executor, or a worker count that is not one, was ignored or failed later
+    for kwargs, message in (
+        (dict(name="ray", workers=4), "workers=4: is for executor='local'; with executor='ray' each group is a Ray task"),
+        (dict(name="local", workers=2, ray_address="ray://10.0.0.1:10001"), "ray_address='ray://10.0.0.1:10001': needs executor='ray'"),
+        (dict(name="local", workers=2.5), "workers=2.5: expected an integer >= 1"),
+        (dict(name="local", workers=True), "workers=True: expected an integer >= 1"),
+    ):
+        with pytest.raises(ValueError, match=rf"^executor_for: {re.escape(message)}"):
+            executor_for(**kwargs)
+    assert executor_for("local", workers=np.int64(2)).workers == 2
 
 
 def test_robustness_table_with_ray_executor_equals_local(tmp_path, monkeypatch):
