@@ -358,7 +358,8 @@ def noisy_warm_starts(x0: np.ndarray, sigmas: Sequence[float], replicates: int |
     """Warm starts plus zero-mean Gaussian noise, (len(sigmas), n_replicates, *x0.shape): the
     keys of `noise_key` and the draws in one vmapped call. ``replicates`` is a count (0..n-1)
     or the replicate numbers themselves."""
-    reps = np.arange(int(replicates)) if is_whole(replicates) else np.asarray(list(replicates), int)  # (a numpy count too)
+    # a count (a numpy one too), or the replicate numbers
+    reps = np.arange(int(replicates)) if is_whole(replicates) else np.asarray(list(replicates), dtype=np.int64)
     base = jnp.asarray(x0)
     bits = jnp.asarray([_sigma_bits(s) for s in sigmas], jnp.uint32)
     root = jax.random.PRNGKey(seed)
