@@ -620,6 +620,8 @@ def _check_ipopt(items: list[str] | None, solver: str = "ipopt", field: str = "-
         key, sep, value = item.partition("=")
         if not sep or not key:
             raise InputError(field, item, f"expected NAME=VALUE, e.g. {field} max_iter=50")
+        if key in options:  # the last one won without a word (and changed which runs resume)
+            raise InputError(field, item, f"option {key!r} already given; expected each option once")
         options[key] = _parse_value(value)
     if options and solver == "ipopt":
         from jtraj.solvers import InvalidOptionError, IpoptOptions
@@ -825,6 +827,8 @@ def _check_variable_changes(variables: str, items: list[str] | None):
         field, sep, value = item.partition("=")
         if not sep or not field or not value:
             raise InputError("--set", item, "expected FIELD=VALUE, e.g. force_limits=rows")
+        if field in changes:  # the last one won without a word
+            raise InputError("--set", item, f"field {field!r} already set by --set {field}={changes[field]}; expected each field once")
         changes[field] = value
     try:
         return with_changes(variables, changes)

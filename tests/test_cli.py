@@ -54,6 +54,9 @@ def _run(argv, capsys):
         (["compare", "--tasks", "walk", "--robot", "talos=atlas"], "jtraj compare: --robot: 'talos=atlas': unknown robot 'atlas'; expected one of g1, go2, talos, talos_full"),
         (["robustness", "--tasks", "walk", "--robot", "talos=go2"], "jtraj robustness: tasks/walk.toml: phases[0].contacts: 'left_foot': expected a contact of robot 'go2'"),
         (["solve", "big_jump", "--ipopt", "tol"], "jtraj solve: --ipopt: 'tol': expected NAME=VALUE"),
+        # the last one won without a word (and changed which runs a study resumed)
+        (["solve", "big_jump", "--ipopt", "max_iter=50", "--ipopt", "max_iter=100"], "jtraj solve: --ipopt: 'max_iter=100': option 'max_iter' already given; expected each option once"),
+        (["robustness", "--tasks", "walk", "--set", "force_limits=rows", "--set", "force_limits=bounds"], "jtraj robustness: --set: 'force_limits=bounds': field 'force_limits' already set by --set force_limits=rows; expected each field once"),
         (["solve", "big_jump", "--ipopt", "tol=abc"], "jtraj solve: --ipopt tol: 'abc': expected a real number in (0, inf)"),
         (["solve", "big_jump", "--ipopt", "max_itr=3"], "jtraj solve: --ipopt max_itr: 3: unknown Ipopt option; did you mean max_iter"),
         (["solve", "big_jump", "--ipopt", "max_iter=2.5"], "jtraj solve: --ipopt max_iter: 2.5: expected an integer in [0, inf)"),
