@@ -1,6 +1,7 @@
 """The notebooks run top to bottom in their small mode (JTRAJ_SMALL=1) and produce what they show:
-every code cell ran, the files each one writes are there, and its figures and key lines are in
-the outputs."""
+every code cell ran, the files each one writes are there (under the repository's runs/notebooks/,
+which git ignores, and none beside the notebook), and its figures and key lines are in the
+outputs."""
 
 import json
 from pathlib import Path
@@ -11,14 +12,15 @@ from nbclient import NotebookClient
 
 NOTEBOOKS = sorted((Path(__file__).parent.parent / "notebooks").glob("*.ipynb"))
 
-#: Per notebook: files it writes (relative to its working folder), the least number of images it
-#: displays, and text its outputs must contain.
+#: Per notebook: files it writes (relative to the repository root, the parent of the notebooks/
+#: folder Jupyter runs it in), the least number of images it displays, and text its outputs must
+#: contain.
 PRODUCES = {
     "attitude": dict(files=(), images=2, text=("small mode", "final median error", "satellite: minimum camera-sun angle", "quadrotor:")),
-    "comparison": dict(files=("compare_small/table_iv.json", "compare_small/table_iv.md", "comparison.png"), images=1, text=("| hop | go2 | se3 | solved |", "| hop | go2 | euler | solved |", "hop ['hop_se3', 'hop_euler']")),
+    "comparison": dict(files=("runs/notebooks/compare_small/table_iv.json", "runs/notebooks/compare_small/table_iv.md", "runs/notebooks/comparison.png"), images=1, text=("| hop | go2 | se3 | solved |", "| hop | go2 | euler | solved |", "hop ['hop_se3', 'hop_euler']")),
     "design": dict(files=(), images=2, text=("degenerate:",)),
-    "quickstart": dict(files=("trajectory.png",), images=1, text=("hop [", "] solved: ", "se3    solved ", "euler  solved ")),
-    "robustness": dict(files=("robustness_small/runs.jsonl", "fig2.png"), images=1, text=("runs", "| task | parameterization | sigma=0.001 | sigma=0.1 |", "| hop | se3 | ")),
+    "quickstart": dict(files=("runs/notebooks/trajectory.png",), images=1, text=("hop [", "] solved: ", "se3    solved ", "euler  solved ")),
+    "robustness": dict(files=("runs/notebooks/robustness_small/runs.jsonl", "runs/notebooks/fig2.png"), images=1, text=("runs", "| task | parameterization | sigma=0.001 | sigma=0.1 |", "| hop | se3 | ")),
 }
 
 
@@ -38,26 +40,54 @@ def test_every_notebook_has_expectations():
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
 def test_notebook_runs(path, tmp_path, monkeypatch):
+    # tmp_path stands for the repository root: Jupyter runs a notebook in the notebooks/ folder
+    here = tmp_path / "notebooks"
+    here.mkdir()
     monkeypatch.setenv("JTRAJ_SMALL", "1")
-    monkeypatch.chdir(tmp_path)
+    monkeypatch.chdir(here)
     nb = nbformat.read(path, as_version=4)
     # a failing cell raises CellExecutionError here
-    NotebookClient(nb, timeout=900, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}).execute()
+    NotebookClient(nb, timeout=900, kernel_name="python3", resources={"metadata": {"path": str(here)}}).execute()
     want = PRODUCES[path.stem]
     code = [c for c in nb.cells if c.cell_type == "code"]
     assert code and all(c.get("execution_count") for c in code), "a code cell did not run"
     for name in want["files"]:
         f = tmp_path / name
         assert f.is_file() and f.stat().st_size > 0, f"{path.name} did not write {name}"
+    # what it writes beside the notebook would be an untracked file in the checkout's notebooks/
+    assert not any(here.iterdir()), f"{path.name} wrote {sorted(p.name for p in here.iterdir())} into notebooks/"
     images = [o for o in _outputs(nb) if "image/png" in o.get("data", {})]
     assert len(images) >= want["images"], f"{path.name} displayed {len(images)} images, expected at least {want['images']}"
     text = "".join(_text(o) for o in _outputs(nb))
     for line in want["text"]:
         assert line in text, f"{path.name}'s outputs lack {line!r}"
     if path.stem == "robustness":
-        runs = [json.loads(line) for line in (tmp_path / "robustness_small/runs.jsonl").read_text().splitlines() if line.strip()]
+        runs = [json.loads(line) for line in (tmp_path / "runs/notebooks/robustness_small/runs.jsonl").read_text().splitlines() if line.strip()]
         assert len(runs) == 2 * 2 * 2  # two parameterizations, two sigmas, two replicates
         assert {(r["parameterization"], r["sigma"]) for r in runs} == {(p, s) for p in ("se3", "euler") for s in (1e-3, 0.1)}
+
+
+@pytest.mark.parametrize(("name", "variable", "default", "file"), [("comparison", "JTRAJ_COMPARE", "runs/table_iv", "table_iv.json"), ("robustness", "JTRAJ_ROBUSTNESS", "runs/robustness", "runs.jsonl")])
+def test_notebook_reads_the_repository_runs_folder_from_notebooks(name, variable, default, file, tmp_path, monkeypatch, capsys):
+    # `jtraj compare` / `jtraj robustness` from the repository root write runs/... there, and
+    # Jupyter runs the notebook in notebooks/: the default folder is the root's, not notebooks/runs/
+    here = tmp_path / "notebooks"
+    here.mkdir()
+    monkeypatch.delenv("JTRAJ_SMALL", raising=False)
+    monkeypatch.delenv(variable, raising=False)
+    monkeypatch.chdir(here)
+    nb = nbformat.read(next(p for p in NOTEBOOKS if p.stem == name), as_version=4)
+    cell = next(c.source for c in nb.cells if c.cell_type == "code")  # the one that finds the folder
+    folder = (tmp_path / default).resolve()
+    with pytest.raises(FileNotFoundError) as missing:
+        exec(cell, {})
+    assert str(folder / file) in str(missing.value) and variable in str(missing.value), missing.value
+    folder.mkdir(parents=True)
+    (folder / file).write_text("[]" if file.endswith(".json") else "")
+    capsys.readouterr()
+    exec(cell, {})
+    assert str(folder) in capsys.readouterr().out
+    assert not any(here.iterdir())
 
 
 def test_comparison_notebook_draws_the_runs_that_have_a_trajectory(tmp_path, monkeypatch):
