@@ -294,6 +294,33 @@ def test_options_from_ipopt_names():
         IpoptOptions.from_dict({"hessian_approximation": ["exact"]})  # was TypeError: unhashable type
     with pytest.raises(TypeError, match="positional argument"):
         IpoptOptions(1e-3)  # keyword-only
+    # numpy's booleans are booleans (the message said booleans were taken, and refused np.True_)
+    assert IpoptOptions.from_dict({"warm_start_init_point": np.True_}).to_ipopt()["warm_start_init_point"] == "yes"
+    with pytest.raises(InvalidOptionError, match=r"mu_init=np.True_: expected a real number"):
+        IpoptOptions.from_dict({"mu_init": np.True_})
+
+
+def test_ipopt_takes_an_nlp_of_its_own_kind_without_weak_references_with_its_exact_hessian():
+    """Ipopt takes anything with the NLP's functions; with the exact Hessian it failed on one
+    that takes no weak reference (a SimpleNamespace) after the Hessian was built."""
+    from types import SimpleNamespace
+
+    nlp = SimpleNamespace(n=2, m=1, x_lower=np.full(2, -10.0), x_upper=np.full(2, 10.0), g_lower=np.ones(1), g_upper=np.ones(1))
+    nlp.objective = lambda x: (x[0] - 1) ** 2 + (x[1] - 2) ** 2
+    nlp.gradient = lambda x: jnp.array([2 * (x[0] - 1), 2 * (x[1] - 2)])
+    nlp.constraints = lambda x: jnp.array([x[0] + x[1]])
+    nlp.jacobian = lambda x: jnp.array([1.0, 1.0])
+    nlp.jac_rows, nlp.jac_cols = np.array([0, 0]), np.array([0, 1])
+
+    def build_hessian():
+        nlp.hess_rows, nlp.hess_cols = np.array([0, 1]), np.array([0, 1])
+        nlp.hessian = lambda x, lam, of: jnp.array([2.0 * of, 2.0 * of])
+
+    nlp.build_hessian = build_hessian
+    for _ in range(2):  # (built again each solve)
+        sol = solvers.get("ipopt").solve(nlp, np.zeros(2), None, {"hessian": "exact", "print_level": 0})
+        assert sol.status is Status.SOLVED
+        np.testing.assert_allclose(sol.x, [0.0, 1.0], atol=1e-6)
 
 
 def test_solve_refuses_bad_arguments_before_building_anything(monkeypatch):

@@ -7,6 +7,7 @@ Ipopt's return code to `jtraj.solvers.Status`.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import threading
 import time
@@ -134,7 +135,7 @@ class IpoptOptions(AbstractOptions):
         if not isinstance(self.extra, dict):
             raise InvalidOptionError(f"Ipopt option extra={self.extra!r}: expected a dict of Ipopt option names to values")
         for key, value in self.extra.items():
-            if not isinstance(key, str) or not isinstance(value, (str, int, float, bool, np.integer, np.floating)):
+            if not isinstance(key, str) or not isinstance(value, (str, int, float, bool, np.integer, np.floating, np.bool_)):
                 raise InvalidOptionError(f"Ipopt option {key!r}={value!r}: expected a string, integer, float or boolean value")
             if key in _FIELDS or key == "hessian_approximation":
                 raise _own_field_error(key)
@@ -242,6 +243,7 @@ _HESSIAN_COMPILED: weakref.WeakSet = weakref.WeakSet()
 _HESSIAN_LOCK = threading.Lock()
 
 
+
 def _extra_beside(values: dict[str, Any]) -> dict[str, Any]:
     """Pop ``values``' ``extra`` dict and return a copy of it; an option named both there and at
     the top level with another value raises `InvalidOptionError` (the top level's won without
@@ -346,7 +348,7 @@ class IpoptSolver(AbstractSolver):
         x0 = np.clip(x0, f.x_lower, f.x_upper)
         time_compile = 0.0
         with _HESSIAN_LOCK:  # (two threads' solves of one NLP both built it and reported it)
-            if exact and nlp not in _HESSIAN_COMPILED:
+            if exact and nlp not in _HESSIAN_COMPILED:  # (an object without weak references never is)
                 # built and called once before the clock starts, as the other callbacks are
                 # compiled before a solve (its first call compiles its jitted scatter: it ran
                 # inside the timed solve); reported as the backend's compile time
@@ -354,7 +356,8 @@ class IpoptSolver(AbstractSolver):
                 nlp.build_hessian()
                 np.asarray(f.hessian(jnp.asarray(x0), jnp.zeros(nlp.m), 1.0))
                 time_compile = time.perf_counter() - t0
-                _HESSIAN_COMPILED.add(nlp)
+                with contextlib.suppress(TypeError):  # an NLP of its own kind without weak references: built again each solve
+                    _HESSIAN_COMPILED.add(nlp)
         problem_obj = _Problem(nlp, f, exact, callback)
         problem = cyipopt.Problem(n=nlp.n, m=nlp.m, problem_obj=problem_obj, lb=f.x_lower, ub=f.x_upper, cl=f.g_lower, cu=f.g_upper)
         problem_obj.problem = problem

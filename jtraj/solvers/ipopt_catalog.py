@@ -277,7 +277,7 @@ def check(name: str, value: Any) -> Any:
         raise IpoptOptionError(name, value, f"unknown Ipopt option; {hint}")
     spec = specs[name]
     if spec.kind == "string":
-        if isinstance(value, bool):
+        if isinstance(value, (bool, np.bool_)):  # (numpy's too: it was "expected one of ['yes', 'no']")
             value = "yes" if value else "no"
         if not isinstance(value, str):
             expected = f"one of {list(spec.values)}" if spec.values else "a string"
@@ -293,7 +293,7 @@ def check(name: str, value: Any) -> Any:
         return value
     real = spec.kind == "real"
     number_types = (int, float, np.integer, np.floating) if real else (int, np.integer)
-    if isinstance(value, bool) or not isinstance(value, number_types):
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, number_types):
         raise IpoptOptionError(name, value, f"expected {'a real number' if real else 'an integer'} in {_range(spec)}")
     x = float(value)
     below = x <= spec.lower if spec.lower_strict else x < spec.lower
