@@ -5,7 +5,7 @@ EXPECTED``, before anything compiles or solves; for a bad ``JTRAJ_CPU_DEVICES``,
 jtraj`` reads before any command is parsed, ``jtraj: MESSAGE``); ``jtraj solve`` and ``jtraj
 attitude`` also exit 3 when the solver converged to a feasible point but the motion does not do
 the task (e.g. a jump instead of a flip) and 4 when it did not return a feasible solution (the
-outcome ``not_converged``, which includes a convergence to a point over the task check's
+outcome ``not_converged``, which includes a convergence to a point over the feasibility
 violation tolerance). 1: the work itself failed after the inputs were accepted (``jtraj render`` or a
 successful solve's ``--render`` without a working OpenGL, the solution still saved; ``jtraj
 compare`` with no rows; a worker process of ``jtraj compare``/``jtraj robustness`` lost, e.g.

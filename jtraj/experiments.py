@@ -277,7 +277,7 @@ def _why(row: dict) -> str:
         return f"  (task check: {row['task_check']})"
     if row["status"] == Outcome.NOT_CONVERGED.value:
         if row.get("converged"):
-            return f"  ({row['solver'] or 'solver'} converged, but to a violation of {row['constraint_violation']:.1e}, over the task check's {FEASIBILITY_TOL:g})"
+            return f"  ({row['solver'] or 'solver'} converged, but to a violation of {row['constraint_violation']:.1e}, over the feasibility tolerance {FEASIBILITY_TOL:g})"
         return f"  ({row['solver'] or 'solver'}: {row['solver_status']})"
     return ""
 

@@ -303,6 +303,9 @@ def solve(
     for name, flag in (("exact_hessian", exact_hessian), ("keep_trajectory", keep_trajectory)):
         if not isinstance(flag, (bool, np.bool_)):  # exact_hessian="false" chose the exact Hessian
             raise ValueError(f"solve: {name}={flag!r}: expected True or False")
+    # a string was joined letter by letter into provenance.json's command
+    if command is not None and (isinstance(command, str) or not all(isinstance(a, str) for a in command)):
+        raise ValueError(f"solve: command={command!r}: expected a list of strings (shlex.split(text) splits a command line)")
     # replicate=1.5 drew replicate 1 and replicate=-1 one no study has (numbers are cast to
     # uint32); a negative seed of numpy's noise failed in default_rng after the NLP was built
     # and 2**32 drew replicate 0's noise while the result recorded 2**32 (JAX folds 32 bits in)
@@ -387,7 +390,7 @@ def solve(
                 say(f"  task check failed: {result.metrics['task_check']}")
             elif result.status is Outcome.NOT_CONVERGED:
                 if result.converged:
-                    say(f"  {backend.name} converged, but to a violation of {result.constraint_violation:.2e}, over the task check's {FEASIBILITY_TOL:g}")
+                    say(f"  {backend.name} converged, but to a violation of {result.constraint_violation:.2e}, over the feasibility tolerance {FEASIBILITY_TOL:g}")
                 else:
                     say(f"  {backend.name} stopped: {result.solver_status.value} ({result.solver_status.message})")
                     if result.solver_status is solvers.Status.INVALID_PROBLEM:  # the bound at fault is in the solver's own message
@@ -426,6 +429,10 @@ def solver_options(
                 raise ValueError(f"solve: {type(options).__name__}(hessian={chosen!r}) with exact_hessian=True: expected hessian='exact' (or the default) or exact_hessian=False")
             return backend.options(options, hessian="exact")
         return backend.options(options)
+    for name, given in (("options", options), ("ipopt_options", ipopt_options)):
+        if given is not None and not isinstance(given, Mapping):  # ('str' object is not a mapping)
+            said = f"{type(given).__name__} goes in options=" if isinstance(given, solvers.AbstractOptions) else "expected None, a dict" + (" or an options object" if name == "options" else "")
+            raise solvers.InvalidOptionError(f"solve: {name}={given!r}: {said}")
     if options and ipopt_options:
         # both dicts: ipopt_options won where they disagreed, without a word
         clash = sorted(k for k in set(options) & set(ipopt_options) if options[k] != ipopt_options[k])

@@ -722,7 +722,7 @@ def test_a_failed_cells_progress_line_says_why():
     assert _why({**row, "status": "converged_but_task_failed", "task_check": "+0.00 turns about the flip axis; expected -1 +- 0.25"}) == "  (task check: +0.00 turns about the flip axis; expected -1 +- 0.25)"
     assert _why({**row, "status": "not_converged", "converged": False, "solver_status": "step_computation_failed"}) == "  (ipopt: step_computation_failed)"
     infeasible = {**row, "status": "not_converged", "converged": True, "constraint_violation": 0.02}
-    assert _why(infeasible) == f"  (ipopt converged, but to a violation of 2.0e-02, over the task check's {FEASIBILITY_TOL:g})"
+    assert _why(infeasible) == f"  (ipopt converged, but to a violation of 2.0e-02, over the feasibility tolerance {FEASIBILITY_TOL:g})"
 
 
 # The sweeps' bookkeeping without compiles or solves: `fake_solves` replaces prepare, the noisy

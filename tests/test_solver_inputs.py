@@ -341,6 +341,12 @@ def test_solve_refuses_bad_starts_and_thetas_before_building_anything(monkeypatc
         ({"progress_every": 0}, ValueError, r"progress_every=0: expected an integer >= 1"),
         ({"progress_every": True}, ValueError, r"progress_every=True: expected an integer >= 1"),
         ({"progress_every": 5, "progress": solvers.RecordIterates()}, ValueError, r"^solve: progress_every=5 with a callback: the callback receives every iteration"),
+        # a string was joined letter by letter into provenance.json's command
+        ({"command": "python run.py --fast"}, ValueError, r"^solve: command='python run.py --fast': expected a list of strings \(shlex.split"),
+        ({"command": ["jtraj", 3]}, ValueError, r"^solve: command=\['jtraj', 3\]: expected a list of strings"),
+        # options that are not a mapping: "'str' object is not a mapping"
+        ({"options": "tol=1e-4"}, solvers.InvalidOptionError, r"^solve: options='tol=1e-4': expected None, a dict or an options object$"),
+        ({"ipopt_options": solvers.IpoptOptions(tol=1e-4)}, solvers.InvalidOptionError, r"^solve: ipopt_options=IpoptOptions\(.*\): IpoptOptions goes in options=$"),
     ):
         with pytest.raises(error, match=match):
             jtraj.solver.solve("big_jump", **kwargs)
