@@ -822,7 +822,7 @@ def _check_variable_changes(variables: str, items: list[str] | None):
         return variables
     from jtraj.solver import with_changes
 
-    changes = {}
+    changes: dict[str, str] = {}
     for item in items:
         field, sep, value = item.partition("=")
         if not sep or not field or not value:
