@@ -175,6 +175,7 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
 
     sigmas = args.sigmas_checked
     with recording(args.out, ["jtraj", *args.argv]) as run:  # OUT held until the end (jtraj.provenance)
+        args.robustness_began = True  # what an interrupt says (_kept)
         robustness(args.tasks_checked, _split(args.params), sigmas, replicates=args.replicates, seed=args.seed, out=args.out, variables=args.variables, workers=args.workers, resume=not args.no_resume, ipopt_options=args.ipopt_checked or None, executor=args.executor, ray_address=args.ray_address, solver=args.solver, noise_chart=args.noise_chart, record_run=False)
         end_run(args.out, run)
     print((__import__("pathlib").Path(args.out) / "table_iii.md").read_text())
@@ -989,6 +990,8 @@ def _kept(args: argparse.Namespace, interrupt: KeyboardInterrupt) -> str:
     how many cells its table holds, or none, where an earlier run's table may still lie;
     an interrupt outside compare() is told by how far `_cmd_compare` got)."""
     if args.command == "robustness":
+        if not getattr(args, "robustness_began", False):  # still checking its inputs
+            return f"; nothing was written to {Path(args.out)}"
         # with --no-resume the same command would move them aside again and solve every run
         again = "the same command without --no-resume resumes" if args.no_resume else "the same command again resumes"
         return f"; the runs finished are kept in {Path(args.out) / 'runs.jsonl'}, and {again} from them"

@@ -597,6 +597,22 @@ def test_ctrl_c_is_one_line_saying_what_was_kept(command, kept, monkeypatch, tmp
     assert err.startswith(f"jtraj {command}: interrupted{kept.format(out=out)}") and err.count("\n") == 1, err
 
 
+@pytest.mark.parametrize("command", ["robustness", "compare"])
+def test_ctrl_c_while_the_inputs_are_checked_says_nothing_was_written(command, monkeypatch, tmp_path, capsys):
+    """Stopped while it checked its inputs (a noise chart's check takes seconds), robustness
+    said its finished runs were kept in OUT/runs.jsonl, which did not exist."""
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "_check_out", interrupted)
+    out = tmp_path / "out"
+    code, err = _run([command, "--tasks", "big_jump", "--params", "se3", "--out", str(out)], capsys)
+    assert code == cli.EXIT_INTERRUPTED
+    assert err.startswith(f"jtraj {command}: interrupted; nothing was written to {out}") and err.count("\n") == 1, err
+    assert not out.exists()
+
+
 def test_ctrl_c_after_no_resume_says_to_run_without_it(monkeypatch, tmp_path, capsys):
     """With --no-resume the same command moves the runs aside again and solves every run: the
     interrupt said that the same command again resumes from them."""
