@@ -526,9 +526,10 @@ def _group_key(task: Task, p: str, variables: str | TranscriptionOptions, exact_
 
 
 def run_key(row: dict) -> tuple:
-    """The identity of a robustness run: (task content hash, parameterization, variables, Hessian
-    mode, solver-options hash, seed, sigma, replicate, solver); a row without a solver (an
-    earlier file's) is an Ipopt run."""
+    """The identity of a robustness run, its values of `RUN_KEY`: (task content hash,
+    parameterization, variables by name and by content hash, Hessian mode, solver-options hash,
+    seed, sigma, replicate, solver, noise chart, robot content hash); a field an earlier file's
+    row lacks takes the value it meant then (no solver: an Ipopt run; `_key_value`)."""
     return tuple(_key_value(row, k) for k in RUN_KEY)
 
 
@@ -755,7 +756,9 @@ def robustness(
     level sigma depends only on (seed, sigma, r) (`noise_key`).
 
     ``workers > 1`` solves (task, parameterization) groups in that many processes, each
-    appending to the same file. ``executor="ray"`` makes each group a Ray task on the cluster
+    appending to the same file and printing its progress lines to its own standard output (a
+    stream does not cross processes: ``progress`` there only says whether they print); with one
+    group it is solved here, printing to ``progress``. ``executor="ray"`` makes each group a Ray task on the cluster
     at ``ray_address`` (`jtraj.executors`; ``ray_address`` is for it only, ``workers`` > 1 for
     the local executor only: each is refused with the other); each run's row comes back as it
     is solved (a streaming task) and is appended here, under the same keys and resume rules,
@@ -852,7 +855,9 @@ def robustness(
         # tables too), and an interrupt before them left the earlier ones in OUT as if this call's
         _clear_outputs("robustness", out, ROBUSTNESS_OUTPUTS)
         run = _begin_call(out, "robustness", record_run)
-        if executor == "local" and workers <= 1:
+        # one group is solved here (the local executor would run it in this process, whose
+        # stdout took its lines in place of the given stream)
+        if executor == "local" and (workers <= 1 or len(args) <= 1):
             for k, a in enumerate(args):
                 _robustness_group(*a, progress=progress)
                 # a checkpoint: the table of every group so far, should the study stop here

@@ -1043,6 +1043,15 @@ def test_compare_checks_every_cell_folder_before_the_first_solve(tmp_path, fake_
     assert len(fake_solves) == 1
 
 
+def test_one_group_with_workers_prints_to_the_given_stream(tmp_path, fake_solves, capsys):
+    """With workers=2 and one group, the local executor solved it in this process, whose stdout
+    took the run lines in place of the stream given as progress."""
+    stream = io.StringIO()
+    robustness(["walk"], ["se3"], sigmas=[0.1], replicates=2, out=tmp_path, progress=stream, workers=2)
+    assert len(fake_solves) == 2 and capsys.readouterr().out == ""
+    assert sum(line.startswith("walk") for line in stream.getvalue().splitlines()) == 2, stream.getvalue()
+
+
 def test_rows_that_are_not_runs_are_set_aside_with_the_torn_lines(tmp_path, fake_solves, capsys):
     """Lines that parse but are not runs (not an object, a row without a key field or without a
     field the tables read) are reported in the torn lines' warning and set aside with them, so
