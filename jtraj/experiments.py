@@ -44,7 +44,7 @@ from jtraj.task import Task
 from jtraj.task import load as load_task
 from jtraj.transcription import TranscriptionOptions
 
-__all__ = ["compare", "robustness", "table_iii", "noisy_warm_starts", "chart_noisy_warm_starts", "check_noise_chart", "check_runs_file", "poses_in_chart", "NoiseChartError", "noise_key", "run_key", "variables_hash", "read_runs", "summarize_robustness", "setting_label", "TABLE_IV_PAPER_SE3", "RepeatedValueError", "plot_iterations"]
+__all__ = ["compare", "robustness", "table_iii", "noisy_warm_starts", "chart_noisy_warm_starts", "check_noise_chart", "check_runs_file", "poses_in_chart", "NoiseChartError", "noise_key", "run_key", "variables_hash", "read_runs", "summarize_robustness", "select_runs", "setting_label", "TABLE_IV_PAPER_SE3", "RepeatedValueError", "plot_iterations"]
 
 #: Iterations of the SE(3) tangent parameterization in the paper's Table IV.
 TABLE_IV_PAPER_SE3 = {"walk": 14, "hopscotch": 10, "big_jump": 11, "handstand": 88, "backflip": 28, "sideflip": 29}
@@ -539,6 +539,17 @@ def _key_value(row: dict, field: str) -> Any:
     return row.get(field, _KEY_DEFAULTS.get(field))
 
 
+def select_runs(runs: list[dict], **fields: Any) -> list[dict]:
+    """The runs whose value of each given field equals it (``select_runs(runs, seed=0,
+    solver="jtraj")``), in their order: one setting's runs of a runs.jsonl that keeps other
+    settings' too, for `table_iii` and `plot_iterations`. A field of `RUN_KEY` that an earlier
+    file's row lacks has the value it meant then (no solver: ``"ipopt"``)."""
+    unknown = sorted(set(fields) - set(RUN_KEY) - set(_RUN_FIELDS))
+    if unknown:  # a misspelt field selected nothing
+        raise ValueError(f"select_runs: {', '.join(unknown)}: not a field of a run; expected some of {', '.join(RUN_KEY + _RUN_FIELDS)}")
+    return [r for r in runs if all(_key_value(r, k) == v for k, v in fields.items())]
+
+
 #: the fields of a run that the tables read, beside those of its key
 _RUN_FIELDS = ("task", "converged", "constraint_violation", "success", "iterations")
 
@@ -1029,10 +1040,11 @@ def _refuse_mixed_settings(runs: list[dict], task: str, p: str, sigma: float) ->
     for field in _CELL_SETTINGS:
         values = sorted({str(v) for r in runs if (v := _key_value(r, field)) is not None})
         if len(values) > 1:
+            last = next(v for r in reversed(runs) if (v := _key_value(r, field)) is not None)
             raise ValueError(
                 f"Table III: the runs of {task} / {p} at sigma {sigma:g} differ in {field} ({', '.join(values[:4])}{', ...' if len(values) > 4 else ''}); "
-                f"expected one setting's runs per cell: select them first (e.g. the runs whose {field} is one of these; "
-                "jtraj robustness writes each call's own table)"
+                f"expected one setting's runs per cell: select them first (e.g. select_runs(runs, {field}={last!r}), "
+                "the setting of the last run; jtraj robustness writes each call's own table)"
             )
 
 

@@ -351,6 +351,18 @@ def test_table_iii_refuses_a_cell_whose_runs_come_from_different_settings():
         summarize_robustness([run(0, True, options_hash="a"), run(0, True, options_hash="b")])
     (row,) = summarize_robustness([run(0, True, robot_hash="r1"), run(0, False)])  # the second's robot not recorded
     assert row["runs"] == 2 and row["converged_rate"] == 0.5
+    # and names the public way to select one setting's runs (the message said "select them
+    # first", and the only selection was private)
+    from jtraj.experiments import select_runs
+
+    mixed = [run(0, True), run(7, False), run(0, False, solver="jtraj")]
+    with pytest.raises(ValueError, match=r"select_runs\(runs, seed=7\), the setting of the last run"):
+        table_iii(mixed[:2])
+    assert select_runs(mixed, seed=0) == [mixed[0], mixed[2]]
+    assert select_runs(mixed, seed=0, solver="ipopt") == [mixed[0]]  # (a row without a solver is an Ipopt run)
+    assert "| walk | se3 |" in table_iii(select_runs(mixed, seed=7))
+    with pytest.raises(ValueError, match=r"^select_runs: sede: not a field of a run; expected some of task_hash"):
+        select_runs(mixed, sede=0)
 
 
 def test_table_iii_counts_a_converged_run_only_when_it_is_feasible():
