@@ -85,9 +85,10 @@ def enable_compilation_cache(path: str | Path | None = None) -> Path | None:
     """Turn on JAX's persistent compilation cache (default ``~/.cache/jtraj/jax``), so a second
     process reuses the compiled NLP functions. ``JTRAJ_NO_CACHE=1`` turns it off (``0``,
     ``false``, ``no``, ``off`` or an empty value leave it on); an empty ``JTRAJ_CACHE_DIR`` is
-    the default folder, not the working directory. Returns the folder, or None where the cache
-    is turned off or its folder cannot be made (a `RuntimeWarning` says which and what to set:
-    the solve goes on without the cache).
+    the default folder, not the working directory. Returns the folder JAX's cache is in from
+    then on, or None where it is off: turned off, or its folder cannot be made (a
+    `RuntimeWarning` says which and what to set: the solve goes on without the cache, or with
+    the folder JAX had, which is returned).
 
     Each call reads its arguments and the environment again, and a change takes effect in
     this process: another folder (``path``, or a changed ``JTRAJ_CACHE_DIR``) is where the
@@ -99,7 +100,8 @@ def enable_compilation_cache(path: str | Path | None = None) -> Path | None:
 
     A cache set up for JAX before (``jax.config.update("jax_compilation_cache_dir", ...)`` or
     ``JAX_COMPILATION_CACHE_DIR``) is left as it is, with its thresholds, and its folder is
-    returned, unless ``path`` or ``JTRAJ_CACHE_DIR`` asks for another; so is a folder given as
+    returned, unless ``path`` or ``JTRAJ_CACHE_DIR`` asks for another; so is a cache this module
+    turned on and the user turned off for JAX since (None is returned); so is a folder given as
     ``path`` before, until ``JTRAJ_CACHE_DIR`` changes. `jtraj.solve`,
     `jtraj.differentiate.differentiable` and the attitude benchmarks' solves call this
     without arguments."""
@@ -116,21 +118,28 @@ def enable_compilation_cache(path: str | Path | None = None) -> Path | None:
     # solve's call without one moved to the default), until JTRAJ_CACHE_DIR changes
     own = _jax_cache_dir()
     env = os.environ.get("JTRAJ_CACHE_DIR") or None
+    if path is None and own is None and _enabled is not None and env == _env_at_given:
+        # the cache this module turned on, turned off for JAX since (jax.config): the user's
+        # setting, kept (the folder jtraj had chosen was returned, or the default turned on)
+        return None
     if path is None and own:
         users = _enabled is None or str(_enabled) != own
         if (users and env is None) or (not users and _given and env == _env_at_given):
             return Path(own)
     # "~/x" (a quoted path in a shell, or a .env file) made a folder named "~" here
     target = (Path(path) if path is not None else Path(env or default_cache_dir())).expanduser()
-    if _enabled == target:
+    if _enabled == target and own == str(target):
         if path is not None:
             _given, _env_at_given = True, env
         return target
     try:
         target.mkdir(parents=True, exist_ok=True)
     except OSError as e:  # a read-only home, a file in the way: compile without the cache
-        warnings.warn(f"jtraj: no compilation cache, the folder {str(target)!r} cannot be made ({e.strerror or e}); set JTRAJ_CACHE_DIR to a writable folder, or JTRAJ_NO_CACHE=1", RuntimeWarning, stacklevel=2)
-        return None
+        # (or with the one JAX has: it said "no compilation cache" and returned None while JAX
+        # went on writing to an earlier folder)
+        still = f"the compilations go on to {own!r}" if own else "no compilation cache"
+        warnings.warn(f"jtraj: {still}: the folder {str(target)!r} cannot be made ({e.strerror or e}); set JTRAJ_CACHE_DIR to a writable folder, or JTRAJ_NO_CACHE=1", RuntimeWarning, stacklevel=2)
+        return Path(own) if own else None
     jax.config.update("jax_compilation_cache_dir", str(target))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)

@@ -226,3 +226,32 @@ print("ok")
     code = "import jax; from jtraj import config; print(config.enable_compilation_cache(), jax.config.jax_persistent_cache_min_compile_time_secs)"
     out = subprocess.run([sys.executable, "-c", code], env={**env, "JAX_COMPILATION_CACHE_DIR": str(tmp_path / "env")}, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0 and out.stdout.split() == [str(tmp_path / "env"), "1.0"], (out.stdout, out.stderr[-2000:])
+
+
+def test_what_the_cache_call_returns_is_where_jax_caches(tmp_path):
+    """A folder that could not be made returned None ("no compilation cache") while JAX went on
+    writing to the earlier folder; a cache jtraj turned on and the user turned off for JAX was
+    reported on, or turned on again at the default folder. A fresh interpreter."""
+    code = f"""
+import warnings
+import jax
+from jtraj import config
+first = {str(tmp_path / "first")!r}
+assert str(config.enable_compilation_cache(first)) == first
+with warnings.catch_warnings(record=True) as said:
+    warnings.simplefilter("always")
+    assert str(config.enable_compilation_cache({str(tmp_path / "file" / "cache")!r})) == first
+assert jax.config.jax_compilation_cache_dir == first
+assert len(said) == 1 and f"the compilations go on to {{first!r}}" in str(said[0].message), [str(w.message) for w in said]
+jax.config.update("jax_compilation_cache_dir", None)  # the user's: no cache
+assert config.enable_compilation_cache() is None and jax.config.jax_compilation_cache_dir is None
+again = {str(tmp_path / "again")!r}  # a folder asked for turns it on again
+assert str(config.enable_compilation_cache(again)) == again == jax.config.jax_compilation_cache_dir
+print("ok")
+"""
+    (tmp_path / "file").write_text("")
+    env = _environment({"JTRAJ_CPU_DEVICES": "1"})
+    for name in ("JTRAJ_NO_CACHE", "JTRAJ_CACHE_DIR", "JAX_COMPILATION_CACHE_DIR"):
+        env.pop(name, None)
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-2000:]
