@@ -7,6 +7,7 @@ import dataclasses
 import math
 import threading
 import time
+import types
 from collections.abc import Mapping
 from typing import Any
 
@@ -23,7 +24,7 @@ from jtraj.nlp import KnotNLP
 from jtraj.numbers import is_seed, is_whole
 from jtraj.registry import lookup
 from jtraj.result import Outcome, Result, folder_in_the_way
-from jtraj.solvers.base import initial_guess
+from jtraj.solvers.base import guess_shapes, initial_guess
 from jtraj.success import FEASIBILITY_TOL
 from jtraj.success import evaluate as check_motion
 from jtraj.transcription import COMPACT_VARIABLES, LEAN_VARIABLES, PAPER_VARIABLES, TaskParams, Transcription, TranscriptionOptions
@@ -174,6 +175,27 @@ def prepare(
         with _CACHE_LOCK:
             _BUILDING.pop(key, None)
         return prep
+
+
+def _check_before_the_build(task, parameterization, variables, theta, warm_start) -> None:
+    """`solve`'s checks of a given theta's values (`Transcription.resolve_theta`,
+    `Transcription.check_boundaries`) and a given warm start's shape, on the transcription of
+    the prepared NLP where there is one, else on one made for them (no NLP built)."""
+    task, param, options = tasks.load(task), params.get(parameterization), transcription_options(variables)
+    with _CACHE_LOCK:
+        hit = _CACHE.get((task, param, options))
+    tr = hit.transcription if hit is not None else Transcription(robots.load(task.robot), task, param, options)
+    if theta is not None:
+        tr.check_boundaries(tr.resolve_theta(theta))
+    if warm_start is not None:
+        knots, nz = tr.N + 1, tr.layout.nz
+        shape = types.SimpleNamespace(n=knots * nz, n_knots=knots, nz=nz)
+        try:
+            fits = np.shape(np.asarray(warm_start, float)) in guess_shapes(shape)
+        except (TypeError, ValueError):
+            fits = False
+        if not fits:  # (its entries are checked with the NLP, which names their slots)
+            initial_guess(shape, warm_start, "warm_start")
 
 
 def _build(key: tuple, task: tasks.Task, param: params.AbstractParameterization, options: TranscriptionOptions) -> Prepared:
@@ -341,6 +363,10 @@ def solve(
         from jtraj.experiments import check_noise_chart
 
         check_noise_chart([task], [params.get(parameterization).name], variables, noise_chart)
+    if theta is not None or warm_start is not None:
+        # their values and shape, on the transcription alone (seconds at most), before the NLP
+        # is built and compiled (tens of seconds on a whole-body task)
+        _check_before_the_build(task, parameterization, variables, theta, warm_start)
     prep = prepare(task, parameterization, variables)
     tr, nlp = prep.transcription, prep.nlp
     theta_given = theta is not None

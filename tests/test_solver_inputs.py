@@ -347,10 +347,16 @@ def test_solve_refuses_bad_starts_and_thetas_before_building_anything(monkeypatc
         # options that are not a mapping: "'str' object is not a mapping"
         ({"options": "tol=1e-4"}, solvers.InvalidOptionError, r"^solve: options='tol=1e-4': expected None, a dict or an options object$"),
         ({"ipopt_options": solvers.IpoptOptions(tol=1e-4)}, solvers.InvalidOptionError, r"^solve: ipopt_options=IpoptOptions\(.*\): IpoptOptions goes in options=$"),
+        # a warm start's shape and theta's values, on the transcription alone (they were
+        # refused after the build: 9 s on the hop, tens on a whole-body task)
+        ({"warm_start": np.zeros(3)}, ValueError, r"^warm_start of shape \(3,\): expected \(6204,\) or \(47, 132\)"),
+        ({"warm_start": np.zeros((132, 47))}, ValueError, r"^warm_start of shape \(132, 47\): expected"),
+        ({"theta": {"friction": -1.0}}, ValueError, r"friction=-1.0: expected"),
+        ({"theta": {"target_translation": [0.0, 0.0, 0.5]}}, ValueError, r"above the terrain at the last knot"),
     ):
         with pytest.raises(error, match=match):
             jtraj.solver.solve("big_jump", **kwargs)
-    for kwargs in ({"progress_every": np.int64(2)}, {"theta": {"friction": 0.5}}, {"noise": 0.1, "replicate": 0, "noise_chart": "euler"}):
+    for kwargs in ({"progress_every": np.int64(2)}, {"theta": {"friction": 0.5}}, {"noise": 0.1, "replicate": 0, "noise_chart": "euler"}, {"warm_start": np.zeros((47, 132))}):
         with pytest.raises(Built):  # good: on to the build
             jtraj.solver.solve("big_jump", **kwargs)
 
