@@ -73,11 +73,17 @@ def _cmd_solve(args: argparse.Namespace) -> int:
     """``jtraj solve``: the solve's folder, with the ``provenance.json`` `jtraj.solve` writes
     there (`jtraj.provenance`, as the sweeps write it: unfinished until the result is saved)
     naming this command."""
+    from jtraj.provenance import holding
     from jtraj.solver import solve
 
     # loaded, retargeted and checked by _check_inputs
     options, task = args.ipopt_checked, args.task_checked
     out = args.out_checked
+    with holding(out):  # (solve holds it too; this hold lasts until its figures are written)
+        return _solve_and_draw(args, solve, task, options, out)
+
+
+def _solve_and_draw(args: argparse.Namespace, solve, task, options, out) -> int:
     result = solve(
         task,
         args.param,
@@ -582,11 +588,12 @@ def _check_euler_warm_start(tasks_or_names: list, variables) -> None:
             raise (_from_file(e, item) if isinstance(item, str) else e) from None
 
 
-def _check_tasks(field: str, text: str, robots: dict[str, str] | None = None) -> list:
+def _check_tasks(field: str, text: str, robots: dict[str, str] | None = None) -> tuple[list, list[str]]:
     """Every task named loads and passes the checks that need its robot, before any solve.
 
     Returns what the sweep is given: the names as they are without ``robots``, else the
-    checked Task objects, moved to the robot models ``robots`` names (loaded once, here)."""
+    checked Task objects, moved to the robot models ``robots`` names (loaded once, here); and
+    the tasks' own names (a .toml file's task is named inside it), which name compare's cells."""
     from jtraj import task as tasks
     from jtraj.experiments import _refuse_repeats
 
@@ -599,7 +606,7 @@ def _check_tasks(field: str, text: str, robots: dict[str, str] | None = None) ->
         if old not in on_robots:
             raise InputError("--robot", f"{old}={new}", f"no task of {field} is on robot {old!r}; expected a mapping of {', '.join(sorted(on_robots))}")
     _refuse_repeats(field, names, [t.name for t in checked], "task")  # walk and a .toml of walk, too
-    return checked if robots else names
+    return (checked if robots else names), [t.name for t in checked]
 
 
 def _check_params(field: str, text: str) -> list[str]:
@@ -730,7 +737,7 @@ def _check_inputs(args: argparse.Namespace) -> None:
                 raise InputError(f"--ipopt {conflict[0]}", conflict[1], "conflicts with --exact-hessian; expected 'exact' or no --exact-hessian")
     elif cmd in ("compare", "robustness"):
         # sweeps: every name is checked before the first solve
-        args.tasks_checked = _check_tasks("--tasks", args.tasks, args.robots_checked)
+        args.tasks_checked, task_names = _check_tasks("--tasks", args.tasks, args.robots_checked)
         params = _check_params("--params", args.params)
         if "euler" in params:  # its cells run last in compare, after the others solved
             _check_euler_warm_start(args.tasks_checked, args.variables)
@@ -747,9 +754,8 @@ def _check_inputs(args: argparse.Namespace) -> None:
         _check_out_files(args.out, (*(COMPARE_OUTPUTS if cmd == "compare" else ROBUSTNESS_OUTPUTS), "provenance.json"))
         if cmd == "compare" and not args.no_trajectories:  # each cell's folder, before the first solve
             from jtraj.experiments import cell_folder_problem
-            from jtraj.task import load as load_task
 
-            if (problem := cell_folder_problem(args.out, [load_task(t).name for t in args.tasks_checked], params)) is not None:
+            if (problem := cell_folder_problem(args.out, task_names, params)) is not None:
                 raise InputError("--out", args.out, problem)
         if args.executor == "ray":  # Ray installed and its cluster reached, before OUT is written
             from jtraj.executors import RayExecutor
@@ -992,6 +998,8 @@ def _kept(args: argparse.Namespace, interrupt: KeyboardInterrupt) -> str:
     if args.command == "robustness":
         if not getattr(args, "robustness_began", False):  # still checking its inputs
             return f"; nothing was written to {Path(args.out)}"
+        if not (Path(args.out) / "runs.jsonl").is_file():  # (its first group still compiling)
+            return f"; no run was solved; {Path(args.out) / 'provenance.json'} records the run as unfinished"
         # with --no-resume the same command would move them aside again and solve every run
         again = "the same command without --no-resume resumes" if args.no_resume else "the same command again resumes"
         return f"; the runs finished are kept in {Path(args.out) / 'runs.jsonl'}, and {again} from them"

@@ -35,7 +35,7 @@ from jtraj.deprecation import renamed_argument
 from jtraj.executors import WorkerLostError, check_executor, executor_for
 from jtraj.numbers import is_real, is_seed, is_whole
 from jtraj.parameterization import PARAMETERIZATIONS, AbstractParameterization
-from jtraj.provenance import begin_run, end_run, holding
+from jtraj.provenance import FolderInUseError, begin_run, end_run, holding
 from jtraj.result import Outcome
 from jtraj.solver import evaluate, prepare, solve, solver_options, transcription_options, variables_label
 from jtraj.success import FEASIBILITY_TOL
@@ -191,6 +191,8 @@ def compare(
                 raise KeyboardInterrupt(kept) from None
             if isinstance(e, BrokenPipeError):  # (the progress stream closed) the command line says it too
                 e.add_note(kept)
+            if isinstance(e, FolderInUseError):  # a cell's folder, taken by another process since the check
+                raise FolderInUseError(f"{e}; {kept}") from None
             raise
         if run is not None:
             end_run(out, run)
@@ -200,8 +202,9 @@ def compare(
 def cell_folder_problem(out: str | Path, tasks: Sequence[str], params: Sequence[str]) -> str | None:
     """What stops `compare` from saving a cell's result into its folder ``out/{task}_{param}``
     (a file in its place, a folder where one of its files goes, a folder this user cannot write
-    in), or None."""
+    in, another process's run in it), or None."""
     from jtraj.io import output_folder_problem
+    from jtraj.provenance import in_use
     from jtraj.result import folder_in_the_way
 
     for task in tasks:
@@ -209,6 +212,8 @@ def cell_folder_problem(out: str | Path, tasks: Sequence[str], params: Sequence[
             cell = Path(out) / f"{task}_{p}"
             if (problem := output_folder_problem(cell) or folder_in_the_way(cell)) is not None:
                 return f"the cell folder {cell}: {problem}"
+            if (busy := in_use(cell)) is not None:  # another process's solve in it: refused at that cell
+                return busy
     return None
 
 

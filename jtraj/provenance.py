@@ -7,13 +7,13 @@ can be traced to the run that produced it: when the run starts
 again when it ends. A run that resumes a folder keeps the folder's earlier records under
 ``"earlier"``, oldest first: its tables may hold their runs.
 
-A run holds its folder (`hold`, which `begin_run` calls) until `end_run` or `release`: another
-process's run that begins in the same folder meanwhile raises `FolderInUseError` (an advisory
-``flock`` of the folder, which ends with the process; two runs in one folder appended to one
-``runs.jsonl``, solved the same cells twice and overwrote each other's tables and
-``provenance.json``). Within one process a folder may be held again (a thread's run, or one that
-raised before its `end_run`, does not lock its own process out); where the file system has no
-``flock`` nothing is locked.
+A run holds its folder while it writes there (`holding`; `recording` also writes the record):
+another process's run that begins in the same folder meanwhile raises `FolderInUseError` (an
+advisory ``flock`` of the folder, which ends with the block or the process; two runs in one
+folder appended to one ``runs.jsonl``, solved the same cells twice and overwrote each other's
+tables and ``provenance.json``). Within one process a folder may be held by several blocks at
+once (a solve's inside a sweep's, two threads'); where the file system has no ``flock``
+nothing is locked.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from collections.abc import Iterator
 from importlib import metadata
 from pathlib import Path
 
-__all__ = ["begin_run", "end_run", "hold", "holding", "release", "recording", "FolderInUseError", "provenance", "write_provenance", "write_results", "source", "vector_extension", "VECTOR_EXTENSIONS"]
+__all__ = ["begin_run", "end_run", "holding", "in_use", "recording", "FolderInUseError", "provenance", "write_provenance", "write_results", "source", "vector_extension", "VECTOR_EXTENSIONS"]
 
 
 def _version(dist: str) -> str | None:
@@ -165,127 +165,168 @@ def write_provenance(out: str | Path, argv: list[str] | None = None) -> Path:
 
 
 class FolderInUseError(RuntimeError):
-    """Another process's run holds the folder (between its `begin_run` and `end_run`)."""
+    """Another process's run holds the folder (`holding`)."""
 
 
-#: the folders this process holds: their real path -> the descriptor whose flock holds it
-_HELD: dict[str, int] = {}
+#: the folders this process holds: their real path -> [the descriptor whose flock holds it,
+#: how many `holding` blocks of this process hold it now]
+_HELD: dict[str, list[int]] = {}
 _HELD_GUARD = threading.Lock()
 
 
-def hold(out: str | Path) -> bool:
-    """Hold the folder ``out`` (made if missing) for this process's run (module docstring):
-    True where this call took it, False where this process held it already or the file system
-    cannot lock it. Raises `FolderInUseError`, naming the run that holds it (from its
-    ``provenance.json``, when that says the run is unfinished), where another process does."""
+def _flock():
     try:
         import fcntl
     except ImportError:  # not a POSIX system: nothing is locked
-        return False
-    Path(out).mkdir(parents=True, exist_ok=True)
-    key = os.path.realpath(out)
+        return None
+    return fcntl
+
+
+def _hold(key: str, out: Path) -> None:
+    """Take (or count once more) this process's hold of the existing folder ``key``."""
+    fcntl = _flock()
+    if fcntl is None:
+        return
     with _HELD_GUARD:
-        if key in _HELD:  # this process's own (a thread's, or a run that raised before its end)
-            return False
+        if key in _HELD:  # this process's own (a nested run, a thread's)
+            _HELD[key][1] += 1
+            return
         try:
             fd = os.open(key, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
         except OSError:
-            return False
+            return
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             os.close(fd)
-            raise FolderInUseError(_in_use(Path(out))) from None
+            raise FolderInUseError(_in_use_message(out)) from None
         except OSError:  # a file system without flock (some network ones): nothing is locked
             os.close(fd)
-            return False
-        _HELD[key] = fd
-        return True
+            return
+        _HELD[key] = [fd, 1]
 
 
-def _in_use(out: Path) -> str:
+def _release(key: str) -> None:
+    with _HELD_GUARD:
+        held = _HELD.get(key)
+        if held is None:
+            return
+        held[1] -= 1
+        if held[1] > 0:
+            return
+        del _HELD[key]
+    os.close(held[0])  # (closing the descriptor ends its flock)
+
+
+def _in_use_message(out: Path) -> str:
+    """The refusal, naming the run that holds ``out`` where its ``provenance.json`` says that
+    run is unfinished and its process is alive (a record left by a killed run names no one)."""
     from jtraj import io
 
     who = ""
-    with contextlib.suppress(OSError, ValueError, TypeError, KeyError):
+    with contextlib.suppress(OSError, ValueError, TypeError, KeyError, OverflowError):
         record = io.read_json(out / "provenance.json")
-        if record.get("complete") is False:
+        pid = record.get("pid")
+        if record.get("complete") is False and isinstance(pid, int) and pid > 0:
+            os.kill(pid, 0)  # (ProcessLookupError, an OSError: no such process)
             who = f" ({record['command']!s}, begun {record['date_utc']!s})"
     return f"{out} is in use by another run{who}: wait for it to end, or write to another folder"
 
 
-def release(out: str | Path) -> None:
-    """Let other processes' runs begin in ``out`` (`end_run` does it); nothing if this process
-    does not hold it."""
+def in_use(out: str | Path) -> str | None:
+    """The refusal `holding` would raise for ``out`` now, or None where it is free (or not a
+    folder yet, or held by this process): checked before a sweep's first solve for each folder
+    it will write into (a compare cell's)."""
+    fcntl = _flock()
+    if fcntl is None or not Path(out).is_dir():
+        return None
+    key = os.path.realpath(out)
     with _HELD_GUARD:
-        fd = _HELD.pop(os.path.realpath(out), None)
-    if fd is not None:
-        os.close(fd)  # (closing the descriptor ends its flock)
-
-
-@contextlib.contextmanager
-def recording(out: str | Path, argv: list[str] | None = None, fields: dict | None = None) -> Iterator[dict]:
-    """`begin_run` as a context: the block calls `end_run` when the run is complete (a block that
-    raises leaves the record unfinished), and the folder is released however the block ends
-    (where this context took it)."""
-    with holding(out):
-        yield begin_run(out, argv, fields)
+        if key in _HELD:
+            return None
+    try:
+        fd = os.open(key, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+    except OSError:
+        return None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return _in_use_message(Path(out))
+    except OSError:
+        return None
+    finally:
+        os.close(fd)
+    return None
 
 
 @contextlib.contextmanager
 def holding(out: str | Path) -> Iterator[None]:
-    """`hold` as a context: the folder is released as the block ends, where this context took it."""
-    took = hold(out)
+    """Hold the folder ``out`` (made if missing) for this process while the block runs (module
+    docstring): raises `FolderInUseError`, naming the run that holds it, where another process
+    does. Blocks of one process may hold one folder at once (a solve's inside a sweep's, or two
+    threads'); the folder is let go when the last of them ends. A folder this block made and
+    left empty (its run failed before writing) is removed."""
+    out = Path(out)
+    made = not out.exists()
+    out.mkdir(parents=True, exist_ok=True)
+    key = os.path.realpath(out)  # (the key, kept: a chdir in the block changes a relative out's)
+    try:
+        _hold(key, out)
+    except BaseException:
+        if made:
+            with contextlib.suppress(OSError):
+                out.rmdir()
+        raise
     try:
         yield
     finally:
-        if took:
-            release(out)
+        _release(key)
+        if made:
+            with contextlib.suppress(OSError):  # (not empty: kept)
+                Path(key).rmdir()
+
+
+@contextlib.contextmanager
+def recording(out: str | Path, argv: list[str] | None = None, fields: dict | None = None) -> Iterator[dict]:
+    """`begin_run` inside `holding`: the block calls `end_run` when the run is complete (a block
+    that raises leaves the record unfinished), and the folder is let go however the block ends."""
+    with holding(out):
+        yield begin_run(out, argv, fields)
 
 
 def begin_run(out: str | Path, argv: list[str] | None = None, fields: dict | None = None) -> dict:
     """Write ``out/provenance.json`` as a sweep starts, marked ``"complete": false``, with
-    ``fields`` added (e.g. `jtraj.solve`'s ``"call"``); an earlier record in the folder (of a
-    run this one resumes or adds to) is kept under ``"earlier"``. Returns the record for
-    `end_run`.
-
-    The folder is held from here (`hold`) until `end_run` or `release`: raises
-    `FolderInUseError`, writing nothing, where another process's run holds it."""
+    ``fields`` added (e.g. `jtraj.solve`'s ``"call"``) and this process's id (``"pid"``: a
+    refusal of the folder names this run while it is alive); an earlier record in the folder (of
+    a run this one resumes or adds to) is kept under ``"earlier"``. Returns the record for
+    `end_run`. (The record only: a run holds its folder with `holding` or `recording`.)"""
     from jtraj import io
 
     path = Path(out) / "provenance.json"
     record = {**provenance(argv), **(fields or {})}
     record["complete"] = False
-    took = hold(out)
-    try:
-        earlier: list = []
-        if path.is_file():
-            try:
-                previous = io.read_json(path)
-            except (OSError, ValueError):
-                previous = None  # an unreadable record is replaced
-            if isinstance(previous, dict):
-                earlier = list(previous.pop("earlier", []) or []) + [previous]
-        if earlier:
-            record["earlier"] = earlier
-        io.write_json(path, record)
-    except BaseException:
-        if took:
-            release(out)
-        raise
+    record["pid"] = os.getpid()
+    earlier: list = []
+    if path.is_file():
+        try:
+            previous = io.read_json(path)
+        except (OSError, ValueError):
+            previous = None  # an unreadable record is replaced
+        if isinstance(previous, dict):
+            earlier = list(previous.pop("earlier", []) or []) + [previous]
+    if earlier:
+        record["earlier"] = earlier
+    Path(out).mkdir(parents=True, exist_ok=True)
+    io.write_json(path, record)
     return record
 
 
 def end_run(out: str | Path, record: dict) -> Path:
-    """Write ``record`` (from `begin_run`) again, marked complete with its end date, and
-    `release` the folder."""
+    """Write ``record`` (from `begin_run`) again, marked complete with its end date."""
     from jtraj import io
 
     record = {**record, "complete": True, "date_end_utc": _now()}
-    try:
-        return io.write_json(Path(out) / "provenance.json", record)
-    finally:
-        release(out)
+    return io.write_json(Path(out) / "provenance.json", record)
 
 
 def write_results(

@@ -301,6 +301,8 @@ def solve(
             The folder's ``provenance.json`` (`jtraj.provenance.begin_run`: date, machine,
             versions, source commit) is written once the NLP is built, before the solve (and before
             the compile of jtraj's solver program), marked complete once the result is saved; it names this call (``"call"``) and ``command``.
+            The folder is held from before the build to the end (`jtraj.provenance.holding`):
+            another process's run in it raises `jtraj.provenance.FolderInUseError` first.
         keep_trajectory: attach the solution's `jtraj.transcription.Trajectory` to the result (default
             True); False keeps only the figures of the solve (the sweeps' setting), and
             ``out`` then writes no ``trajectory.npz``.
@@ -363,36 +365,41 @@ def solve(
         from jtraj.experiments import check_noise_chart
 
         check_noise_chart([task], [params.get(parameterization).name], variables, noise_chart)
-    if theta is not None or warm_start is not None:
-        # their values and shape, on the transcription alone (seconds at most), before the NLP
-        # is built and compiled (tens of seconds on a whole-body task)
-        _check_before_the_build(task, parameterization, variables, theta, warm_start)
-    prep = prepare(task, parameterization, variables)
-    tr, nlp = prep.transcription, prep.nlp
-    theta_given = theta is not None
-    theta = tr.resolve_theta(theta)
-    if theta_given:
-        tr.check_boundaries(theta)  # a standing pose or target that no solver could meet
-    # a given warm start as one of the NLP's guess shapes, named in the error: flattened first, a
-    # transposed (nz, n_knots) guess had the right size and was solved from scrambled knots
-    x0 = tr.warm_start(theta) if warm_start is None else initial_guess(nlp, warm_start, "warm_start")
-    if replicate is not None:
-        from jtraj.experiments import chart_noisy_warm_starts
-
-        x0 = chart_noisy_warm_starts(tr, noise_chart, [noise], [replicate], seed)[0, 0]
-    elif noise:
-        x0 = x0 + noise * np.random.default_rng(seed).standard_normal(x0.shape)
-    with _CACHE_LOCK:  # (two threads' solves both reported it)
-        compile_time, prep.time_compile = prep.time_compile, 0.0  # counted once per process (by the first solve that gets this far)
-    run = None
-    # the folder is held from here to the end, however the solve ends (`jtraj.provenance.hold`)
+    # held from here (`jtraj.provenance.holding`), however the solve ends: another process's run
+    # in it is refused before the build
     held = contextlib.ExitStack()
-    if out is not None:  # the inputs are good: unfinished from here until the result is saved
-        from jtraj.provenance import recording
+    if out is not None:
+        from jtraj.provenance import holding
 
-        call = {"function": "jtraj.solve", "task": tr.task.name, "parameterization": tr.param.name, "solver": backend.name, "variables": dataclasses.asdict(tr.options), "theta_given": theta_given}
-        run = held.enter_context(recording(out, command, {"call": call}))
+        held.enter_context(holding(out))
     with held:
+        if theta is not None or warm_start is not None:
+            # their values and shape, on the transcription alone (seconds at most), before the NLP
+            # is built and compiled (tens of seconds on a whole-body task)
+            _check_before_the_build(task, parameterization, variables, theta, warm_start)
+        prep = prepare(task, parameterization, variables)
+        tr, nlp = prep.transcription, prep.nlp
+        theta_given = theta is not None
+        theta = tr.resolve_theta(theta)
+        if theta_given:
+            tr.check_boundaries(theta)  # a standing pose or target that no solver could meet
+        # a given warm start as one of the NLP's guess shapes, named in the error: flattened first, a
+        # transposed (nz, n_knots) guess had the right size and was solved from scrambled knots
+        x0 = tr.warm_start(theta) if warm_start is None else initial_guess(nlp, warm_start, "warm_start")
+        if replicate is not None:
+            from jtraj.experiments import chart_noisy_warm_starts
+
+            x0 = chart_noisy_warm_starts(tr, noise_chart, [noise], [replicate], seed)[0, 0]
+        elif noise:
+            x0 = x0 + noise * np.random.default_rng(seed).standard_normal(x0.shape)
+        with _CACHE_LOCK:  # (two threads' solves both reported it)
+            compile_time, prep.time_compile = prep.time_compile, 0.0  # counted once per process (by the first solve that gets this far)
+        run = None
+        if out is not None:  # the inputs are good: unfinished from here until the result is saved
+            from jtraj.provenance import begin_run
+
+            call = {"function": "jtraj.solve", "task": tr.task.name, "parameterization": tr.param.name, "solver": backend.name, "variables": dataclasses.asdict(tr.options), "theta_given": theta_given}
+            run = begin_run(out, command, {"call": call})
         opts = solver_options(backend, options, ipopt_options, exact_hessian, tr.task.max_iter)
         say = callback.write if isinstance(callback, solvers.PrintProgress) else None
         if say is not None:

@@ -5,6 +5,7 @@ import dataclasses
 import json
 import sys
 import types
+from pathlib import Path
 
 import pytest
 
@@ -576,7 +577,7 @@ def test_a_lost_worker_is_one_line_and_exit_1(command, monkeypatch, tmp_path, ca
 
 @pytest.mark.parametrize(
     "command, kept",
-    [("robustness", "; the runs finished are kept in {out}/runs.jsonl, and the same command again resumes from them"), ("compare", "; no cell was solved and no table written; {out}/provenance.json records the run as unfinished"), ("solve", "")],
+    [("robustness", "; no run was solved; {out}/provenance.json records the run as unfinished"), ("compare", "; no cell was solved and no table written; {out}/provenance.json records the run as unfinished"), ("solve", "")],
 )
 def test_ctrl_c_is_one_line_saying_what_was_kept(command, kept, monkeypatch, tmp_path, capsys):
     """Ctrl-C in a sweep: exit 130 and one line saying where the finished work is; it was a
@@ -618,11 +619,13 @@ def test_ctrl_c_after_no_resume_says_to_run_without_it(monkeypatch, tmp_path, ca
     interrupt said that the same command again resumes from them."""
     import jtraj.experiments
 
+    out = tmp_path / "out"
+
     def interrupted(*args, **kwargs):
+        (out / "runs.jsonl").write_text("{}\n")  # a run solved before it
         raise KeyboardInterrupt
 
     monkeypatch.setattr(jtraj.experiments, "robustness", interrupted)
-    out = tmp_path / "out"
     code, err = _run(["robustness", "--tasks", "big_jump", "--params", "se3", "--no-resume", "--out", str(out)], capsys)
     assert code == cli.EXIT_INTERRUPTED
     assert err == f"jtraj robustness: interrupted; the runs finished are kept in {out}/runs.jsonl, and the same command without --no-resume resumes from them\n"
@@ -649,13 +652,15 @@ def test_sigterm_stops_a_command_as_ctrl_c_does(monkeypatch, tmp_path, capsys):
     def sentinel(signum, frame):
         raise Sentinel
 
+    out = tmp_path / "out"
+
     def terminated(*args, **kwargs):
+        (out / "runs.jsonl").write_text("{}\n")  # a run solved before it
         os.kill(os.getpid(), signal.SIGTERM)
         time.sleep(10)  # the signal's handler runs before this ends
         raise AssertionError("SIGTERM did not stop the command")
 
     monkeypatch.setattr(jtraj.experiments, "robustness", terminated)
-    out = tmp_path / "out"
     previous = signal.signal(signal.SIGTERM, sentinel)
     try:
         code, err = _run(["robustness", "--tasks", "big_jump", "--params", "se3", "--out", str(out)], capsys)
@@ -998,6 +1003,7 @@ def test_a_closed_output_stops_a_sweep_with_one_line(monkeypatch, tmp_path, caps
     import jtraj.experiments
 
     def closed(*args, **kwargs):
+        (tmp_path / "o" / ("runs.jsonl" if command == "robustness" else "table_iv.json")).write_text("{}\n")  # work done before it
         e = BrokenPipeError(32, "Broken pipe")
         if command == "compare":
             e.add_note(f"{tmp_path / 'o' / 'table_iv.json'} holds the 1 of 2 cells finished before it")
@@ -1060,3 +1066,28 @@ def test_a_broken_mujoco_is_not_called_a_bad_mujoco_gl(tmp_path):
     done = subprocess.run([sys.executable, "-c", "import sys; from jtraj import cli; sys.exit(cli.main(['solve', 'big_jump']))"], env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 1 and "GLIBCXX_3.4.32" in done.stderr and "Traceback" in done.stderr, done.stderr[-2000:]
     assert "could not load that OpenGL backend" not in done.stderr
+
+
+def test_jtraj_solve_holds_its_folder_until_its_figures_are_written(monkeypatch, tmp_path, capsys):
+    """solve() let the folder go once its result was saved, and the figures (and --render's
+    files) were written with the folder free for another run."""
+    from test_provenance import _flock_free
+
+    import jtraj.plots
+    import jtraj.solver
+
+    out = tmp_path / "out"
+    drawn = []
+
+    def fake_solve(task, *args, **kwargs):
+        return types.SimpleNamespace(converged=True, success=True)
+
+    def fake_plot(result, path):
+        drawn.append(_flock_free(out))
+        Path(path).write_text("a figure")
+
+    monkeypatch.setattr(jtraj.solver, "solve", fake_solve)
+    monkeypatch.setattr(jtraj.plots, "plot_result", fake_plot)
+    monkeypatch.setattr(jtraj.plots, "plot_convergence", fake_plot)
+    assert cli.main(["solve", "big_jump", "--out", str(out)]) == 0
+    assert drawn == [False, False] and _flock_free(out)

@@ -121,16 +121,16 @@ def test_gits_own_variables_do_not_point_the_record_at_another_repository(monkey
 
 HOLDER = """
 import sys
-from jtraj.provenance import begin_run
-begin_run(sys.argv[1], ["jtraj", "robustness", "--tasks", "walk"])
-print("holding", flush=True)
-sys.stdin.read()  # until the test closes our stdin
+from jtraj.provenance import recording
+with recording(sys.argv[1], ["jtraj", "robustness", "--tasks", "walk"]):
+    print("holding", flush=True)
+    sys.stdin.read()  # until the test closes our stdin
 """
 
 
 @pytest.fixture
 def held_by_another_process(tmp_path):
-    """tmp_path/study, begun by a run in another Python process that holds it until the test ends."""
+    """tmp_path/study, held by a run in another Python process until the test ends."""
     import sys
 
     out = tmp_path / "study"
@@ -164,11 +164,29 @@ def test_a_folder_another_process_is_running_in_is_refused_naming_that_run(held_
     overwrote each other's tables and provenance.json; the second now stops before writing."""
     out = held_by_another_process
     before = (out / "provenance.json").read_text()
-    with pytest.raises(prov.FolderInUseError, match=rf"^{re.escape(str(out))} is in use by another run \(jtraj robustness --tasks walk, begun \d{{4}}-.*Z\): wait for it to end, or write to another folder$"):
-        prov.begin_run(out, ["jtraj", "robustness", "--tasks", "big_jump"])
-    with pytest.raises(prov.FolderInUseError):
-        prov.hold(out)
+    refusal = rf"^{re.escape(str(out))} is in use by another run \(jtraj robustness --tasks walk, begun \d{{4}}-.*Z\): wait for it to end, or write to another folder$"
+    with pytest.raises(prov.FolderInUseError, match=refusal):
+        with prov.recording(out, ["jtraj", "robustness", "--tasks", "big_jump"]):
+            pytest.fail("the block ran")
+    assert re.match(refusal, prov.in_use(out) or "")
     assert (out / "provenance.json").read_text() == before
+
+
+def test_a_record_left_by_a_run_that_ended_names_no_one(tmp_path):
+    """The refusal named the command of an unfinished record, also one a killed run left."""
+    import fcntl
+    import os
+
+    out = tmp_path / "study"
+    out.mkdir()
+    (out / "provenance.json").write_text(json.dumps({"command": "jtraj robustness (killed last week)", "date_utc": "2026-11-30T00:00:00Z", "complete": False, "pid": 2**22 + 1}))
+    fd = os.open(out, os.O_RDONLY)  # another open description: as another process's hold
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        assert prov.in_use(out) == f"{out} is in use by another run: wait for it to end, or write to another folder"
+    finally:
+        os.close(fd)
+    assert prov.in_use(out) is None
 
 
 def test_the_sweeps_and_the_command_line_refuse_it_before_touching_the_folder(held_by_another_process, capsys):
@@ -185,24 +203,47 @@ def test_the_sweeps_and_the_command_line_refuse_it_before_touching_the_folder(he
     code = cli.main(["robustness", "--tasks", "big_jump", "--params", "se3", "--sigmas", "0.1", "--replicates", "1", "--out", str(out)])
     err = capsys.readouterr().err
     assert code == cli.EXIT_BAD_INPUT and err.startswith(f"jtraj robustness: {out} is in use by another run (jtraj robustness --tasks walk") and err.count("\n") == 1
+    # a compare cell's folder in use: refused before the first cell is solved
+    assert experiments.cell_folder_problem(out.parent, ["study"], ["x"]) is None  # (no such cell folder)
+    (out.parent / "walk_se3").symlink_to(out)  # the cell folder walk_se3 is the held one
+    assert (experiments.cell_folder_problem(out.parent, ["walk"], ["se3"]) or "").startswith(f"{out.parent / 'walk_se3'} is in use by another run")
 
 
-def test_a_run_holds_its_folder_until_it_ends_however_it_ends(tmp_path):
+def test_a_run_holds_its_folder_until_the_last_block_of_its_process_ends(tmp_path):
     out = tmp_path / "study"
-    record = prov.begin_run(out, ["jtraj", "compare"])
-    assert not _flock_free(out)
-    assert prov.begin_run(out, ["jtraj", "compare"])["complete"] is False  # this process's own folder: begun again
-    prov.end_run(out, record)
+    with prov.recording(out, ["jtraj", "compare"]) as record:
+        assert not _flock_free(out) and prov.in_use(out) is None  # (this process's own)
+        # a solve's or a sweep's with record_run inside: its end leaves the folder held
+        with prov.recording(out, ["jtraj", "solve"]) as inner:
+            prov.end_run(out, inner)
+        assert not _flock_free(out)
+        prov.end_run(out, record)
     assert _flock_free(out)
     with pytest.raises(RuntimeError, match="a fault mid-run"):
         with prov.recording(out, ["jtraj", "solve"]):
             assert not _flock_free(out)
             raise RuntimeError("a fault mid-run")
     assert _flock_free(out) and json.loads((out / "provenance.json").read_text())["complete"] is False
-    # a folder held by an enclosing run stays held when an inner one ends without its end_run
+    # two threads' blocks: let go when the second ends
+    import threading
+
+    entered, leave = threading.Barrier(2), threading.Event()
+
+    def thread():
+        with prov.holding(out):
+            entered.wait()
+            leave.wait(30)
+
+    t = threading.Thread(target=thread)
+    t.start()
     with prov.holding(out):
-        with pytest.raises(KeyboardInterrupt):
-            with prov.holding(out):
-                raise KeyboardInterrupt
-        assert not _flock_free(out)
+        entered.wait()
+    assert not _flock_free(out)
+    leave.set()
+    t.join()
     assert _flock_free(out)
+    # a folder a block made and its run left empty is removed (a solve refused after the hold)
+    with pytest.raises(ValueError):
+        with prov.holding(tmp_path / "new"):
+            raise ValueError
+    assert not (tmp_path / "new").exists()

@@ -276,6 +276,23 @@ def test_solve_checks_out_before_building_anything(tmp_path, monkeypatch):
     ):
         with pytest.raises(ValueError, match=rf"^solve: out={re.escape(repr(out))}: {match}"):
             jtraj.solver.solve("big_jump", out=out)
+    # a folder another process's run holds: refused before the build (it was, after the NLP was
+    # built and compiled), and left as it was
+    import fcntl
+    import os
+
+    from jtraj.provenance import FolderInUseError
+
+    held = tmp_path / "held"
+    held.mkdir()
+    fd = os.open(held, os.O_RDONLY)  # another open description: as another process's hold
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        with pytest.raises(FolderInUseError, match=rf"^{re.escape(str(held))} is in use by another run"):
+            jtraj.solver.solve("big_jump", out=str(held))
+    finally:
+        os.close(fd)
+    assert not any(held.iterdir())
 
 
 def test_the_result_records_how_its_warm_start_was_made(tmp_path):
