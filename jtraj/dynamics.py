@@ -281,8 +281,16 @@ class _Kinematics(NamedTuple):
     J: jax.Array  # (6, nv) world-frame motion subspace of each dof
 
 
+def _array(value: jax.Array) -> jax.Array:
+    """``value`` (an array or a list, as the public functions take it) as a JAX float array:
+    reading ``.shape`` of a list was an AttributeError."""
+    a = jnp.asarray(value)
+    return a if jnp.issubdtype(a.dtype, jnp.floating) else a.astype(float)
+
+
 def _split(robot: Robot, param: AbstractParameterization, q: jax.Array) -> tuple[jax.Array, jax.Array]:
     expected = param.nq + robot.nj
+    q = _array(q)
     if q.shape != (expected,):
         raise ValueError(
             f"q has shape {q.shape}; expected ({expected},) = {param.nq} base coordinates of "
@@ -293,6 +301,7 @@ def _split(robot: Robot, param: AbstractParameterization, q: jax.Array) -> tuple
 
 def _kinematics(robot: Robot, param: AbstractParameterization, q: jax.Array) -> _Kinematics:
     tree = _tree(robot)
+    q = _array(q)  # a list, as the public functions take it: its dtype is read below
     q_base, q_joints = _split(robot, param, q)
     T = param.to_pose(q_base)
     R_base, p_base = T.rotation().as_matrix(), T.translation()
@@ -362,7 +371,7 @@ def contact_position_jacobians(robot: Robot, param: AbstractParameterization, q:
     tree = _tree(robot)
     kin = _kinematics(robot, param, q)
     Jc = _point_jacobians(tree, kin, _contact_points(tree, kin))
-    J_base = _matmul(Jc[..., :6], _local_base_jacobian(param, q[: param.nq]))
+    J_base = _matmul(Jc[..., :6], _local_base_jacobian(param, _split(robot, param, q)[0]))
     return jnp.concatenate([J_base, Jc[..., 6:]], axis=-1)
 
 
@@ -433,21 +442,33 @@ class _Rnea(NamedTuple):
     f_net: jax.Array  # (nbody, 6) body force minus external contact forces
     points: jax.Array  # (ncontact, 3)
     tau: jax.Array  # (nv,)
+    forces: jax.Array  # (ncontact, 3), the argument as an array
 
 
-def _check_rates(robot: Robot, v: jax.Array, a: jax.Array, forces: jax.Array | None = None) -> None:
-    nv, nc = robot.nv, robot.ncontact
+def _check_rates(robot: Robot, v: jax.Array, a: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """``(v, a)`` as JAX float arrays (`_array`), checked for shape."""
+    nv = robot.nv
+    v, a = _array(v), _array(a)
     if v.shape != (nv,) or a.shape != (nv,):
         raise ValueError(f"v and a must have shape ({nv},), got {v.shape} and {a.shape}")
-    if forces is not None and forces.shape != (nc, 3):
+    return v, a
+
+
+def _check_forces(robot: Robot, forces: jax.Array) -> jax.Array:
+    """``forces`` as a JAX float array (`_array`), checked for shape."""
+    nc = robot.ncontact
+    forces = _array(forces)
+    if forces.shape != (nc, 3):
         raise ValueError(
             f"forces must have shape ({nc}, 3) (all contact points of {robot.name!r}), got {forces.shape}"
         )
+    return forces
 
 
 def _rnea(robot, param, q, v, a, forces, masses=None) -> _Rnea:
     tree = _tree(robot)
-    _check_rates(robot, v, a, forces)
+    v, a = _check_rates(robot, v, a)
+    forces = _check_forces(robot, forces)
     kin = _kinematics(robot, param, q)
     anc = jnp.asarray(tree.ancestor_dofs)
     Jt = kin.J.T  # (nv, 6)
@@ -463,7 +484,7 @@ def _rnea(robot, param, q, v, a, forces, masses=None) -> _Rnea:
     f_net = f - jnp.asarray(tree.contact_incidence) @ f_ext
     F = jnp.asarray(tree.subtree) @ f_net  # composite forces
     tau = jnp.sum(Jt * F[tree.dof_body], axis=-1)
-    return _Rnea(kin, I, ov, oa, h, f_net, points, tau)
+    return _Rnea(kin, I, ov, oa, h, f_net, points, tau, forces)
 
 
 def inverse_dynamics(
@@ -608,8 +629,8 @@ def inverse_dynamics_derivatives(
     Bc = composite[:, 25:][:, _SYM6] - _fbar(composite[:, 19:25])  # (nv, 6, 6)
     # E: a contact force keeps its world direction while its point moves with the body:
     #   E = [[0, -[F]], [0, -N]] with F = sum f_c and N = sum [p_c][f_c] over the subtree.
-    N_c = _matmul(_skew(r.points), _skew(forces))
-    csum = jnp.asarray(tree.contact_dofs).T @ jnp.concatenate([forces, N_c.reshape(-1, 9)], axis=-1)
+    N_c = _matmul(_skew(r.points), _skew(r.forces))
+    csum = jnp.asarray(tree.contact_dofs).T @ jnp.concatenate([r.forces, N_c.reshape(-1, 9)], axis=-1)
     F_sub, N_sub = csum[:, :3], csum[:, 3:].reshape(nv, 3, 3)
 
     ov_par, oa_par, ov_own = r.ov[dp], r.oa[dp], r.ov[db]
@@ -651,7 +672,7 @@ def inverse_dynamics_derivatives(
     Jc = _point_jacobians(tree, r.kin, r.points)
     dtau_df = -Jc.reshape(-1, nv).T
 
-    q_base = q[: param.nq]
+    q_base = _split(robot, param, q)[0]
     dtau_dbase = _matmul(dtau_dx[:, :6], _local_base_jacobian(param, q_base))
     dtau_dq = jnp.concatenate([dtau_dbase, dtau_dx[:, 6:]], axis=1)
     return InverseDynamicsJacobians(r.tau, dtau_dq, dtau_dv, M, dtau_df)
@@ -698,7 +719,7 @@ def to_mujoco(
     ``qacc = (R (a_lin + omega x v_body), a_ang)``.
     """
     q_base, q_joints = _split(robot, param, q)
-    _check_rates(robot, v, a)
+    v, a = _check_rates(robot, v, a)
     T = param.to_pose(q_base)
     R = T.rotation().as_matrix()
     qpos = jnp.concatenate([param.to_qpos(q_base), q_joints])
@@ -730,7 +751,8 @@ def inverse_dynamics_mjx(
     accelerations, point Jacobians), with the conventions converted. A reference and the
     benchmark's baseline; slower to differentiate."""
     m = robot.mjx_model
-    _check_rates(robot, v, a, forces)
+    v, a = _check_rates(robot, v, a)
+    forces = _check_forces(robot, forces)
     qpos, qvel, qacc = to_mujoco(robot, param, q, v, a)
     d = mjx.make_data(m).replace(qpos=qpos, qvel=qvel, qacc=qacc)
     d = mjx.kinematics(m, d)

@@ -51,7 +51,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 import jax.numpy as jnp
@@ -107,7 +107,10 @@ class Layout:
         return np.concatenate([np.arange(self.offset(n), self.offset(n) + self.size(n)) for n in names]) if names else np.zeros(0, int)
 
     def split(self, z: jax.Array) -> dict[str, jax.Array]:
-        """Slots of one knot (or of a stack of knots along the leading axes)."""
+        """Slots of one knot (or of a stack of knots along the leading axes): z (…, nz)."""
+        # a flat x (n,) was taken for one knot and gave knot 0's values, and a short z
+        # reads clamped (JAX) or short (numpy) slots; shapes are static under jit
+        _check_last_axis(z, self.nz, "z", "nz")
         return {name: z[..., self.slice(name)] for name, _ in self.slots}
 
     def join(self, parts: dict[str, Any], batch: tuple[int, ...] = ()) -> np.ndarray:
@@ -116,6 +119,14 @@ class Layout:
         for name, value in parts.items():
             out[..., self.slice(name)] = value
         return out
+
+
+def _check_last_axis(a: Any, size: int, name: str, what: str) -> None:
+    """Raise ValueError unless ``a`` has shape (…, size): an array of another size is not an
+    error in an index (JAX clamps it) nor in ``.at[].set`` (a size-1 one broadcasts)."""
+    shape = np.shape(a)
+    if not shape or shape[-1] != size:
+        raise ValueError(f"{name} has shape {shape}; expected (..., {what}) with {what} = {size}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -221,8 +232,10 @@ class KnotStructure:
     ``z_k[state_columns]`` is the state ``x_k`` (the slots ``state`` concatenated in that
     order), ``z_k[control_columns]`` the controls ``u_k``; every column of z_k is one or the
     other. ``step(x_k, u_k, theta) -> x_{k+1}`` (one knot, vmap for many) is the dynamics
-    that the NLP's equality rows between knots k and k+1 encode: those rows vanish exactly
-    when ``x_{k+1} = step(x_k, u_k, theta)``.
+    that the NLP's equality rows between knots k and k+1 encode: those rows vanish when
+    ``x_{k+1} = step(x_k, u_k, theta)``. Not only then: a chart may give one pose several
+    coordinates (a quaternion's sign and, where it is free, its norm; SE(3)'s whole turns),
+    and the rows vanish at any of them, while ``step`` returns one.
     """
 
     layout: Layout
@@ -253,10 +266,13 @@ class KnotStructure:
 
     def split(self, z: jax.Array) -> tuple[jax.Array, jax.Array]:
         """(x, u) of one knot's (or stacked knots') variables z (…, nz)."""
+        _check_last_axis(z, self.layout.nz, "z", "nz")
         return z[..., self.state_columns], z[..., self.control_columns]
 
     def join(self, x: jax.Array, u: jax.Array) -> jax.Array:
         """z (…, nz) from state x (…, nx) and controls u (…, nu)."""
+        _check_last_axis(x, self.nx, "x", "nx")
+        _check_last_axis(u, self.nu, "u", "nu")
         z = jnp.zeros(x.shape[:-1] + (self.layout.nz,), jnp.result_type(x, u))
         return z.at[..., self.state_columns].set(x).at[..., self.control_columns].set(u)
 
@@ -320,6 +336,12 @@ def _knot_jacobians(fn: Callable, layout: Layout, Z: jax.Array, knots: np.ndarra
     return jax.vmap(one, in_axes=in_axes)(theta, data, *args)
 
 
+def _check_probes(n_probes: Any) -> None:
+    # 0 probes (or fewer) left every probed entry out: an empty Jacobian or Hessian structure
+    if not is_whole(n_probes) or n_probes < 1:
+        raise ValueError(f"n_probes={n_probes!r}: expected a whole number >= 1 (random points where the sparsity is probed)")
+
+
 def _probe_point(rng: np.random.Generator, n_knots: int, nz: int) -> np.ndarray:
     """A random (n_knots, nz) point with no entry near 0, where a structural zero shows."""
     return rng.uniform(0.2, 1.0, size=(n_knots, nz)) * rng.choice([-1.0, 1.0], size=(n_knots, nz))
@@ -363,11 +385,16 @@ class KnotNLP:
     """An NLP over ``Z`` (n_knots, nz) with costs, constraint groups and parameters theta.
 
     Builds, once, the row layout (which rows of which group at which knot), the Jacobian
-    and Hessian sparsity, and jitted functions of the flat variable vector and theta (see
-    the module docstring). ``lower`` and ``upper`` are the variable bounds (n_knots, nz), as
-    arrays or callables of theta; ``theta`` the default parameters; ``structure`` an optional
-    `KnotStructure`.
+    sparsity, and jitted functions of the flat variable vector and theta (see the module
+    docstring); the Hessian's sparsity and ``hessian`` are built by `build_hessian`, on
+    demand (a solver with a quasi-Newton Hessian never needs them). ``lower`` and ``upper``
+    are the variable bounds (n_knots, nz), as arrays or callables of theta (anything that
+    broadcasts to that shape); ``theta`` the default parameters; ``structure`` an optional
+    `KnotStructure`. ``n_probes`` (>= 1) random points probe the Jacobian's sparsity.
     """
+
+    #: what `build_hessian` sets: read before it, they name it (an AttributeError either way)
+    _HESSIAN_ATTRIBUTES = ("hessian", "hess_rows", "hess_cols", "nnz_hess")
 
     def __init__(
         self,
@@ -383,6 +410,7 @@ class KnotNLP:
         theta: Any = None,
         structure: KnotStructure | None = None,
     ):
+        _check_probes(n_probes)
         self.layout = layout
         self.n_knots = n_knots
         self.nz = layout.nz
@@ -407,6 +435,14 @@ class KnotNLP:
                 raise ValueError(f"group {g.name}: knots reach past the last knot {n_knots - 1}")
             if g.knots.size and g.knots.min() < 0:
                 raise ValueError(f"group {g.name}: knots must be >= 0, got {g.knots.min()}")
+            # vmapped over the knots with the deps: another leading axis failed there, in
+            # JAX's words, naming no group
+            for path, leaf in jax.tree_util.tree_flatten_with_path(g.data)[0]:
+                if np.shape(leaf)[:1] != (g.knots.size,):
+                    raise ValueError(
+                        f"group {g.name}: data{jax.tree_util.keystr(path)} has shape {np.shape(leaf)}; "
+                        f"expected a leading knot axis of K = {g.knots.size} (one entry per knot of knots)"
+                    )
             if isinstance(g, CostGroup):
                 continue
             if np.ndim(g.active) != 2 or np.shape(g.active)[0] != g.knots.size:
@@ -418,6 +454,7 @@ class KnotNLP:
 
         for g in every:
             self._check_shapes(g, theta)
+        self._check_variable_bounds(theta)
         self._build_rows()
         self.bounds = jax.jit(self._bounds)
         self.x_lower, self.x_upper, self.g_lower, self.g_upper = (np.asarray(b) for b in self.bounds(theta))
@@ -425,6 +462,28 @@ class KnotNLP:
         self._build_jacobian_structure(probe_seed, n_probes)
         self._hessian_built = False
         self._compile()
+
+    if not TYPE_CHECKING:  # hidden from mypy, which would type every unknown attribute Any
+
+        def __getattr__(self, name: str) -> Any:
+            # only called for attributes that are not set
+            if name in KnotNLP._HESSIAN_ATTRIBUTES:
+                raise AttributeError(f"KnotNLP.{name} is built by build_hessian(): call build_hessian() first")
+            raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+
+    def _check_variable_bounds(self, theta: Any) -> None:
+        """Refuse variable bounds that do not broadcast to (n_knots, nz): a flat (n,) vector,
+        the solver's shape, failed in JAX's broadcasting naming neither bound nor shape."""
+        shape = (self.n_knots, self.nz)
+        for name, b in (("lower", self._lower), ("upper", self._upper)):
+            got = getattr(jax.eval_shape(b, theta), "shape", ()) if callable(b) else np.shape(b)
+            try:
+                ok = np.broadcast_shapes(got, shape) == shape
+            except ValueError:
+                ok = False
+            if not ok:
+                what = f"{name}(theta)" if callable(b) else name
+                raise ValueError(f"variable bounds: {what} has shape {got}; expected one that broadcasts to (n_knots, nz) = {shape}")
 
     def _check_shapes(self, g: CostGroup | ConstraintGroup, theta: Any) -> None:
         """Refuse a group whose functions return the wrong shape or a non-float dtype at one
@@ -639,6 +698,7 @@ class KnotNLP:
         mapped to the global (row >= col) COO list, summing where blocks of neighbouring
         knots or groups overlap.
         """
+        _check_probes(n_probes)
         if self._hessian_built:
             return
         layout, n_knots, nz = self.layout, self.n_knots, self.nz
@@ -696,8 +756,9 @@ class KnotNLP:
             cols.append(gb[keep])
             # gather index into the flattened (K, ndep, ndep) block array
             gathers.append(np.ravel_multi_index((kk[keep], aa[keep], bb[keep]), (K, *pattern.shape)))
-        rows = np.concatenate(rows)
-        cols = np.concatenate(cols)
+        # no cost and no constraint: an empty Hessian (np.concatenate refuses an empty list)
+        rows = np.concatenate(rows) if rows else np.zeros(0, np.int64)
+        cols = np.concatenate(cols) if cols else np.zeros(0, np.int64)
         key = rows * self.n + cols
         unique, inverse = np.unique(key, return_inverse=True)
         self.hess_rows = (unique // self.n).astype(np.int64)

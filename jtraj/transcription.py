@@ -48,6 +48,7 @@ Nothing here imports cyipopt; `Transcription.build_nlp` returns a `jtraj.nlp.Kno
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable, Mapping
 from functools import cached_property
 from typing import Any
@@ -61,8 +62,9 @@ from jtraj import dynamics, lie
 from jtraj.constants import GRAVITY
 from jtraj.deprecation import warn_renamed
 from jtraj.nlp import ConstraintGroup, CostGroup, Dep, KnotNLP, KnotStructure, Layout
-from jtraj.numbers import unit_and_length
+from jtraj.numbers import is_real, unit_and_length
 from jtraj.parameterization import AbstractParameterization
+from jtraj.robot import Robot
 from jtraj.task import Task, _Raw
 
 __all__ = [
@@ -203,6 +205,10 @@ HEIGHT_TOLERANCE = 1e-6
 #: (violation 3.4e-5), 0.15 mm stopped at the iteration limit (1.15e-4), against Ipopt's
 #: constr_viol_tol of 1e-4.
 STANCE_SPREAD = 1e-4
+#: The largest |angle| (rad) of ``target_rotation_rpy``: half a turn, with the margin of the task
+#: file's check (`jtraj.task`: 3.1416, float32's pi, is half a turn). A larger angle is a smaller
+#: one's attitude (a spin of 2 pi solved as a plain hop) or degrees typed for radians.
+RPY_LIMIT = math.pi + 1e-3
 
 _FORMER_NAMES = {"PAPER_LAYOUT": "PAPER_VARIABLES", "COMPACT_LAYOUT": "COMPACT_VARIABLES", "LEAN_LAYOUT": "LEAN_VARIABLES"}
 
@@ -225,8 +231,10 @@ class TaskParams:
         timestep: () h (s); the knot count stays the task's.
         friction: () coefficient mu of the friction pyramid.
         force_limit_factor: () |f_i| <= factor * (sum of body_masses) * g per component.
-        max_delta_force: () N per knot and component; inf (and no rows) for a task without,
-            where a finite value is refused (`Transcription.resolve_theta`) unless it is
+        max_delta_force: () N per knot and component; inf for no bound: a task without one
+            has no force-rate rows, and a task's rows with the bounds -inf and inf bind
+            nothing (both solvers leave out a row without a finite bound). For a task without
+            the rows a finite value is refused (`Transcription.resolve_theta`) unless it is
             being traced (under ``jit``/``grad``): then it cannot be looked at, and has no
             effect, since the task has no force-rate rows to bound.
         configuration_weight, acceleration_weight: () cost weights.
@@ -256,13 +264,17 @@ class TaskParams:
     q_joints_standing: jax.Array
 
     def replace(self, **overrides: Any) -> "TaskParams":
-        """A copy with some fields replaced, as float64 arrays of the same shapes."""
+        """A copy with some fields replaced, as float64 arrays of the same shapes. Values must
+        be numbers (Python's or numpy's, lists of them, arrays): a bool or a string is refused,
+        as the task file refuses it (``True`` became 1.0, ``"0.5"`` 0.5)."""
         names = [f.name for f in dataclasses.fields(self)]
         values = {}
         for name, value in overrides.items():
             if name not in names:
                 raise ValueError(f"unknown task parameter {name!r}; expected one of {names}")
             old = getattr(self, name)
+            if not _numeric(value):
+                raise ValueError(f"task parameter {name!r} must be numbers of shape {old.shape}, got {value!r}")
             try:
                 new = jnp.asarray(value, dtype=jnp.float64)
             except (TypeError, ValueError) as err:
@@ -275,9 +287,10 @@ class TaskParams:
     def check(self) -> "TaskParams":
         """Raise ValueError for values no task can have (the task file's rules: a positive
         timestep, friction, force factor and force-rate bound, weights >= 0, masses >= 0 and
-        the world body's (the first) 0, all finite but an absent force-rate bound, inf; and a
-        unit standing quaternion). Values being traced (under ``jit``,
-        ``grad`` or ``vmap``) are not looked at. Returns self."""
+        the world body's (the first) 0, target angles within [-pi, pi] (`RPY_LIMIT`), all
+        finite but the force-rate bound, which may be inf (no bound, see ``max_delta_force``);
+        and a unit standing quaternion). Values being traced (under ``jit``, ``grad`` or
+        ``vmap``) are not looked at. Returns self."""
         def positive(v):
             return np.isfinite(v) & (v > 0)
 
@@ -291,6 +304,12 @@ class TaskParams:
             "max_delta_force": ("a positive force (N), or inf for none", lambda v: v > 0),
             "configuration_weight": ("a weight >= 0", nonnegative),
             "acceleration_weight": ("a weight >= 0", nonnegative),
+            # as the task file's target.rotation_rpy: 90 (degrees typed for radians) was a
+            # rotation of 116.6 degrees
+            "target_rotation_rpy": (
+                "angles (rad) within [-pi, pi]: the target is an attitude, so a larger angle is a smaller one's attitude",
+                lambda v: np.isfinite(v) & (np.abs(v) <= RPY_LIMIT),
+            ),
             # the world body's (first) is in no subtree: inverse dynamics ignores it, while the
             # force bound and the warm start's weight summed it
             "body_masses": ("masses >= 0 (kg), the first (the world body's) 0", lambda v: nonnegative(v) & ((np.arange(v.size) > 0) | (v == 0))),
@@ -311,6 +330,16 @@ class TaskParams:
                 shown = v.item() if v.ndim == 0 else v.tolist()
                 raise ValueError(f"theta.{f.name}={shown!r}: expected {expected}")
         return self
+
+
+def _numeric(value: Any) -> bool:
+    """Whether ``value`` is numbers: a real number (not a bool), a list or tuple of them, or an
+    array of integers or floats (a JAX one may be traced)."""
+    if isinstance(value, (list, tuple)):
+        return all(_numeric(v) for v in value)
+    if isinstance(value, (np.ndarray, jax.Array)):
+        return value.dtype.kind in "iuf"
+    return is_real(value)
 
 
 jax.tree_util.register_dataclass(TaskParams, data_fields=[f.name for f in dataclasses.fields(TaskParams)], meta_fields=[])
@@ -357,7 +386,13 @@ def _check_euler_warm_start(task: Task, param_name: str, options: TranscriptionO
 class Transcription:
     """The transcription of ``task`` for ``robot`` in parameterization ``param``."""
 
-    def __init__(self, robot, task: Task, param: AbstractParameterization, options: TranscriptionOptions = COMPACT_VARIABLES):
+    def __init__(self, robot: Robot, task: Task, param: AbstractParameterization, options: TranscriptionOptions = COMPACT_VARIABLES):
+        # names (what `jtraj.solve` takes) ended in an AttributeError ('str' object has no
+        # attribute 'validate')
+        if not isinstance(robot, Robot):
+            raise TypeError(f"robot must be a Robot (jtraj.robot.load({robot!r}) for a name), got {type(robot).__name__}")
+        if not isinstance(task, Task):
+            raise TypeError(f"task must be a Task (jtraj.task.load({task!r}) for a name or a file), got {type(task).__name__}")
         if not isinstance(param, AbstractParameterization):
             raise TypeError(f"param must be a parameterization (jtraj.parameterization.get({param!r}) for a name), got {type(param).__name__}")
         if not isinstance(options, TranscriptionOptions):
@@ -374,6 +409,8 @@ class Transcription:
         self.nv = robot.nv
         self.nq = param.nq + robot.nj
         self.N = self.schedule.n_knots - 1
+        #: the task's timestep (s), the default; a theta's ``timestep`` overrides it in the NLP
+        #: and in `step`, `bounds`, `decode`, not here: read ``theta.timestep`` where theta is given
         self.h = float(task.timestep)
         slots = [("q", self.nq), ("v", self.nv)]
         if options.acceleration_variables:
@@ -646,19 +683,22 @@ class Transcription:
     def _fk(self):
         return jax.jit(lambda q: dynamics.contact_positions(self.robot, self.param, q)[self.points])
 
-    def step(self, x: jax.Array, u: jax.Array, theta: TaskParams) -> jax.Array:
+    def step(self, x: jax.Array, u: jax.Array, theta: TaskParams | Mapping[str, Any]) -> jax.Array:
         """The semi-implicit Euler step ``x_{k+1} = F(x_k, u_k, theta)`` of one knot.
 
         Args:
             x: (nq + nv,) state (q_k, v_k).
             u: (nv + 3 P [+ 3 P],) controls (a_k, f_k[, c_k]); only a_k enters.
-            theta: the parameters (the timestep h).
+            theta: the parameters (the timestep h); a mapping overrides the task's
+                (`resolve_theta`).
         Returns:
             (nq + nv,) state ``(q_{k+1}, v_{k+1})`` with ``v' = v + a h``,
             ``q_b' = param.integrate(q_b, v'_b, h)`` and ``q_j' = q_j + v'_j h``.
         """
         if not self.options.acceleration_variables:
             raise ValueError("the step x' = F(x, u) needs the accelerations as controls; these variables (lean) substitute them")
+        if isinstance(theta, Mapping):  # as warm_start and decode take it
+            theta = self.resolve_theta(theta)
         nq, nv, nqb, h = self.nq, self.nv, self.param.nq, theta.timestep
         q, v, a = x[:nq], x[nq:], u[:nv]
         v1 = v + a * h
@@ -685,9 +725,12 @@ class Transcription:
             theta=self.default_theta(), structure=self.structure,
         )
 
-    def bounds(self, theta: TaskParams | None = None) -> tuple[jax.Array, jax.Array]:
-        """Variable bounds (n_knots, nz): limits, contacts, boundary conditions (jit-able in theta)."""
-        theta = self.default_theta() if theta is None else theta
+    def bounds(self, theta: TaskParams | Mapping[str, Any] | None = None) -> tuple[jax.Array, jax.Array]:
+        """Variable bounds (n_knots, nz): limits, contacts, boundary conditions (jit-able in
+        theta). ``theta`` as `resolve_theta` takes it (None: the task's; a mapping overrides
+        some of its values); a `TaskParams` is taken as it is."""
+        if not isinstance(theta, TaskParams):
+            theta = self.resolve_theta(theta)
         robot, param, L = self.robot, self.param, self.layout
         n_knots, P, nqb = self.N + 1, self.P, param.nq
         lower = np.full((n_knots, L.nz), -np.inf)

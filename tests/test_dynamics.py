@@ -403,6 +403,27 @@ def test_mujoco_conversions_check_shapes():
     assert qpos.shape == (7 + robot.nj,) and qvel.shape == qacc.shape == (robot.nv,)
 
 
+def test_lists_are_taken_as_arrays():
+    """The public functions take lists, as JAX's own do (the shape checks read ``.shape``
+    first: contact_positions(robot, param, [0.0] * 18) was an AttributeError); integers
+    become floats."""
+    robot = robot_lib.load("go2")
+    se3 = PARAMETERIZATIONS["se3"]
+    rng = np.random.default_rng(3)
+    q, v, a = (0.1 * rng.standard_normal(n) for n in (6 + robot.nj, robot.nv, robot.nv))
+    forces = [[0, 0, 40]] * robot.ncontact  # integers
+    as_arrays = (jnp.asarray(q), jnp.asarray(v), jnp.asarray(a), jnp.asarray(forces, float))
+    as_lists = (q.tolist(), v.tolist(), a.tolist(), forces)
+    for fn, n_args in (
+        (dynamics.contact_positions, 1),
+        (dynamics.inverse_dynamics, 4),
+        (dynamics.inverse_dynamics_derivatives, 4),  # reads the forces again after inverse dynamics
+        (dynamics.to_mujoco, 3),
+    ):
+        got, expected = fn(robot, se3, *as_lists[:n_args]), fn(robot, se3, *as_arrays[:n_args])
+        jax.tree.map(np.testing.assert_array_equal, got, expected)
+
+
 def test_robot_without_contact_points(tmp_path):
     """A robot file may declare no contact point: its contact arrays are (0, 3) and (0,), and
     inverse dynamics takes forces of shape (0, 3). The offsets came back as (0,), and every

@@ -206,3 +206,76 @@ def test_dense_groups_and_costs_keep_their_whole_hessian_block():
         got = np.zeros((2, 2))
         np.add.at(got, (nlp.hess_rows, nlp.hess_cols), np.asarray(nlp.hessian(x, lam, 1.0, None)))
         np.testing.assert_allclose(got, expected, atol=1e-12)
+
+
+@pytest.mark.parametrize("n_probes", [0, -1, 1.5, True])
+def test_probes_must_be_a_whole_number_of_at_least_one(n_probes):
+    """No probe kept no entry: n_probes=0 built an NLP with an empty Jacobian (and
+    build_hessian an empty Hessian) without a word."""
+    message = rf"n_probes={n_probes!r}: expected a whole number >= 1"
+    with pytest.raises(ValueError, match=message):
+        KnotNLP(LAYOUT, N, [], [], -1.0, 1.0, n_probes=n_probes)
+    nlp = _nlp()
+    with pytest.raises(ValueError, match=message):
+        nlp.build_hessian(n_probes=n_probes)
+    assert nlp.nnz_jac > 0
+
+
+def test_split_and_join_check_the_size_of_the_last_axis():
+    """A flat x (n,) split as one knot gave knot 0's slots; a short z read clamped entries
+    (JAX) and join broadcast a state of size 1 over the whole state."""
+    from jtraj.nlp import KnotStructure
+
+    with pytest.raises(ValueError, match=r"z has shape \(9,\); expected \(\.\.\., nz\) with nz = 3"):
+        LAYOUT.split(jnp.zeros(N * 3))
+    assert LAYOUT.split(jnp.zeros((N, 3)))["x"].shape == (N, 2)
+    S = KnotStructure(LAYOUT, ("x",), ("u",), lambda x, u, theta: x)
+    with pytest.raises(ValueError, match=r"z has shape \(2,\); expected \(\.\.\., nz\) with nz = 3"):
+        S.split(jnp.zeros(2))
+    with pytest.raises(ValueError, match=r"x has shape \(1,\); expected \(\.\.\., nx\) with nx = 2"):
+        S.join(jnp.ones(1), jnp.ones(1))
+    with pytest.raises(ValueError, match=r"u has shape \(N, 2\); expected \(\.\.\., nu\) with nu = 1".replace("N", str(N))):
+        S.join(jnp.ones((N, 2)), jnp.ones((N, 2)))
+    z = jnp.arange(6.0).reshape(2, 3)
+    x, u = S.split(z)
+    np.testing.assert_array_equal(S.join(x, u), z)
+
+
+def test_hessian_before_build_hessian_says_so():
+    """nlp.hessian and its structure exist once build_hessian() has run: before, the message
+    named the attribute alone; and an NLP without cost or rows ended in numpy's "need at least
+    one array to concatenate"."""
+    nlp = _nlp()
+    for name in ("hessian", "hess_rows", "hess_cols", "nnz_hess"):
+        with pytest.raises(AttributeError, match=rf"KnotNLP.{name} is built by build_hessian\(\): call build_hessian\(\) first"):
+            getattr(nlp, name)
+    with pytest.raises(AttributeError, match="has no attribute 'hesian'"):
+        nlp.hesian  # noqa: B018
+    nlp.build_hessian()
+    assert nlp.nnz_hess > 0 and nlp.hess_rows.size == nlp.nnz_hess
+    empty = KnotNLP(LAYOUT, N, [], [], -1.0, 1.0)
+    empty.build_hessian()
+    assert (empty.m, empty.nnz_jac, empty.nnz_hess) == (0, 0, 0)
+    assert empty.hessian(jnp.zeros(empty.n), jnp.zeros(0), 1.0, None).shape == (0,)
+
+
+def test_variable_bounds_and_group_data_of_the_wrong_shape_name_them():
+    """Flat (n,) variable bounds (the solver's shape) failed in JAX's broadcasting, and a group's
+    data with another leading axis than its knots in vmap, naming neither."""
+    flat = np.full(N * 3, -1.0)
+    expected = r"expected one that broadcasts to \(n_knots, nz\) = \(3, 3\)$"
+    with pytest.raises(ValueError, match=r"variable bounds: lower has shape \(9,\); " + expected):
+        _nlp(lower=flat)
+    with pytest.raises(ValueError, match=r"variable bounds: upper\(theta\) has shape \(9,\); " + expected):
+        _nlp(upper=lambda theta: jnp.ones(N * 3))
+    assert _nlp(lower=-1.0, upper=np.ones(3)).n == N * 3  # what broadcasts is taken
+
+    def weighted(data):
+        cost = CostGroup("weighted", (Dep("u"),), lambda theta, data, u: data["w"] * jnp.sum(u**2), np.arange(N), data=data)
+        return KnotNLP(LAYOUT, N, [cost], [], -1.0, 1.0)
+
+    with pytest.raises(ValueError, match=r"group weighted: data\['w'\] has shape \(4,\); expected a leading knot axis of K = 3 \(one entry per knot of knots\)$"):
+        weighted({"w": jnp.ones(N + 1)})
+    with pytest.raises(ValueError, match=r"group weighted: data\['w'\] has shape \(\); expected a leading knot axis of K = 3"):
+        weighted({"w": 2.0})
+    assert float(weighted({"w": jnp.full(N, 2.0)}).objective(jnp.ones(N * 3), None)) == 2.0 * N

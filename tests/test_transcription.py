@@ -400,6 +400,11 @@ def test_transcription_refuses_names_for_the_chart_and_the_variables():
         Transcription(go2, HOP, "se3")
     with pytest.raises(TypeError, match=r"options must be a TranscriptionOptions \(jtraj.solver.VARIABLES\['paper'\] for a name\), got str"):
         Transcription(go2, HOP, get("se3"), "paper")
+    # the robot and the task likewise ('str' object has no attribute 'validate', ... 'nj')
+    with pytest.raises(TypeError, match=r"robot must be a Robot \(jtraj.robot.load\('go2'\) for a name\), got str"):
+        Transcription("go2", HOP, get("se3"))
+    with pytest.raises(TypeError, match=r"task must be a Task \(jtraj.task.load\('hop'\) for a name or a file\), got str"):
+        Transcription(go2, "hop", get("se3"))
 
 
 def test_decode_takes_theta_as_a_mapping():
@@ -427,6 +432,57 @@ def test_theta_overrides_are_checked():
         tr.resolve_theta({"friction": "high"})
     with pytest.raises(ValueError, match=r"task parameter 'timestep' must be numbers of shape \(\), got None"):
         tr.resolve_theta({"timestep": None})
+
+
+def test_theta_overrides_keep_the_task_files_rules():
+    """A theta override is held to the task file's rules: target angles within [-pi, pi]
+    (90, degrees typed for radians, was taken as a rotation of 116.6 degrees), and numbers,
+    not booleans or strings (True became a timestep of 1 s, "0.5" a friction of 0.5)."""
+    from jtraj import robot as robots
+    from jtraj.parameterization import get
+    from jtraj.transcription import Transcription
+
+    tr = Transcription(robots.load("go2"), HOP, get("se3"))
+    degrees = r"theta.target_rotation_rpy=\[0.0, 0.0, 90.0\]: expected angles \(rad\) within \[-pi, pi\]"
+    with pytest.raises(ValueError, match=degrees):
+        tr.resolve_theta({"target_rotation_rpy": [0, 0, 90.0]})
+    with pytest.raises(ValueError, match=degrees):
+        tr.resolve_theta(tr.default_theta().replace(target_rotation_rpy=[0, 0, 90.0]))
+    # half a turn, also as float32 rounds pi (3.1416), is an attitude the task file takes
+    for half_turn in (np.pi, -np.pi, float(np.float32(np.pi))):
+        assert float(tr.resolve_theta({"target_rotation_rpy": [0.0, 0.0, half_turn]}).target_rotation_rpy[2]) == half_turn
+    for name, value, shown in (
+        ("timestep", True, "True"),
+        ("friction", "0.5", "'0.5'"),
+        ("friction", np.bool_(True), "(np.)?True"),
+        ("target_translation", [0.1, False, 0.0], r"\[0.1, False, 0.0\]"),
+        ("target_translation", np.array([True, False, False]), r"array\(\[ True, False, False\]\)"),
+    ):
+        with pytest.raises(ValueError, match=rf"task parameter '{name}' must be numbers of shape \(\d?,?\), got {shown}"):
+            tr.resolve_theta({name: value})
+    # numbers of any kind are taken: integers, numpy's scalars and float32 arrays
+    theta = tr.resolve_theta({"friction": 1, "timestep": np.float32(0.04), "target_translation": np.zeros(3, np.float32), "configuration_weight": np.int64(0)})
+    assert (float(theta.friction), float(theta.timestep), theta.target_translation.dtype) == (1.0, float(np.float32(0.04)), jnp.float64)
+
+
+def test_bounds_and_step_take_theta_as_a_mapping():
+    """bounds and step resolve a mapping of overrides as warm_start and decode do (both ended in
+    an AttributeError: 'dict' object has no attribute 'force_limit_factor' / 'timestep')."""
+    from jtraj import robot as robots
+    from jtraj.parameterization import get
+    from jtraj.transcription import Transcription
+
+    tr = Transcription(robots.load("go2"), HOP, get("se3"))
+    overrides = {"force_limit_factor": 2.0, "timestep": 0.03}
+    theta = tr.resolve_theta(overrides)
+    for got, expected in zip(tr.bounds(overrides), tr.bounds(theta)):
+        np.testing.assert_array_equal(got, expected)
+    assert not np.array_equal(tr.bounds(overrides)[1], tr.bounds()[1])  # the force limit moved
+    rng = np.random.default_rng(2)
+    x, u = jnp.asarray(rng.standard_normal(tr.nq + tr.nv)), jnp.asarray(rng.standard_normal(tr.layout.nz - tr.nq - tr.nv))
+    np.testing.assert_array_equal(tr.step(x, u, overrides), tr.step(x, u, theta))
+    with pytest.raises(ValueError, match="unknown task parameter 'h'"):
+        tr.step(x, u, {"h": 0.03})
 
 
 @pytest.mark.parametrize("variables", ["compact", "paper"])
