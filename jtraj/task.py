@@ -61,7 +61,7 @@ import numpy as np
 from jtraj.deprecation import warn_renamed
 from jtraj.numbers import unit_and_length
 
-__all__ = ["TaskError", "Phase", "Profile", "RotationRule", "JointRule", "Task", "Schedule", "load", "from_file", "from_dict", "available", "retarget", "task_argument", "MAX_KNOTS", "MAX_ITER"]
+__all__ = ["TaskError", "Phase", "Profile", "RotationRule", "JointRule", "Task", "Schedule", "load", "from_file", "from_dict", "available", "retarget", "task_argument", "MAX_KNOTS", "MAX_ITER", "RPY_LIMIT"]
 
 #: The most knots a task may have (the largest built-in task, the walk, has 125): every knot's variables,
 #: rows and Jacobian blocks are allocated, and a timestep of 1e-7 s (23 million knots) ran
@@ -70,6 +70,10 @@ MAX_KNOTS = 100_000
 #: The largest iteration limit: Ipopt's max_iter is a C int, and a larger one passed the task
 #: check to fail inside Ipopt's option check
 MAX_ITER = 2**31 - 1
+#: The largest |angle| (rad) of ``target_rotation_rpy``: half a turn, with a margin (3.1416,
+#: float32's pi, is half a turn). A larger angle is a smaller one's attitude (a spin of 2 pi
+#: solved as a plain hop) or degrees typed for radians (90 solved as 116.6 degrees).
+RPY_LIMIT = math.pi + 1e-3
 
 
 class TaskError(ValueError):
@@ -450,7 +454,7 @@ def _check_and_normalize(t: Task) -> None:
     put("target_rotation_rpy", _vector(t.target_rotation_rpy, "target_rotation_rpy"))
     # an angle past half a turn is the attitude of a smaller one: [0, 0, 2 pi] (a spin meant)
     # solved as a plain hop, and degrees typed for radians (90) as 116.6 degrees
-    if any(abs(a) > math.pi + 1e-3 for a in t.target_rotation_rpy):  # (3.1416, float32's pi: half a turn)
+    if any(abs(a) > RPY_LIMIT for a in t.target_rotation_rpy):
         raise TaskError(
             "target_rotation_rpy", list(t.target_rotation_rpy),
             "expected angles (rad) within [-pi, pi]: the target is an attitude, so a larger angle is a smaller one's attitude; whole turns on the way are flip_axis and flip_turns",

@@ -48,7 +48,6 @@ Nothing here imports cyipopt; `Transcription.build_nlp` returns a `jtraj.nlp.Kno
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Callable, Mapping
 from functools import cached_property
 from typing import Any
@@ -65,7 +64,7 @@ from jtraj.nlp import ConstraintGroup, CostGroup, Dep, KnotNLP, KnotStructure, L
 from jtraj.numbers import is_real, unit_and_length
 from jtraj.parameterization import AbstractParameterization
 from jtraj.robot import Robot
-from jtraj.task import Task, _Raw
+from jtraj.task import RPY_LIMIT, Task, _Raw
 
 __all__ = [
     "Transcription",
@@ -205,10 +204,6 @@ HEIGHT_TOLERANCE = 1e-6
 #: (violation 3.4e-5), 0.15 mm stopped at the iteration limit (1.15e-4), against Ipopt's
 #: constr_viol_tol of 1e-4.
 STANCE_SPREAD = 1e-4
-#: The largest |angle| (rad) of ``target_rotation_rpy``: half a turn, with the margin of the task
-#: file's check (`jtraj.task`: 3.1416, float32's pi, is half a turn). A larger angle is a smaller
-#: one's attitude (a spin of 2 pi solved as a plain hop) or degrees typed for radians.
-RPY_LIMIT = math.pi + 1e-3
 
 _FORMER_NAMES = {"PAPER_LAYOUT": "PAPER_VARIABLES", "COMPACT_LAYOUT": "COMPACT_VARIABLES", "LEAN_LAYOUT": "LEAN_VARIABLES"}
 
@@ -287,7 +282,7 @@ class TaskParams:
     def check(self) -> "TaskParams":
         """Raise ValueError for values no task can have (the task file's rules: a positive
         timestep, friction, force factor and force-rate bound, weights >= 0, masses >= 0 and
-        the world body's (the first) 0, target angles within [-pi, pi] (`RPY_LIMIT`), all
+        the world body's (the first) 0, target angles within [-pi, pi] (`jtraj.task.RPY_LIMIT`), all
         finite but the force-rate bound, which may be inf (no bound, see ``max_delta_force``);
         and a unit standing quaternion). Values being traced (under ``jit``, ``grad`` or
         ``vmap``) are not looked at. Returns self."""
