@@ -711,7 +711,10 @@ def _robustness_batch(prep, sigma: float, reps: list[int], starts: np.ndarray, r
     for ``replicates`` members (a resumed group's shorter batch is padded, so every sigma and
     every resume reuses one program); yields their rows. Each replicate's row has the fields of a one-by-one
     solve's (through `jtraj.solver.evaluate`, as `solve` makes them); its ``time_s`` is the
-    batched call's wall time over the replicates, ``batch`` the number solved in that call."""
+    batched call's wall time over the replicates, ``batch`` the number solved in that call.
+    (On a CPU the batch runs the one-problem program, so a row is the one `jtraj.solve` with
+    ``replicate=`` gives; on an accelerator the vmapped program's rounding differs, and a row
+    can differ from it: `JtrajSolver.solve_batch`.)"""
     tr, nlp = prep.transcription, prep.nlp
     backend = solvers.get(solver)
     theta = tr.resolve_theta(None)

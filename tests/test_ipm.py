@@ -826,6 +826,22 @@ def test_mu_min_follows_ipopts_rule_when_not_given(toy):
     assert ours.stats.iterations <= ref.stats.iterations + 2  # 18 with mu_min 1e-11, Ipopt 13
 
 
+def test_the_cpu_batching_rule_does_not_compile_the_one_problem_program_again():
+    """cpu_batch chooses how a vmap of the program is batched on a CPU; it keyed the program,
+    so a solve with cpu_batch="vectorized" compiled the same one-problem program again."""
+    nlp = double_integrator()  # its own NLP: the first solve compiles its program
+    backend = solvers.get("jtraj")
+    first = backend.solve(nlp, np.zeros(nlp.n))
+    other = backend.solve(nlp, np.zeros(nlp.n), None, {"cpu_batch": "vectorized"})
+    assert first.time_compile > 0 and other.time_compile == 0.0 and len(nlp.solver_programs) == 1
+    np.testing.assert_array_equal(first.x, other.x)
+    # each batching rule has its own batch program (the vectorized one steps its members together)
+    x0s = np.zeros((2, nlp.n))
+    for batch in ("sequential", "vectorized"):
+        sols, _, compile_time = backend.solve_batch(nlp, x0s, None, {"cpu_batch": batch}, strategy="vmap")
+        assert compile_time > 0 and all(s.converged for s in sols)
+
+
 def test_whole_numbers_for_real_options_solve_and_leave_the_defaults_working():
     """An int (1 for 1.0) for a real option reached the loop's state as int64 and the trace
     failed ('cond branches must have equal output types'); as 1 == 1.0, those options keyed

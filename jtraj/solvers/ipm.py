@@ -241,7 +241,9 @@ class IpmOptions(AbstractOptions):
             the same iterations (the handstand one fewer) and made the solves 1.04x to 1.22x as
             long. The step counts differ from Ipopt's (10 and 1); they have not been
             measured apart from the ratio.
-        max_line_search: backtracking steps per iteration.
+        max_line_search: trial points of the line search per iteration: the full step and
+            the halvings after it, that is ``max_line_search - 1`` halvings (0 and 1 both try
+            the full step alone); second-order corrections are counted apart (``max_soc``).
         max_soc, kappa_soc: Ipopt's second-order corrections: when the first trial point of an
             iteration is rejected and raised the constraint violation, up to ``max_soc``
             corrected steps (the same factorization, the constraint rows' right-hand side
@@ -451,10 +453,12 @@ class IpmOptions(AbstractOptions):
         return self.mu_min if self.mu_min is not None else float(_ipopt_mu_min(self.tol, self.compl_inf_tol, np))
 
     def compiled_part(self) -> "IpmOptions":
-        """These options with the `RUNTIME_FIELDS` at fixed values (the polish kept on or off):
-        the key of the program."""
+        """These options with the `RUNTIME_FIELDS` at fixed values (the polish kept on or off)
+        and ``cpu_batch`` at its default (it chooses only how a vmap of the program is
+        batched: the one-problem program is the same, and was compiled again): the key of the
+        program."""
         polish = None if self.feasibility_polish_tol is None else 1.0
-        return dataclasses.replace(self, tol=1.0, constr_viol_tol=1.0, dual_inf_tol=1.0, compl_inf_tol=1.0, feasibility_polish_tol=polish, feasibility_polish_iter=1)
+        return dataclasses.replace(self, tol=1.0, constr_viol_tol=1.0, dual_inf_tol=1.0, compl_inf_tol=1.0, feasibility_polish_tol=polish, feasibility_polish_iter=1, cpu_batch="sequential")
 
     def runtime_part(self) -> _Tolerances:
         """The `RUNTIME_FIELDS` as the program's input (the polish tolerance +inf when off)."""
@@ -727,11 +731,13 @@ class IPM:
                 self.view = StageView(nlp)
                 if self.options.hessian == "exact":
                     self.view.prepare_hessian()
-                self.program = jax.jit(_members_apart_on_cpu(self._solve, self.options.cpu_batch == "vectorized"))
+                # the one program, under either batching rule of `IpmOptions.cpu_batch`
+                self.programs = {batch: jax.jit(_members_apart_on_cpu(self._solve, batch == "vectorized")) for batch in ("sequential", "vectorized")}
                 self.compiled: dict[str, Any] = {}  # ahead-of-time compiled programs (`JtrajSolver`)
                 shared[key] = owner = self
             else:
-                self.view, self.program, self.compiled = owner.view, owner.program, owner.compiled
+                self.view, self.programs, self.compiled = owner.view, owner.programs, owner.compiled
+        self.program = self.programs[self.options.cpu_batch]
         self._registry = (shared, key, owner)
 
     def forget_if_uncompiled(self) -> None:
@@ -1621,8 +1627,15 @@ class JtrajSolver(AbstractSolver):
         `solve`).
 
         ``x0s``: (B, nlp.n) or (B, K, n) initial guesses, clipped to the variable bounds as in
-        `solve`, so member i equals ``solve(nlp, x0s[i], ...)`` (same iterations and status;
-        the iterates agree to rounding). ``theta`` is one set of parameters, shared by every
+        `solve`. With ``strategy="threads"`` member i is ``solve(nlp, x0s[i], ...)`` bit for bit
+        (the same compiled program). The vmapped program is compiled apart from it, and its
+        rounding differs: on a convex problem its members end as their one-by-one solves (the
+        iterates agree to rounding), but on a nonconvex one the differences can grow along the
+        iterations, and a member can take other iterations or end with another status, which
+        can also depend on the other members of its batch (a review's measurement on tests'
+        pendulum swing-up, 8 starts of 30 N(0, 1): 4 of 8 members took other iterations on a
+        CPU's sequential batch, and on the vectorized one a member stopped at the iteration
+        limit where its one-by-one solve converged in 66). ``theta`` is one set of parameters, shared by every
         member (None: ``nlp.theta``); a theta with a batch axis is refused (`bind`).
 
         ``strategy``:
@@ -1680,7 +1693,7 @@ class JtrajSolver(AbstractSolver):
         if strategy == "threads":
             return self._solve_threads(ipm, f, x0s, theta, opts, threads)
         padded = jnp.asarray(np.concatenate([x0s, np.repeat(x0s[:1], size - count, axis=0)]))
-        program, compile_time = self._program(ipm, f"vmap {size} ", jax.jit(jax.vmap(ipm.program, in_axes=(0, None, None))), padded, theta)
+        program, compile_time = self._program(ipm, f"vmap {size} {opts.cpu_batch} ", jax.jit(jax.vmap(ipm.program, in_axes=(0, None, None))), padded, theta)
         t0 = time.perf_counter()
         rs = jax.block_until_ready(program(padded, theta, ipm.tolerances))
         total = time.perf_counter() - t0
