@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import ast
+import contextlib
 import dataclasses
 import functools
 import json
@@ -47,7 +48,7 @@ import numpy as np
 import jtraj
 from jtraj import io, success
 from jtraj.cli import InputError, _check_names, _check_robots, _load_valid_task
-from jtraj.provenance import begin_run, end_run
+from jtraj.provenance import FolderInUseError, begin_run, end_run, holding
 from jtraj.provenance import source as provenance_source
 from jtraj.solver import VARIABLES, with_changes
 from jtraj.task import Task, TaskError, available, retarget
@@ -371,78 +372,86 @@ def main(argv: list[str] | None = None) -> None:
     if args.peer and args.sigma and any(builtin_task(t).flip_axis is not None for t in tasks):  # noisy flips run the code's sources
         check_peer_paths(ap, args, args.peer, "or pass --peer-python")
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    path = out / "side_by_side.json"
+    # held while it runs (`jtraj.provenance.holding`): two runs into one folder read the same
+    # rows and each wrote its own over the other's
+    held = contextlib.ExitStack()
     try:
-        rows = io.read_json(path) if path.exists() else []
-    except io.FileFormatError as e:
+        held.enter_context(holding(out))
+    except FolderInUseError as e:
         ap.error(f"--out: {e}")
-    # provenance.json says from the start that a run is writing this folder: a run stopped
-    # half-way (Ctrl-C, a crash) left its rows beside the provenance of the run before it
-    record = begin_run(out, ["python", "bench/side_by_side.py", *(sys.argv[1:] if argv is None else argv)])
-    # a failed solve (an error row) is not done, nor is the paper code's row of another runner
-    # (`--peer`): it runs again, and its new row replaces the old
-    runner = os.path.abspath(args.peer) if args.peer else None
+    with held:
+        out.mkdir(parents=True, exist_ok=True)
+        path = out / "side_by_side.json"
+        try:
+            rows = io.read_json(path) if path.exists() else []
+        except io.FileFormatError as e:
+            ap.error(f"--out: {e}")
+        # provenance.json says from the start that a run is writing this folder: a run stopped
+        # half-way (Ctrl-C, a crash) left its rows beside the provenance of the run before it
+        record = begin_run(out, ["python", "bench/side_by_side.py", *(sys.argv[1:] if argv is None else argv)])
+        # a failed solve (an error row) is not done, nor is the paper code's row of another runner
+        # (`--peer`): it runs again, and its new row replaces the old
+        runner = os.path.abspath(args.peer) if args.peer else None
 
-    def peer_fields(task: str) -> dict:
-        """What a paper code's row of ``task`` names of the code that solved it."""
-        checked = args.sigma and builtin_task(task).flip_axis is not None
-        return dict(runner=runner, **({"peer_src": str(args.peer_src)} if checked else {}))
+        def peer_fields(task: str) -> dict:
+            """What a paper code's row of ``task`` names of the code that solved it."""
+            checked = args.sigma and builtin_task(task).flip_axis is not None
+            return dict(runner=runner, **({"peer_src": str(args.peer_src)} if checked else {}))
 
-    # ... nor is a jtraj row of other code: it was reused whatever commit solved it (rows kept
-    # no commit), and the table, stamped with this run's provenance, set old iterations beside
-    # a new peer run. One solved by this commit, from a clean checkout, is done.
-    here = provenance_source()
-    ours = here if here is not None and not here.get("dirty") else None
+        # ... nor is a jtraj row of other code: it was reused whatever commit solved it (rows kept
+        # no commit), and the table, stamped with this run's provenance, set old iterations beside
+        # a new peer run. One solved by this commit, from a clean checkout, is done.
+        here = provenance_source()
+        ours = here if here is not None and not here.get("dirty") else None
 
-    def resumable(r: dict) -> bool:
-        if r["task"] not in tasks or r.get("status") == "error":
-            return False
-        if r["code"] == "paper":
-            return all(r.get(k) == v for k, v in peer_fields(r["task"]).items())
-        return ours is not None and r.get("source") == ours
+        def resumable(r: dict) -> bool:
+            if r["task"] not in tasks or r.get("status") == "error":
+                return False
+            if r["code"] == "paper":
+                return all(r.get(k) == v for k, v in peer_fields(r["task"]).items())
+            return ours is not None and r.get("source") == ours
 
-    done = {(r["code"], r["task"], r["sigma"], r["seed"]) for r in rows if resumable(r)}
-    failed: list[str] = []
-    seeds = args.seeds if args.sigma else [0]
-    for task in tasks:
-        for seed in seeds:
-            # a flip's draw goes through the driver, whose last iterate the task check reads
-            peer = (
-                (lambda task=task, seed=seed: run_peer_checked(task, args.sigma, seed, args.peer_src, args.peer_python))
-                if args.sigma and builtin_task(task).flip_axis is not None
-                else (lambda task=task, seed=seed: run_peer(Path(args.peer), task, args.sigma, seed))
-            )
-            jobs = ([("paper", peer)] if args.peer else []) + [
-                (jtraj_label(lay, robots, args.code_costs, changes), lambda lay=lay, task=task, seed=seed: run_jtraj(task, lay, args.sigma, seed, robots, args.code_costs, changes))
-                for lay in args.variables.split(",")
-                if lay
-            ]
-            for code, job in jobs:
-                key = (code, task, args.sigma, seed)
-                if key in done:
-                    continue
-                try:
-                    row = job()
-                except Exception as e:  # a solve that raised (jtraj's, or the public code's through its driver): an error row; the other solves still run
-                    row = _error_row(task, args.sigma, seed, _error_text(e), code)
-                if code == "paper":
-                    row.update(peer_fields(task))
-                else:
-                    row["source"] = here  # the commit (and whether the checkout differed) that solved it
-                print(json.dumps(row), flush=True)
-                old = [i for i, r in enumerate(rows) if (r["code"], r["task"], r["sigma"], r["seed"]) == key]  # a failed one
-                if old:
-                    rows[old[0]] = row
-                else:
-                    rows.append(row)
-                if row["status"] == "error":
-                    failed.append(f"{code} on {task} (sigma {args.sigma:g}, seed {seed})")
-                    print(f"bench/side_by_side.py: {failed[-1]} failed: {(row['error'].strip().splitlines() or [''])[-1]}", file=sys.stderr, flush=True)
-                io.write_json(path, rows)
-                io.write_text(out / "side_by_side.md", render(rows))
-    io.write_text(out / "side_by_side.md", render(rows))
-    end_run(out, record)
+        done = {(r["code"], r["task"], r["sigma"], r["seed"]) for r in rows if resumable(r)}
+        failed: list[str] = []
+        seeds = args.seeds if args.sigma else [0]
+        for task in tasks:
+            for seed in seeds:
+                # a flip's draw goes through the driver, whose last iterate the task check reads
+                peer = (
+                    (lambda task=task, seed=seed: run_peer_checked(task, args.sigma, seed, args.peer_src, args.peer_python))
+                    if args.sigma and builtin_task(task).flip_axis is not None
+                    else (lambda task=task, seed=seed: run_peer(Path(args.peer), task, args.sigma, seed))
+                )
+                jobs = ([("paper", peer)] if args.peer else []) + [
+                    (jtraj_label(lay, robots, args.code_costs, changes), lambda lay=lay, task=task, seed=seed: run_jtraj(task, lay, args.sigma, seed, robots, args.code_costs, changes))
+                    for lay in args.variables.split(",")
+                    if lay
+                ]
+                for code, job in jobs:
+                    key = (code, task, args.sigma, seed)
+                    if key in done:
+                        continue
+                    try:
+                        row = job()
+                    except Exception as e:  # a solve that raised (jtraj's, or the public code's through its driver): an error row; the other solves still run
+                        row = _error_row(task, args.sigma, seed, _error_text(e), code)
+                    if code == "paper":
+                        row.update(peer_fields(task))
+                    else:
+                        row["source"] = here  # the commit (and whether the checkout differed) that solved it
+                    print(json.dumps(row), flush=True)
+                    old = [i for i, r in enumerate(rows) if (r["code"], r["task"], r["sigma"], r["seed"]) == key]  # a failed one
+                    if old:
+                        rows[old[0]] = row
+                    else:
+                        rows.append(row)
+                    if row["status"] == "error":
+                        failed.append(f"{code} on {task} (sigma {args.sigma:g}, seed {seed})")
+                        print(f"bench/side_by_side.py: {failed[-1]} failed: {(row['error'].strip().splitlines() or [''])[-1]}", file=sys.stderr, flush=True)
+                    io.write_json(path, rows)
+                    io.write_text(out / "side_by_side.md", render(rows))
+        io.write_text(out / "side_by_side.md", render(rows))
+        end_run(out, record)
     if failed:
         raise SystemExit(f"bench/side_by_side.py: {len(failed)} solve(s) failed, their rows say error in {path}; run again to retry them: {'; '.join(failed)}")
 

@@ -163,7 +163,7 @@ def compare(
     # an earlier call's table, and `jtraj plot OUT`'s figure of it: this call writes its own
     # table as its cells finish (an interrupt before the first left the earlier one in OUT,
     # which then read as this call's)
-    # held from here (`jtraj.provenance.hold`): another process's run in OUT is refused before
+    # held from here (`jtraj.provenance.holding`): another process's run in OUT is refused before
     # this one clears its tables
     with holding(out):
         _clear_outputs("compare", out, COMPARE_OUTPUTS)
@@ -833,7 +833,7 @@ def robustness(
     out = Path(out)
     check_runs_file(out, resume)
     out.mkdir(parents=True, exist_ok=True)
-    # held from here (`jtraj.provenance.hold`): another process's run in OUT is refused before
+    # held from here (`jtraj.provenance.holding`): another process's run in OUT is refused before
     # this one reads, moves aside or appends to its runs
     with holding(out):
         runs_path = out / RUNS_FILE

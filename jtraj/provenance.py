@@ -26,6 +26,7 @@ import shlex
 import subprocess
 import sys
 import threading
+import time
 from collections.abc import Iterator
 from importlib import metadata
 from pathlib import Path
@@ -168,10 +169,14 @@ class FolderInUseError(RuntimeError):
     """Another process's run holds the folder (`holding`)."""
 
 
-#: the folders this process holds: their real path -> [the descriptor whose flock holds it,
-#: how many `holding` blocks of this process hold it now]
-_HELD: dict[str, list[int]] = {}
+#: the folders this process holds: their real path -> [the descriptor whose flock holds it, how
+#: many `holding` blocks of this process hold it now, the folders the first of them made (to be
+#: removed, where empty, when the last lets go)]
+_HELD: dict[str, list] = {}
 _HELD_GUARD = threading.Lock()
+#: tries to lock a folder before it is refused: a probe of `in_use` (another process's) holds
+#: the lock for a moment
+_TRIES, _PAUSE = 3, 0.01
 
 
 def _flock():
@@ -182,31 +187,52 @@ def _flock():
     return fcntl
 
 
-def _hold(key: str, out: Path) -> None:
-    """Take (or count once more) this process's hold of the existing folder ``key``."""
+def _hold(key: str, out: Path, made: list[Path]) -> bool:
+    """Take (or count once more) this process's hold of the folder ``key``; True where a hold
+    was counted (and `_release` is owed), False where nothing could be locked."""
     fcntl = _flock()
     if fcntl is None:
-        return
+        return False
     with _HELD_GUARD:
         if key in _HELD:  # this process's own (a nested run, a thread's)
             _HELD[key][1] += 1
-            return
-        try:
-            fd = os.open(key, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
-        except OSError:
-            return
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            os.close(fd)
-            raise FolderInUseError(_in_use_message(out)) from None
-        except OSError:  # a file system without flock (some network ones): nothing is locked
-            os.close(fd)
-            return
-        _HELD[key] = [fd, 1]
+            return True
+        for attempt in range(_TRIES):
+            try:
+                fd = os.open(key, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+            except FileNotFoundError:  # removed by the run that held it as it let go: made again
+                Path(key).mkdir(parents=True, exist_ok=True)
+                continue
+            except OSError:  # (no descriptors left, no permission to read the folder)
+                return False
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                os.close(fd)
+                if attempt + 1 < _TRIES:
+                    time.sleep(_PAUSE)
+                    continue
+                raise FolderInUseError(_in_use_message(out)) from None
+            except OSError:  # a file system without flock (some network ones): nothing is locked
+                os.close(fd)
+                return False
+            try:  # the folder locked is the one at the path (not one removed meanwhile)
+                here = os.path.samestat(os.fstat(fd), os.stat(key))
+            except OSError:
+                here = False
+            if not here:
+                os.close(fd)
+                Path(key).mkdir(parents=True, exist_ok=True)
+                continue
+            _HELD[key] = [fd, 1, made]
+            return True
+        return False
 
 
 def _release(key: str) -> None:
+    """One hold of ``key`` less; the last one removes the folders its first holder made where
+    they are empty (before the lock ends: another process cannot have begun in them) and ends
+    the lock."""
     with _HELD_GUARD:
         held = _HELD.get(key)
         if held is None:
@@ -215,7 +241,22 @@ def _release(key: str) -> None:
         if held[1] > 0:
             return
         del _HELD[key]
-    os.close(held[0])  # (closing the descriptor ends its flock)
+        for folder in held[2]:  # deepest first
+            with contextlib.suppress(OSError):  # (not empty: kept)
+                folder.rmdir()
+        os.close(held[0])  # (closing the descriptor ends its flock)
+
+
+def _alive(pid: int) -> bool:
+    if os.name != "posix":  # (os.kill ends the process on Windows)
+        return False
+    try:
+        os.kill(pid, 0)
+    except PermissionError:  # another user's process
+        return True
+    except (OSError, OverflowError):  # no such process
+        return False
+    return True
 
 
 def _in_use_message(out: Path) -> str:
@@ -224,11 +265,10 @@ def _in_use_message(out: Path) -> str:
     from jtraj import io
 
     who = ""
-    with contextlib.suppress(OSError, ValueError, TypeError, KeyError, OverflowError):
+    with contextlib.suppress(OSError, ValueError, TypeError, KeyError):
         record = io.read_json(out / "provenance.json")
-        pid = record.get("pid")
-        if record.get("complete") is False and isinstance(pid, int) and pid > 0:
-            os.kill(pid, 0)  # (ProcessLookupError, an OSError: no such process)
+        pid = record.get("pid") if isinstance(record, dict) else None  # (a file that is not an object names no one)
+        if isinstance(pid, int) and pid > 0 and record.get("complete") is False and _alive(pid):
             who = f" ({record['command']!s}, begun {record['date_utc']!s})"
     return f"{out} is in use by another run{who}: wait for it to end, or write to another folder"
 
@@ -241,21 +281,21 @@ def in_use(out: str | Path) -> str | None:
     if fcntl is None or not Path(out).is_dir():
         return None
     key = os.path.realpath(out)
-    with _HELD_GUARD:
+    with _HELD_GUARD:  # (this process's threads wait: the probe holds the lock for a moment)
         if key in _HELD:
             return None
-    try:
-        fd = os.open(key, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
-    except OSError:
-        return None
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        return _in_use_message(Path(out))
-    except OSError:
-        return None
-    finally:
-        os.close(fd)
+        try:
+            fd = os.open(key, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+        except OSError:
+            return None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return _in_use_message(Path(out))
+        except OSError:
+            return None
+        finally:
+            os.close(fd)
     return None
 
 
@@ -264,26 +304,24 @@ def holding(out: str | Path) -> Iterator[None]:
     """Hold the folder ``out`` (made if missing) for this process while the block runs (module
     docstring): raises `FolderInUseError`, naming the run that holds it, where another process
     does. Blocks of one process may hold one folder at once (a solve's inside a sweep's, or two
-    threads'); the folder is let go when the last of them ends. A folder this block made and
-    left empty (its run failed before writing) is removed."""
+    threads'); the folder is let go when the last of them ends, and the folders made for it are
+    removed then where empty (its runs failed before writing)."""
     out = Path(out)
-    made = not out.exists()
+    made = [p for p in (out, *out.absolute().parents) if not p.exists()]  # deepest first
     out.mkdir(parents=True, exist_ok=True)
-    key = os.path.realpath(out)  # (the key, kept: a chdir in the block changes a relative out's)
+    key = os.path.realpath(out)  # (kept: a chdir in the block changes a relative out's)
     try:
-        _hold(key, out)
+        counted = _hold(key, out, [Path(p).absolute() for p in made])
     except BaseException:
-        if made:
+        for folder in made:
             with contextlib.suppress(OSError):
-                out.rmdir()
+                folder.rmdir()
         raise
     try:
         yield
     finally:
-        _release(key)
-        if made:
-            with contextlib.suppress(OSError):  # (not empty: kept)
-                Path(key).rmdir()
+        if counted:
+            _release(key)
 
 
 @contextlib.contextmanager

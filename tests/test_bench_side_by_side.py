@@ -126,6 +126,24 @@ def test_a_peer_that_cannot_run_is_refused(sbs, monkeypatch, tmp_path, capsys, k
 
 
 
+def test_a_folder_another_run_holds_is_refused(sbs, monkeypatch, tmp_path, capsys):
+    """Two runs into one folder read the same rows and each wrote its own over the other's."""
+    import fcntl
+    import os
+
+    for name in ("run_peer", "run_peer_checked", "run_jtraj", "peer_iterates"):
+        monkeypatch.setattr(sbs, name, _no_solve)
+    out = tmp_path / "out"
+    out.mkdir()
+    fd = os.open(out, os.O_RDONLY)  # another open description: as another process's hold
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        refused(sbs.main, ["--peer", str(fake_peer(tmp_path, "exit 1")), "--out", str(out)], capsys, f"--out: {out} is in use by another run")
+    finally:
+        os.close(fd)
+    assert not any(out.iterdir())
+
+
 class _Interrupt(KeyboardInterrupt):
     pass
 

@@ -247,3 +247,84 @@ def test_a_run_holds_its_folder_until_the_last_block_of_its_process_ends(tmp_pat
         with prov.holding(tmp_path / "new"):
             raise ValueError
     assert not (tmp_path / "new").exists()
+
+
+def test_a_made_folder_stays_while_another_block_holds_it(tmp_path):
+    """Thread A made the folder, B held it too; A's end removed it (empty) while B held it, and
+    another process could lock the folder made again in its place."""
+    import threading
+
+    out = tmp_path / "a" / "new"
+    entered, b_in, a_done = threading.Event(), threading.Event(), threading.Event()
+
+    def a():
+        with prov.holding(out):
+            entered.set()
+            b_in.wait(30)
+        a_done.set()
+
+    t = threading.Thread(target=a)
+    t.start()
+    entered.wait(30)
+    with prov.holding(out):
+        b_in.set()
+        a_done.wait(30)
+        assert out.is_dir() and not _flock_free(out)
+    t.join()
+    # the last one out removes what the first made, parents too, where empty
+    assert not (tmp_path / "a").exists()
+
+
+def test_a_block_that_locked_nothing_does_not_end_another_blocks_hold(tmp_path, monkeypatch):
+    """A block whose lock failed without an error (no descriptor left) still let go as it
+    ended, and ended the hold of a block that took the folder meanwhile."""
+    import os
+    import threading
+
+    out = tmp_path / "study"
+    real_open = os.open
+    failed = []
+
+    def open_failing_once(path, flags, *args):
+        if not failed:
+            failed.append(path)
+            raise OSError(24, "Too many open files")
+        return real_open(path, flags, *args)
+
+    monkeypatch.setattr(prov.os, "open", open_failing_once)
+    x_in, y_in, x_done = threading.Event(), threading.Event(), threading.Event()
+
+    def x():
+        with prov.holding(out):  # locks nothing
+            x_in.set()
+            y_in.wait(30)
+        x_done.set()
+
+    t = threading.Thread(target=x)
+    t.start()
+    x_in.wait(30)
+    with prov.holding(out):  # takes the lock
+        y_in.set()
+        x_done.wait(30)
+        assert failed and not _flock_free(out)  # x's end left it held
+    t.join()
+    assert _flock_free(out)
+
+
+def test_the_holder_is_named_while_its_process_lives(tmp_path, monkeypatch):
+    """Another user's live process (os.kill says EPERM) was taken for dead; a record that is
+    not an object crashed the refusal."""
+    import os
+
+    out = tmp_path / "study"
+    out.mkdir()
+    record = {"command": "jtraj robustness", "date_utc": "2026-12-07T00:00:00Z", "complete": False, "pid": os.getpid() + 1}
+    (out / "provenance.json").write_text(json.dumps(record))
+
+    def not_yours(pid, signal):
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(prov.os, "kill", not_yours)
+    assert prov._in_use_message(out) == f"{out} is in use by another run (jtraj robustness, begun 2026-12-07T00:00:00Z): wait for it to end, or write to another folder"
+    (out / "provenance.json").write_text("[1, 2]")
+    assert prov._in_use_message(out) == f"{out} is in use by another run: wait for it to end, or write to another folder"

@@ -283,9 +283,10 @@ class IpmOptions(AbstractOptions):
             from 19.2 to 12.4 s (`_members_apart_on_cpu`).
 
     The tolerances of the convergence test and of the polish (`RUNTIME_FIELDS`) are inputs of
-    the compiled program: options that differ only in them share one program (`IPM`). Whether
-    the polish is on (``feasibility_polish_tol`` None or not) and every other option are
-    compiled in.
+    the compiled program: options that differ only in them share one program (`IPM`), as do
+    options that differ in ``cpu_batch`` alone (it chooses how a vmap of that program is
+    batched). Whether the polish is on (``feasibility_polish_tol`` None or not) and every other
+    option are compiled in.
     """
 
     #: the options passed to the compiled program as values (a change does not recompile)
@@ -707,7 +708,8 @@ class IPM:
 
     ``IPM(nlp, options).solve(x0, theta)`` runs the jitted program ``ipm.program(x0, theta,
     tolerances)``; ``jax.vmap(ipm.solve)`` batches it. IPMs of one NLP whose options differ
-    only in `IpmOptions.RUNTIME_FIELDS` share one program (and its compilations).
+    only in `IpmOptions.RUNTIME_FIELDS` and ``cpu_batch`` share one program (and its
+    compilations; ``cpu_batch`` picks its batching rule under vmap).
     """
 
     def __init__(self, nlp, options: IpmOptions | None = None):
