@@ -9,6 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from test_ipm import K, double_integrator
+from test_solver_inputs import no_program
 
 from jtraj import solvers
 from jtraj.result import Outcome, Result
@@ -60,7 +61,7 @@ def test_a_non_finite_initial_guess_is_refused_by_its_place(where, value, messag
     for backend in ("ipopt", "jtraj"):  # refused before anything is built
         with pytest.raises(ValueError, match=message):
             solvers.get(backend).solve(nlp, x0)
-    assert not nlp.solver_programs
+    assert no_program(nlp)  # (neither solver built anything: Ipopt calls the jitted functions)
 
 
 def test_a_non_finite_initial_guess_without_a_layout_names_its_flat_index():
@@ -110,7 +111,7 @@ def test_a_theta_of_another_structure_names_the_type_expected(theta):
     for backend in ("ipopt", "jtraj"):
         with pytest.raises(TypeError, match=match):
             solvers.get(backend).solve(nlp, np.zeros(nlp.n), theta)
-    assert not nlp.solver_programs
+    assert no_program(nlp)  # (neither solver built anything: Ipopt calls the jitted functions)
     # None (the NLP's own) and a TaskParams of the same fields still bind
     for fine in (None, own, own.replace(friction=jnp.ones(3))):
         assert bind(nlp, fine).x_lower.shape == (nlp.n,)

@@ -34,6 +34,20 @@ def test_gradients_that_differ_stop_the_benchmark():
         bench.gradients_agree(a, {"x": np.array([1.0, -2.0]), "y": np.array(0.6)})
 
 
+def test_main_stops_when_the_solvers_gradients_differ(monkeypatch, tmp_path):
+    """The test above calls the check alone: main() itself, given two solvers whose gradients
+    differ, must stop before it writes its results."""
+    bench = bench_module("differentiate")
+    record = {"knots": 9, "n": 594, "m": 638}
+    grads = {"ipopt": {"friction": np.array(1.0)}, "jtraj": {"friction": np.array(1.1)}}
+    monkeypatch.setattr(bench, "measure", lambda task, name, repeat, batch: (dict(record), grads[name]))
+    monkeypatch.setattr(bench, "hop", lambda scale: None)
+    out = tmp_path / "o"
+    with pytest.raises(SystemExit, match=r"gradients differ by"):
+        bench.main(["--solvers", "ipopt,jtraj", "--out", str(out)])
+    assert not out.exists()
+
+
 class _Theta:
     def __init__(self, friction=1.0):
         self.friction = friction

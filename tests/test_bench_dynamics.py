@@ -77,3 +77,24 @@ def test_a_disagreement_with_pinocchio_stops_the_benchmark():
     for err in (1e-6, float("nan")):
         with pytest.raises(SystemExit, match="tau and Jacobians differ by"):
             bench.refuse_disagreement(err)
+
+
+def test_main_stops_when_its_derivatives_disagree_with_pinocchio(monkeypatch, tmp_path, capsys):
+    """The test above calls the check alone: main() itself, with tau off by 1 %, must stop
+    before it times or writes anything (the check was once printed and never enforced)."""
+    import pytest
+
+    bench = bench_module("dynamics")
+    real = bench.dynamics.batched_inverse_dynamics_derivatives
+
+    def off(*args):
+        r = real(*args)
+        return r._replace(tau=r.tau * 1.01)
+
+    monkeypatch.setattr(bench.dynamics, "batched_inverse_dynamics_derivatives", off)
+    monkeypatch.setattr(bench, "timed", lambda fn, repeats: (0.0, 1e-3))  # nothing timed
+    out = tmp_path / "o"
+    with pytest.raises(SystemExit, match="tau and Jacobians differ by"):
+        bench.main(["--robot", "go2", "--knots", "1", "--repeats", "1", "--skip-mjx", "--out", str(out)])
+    assert "agreement with Pinocchio" in capsys.readouterr().out
+    assert not out.exists() or not any(out.iterdir())

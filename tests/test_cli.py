@@ -16,14 +16,20 @@ GOOD_TOML = 'name = "x"\nrobot = "go2"\ntimestep = 0.05\n[[phases]]\ncontacts = 
 
 @pytest.fixture
 def no_solve(monkeypatch):
-    """Fail the test if a bad input reached the solver or a compile."""
+    """Fail the test if a bad input reached the solver or a compile (the attitude benchmarks'
+    and Wahba's work too: they were not watched)."""
+    import jtraj.attitude.cli
+    import jtraj.attitude.wahba
     import jtraj.experiments
     import jtraj.solver
 
     def boom(*args, **kwargs):
         raise AssertionError("a solve started despite a bad input")
 
-    for module, name in ((jtraj.solver, "solve"), (jtraj.solver, "prepare"), (jtraj.experiments, "robustness"), (jtraj.experiments, "compare")):
+    for module, name in (
+        (jtraj.solver, "solve"), (jtraj.solver, "prepare"), (jtraj.experiments, "robustness"), (jtraj.experiments, "compare"),
+        (jtraj.attitude.cli, "main"), (jtraj.attitude.wahba, "main_wahba"),
+    ):
         monkeypatch.setattr(module, name, boom)
 
 

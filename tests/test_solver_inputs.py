@@ -24,8 +24,10 @@ def speed_limited(theta=None) -> KnotNLP:
 
 
 def no_program(nlp: KnotNLP) -> bool:
-    """Nothing of jtraj's solver was built (let alone compiled) for ``nlp``."""
-    return not nlp.solver_programs
+    """Nothing was built for ``nlp`` (let alone compiled): no program of jtraj's solver, and no
+    call of the NLP's jitted functions, which Ipopt's callbacks make (only the solver programs
+    were looked at, and an Ipopt that compiled its callbacks before its checks passed)."""
+    return not nlp.solver_programs and all(getattr(nlp, f)._cache_size() == 0 for f in ("objective", "gradient", "constraints"))
 
 
 def test_theta_none_means_the_nlps_own_parameters():
