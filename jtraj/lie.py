@@ -1,7 +1,8 @@
 """SO(3) and SE(3) calculus on top of jaxlie.
 
-jaxlie provides the groups themselves (storage `SO3.wxyz`, `SE3.wxyz_xyz`), `exp`, `log`,
-composition (`@`), `inverse`, the action on points (`T @ p`), the adjoint and `jlog`.
+jaxlie provides the groups themselves (storage `SO3.wxyz`, `SE3.wxyz_xyz`), `exp`,
+composition (`@`), `inverse`, the action on points (`T @ p`) and the adjoint; `log` is computed
+here (jaxlie's SO(3) log has a wrong derivative within 2e-10 rad of angle pi).
 This module adds what jaxlie does not have, in the notation of Sola et al., "A micro Lie
 theory for state estimation in robotics" (arXiv:1812.01537):
 
@@ -96,12 +97,34 @@ def exp(group: type[Group], tangent: jax.Array) -> Group:
 
 def log(element: SO3 | SE3) -> jax.Array:
     """Logarithm map ``Log: SO(3) -> R^3`` or ``SE(3) -> R^6``, the inverse of `exp`
-    for rotation angles below pi (SO(3) part from jaxlie)."""
+    for rotation angles below pi, with its derivatives also there and at pi.
+
+    The SO(3) part is computed here (`_so3_log`): jaxlie 1.5.0's ``SO3.log`` returns
+    ``pi v / |v|`` where ``|w| < 1e-10``, which does not depend on w, so its derivative along
+    the rotation's own axis was 0 instead of 1 within about 2e-10 rad of pi (a review's
+    finding: the flip and handstand warm starts put knots at exactly pi, where the SE(3)
+    tangent chart's dynamics rows had a Jacobian of rank 5 in place of 6)."""
     if isinstance(element, SE3):
-        theta = element.rotation().log()
+        theta = _so3_log(element.rotation().wxyz)
         rho = jnp.einsum("...ij,...j->...i", _so3_left_jacobian_inv(theta), element.translation())
         return jnp.concatenate([rho, theta], axis=-1)
-    return element.log()
+    return _so3_log(element.wxyz)
+
+
+def _so3_log(wxyz: jax.Array) -> jax.Array:
+    """``Log`` of unit quaternions (..., 4) wxyz: ``2 atan2(|v|, w) v / |v|`` on the shorter
+    way round (``w >= 0``: q and -q are one rotation), smooth up to and at angle pi (atan2
+    has no special case at ``w = 0``), and its Taylor series ``(2 / w - 2 |v|^2 / (3 w^3)) v``
+    where ``|v|^2`` is below jaxlie's threshold for the dtype (1e-10 in float64)."""
+    w, v = wxyz[..., 0], wxyz[..., 1:]
+    flip = jnp.where(w < 0, -1.0, 1.0).astype(wxyz.dtype)
+    w, v = w * flip, v * flip[..., None]
+    n2 = jnp.sum(v * v, axis=-1)
+    small = n2 < (1e-10 if wxyz.dtype == jnp.float64 else 1e-5)
+    n = jnp.sqrt(jnp.where(small, 1.0, n2))  # (one branch each: no NaN in the other's derivative)
+    w_small = jnp.where(small, w, 1.0)
+    scale = jnp.where(small, 2.0 / w_small - (2.0 / 3.0) * n2 / w_small**3, 2.0 * jnp.arctan2(n, w) / n)
+    return scale[..., None] * v
 
 
 def compose(a: Group, b: Group) -> Group:
@@ -280,8 +303,9 @@ def left_jacobian_inv(group: type[SO3] | type[SE3], tangent: jax.Array) -> jax.A
 def right_jacobian_inv(group: type[SO3] | type[SE3], tangent: jax.Array) -> jax.Array:
     """Inverse of the right Jacobian: ``Log(Exp(xi) Exp(d)) = xi + J_r^-1(xi) d``.
 
-    Equals ``jax.jacfwd(lambda d: log(exp(G, xi) @ exp(G, d)))(0)`` and jaxlie's
-    ``G.exp(xi).jlog()`` for rotation angles below pi.
+    Equals ``jax.jacfwd(lambda d: log(exp(G, xi) @ exp(G, d)))(0)`` for rotation angles up to
+    pi, and jaxlie's ``SO3.exp(xi).jlog()`` below pi (jaxlie's ``SE3.jlog`` is off at small
+    angles: 1.2e-6 at 1e-5 rad, a review's measurement).
     """
     _check_group(group)
     tangent = _tangent(group, tangent)
