@@ -142,7 +142,7 @@ def compare(
     progress = _progress_stream(progress)
     out = Path(out)
     solver = _solver_name("compare", solver)  # an unknown name fails here, before the first solve
-    _check_executor("compare", executor, workers, ray_address)
+    check_executor(executor, workers, ray_address, "compare")  # before anything is written
     params = _parameterization_names("compare", params)
     # the tasks loaded here are the ones solved: a Ray worker runs in another folder (or on
     # another machine), where a relative .toml path names another file or none
@@ -243,13 +243,6 @@ def _refuse_repeats(where: str, given: Sequence, keys: Sequence, what: str) -> N
             found.append(f"{labels[0]} given {len(items)} times" if len(labels) == 1 else f"{' and '.join(labels)} are the same {what} ({key!r})")
     if found:
         raise RepeatedValueError(f"{where}: {'; '.join(found)}; expected each {what} once")
-
-
-def _check_executor(function: str, executor: str, workers: int, ray_address: str | None = None) -> None:
-    """`jtraj.executors.check_executor` in ``function``'s words, before anything is written (the
-    command line refuses the same in its own; the executor itself is made once the runs file is
-    set up)."""
-    check_executor(executor, workers, ray_address, function)
 
 
 def _parameterization_names(function: str, params: Sequence) -> list[str]:
@@ -828,7 +821,7 @@ def robustness(
     tasks = loaded
     _refuse_repeats("robustness: params", params, params, "parameterization")
     _refuse_repeats("robustness: sigmas", sigmas, sigmas, "noise level")
-    _check_executor("robustness", executor, workers, ray_address)
+    check_executor(executor, workers, ray_address, "robustness")  # before anything is written
     progress = _progress_stream(progress)
     out = Path(out)
     check_runs_file(out, resume)

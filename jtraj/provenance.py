@@ -187,6 +187,11 @@ def _flock():
     return fcntl
 
 
+def _open_folder(key: str) -> int:
+    """A descriptor of the folder ``key`` to flock (OSError where it cannot be opened)."""
+    return os.open(key, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+
+
 def _hold(key: str, out: Path, made: list[Path]) -> bool:
     """Take (or count once more) this process's hold of the folder ``key``; True where a hold
     was counted (and `_release` is owed), False where nothing could be locked."""
@@ -199,7 +204,7 @@ def _hold(key: str, out: Path, made: list[Path]) -> bool:
             return True
         for attempt in range(_TRIES):
             try:
-                fd = os.open(key, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+                fd = _open_folder(key)
             except FileNotFoundError:  # removed by the run that held it as it let go: made again
                 Path(key).mkdir(parents=True, exist_ok=True)
                 continue
@@ -285,7 +290,7 @@ def in_use(out: str | Path) -> str | None:
         if key in _HELD:
             return None
         try:
-            fd = os.open(key, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+            fd = _open_folder(key)
         except OSError:
             return None
         try:
