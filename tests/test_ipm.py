@@ -685,6 +685,38 @@ def test_feasibility_polish_after_a_loose_convergence_test():
     assert abs(float(went_on.objective) - float(first.objective)) < 1e-6
     np.testing.assert_array_equal(np.asarray(went_on.history)[:5], np.asarray(first.history)[:5])
 
+    # the polish's rules where a polishing iteration fails the convergence test, with Newton
+    # steps in place of the projection (the polish before it; an IPM subclass needs an NLP of
+    # its own, since IPMs of one NLP and options share their compiled program): iteration 5
+    # fails the test (the dual infeasibility jumps from 0.016 to 0.31), the polish goes on and
+    # iteration 6 passes within the tolerance (5.7e-10)...
+    class NewtonPolish(IPM):
+        def _projection(self, p, st):
+            return st
+
+    newton = dataclasses.replace(early, feasibility_polish_tol=1e-9)
+    went_on = NewtonPolish(double_integrator(), newton).solve(x0, None)
+    assert int(went_on.status) == IpmStatus.CONVERGED and int(went_on.iterations) == 6
+    assert float(went_on.constr_viol) <= 1e-9
+    # ... and with one polishing iteration, the one that fails the test, iteration 4 comes back
+    # after one more evaluation
+    handed_back = NewtonPolish(double_integrator(), dataclasses.replace(newton, feasibility_polish_iter=1)).solve(x0, None)
+    assert int(handed_back.status) == IpmStatus.CONVERGED and int(handed_back.iterations) == 4
+    assert int(handed_back.passes) > int(first.passes)
+    np.testing.assert_array_equal(np.asarray(handed_back.x), np.asarray(first.x))
+
+    # a projection that cannot be taken (a factorization that failed at the converged iterate,
+    # which no status reports there) ends the polish at once with the converged iterate, not
+    # after a line search of non-finite trials (30 evaluations)
+    class NoProjection(IPM):
+        def _projection(self, p, st):
+            return st._replace(dx=jnp.full_like(st.dx, jnp.nan))
+
+    unusable = NoProjection(double_integrator(), newton).solve(x0, None)
+    assert int(unusable.status) == IpmStatus.CONVERGED and int(unusable.iterations) == 4
+    assert int(unusable.passes) == int(first.passes)
+    np.testing.assert_array_equal(np.asarray(unusable.x), np.asarray(first.x))
+
     # converged at the iteration limit: nothing to polish with
     at_limit = IPM(nlp, dataclasses.replace(loose, feasibility_polish_tol=1e-300, max_iter=n)).solve(x0, None)
     assert int(at_limit.status) == IpmStatus.CONVERGED and int(at_limit.iterations) == n

@@ -979,7 +979,12 @@ class IPM:
             # when some member projects)
             project = polishing & (self._constr_viol(p, st.c) > p.tols.feasibility_polish_tol)
             st = lax.while_loop(lambda c: c[0], lambda c: (jnp.asarray(False), self._projection(p, c[1])), (project, st))[1]
-            new, passes = self._iteration(p, st, passes, theta)
+            # no projection to take (the factorization at a converged iterate is not checked by
+            # the inertia correction's status): the polish ends, the kept iterate handed back
+            unusable = project & ~(jnp.all(jnp.isfinite(st.dx)) & jnp.all(jnp.isfinite(st.ds)))
+            st = st._replace(status=jnp.where(unusable, int(IpmStatus.NUMERICAL_ERROR), st.status).astype(jnp.int32))
+            # (a projection's trial is not corrected by a second-order correction, a Newton step)
+            new, passes = self._iteration(p, st, passes, theta, correct=~project)
             ok = new.status == converged
             viol = self._constr_viol(p, new.c)
             loose = ok & (viol > p.tols.feasibility_polish_tol)
@@ -1022,9 +1027,10 @@ class IPM:
         """(theta, phi): l1 infeasibility and barrier objective."""
         return self._infeasibility_l1(p, c, s), f + self._barrier(p, x, s, mu)
 
-    def _iteration(self, p: _Problem, st: _State, passes: jax.Array, theta) -> tuple[_State, jax.Array]:
+    def _iteration(self, p: _Problem, st: _State, passes: jax.Array, theta, correct: jax.Array | bool = True) -> tuple[_State, jax.Array]:
         """One iteration: the line search (values only at each trial point), then the
-        derivatives at the accepted point and the next direction (`_advance`).
+        derivatives at the accepted point and the next direction (`_advance`). ``correct``
+        False: no second-order corrections (the polish's projections).
 
         Only an accepted point needs the Jacobian, so a rejected trial costs one evaluation of
         the objective and constraints. Under ``vmap`` the line search is its own loop, so the
@@ -1073,7 +1079,7 @@ class IPM:
             # second-order corrections: after a rejected first trial that raised the violation,
             # then while each correction lowers it by kappa_soc (Wachter & Biegler, A-5.5 to 5.10)
             rejected = finite & ~accept & ~st.first
-            start = rejected & ~in_soc & (trials == 0) & (o.max_soc > 0) & (th_t >= st.theta0)
+            start = rejected & ~in_soc & (trials == 0) & (o.max_soc > 0) & correct & (th_t >= st.theta0)
             more = rejected & in_soc & (soc_k < o.max_soc) & (th_t <= o.kappa_soc * th_old)
             do_soc = start | more
             r_t = jnp.where(p.eq, ct - p.cl, jnp.where(p.ineq, ct - s_t, 0.0))
@@ -1449,9 +1455,12 @@ class IPM:
         """The feasibility polish's direction at the iterate: the step of least
         ``(W + Sigma)``-norm onto the linearized constraints, ``[W + Sigma, J^T; J, -D] (dx,
         dy) = (0, -r_c)`` with the factorization of the iterate's Newton direction (the
-        Newton step with its dual residual left out), the slacks following the rows
-        (``J dx - ds = -r_c``) and every multiplier kept. Its line search is the filter's test of
-        lower infeasibility (slope 0: never an Armijo step on the barrier objective).
+        Newton step with its dual residual left out; D holds the inequality rows' slack terms
+        and the dual regularization delta_c, so the rows are met to within about delta_c |dy|,
+        as by a Newton step), the slacks following the rows (``J dx - ds = -r_c``) and every
+        multiplier kept. Its line search is the filter's h-type test (slope 0: never an Armijo
+        step on the barrier objective: a trial is taken for enough lower infeasibility, or
+        for enough lower barrier objective), without second-order corrections.
 
         After a loose convergence test at mu near ``mu_min`` a Newton iteration goes on trading
         feasibility for the objective: measured on the SE(3) back-flip, the violation went
