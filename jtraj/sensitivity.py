@@ -64,7 +64,7 @@ import scipy.sparse.linalg as spla
 
 from jtraj.numbers import is_real
 
-__all__ = ["ParametricNLP", "DenseNLP", "ActiveSet", "ActiveArrays", "active_set", "active_arrays", "KKTSystem", "kkt_system", "residual", "check_weak_tol", "SingularKKTError", "NotDifferentiableWarning", "undifferentiable_parameters", "NotAKKTPointError", "kkt_errors", "check_kkt_point", "check_kkt_tol", "KKT_TOL"]
+__all__ = ["ParametricNLP", "DenseNLP", "ActiveSet", "ActiveArrays", "active_set", "active_arrays", "KKTSystem", "kkt_system", "residual", "check_weak_tol", "SingularKKTError", "NotDifferentiableWarning", "undifferentiable_parameters", "entry_names", "NotAKKTPointError", "kkt_errors", "check_kkt_point", "check_kkt_tol", "KKT_TOL"]
 
 
 class NotAKKTPointError(ValueError):
@@ -459,11 +459,19 @@ def _undifferentiable(nlp: ParametricNLP, system: KKTSystem, x: Any, lam: Any, t
     A = jax.vmap(lambda u: vjp(u)[0])(jnp.asarray(U.T))  # theta's pytree, each leaf with k rows in front
     leaves = [np.abs(np.asarray(leaf)).reshape(U.shape[1], -1).max(axis=0) for leaf in jax.tree_util.tree_leaves(A)]
     largest = max((float(a.max(initial=0.0)) for a in leaves), default=0.0)
+    names = entry_names(theta)
+    return [names[i] for i in np.flatnonzero(np.concatenate(leaves) > max(1e-8 * largest, 1e-9))]  # (rounding leaves about 1e-14)
+
+
+def entry_names(theta: Any) -> list[str]:
+    """The name of every entry of ``theta``, leaf by leaf in `jax.tree_util.tree_leaves` order and
+    each leaf's entries in C order, as `undifferentiable_parameters` names them: ``field[index]``
+    (``target_translation[2]``), a scalar field by its name."""
     names = []
-    for (path, leaf), rows in zip(jax.tree_util.tree_flatten_with_path(theta)[0], leaves, strict=True):
+    for path, leaf in jax.tree_util.tree_flatten_with_path(theta)[0]:
         field = jax.tree_util.keystr(path).lstrip(".") or "theta"  # (theta an array itself)
-        for i in np.flatnonzero(rows > max(1e-8 * largest, 1e-9)):  # (rounding leaves about 1e-14)
-            names.append(field if np.ndim(leaf) == 0 else f"{field}[{', '.join(str(int(j)) for j in np.unravel_index(i, np.shape(leaf)))}]")
+        shape = np.shape(leaf)
+        names += [field] if not shape else [f"{field}[{', '.join(map(str, i))}]" for i in np.ndindex(shape)]
     return names
 
 
