@@ -1437,16 +1437,26 @@ class IPM:
         system = kkt.KKTSystem(H=H, sigma=sigma_x, A=st.J, B=None, d0=d0, free=p.free, pattern=self.view.pattern)
         return system, low_rank, r_c, right_hand_side, full_step, barrier_gradients
 
+    def _factored(self, p: _Problem, st: _State):
+        """The Newton system at an iterate whose direction was computed there, so the state holds
+        its factorization: (system, r_c, right_hand_side, full_step, ``solve(rx, rc) -> (dx,
+        dy)`` with that factorization), for the steps that reuse it (second-order corrections,
+        the polish's projection)."""
+        o = self.options
+        system, low_rank, r_c, right_hand_side, full_step, _ = self._newton_system(p, st, st.H if o.hessian in ("exact", "bfgs") else None)
+
+        def solve(rx, rc):
+            return kkt.solve(system, kkt.BlockFactor(st.fac_diag, st.fac_sub), st.delta_w, st.delta_c, rx, rc, o.refine_steps, remove_delta_c=not o.delta_c_mu_scaled, low_rank=low_rank, residual_ratio_max=o.residual_ratio_max, min_refine_steps=o.min_refine_steps)
+
+        return system, r_c, right_hand_side, full_step, solve
+
     def _soc_step(self, p: _Problem, st: _State, c_soc):
         """Ipopt's second-order correction: the Newton step at the iterate for its barrier
         parameter with the factorization of the current direction, the constraint residual
         replaced by ``c_soc``. Returns (step, primal and dual fraction-to-the-boundary
         lengths)."""
-        o = self.options
-        # the iterate is the direction's, so this is the factored matrix
-        system, low_rank, _, right_hand_side, full_step, _ = self._newton_system(p, st, st.H if o.hessian in ("exact", "bfgs") else None)
-        rx, rc = right_hand_side(st.mu, c_soc)
-        dx, dy = kkt.solve(system, kkt.BlockFactor(st.fac_diag, st.fac_sub), st.delta_w, st.delta_c, rx, rc, o.refine_steps, remove_delta_c=not o.delta_c_mu_scaled, low_rank=low_rank, residual_ratio_max=o.residual_ratio_max, min_refine_steps=o.min_refine_steps)
+        _, _, right_hand_side, full_step, solve = self._factored(p, st)
+        dx, dy = solve(*right_hand_side(st.mu, c_soc))
         step = full_step(st.mu, dx, dy)
         a_p, a_d = self._step_bounds(p, st, step, st.tau)
         return step, a_p, a_d
@@ -1465,9 +1475,8 @@ class IPM:
         After a loose convergence test at mu near ``mu_min`` a Newton iteration goes on trading
         feasibility for the objective: measured on the SE(3) back-flip, the violation went
         5.5e-6, 9.2e-5, 7.0e-6, 9.9e-5 over the four iterations after it."""
-        o = self.options
-        system, low_rank, r_c, _, _, _ = self._newton_system(p, st, st.H if o.hessian in ("exact", "bfgs") else None)
-        dx, dy = kkt.solve(system, kkt.BlockFactor(st.fac_diag, st.fac_sub), st.delta_w, st.delta_c, jnp.zeros_like(st.x), -r_c, o.refine_steps, remove_delta_c=not o.delta_c_mu_scaled, low_rank=low_rank, residual_ratio_max=o.residual_ratio_max, min_refine_steps=o.min_refine_steps)
+        system, r_c, _, _, solve = self._factored(p, st)
+        dx, dy = solve(jnp.zeros_like(st.x), -r_c)
         dx = jnp.where(p.free, dx, 0.0)
         ds = jnp.where(p.ineq, system.d0 * dy, 0.0)
         keep = jax.tree.map(jnp.zeros_like, (st.dy, st.dzl, st.dzu, st.dvl, st.dvu))
