@@ -9,7 +9,10 @@ For K knots with random states (q, v, a, contact forces) it times, median over r
     too) + contact frame Jacobians (Python loop over knots, same states);
   - for comparison, jax.jacfwd through MJX's pipeline and through jtraj's own RNEA.
 Compile times are the first call's wall time. Pinocchio's external forces are built in the
-joint frames before timing (which only favours Pinocchio). The autodiff baselines are the
+joint frames before timing (which only favours Pinocchio). Before any timing is reported, the
+last knot's tau, dtau/dv, M and J_c are checked against Pinocchio's (`AGREEMENT_TOL`) and
+dtau/dq against central differences of Pinocchio's tau with the forces fixed in the world
+(`DQ_TOL`; Pinocchio's analytical dtau/dq holds them fixed in the joint frames instead). The autodiff baselines are the
 median of fewer calls (a third of ``--repeats``, at least 3; jacfwd through MJX: 3), which the
 table says. ``--out DIR`` writes ``DIR/dynamics.json``, ``DIR/dynamics.md`` and
 ``DIR/provenance.json``.
@@ -105,6 +108,54 @@ def pinocchio_jacobians(model, data, frames, qs, vs, as_, fexts) -> list:
     return out
 
 
+def joint_forces(model, data, frames, qp, f_world) -> list:
+    """Pinocchio's external forces, one per joint in its frame, of the world-frame forces
+    ``f_world`` (one row of 3 per contact frame) applied at the contact frames' origins at
+    configuration ``qp`` (jtraj's contact forces). Leaves ``data``'s placements at ``qp``."""
+    pin.framesForwardKinematics(model, data, qp)
+    fext = [pin.Force.Zero() for _ in range(model.njoints)]
+    for c, fid in enumerate(frames):
+        joint = model.frames[fid].parentJoint
+        p = data.oMf[fid].translation
+        fext[joint] += data.oMi[joint].actInv(pin.Force(f_world[c], np.cross(p, f_world[c])))
+    return fext
+
+
+#: the step of `tau_dq_differences`
+FD_STEP = 1e-6
+
+
+def tau_dq_differences(model, data, frames, qp, vp, ap, f_world, perm, h: float = FD_STEP) -> np.ndarray:
+    """dtau/dq by central differences of Pinocchio's rnea, the contact forces ``f_world`` fixed
+    in the world and applied where the contact frames are at each perturbed configuration
+    (`joint_forces`). Column i is along Pinocchio's tangent direction ``perm[i]``
+    (``pin.integrate``: the base's twist in its own frame, then the joints), rows and columns in
+    jtraj's order of velocities (``perm``: jtraj's index to Pinocchio's)."""
+    nv = model.nv
+    out = np.empty((nv, nv))
+    for i in range(nv):
+        step = np.zeros(nv)
+        step[perm[i]] = h
+        taus = []
+        for sign in (1.0, -1.0):
+            q = pin.integrate(model, qp, sign * step)
+            taus.append(pin.rnea(model, data, q, vp, ap, joint_forces(model, data, frames, q, f_world)).copy())
+        out[:, i] = ((taus[0] - taus[1]) / (2 * h))[perm]
+    return out
+
+
+def chart_tangent(param, q_base, nj: int) -> np.ndarray:
+    """(param.nq + nj, 6 + nj): the derivative of the coordinates of ``q (+) delta`` at delta = 0,
+    the base moved by ``T Exp(delta_base)`` (Pinocchio's integrate, to first order) and the
+    joints by ``delta_joints``; jtraj's dtau/dq times it is dtau along Pinocchio's tangent."""
+    T = param.to_pose(jnp.asarray(q_base))
+    base = jax.jacfwd(lambda d: param.from_pose(T @ jtraj.lie.exp(jtraj.lie.SE3, d)))(jnp.zeros(6))
+    out = np.zeros((param.nq + nj, 6 + nj))
+    out[: param.nq, :6] = np.asarray(base)
+    out[param.nq :, 6:] = np.eye(nj)
+    return out
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--robot", default="talos", choices=robot_lib.available())
@@ -160,14 +211,7 @@ def main(argv: list[str] | None = None) -> None:
         qp[q_index] = np.asarray(Q[k, param.nq :])
         vp, ap = np.zeros(nv), np.zeros(nv)
         vp[perm], ap[perm] = np.asarray(V[k]), np.asarray(A[k])
-        pin.framesForwardKinematics(model, data, qp)
-        fext = [pin.Force.Zero() for _ in range(model.njoints)]
-        for c, fid in enumerate(frames):
-            joint = model.frames[fid].parentJoint
-            p = data.oMf[fid].translation
-            f_world = np.asarray(F[k, c])
-            fext[joint] += data.oMi[joint].actInv(pin.Force(f_world, np.cross(p, f_world)))
-        qs.append(qp), vs.append(vp), as_.append(ap), fexts.append(fext)
+        qs.append(qp), vs.append(vp), as_.append(ap), fexts.append(joint_forces(model, data, frames, qp, np.asarray(F[k])))
 
     def pin_tau():
         return [pin.rnea(model, data, qs[k], vs[k], as_[k], fexts[k]).copy() for k in range(K)]
@@ -191,6 +235,14 @@ def main(argv: list[str] | None = None) -> None:
     )
     print(f"agreement with Pinocchio (tau, dtau/dv, M, J_c), max relative error: {err:.1e}")
     refuse_disagreement(err)
+    # dtau/dq: Pinocchio's analytical one holds its external forces fixed in the joint frames,
+    # jtraj's holds them fixed in the world at the moving contact points; so central
+    # differences of Pinocchio's tau with jtraj's forces, along Pinocchio's tangent
+    dq_fd = tau_dq_differences(model, data, frames, qs[-1], vs[-1], as_[-1], np.asarray(F[-1]), perm)
+    dq_ours = np.asarray(ours.dq[-1]) @ chart_tangent(param, Q[-1, : param.nq], robot.nj)
+    err_dq = np.abs(dq_ours - dq_fd).max() / np.abs(dq_fd).max()
+    print(f"dtau/dq against central differences of Pinocchio's tau (step {FD_STEP:g}), max relative error: {err_dq:.1e}")
+    refuse_disagreement(err_dq, DQ_TOL, "dtau/dq")
 
     print()
     print(f"{'':44s}{'jtraj':>12s}{'Pinocchio':>12s}{'jtraj / Pinocchio':>19s}")
@@ -217,8 +269,9 @@ def main(argv: list[str] | None = None) -> None:
         from jtraj.provenance import write_results
 
         note = (f"{robot.name}, {K} knots, parameterization {param.name}, jax {jax.__version__} on {jax.devices()[0].platform}, "
-                f"pinocchio {pin.__version__}; agreement with Pinocchio (tau, dtau/dv, M, J_c), max relative error {err:.1e}.")
-        rec = dict(robot=robot.name, knots=K, parameterization=param.name, agreement=err, rows=rows)
+                f"pinocchio {pin.__version__}; agreement with Pinocchio (tau, dtau/dv, M, J_c), max relative error {err:.1e}; "
+                f"dtau/dq against central differences of Pinocchio's tau, {err_dq:.1e}.")
+        rec = dict(robot=robot.name, knots=K, parameterization=param.name, agreement=err, agreement_dq=err_dq, rows=rows)
         write_results(args.out, "dynamics", rec, table(rows, note), "bench/dynamics.py", argv)
         print(f"wrote {args.out}/dynamics.json, dynamics.md, provenance.json")
 
@@ -228,12 +281,16 @@ def main(argv: list[str] | None = None) -> None:
 #: same thing, and their times are not a comparison
 AGREEMENT_TOL = 1e-8
 
+#: the same for dtau/dq against `tau_dq_differences`, whose central differences carry rounding
+#: of about 1e-16 |tau| / FD_STEP
+DQ_TOL = 1e-6
 
-def refuse_disagreement(err: float) -> None:
+
+def refuse_disagreement(err: float, tol: float = AGREEMENT_TOL, what: str = "tau and Jacobians") -> None:
     """Stop (SystemExit, one line) where jtraj's dynamics and Pinocchio's disagree by more than
-    `AGREEMENT_TOL` (or the error is NaN): the check was printed and the timings reported anyway."""
-    if not err <= AGREEMENT_TOL:
-        raise SystemExit(f"bench/dynamics.py: jtraj's and Pinocchio's tau and Jacobians differ by {err:.1e} (relative), more than {AGREEMENT_TOL:g}; no timings reported")
+    ``tol`` (or the error is NaN): the check was printed and the timings reported anyway."""
+    if not err <= tol:
+        raise SystemExit(f"bench/dynamics.py: jtraj's and Pinocchio's {what} differ by {err:.1e} (relative), more than {tol:g}; no timings reported")
 
 
 if __name__ == "__main__":

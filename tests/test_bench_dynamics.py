@@ -77,6 +77,9 @@ def test_a_disagreement_with_pinocchio_stops_the_benchmark():
     for err in (1e-6, float("nan")):
         with pytest.raises(SystemExit, match="tau and Jacobians differ by"):
             bench.refuse_disagreement(err)
+    bench.refuse_disagreement(3.3e-10, bench.DQ_TOL, "dtau/dq")  # the Go2's, measured
+    with pytest.raises(SystemExit, match=r"dtau/dq differ by 1\.0e-05"):
+        bench.refuse_disagreement(1e-5, bench.DQ_TOL, "dtau/dq")
 
 
 def test_main_stops_when_its_derivatives_disagree_with_pinocchio(monkeypatch, tmp_path, capsys):
@@ -98,3 +101,41 @@ def test_main_stops_when_its_derivatives_disagree_with_pinocchio(monkeypatch, tm
         bench.main(["--robot", "go2", "--knots", "1", "--repeats", "1", "--skip-mjx", "--out", str(out)])
     assert "agreement with Pinocchio" in capsys.readouterr().out
     assert not out.exists() or not any(out.iterdir())
+
+
+def test_dtau_dq_is_checked_against_pinocchio_with_world_forces():
+    """bench/dynamics.py cross-checked tau, dtau/dv, M and J_c with Pinocchio but not dtau/dq,
+    half of the timed Jacobian. Pinocchio's analytical dtau/dq holds the external forces fixed
+    in the joint frames, jtraj's holds them fixed in the world at the moving contact points, so
+    the benchmark checks it against central differences of Pinocchio's tau with jtraj's forces:
+    they agree with jtraj's derivative in a non-trivial chart, and Pinocchio's own dtau/dq,
+    which leaves out the forces' moving points, is far outside the tolerance."""
+    import jax.numpy as jnp
+
+    from jtraj import dynamics, lie
+    from jtraj.parameterization import PARAMETERIZATIONS
+
+    bench = bench_module("dynamics")
+    robot, param = robot_lib.load("go2"), PARAMETERIZATIONS["euler"]
+    model, frames, q_index, v_index = robot_lib.to_pinocchio(robot)
+    perm = np.concatenate([np.arange(6), v_index])
+    rng = np.random.default_rng(3)
+    T = lie.exp(lie.SE3, jnp.asarray(rng.normal(scale=0.5, size=6)))
+    q = np.concatenate([np.asarray(param.from_pose(T)), robot.q_joints_standing + rng.uniform(-0.3, 0.3, robot.nj)])
+    v, a = rng.normal(size=robot.nv), rng.normal(size=robot.nv)
+    f = rng.normal(scale=50.0, size=(robot.ncontact, 3))
+    ours = dynamics.batched_inverse_dynamics_derivatives(robot, param, *(jnp.asarray(x)[None] for x in (q, v, a, f)))
+
+    qp = np.zeros(model.nq)
+    qp[:3] = np.asarray(T.translation())
+    w, x, y, z = np.asarray(T.rotation().wxyz)
+    qp[3:7] = [x, y, z, w]
+    qp[q_index] = q[param.nq :]
+    vp, ap = np.zeros(model.nv), np.zeros(model.nv)
+    vp[perm], ap[perm] = v, a
+    data = model.createData()
+    fd = bench.tau_dq_differences(model, data, frames, qp, vp, ap, f, perm)
+    mapped = np.asarray(ours.dq[0]) @ bench.chart_tangent(param, q[: param.nq], robot.nj)
+    assert np.abs(mapped - fd).max() / np.abs(fd).max() < bench.DQ_TOL
+    joint_fixed = pin.computeRNEADerivatives(model, data, qp, vp, ap, bench.joint_forces(model, data, frames, qp, f))[0]
+    assert np.abs(joint_fixed[np.ix_(perm, perm)] - fd).max() / np.abs(fd).max() > 1e3 * bench.DQ_TOL
