@@ -25,6 +25,7 @@ import functools
 import math
 import os
 import sys
+import threading
 import types
 import warnings
 from collections.abc import Mapping, Sequence
@@ -160,10 +161,22 @@ def _mujoco():
     return mujoco
 
 
+#: held while a renderer is made from a model whose offscreen size `_renderer` changed
+_SIZING = threading.Lock()
+
+
 def _renderer(model, width: int, height: int):
     """An offscreen renderer of ``width`` x ``height`` pixels. The model is shared (`scene_model`
     is cached): its offscreen size is set for this renderer's framebuffer and put back after,
-    so one large (or failed) request does not size every later renderer's framebuffer."""
+    so one large (or failed) request does not size every later renderer's framebuffer. The three
+    steps hold `_SIZING`, so that renderers made in several threads at once each get their own
+    size (without it, one thread's put-back could land between another's set and its renderer,
+    which then failed for want of framebuffer, and left the model at the other's size)."""
+    with _SIZING:
+        return _sized_renderer(model, width, height)
+
+
+def _sized_renderer(model, width: int, height: int):
     mujoco = _mujoco()
     saved = int(model.vis.global_.offwidth), int(model.vis.global_.offheight)
     model.vis.global_.offwidth, model.vis.global_.offheight = width, height

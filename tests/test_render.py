@@ -639,3 +639,37 @@ def test_an_image_too_large_for_opengl_leaves_later_renders_alone():
     assert (int(model.vis.global_.offwidth), int(model.vis.global_.offheight)) == size
     frames = render(r, width=160, height=120, fps=2, shadows=False)
     assert frames.shape == (2, 120, 160, 3) and frames.std() > 10
+
+
+def test_renderers_made_in_threads_each_get_their_size(monkeypatch):
+    """`_renderer` sets the shared model's offscreen size, makes the renderer and puts the size
+    back. Two threads doing it at once interleaved: one's put-back could land between the
+    other's set and its renderer, which then saw the wrong size (a failed framebuffer), and
+    the model kept the other thread's size. Each renderer here sees its own size throughout,
+    and the model ends at its own."""
+    import threading
+    import time
+    import types
+
+    from jtraj import render as render_mod
+
+    model = mujoco.MjModel.from_xml_string("<mujoco/>")
+    size = int(model.vis.global_.offwidth), int(model.vis.global_.offheight)
+    seen = []
+
+    class Renderer:  # stands in for mujoco.Renderer: reads the model's size twice, a while apart
+        def __init__(self, m, height, width):
+            first = int(m.vis.global_.offwidth), int(m.vis.global_.offheight)
+            time.sleep(0.05)
+            seen.append(((width, height), first, (int(m.vis.global_.offwidth), int(m.vis.global_.offheight))))
+
+    monkeypatch.setattr(render_mod, "_mujoco", lambda: types.SimpleNamespace(Renderer=Renderer))
+    threads = [threading.Thread(target=render_mod._renderer, args=(model, 100 + 10 * i, 80 + 10 * i)) for i in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(seen) == 4
+    for asked, first, later in seen:
+        assert first == asked and later == asked
+    assert (int(model.vis.global_.offwidth), int(model.vis.global_.offheight)) == size
