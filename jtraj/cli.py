@@ -894,7 +894,7 @@ def _mujoco_gl_refused() -> str | None:
             raise
         return (
             f"MUJOCO_GL={setting!r}: MuJoCo could not load that OpenGL backend ({type(e).__name__}: {e}); install its library "
-            "(egl: apt-get install libegl1 libopengl0; osmesa: apt-get install libosmesa6) or leave MUJOCO_GL unset "
+            "(egl: apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri libopengl0, as the README says; osmesa: apt-get install libosmesa6) or leave MUJOCO_GL unset "
             "(jtraj then takes a backend whose library loads, or none: everything but drawing works)"
         )
     return None

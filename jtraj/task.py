@@ -124,6 +124,8 @@ class Phase:
 
 
 class Profile(enum.Enum):
+    """How a `RotationRule` turns the base over its phases."""
+
     RAMP = "ramp"  # the angle grows linearly from 0 to `angle` over the phases, then stays
     HOLD = "hold"  # the angle is `angle` during the phases, 0 elsewhere
 

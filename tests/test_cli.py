@@ -746,7 +746,7 @@ def test_a_mujoco_gl_whose_library_is_missing_is_one_line():
     done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == cli.EXIT_BAD_INPUT, done.stderr[-3000:]
     assert done.stderr.startswith("jtraj solve: MUJOCO_GL='egl': MuJoCo could not load that OpenGL backend (") and done.stderr.count("\n") == 1, done.stderr
-    assert "apt-get install libegl1 libopengl0" in done.stderr
+    assert "apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri libopengl0" in done.stderr  # the README's packages
 
 
 def test_the_headless_backend_is_one_whose_libraries_load():

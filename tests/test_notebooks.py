@@ -20,7 +20,7 @@ PRODUCES = {
     "comparison": dict(files=("runs/notebooks/compare_small/table_iv.json", "runs/notebooks/compare_small/table_iv.md", "runs/notebooks/comparison.png"), images=1, text=("| hop | go2 | se3 | solved |", "| hop | go2 | euler | solved |", "hop ['hop_se3', 'hop_euler']")),
     "design": dict(files=(), images=2, text=("degenerate:",)),
     "quickstart": dict(files=("runs/notebooks/trajectory.png",), images=1, text=("hop [", "] solved: ", "se3    solved ", "euler  solved ")),
-    "robustness": dict(files=("runs/notebooks/robustness_small/runs.jsonl", "runs/notebooks/fig2.png"), images=1, text=("runs", "| task | parameterization | sigma=0.001 | sigma=0.1 |", "| hop | se3 | ")),
+    "robustness": dict(files=("runs/notebooks/robustness_small/runs.jsonl", "runs/notebooks/fig2.png"), images=1, text=("8 runs from ", "| task | parameterization | sigma=0.001 | sigma=0.1 |", "| hop | se3 | ")),
 }
 
 
