@@ -619,30 +619,38 @@ def _move_aside(path: Path, why: str) -> Path:
     return aside
 
 
-def read_runs(path: str | Path, progress: TextIO | None = None) -> list[dict]:
-    """Runs of a runs.jsonl file, first of each key kept. A file with lines that do not parse
-    (a kill during a write, damage) or are not runs (not a JSON object, or without a field of a
-    run's key or one the tables read, or with one of another kind than the sweeps write:
-    `_not_a_run`) is copied aside to ``runs.jsonl.corrupt-N`` with a warning
-    on ``progress`` (None: the ``sys.stderr`` of the call), and replaced, atomically, by the
-    lines that are runs (the runs of the others are solved again). A folder or a file that
-    cannot be read there raises `jtraj.io.FileFormatError` naming it (a missing file holds no
-    runs)."""
+def read_runs(path: str | Path, progress: TextIO | None = None, *, repair: bool = False) -> list[dict]:
+    """Runs of a runs.jsonl file, first of each key kept. Lines that do not parse (a kill during
+    a write, damage, or a line a running study is writing now) or are not runs (not a JSON
+    object, or without a field of a run's key or one the tables read, or with one of another
+    kind than the sweeps write: `_not_a_run`) are left out, with a warning on ``progress``
+    (None: the ``sys.stderr`` of the call). The file is not changed: a study may be appending
+    to it (a notebook reading `jtraj robustness`'s folder while it runs).
+
+    ``repair`` (the sweeps', on the folder they hold, `jtraj.provenance.holding`): such a file
+    is also copied aside to ``runs.jsonl.corrupt-N`` and replaced, atomically, by the lines
+    that are runs (the runs of the others are solved again). A folder or a file that cannot be
+    read there raises `jtraj.io.FileFormatError` naming it (a missing file holds no runs)."""
     path = Path(path)
     numbered, bad = jio.read_jsonl_lines(path)
     checked = [(line, r, _not_a_run(r)) for line, r in numbered]
     records = [r for _, r, why in checked if why is None]
     odd = [(line, why) for line, _, why in checked if why is not None]
     if bad or odd:
-        # copied, then replaced whole: a kill in between leaves the file as it was (moved aside
-        # first, a kill before the rewrite left no runs file, and the next call solved every run)
-        aside = _aside_name(path, "corrupt")
-        shutil.copy2(path, aside)
-        jio.write_text(path, "".join(jio.dumps(r, indent=None) + "\n" for r in records))
         found = [f"line(s) {_lines(bad)} did not parse"] if bad else []
         if odd:
             found.append(f"line(s) {_lines([line for line, _ in odd])} are not runs ({'; '.join(f'line {line}: {why}' for line, why in odd[:3])}{'; ...' if len(odd) > 3 else ''})")
-        print(f"warning: {path}: {' and '.join(found)}; the file was copied to {aside} and its {len(records)} good runs kept", file=progress or sys.stderr, flush=True)
+        if repair:
+            # copied, then replaced whole: a kill in between leaves the file as it was (moved
+            # aside first, a kill before the rewrite left no runs file, and the next call
+            # solved every run)
+            aside = _aside_name(path, "corrupt")
+            shutil.copy2(path, aside)
+            jio.write_text(path, "".join(jio.dumps(r, indent=None) + "\n" for r in records))
+            done = f"the file was copied to {aside} and its {len(records)} good runs kept"
+        else:
+            done = f"its {len(records)} good runs read, the file left as it is"
+        print(f"warning: {path}: {' and '.join(found)}; {done}", file=progress or sys.stderr, flush=True)
     seen: dict[tuple, dict] = {}
     for r in records:
         seen.setdefault(run_key(r), r)
@@ -835,7 +843,7 @@ def robustness(
         if noise_chart is not None and progress is not None:
             print(f"checking that the {noise_chart} chart's noisy poses can be written in the other charts", file=progress, flush=True)
         check_noise_chart(tasks, params, variables, noise_chart)
-        before = read_runs(runs_path, progress) if resume else []
+        before = read_runs(runs_path, progress, repair=True) if resume else []
         if not resume and runs_path.exists():
             _move_aside(runs_path, "previous")
         done = {run_key(r) for r in before}
@@ -873,7 +881,7 @@ def robustness(
             for k, a in enumerate(args):
                 _robustness_group(*a, progress=progress)
                 # a checkpoint: the table of every group so far, should the study stop here
-                runs = read_runs(runs_path, progress)
+                runs = read_runs(runs_path, progress, repair=True)
                 _write_robustness_outputs([r for b in args[: k + 1] for r in _select(runs, *b[:10])], sigmas, out, figure=False)
         else:
             try:
@@ -897,7 +905,7 @@ def robustness(
                 # without resume this call moved the earlier file aside: the same call again would too
                 again = "the same call again resumes from them" if resume else "the same call with resume=True (jtraj robustness without --no-resume) resumes from them"
                 raise WorkerLostError(f"{e}; the runs finished before it are kept in {runs_path}, and {again}") from e.__cause__
-        runs = [r for a in args for r in _select(read_runs(runs_path, progress), *a[:10])]
+        runs = [r for a in args for r in _select(read_runs(runs_path, progress, repair=True), *a[:10])]
         _write_robustness_outputs(runs, sigmas, out)
         if run is not None:
             end_run(out, run)

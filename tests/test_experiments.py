@@ -496,11 +496,29 @@ def test_corrupt_runs_file_is_moved_aside(tmp_path, capsys):
     path = tmp_path / RUNS_FILE
     good = {"task_hash": "h", "parameterization": "se3", "layout": "paper", "hessian": "limited-memory", "options_hash": "o", "seed": 0, "sigma": 0.1, "replicate": 0, "task": "t"} | _RESULT
     path.write_text(json.dumps(good) + "\n" + json.dumps(good | {"replicate": 0, "cost": 2.0}) + "\n" + '{"task_hash": "h", "param')
-    runs = read_runs(path)  # the warning goes to the sys.stderr of the call (capsys's here)
+    runs = read_runs(path, repair=True)  # the warning goes to the sys.stderr of the call (capsys's here)
     assert runs == [good]  # the duplicate key is read once, the torn line dropped
     assert "line(s) [3] did not parse" in capsys.readouterr().err
     assert (tmp_path / f"{RUNS_FILE}.corrupt-1").read_text().endswith('"param')
-    assert read_runs(path) == [good] and not (tmp_path / f"{RUNS_FILE}.corrupt-2").exists()
+    assert read_runs(path, repair=True) == [good] and not (tmp_path / f"{RUNS_FILE}.corrupt-2").exists()
+
+
+def test_reading_a_runs_file_does_not_change_it(tmp_path, capsys):
+    """read_runs, the public reader (the robustness notebook's), replaced a file with a torn
+    line by its good lines: read while a study appended to it, the line being written and
+    every run appended before the replacement were lost from the study's file. Only the
+    sweeps, which hold their folder, repair it (``repair=True``)."""
+    path = tmp_path / RUNS_FILE
+    good = {"task_hash": "h", "parameterization": "se3", "layout": "paper", "hessian": "limited-memory", "options_hash": "o", "seed": 0, "sigma": 0.1, "replicate": 0, "task": "t"} | _RESULT
+    being_written = json.dumps(good)[:-1] + "\n" + json.dumps(good | {"replicate": 1})[:40]
+    path.write_text(json.dumps(good) + "\n" + being_written)
+    before = path.read_bytes()
+    assert read_runs(path) == [good]
+    assert "line(s) [2, 3] did not parse; its 1 good runs read, the file left as it is" in capsys.readouterr().err
+    assert path.read_bytes() == before and not list(tmp_path.glob("*.corrupt-*"))
+    with path.open("a") as f:  # the study finishes its line: nothing of it was lost
+        f.write(json.dumps(good | {"replicate": 1})[40:] + "\n")
+    assert len(path.read_text().splitlines()) == 3
 
 
 _SWEEP = """
@@ -913,7 +931,7 @@ def test_a_kill_while_a_damaged_runs_file_is_rewritten_keeps_it(tmp_path, monkey
 
     monkeypatch.setattr(experiments.jio, "write_text", killed)
     with pytest.raises(KeyboardInterrupt):
-        read_runs(path, io.StringIO())
+        read_runs(path, io.StringIO(), repair=True)
     assert path.read_text() == damaged and (tmp_path / f"{RUNS_FILE}.corrupt-1").read_text() == damaged
     monkeypatch.setattr(experiments.jio, "write_text", write_text)
     fake_solves.clear()
