@@ -530,3 +530,27 @@ def test_release_compiled_waits_for_the_cache_lock(monkeypatch):
         assert not done.wait(0.3) and jtraj.solver._CACHE == {("a key",): "an NLP"}  # it waits
     thread.join(10)
     assert done.is_set() and jtraj.solver._CACHE == {}
+
+
+def test_threads_default_to_the_cores_this_process_may_use(monkeypatch):
+    """The threaded batch ran os.cpu_count() members at once, the machine's cores, where the
+    process may use fewer (taskset, a container's cpuset, a Slurm allocation): its members
+    then shared those few. It takes `jtraj.config.cpu_count`, the process's affinity."""
+    import concurrent.futures
+    import os
+
+    from jtraj.solvers import ipm
+
+    sizes = []
+
+    class Recording(concurrent.futures.ThreadPoolExecutor):
+        def __init__(self, max_workers=None, *args, **kwargs):
+            sizes.append(max_workers)
+            super().__init__(max_workers, *args, **kwargs)
+
+    monkeypatch.setattr(concurrent.futures, "ThreadPoolExecutor", Recording)
+    monkeypatch.setattr(ipm, "cpu_count", lambda: 1)
+    monkeypatch.setattr(os, "cpu_count", lambda: 64)  # the machine's, more than the members
+    nlp = double_integrator()
+    batch, _, _ = solvers.get("jtraj").solve_batch(nlp, np.zeros((3, nlp.n)), strategy="threads")
+    assert sizes == [1] and len(batch) == 3 and all(s.converged for s in batch)

@@ -102,7 +102,6 @@ from __future__ import annotations
 
 import dataclasses
 import enum
-import os
 import threading
 import time
 import warnings
@@ -113,6 +112,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
+from jtraj.config import cpu_count
 from jtraj.nlp import KnotNLP
 from jtraj.solvers import kkt
 from jtraj.solvers.base import (
@@ -1697,7 +1697,8 @@ class JtrajSolver(AbstractSolver):
           batch is padded with copies of its first guess, so that batches of different
           lengths (a resumed study's missing replicates) reuse one program.
         - ``"threads"``: the one-problem program of `solve`, each member on its own, ``threads``
-          at a time (default: the CPU count; JAX releases the GIL while a program runs). On a
+          at a time (default: the cores this process may run on, `jtraj.config.cpu_count`;
+          JAX releases the GIL while a program runs). On a
           CPU this balances uneven members better: each core takes the next member when it
           is done (big_jump's 10 noisy replicates on 2 cores, one run of `bench/replicates.py`
           on 2026-12-01: 10.03 s, against 10.77 s for the vmapped program split over two CPU
@@ -1755,7 +1756,7 @@ class JtrajSolver(AbstractSolver):
         from concurrent.futures import ThreadPoolExecutor
 
         count = len(x0s)
-        threads = min(count, threads or os.cpu_count() or 1)
+        threads = min(count, threads or cpu_count())  # the cores this process may use (its affinity)
         program, compile_time = self._program(ipm, "", ipm.program, jnp.asarray(x0s[0]), theta)
         run = lambda x0: jax.block_until_ready(program(jnp.asarray(x0), theta, ipm.tolerances))  # noqa: E731
         t0 = time.perf_counter()
