@@ -166,6 +166,10 @@ def _collect(fn: Callable[..., Iterator[Any]], *args) -> list:
     return list(fn(*args))
 
 
+#: (the ray module, the address) of the connection `RayExecutor.connect` made in this process
+_RAY_CONNECTED: tuple[Any, str | None] | None = None
+
+
 @dataclasses.dataclass(frozen=True)
 class RayExecutor(AbstractExecutor):
     """One Ray task per group.
@@ -185,8 +189,22 @@ class RayExecutor(AbstractExecutor):
     def connect(self):
         """Import Ray and connect to (or start) the cluster, once per process; returns the ``ray``
         module. `ExecutorUnavailableError` where Ray is missing or the cluster cannot be
-        reached: the command line calls it while checking its inputs, before writing anything."""
+        reached, or where an earlier sweep of this process connected to another address (Ray
+        connects a process once): the command line calls it while checking its inputs, before
+        writing anything."""
         ray = _import_ray()
+        global _RAY_CONNECTED
+        if ray.is_initialized() and _RAY_CONNECTED and _RAY_CONNECTED[0] is not ray:
+            _RAY_CONNECTED = None  # another ray module (a test's): not the connection recorded
+        if ray.is_initialized() and _RAY_CONNECTED and _RAY_CONNECTED[1] != self.address:
+            # the second sweep of a notebook ran on the first one's instance, the cluster it
+            # named neither reached nor refused
+            was = "a local instance" if _RAY_CONNECTED[1] is None else f"the cluster at {_RAY_CONNECTED[1]!r}"
+            now = "a local instance (no address)" if self.address is None else f"the cluster at {self.address!r}"
+            raise ExecutorUnavailableError(
+                f"Ray is connected to {was} in this process, and this sweep asks for {now}: call ray.shutdown() first, "
+                "or give the same address"
+            )
         if not ray.is_initialized():
             # the workers import jtraj from their own environment: the cluster's nodes must have
             # jtraj installed (or use a runtime_env); a local instance shares this one
@@ -205,6 +223,7 @@ class RayExecutor(AbstractExecutor):
                     # None: a fresh instance. ray.init(address=None) joined a cluster running on this
                     # machine (or RAY_ADDRESS's), which refuses _system_config: "could not connect at None"
                     ray.init(address="local" if self.address is None else self.address, **kwargs)
+                _RAY_CONNECTED = (ray, self.address)
             except (ConnectionError, ValueError) as e:  # no cluster there, or a malformed address
                 if self.address is None:
                     raise ExecutorUnavailableError(f"Ray could not start a local instance: {e} (give the address of a running cluster with --ray-address, or use --executor local)") from None

@@ -528,7 +528,10 @@ def test_an_address_nothing_answers_at_is_refused_before_ray_init(monkeypatch):
         address = f"127.0.0.1:{server.getsockname()[1]}"
         RayExecutor(address=address).connect()
     assert calls["address"] == address
-    RayExecutor(address="auto").connect()  # left to Ray (the fake is initialized by now)
+    fresh: dict = {}
+    monkeypatch.setitem(sys.modules, "ray", _fake_ray(fresh))
+    RayExecutor(address="auto").connect()  # left to Ray
+    assert fresh["address"] == "auto"
 
 
 def test_executor_for_names():
@@ -638,3 +641,20 @@ def test_jtrajs_own_errors_survive_pickling():
     for cls, error in samples.items():
         back = pickle.loads(pickle.dumps(error))
         assert type(back) is cls and str(back) == str(error) and vars(back) == vars(error)
+
+
+def test_a_second_sweep_asking_for_another_cluster_is_refused(monkeypatch):
+    """Ray connects a process once: a notebook's second sweep with ray_address="ray://..."
+    ran on the local instance its first sweep had started, the cluster it named neither
+    reached nor refused. The same address connects again; another one is refused in words."""
+    calls: dict = {}
+    monkeypatch.setitem(sys.modules, "ray", _fake_ray(calls))
+    monkeypatch.setattr("jtraj.executors._reachable", lambda address, timeout=5.0: None)
+    RayExecutor().connect()  # a local instance
+    assert calls["address"] == "local"
+    calls.clear()
+    RayExecutor().connect()  # the same: no second init
+    assert "address" not in calls
+    with pytest.raises(ExecutorUnavailableError, match=r"^Ray is connected to a local instance in this process, and this sweep asks for the cluster at 'ray://head:10001': call ray\.shutdown\(\) first"):
+        RayExecutor(address="ray://head:10001").connect()
+    assert "address" not in calls
