@@ -168,7 +168,7 @@ def compare(
     with holding(out):
         _clear_outputs("compare", out, COMPARE_OUTPUTS)
         # called from Python, an earlier command's complete record stayed beside this call's tables
-        run = _begin_call(out, "compare", record_run)
+        run = _begin_call(out, "compare", record_run, _call_settings(loaded, params, variables, exact_hessian, solver, executor=executor, workers=workers, ray_address=ray_address))
         in_process = executor == "local" and workers <= 1
         cells = ((i, _compare_one(*job, progress=progress)) for i, job in enumerate(jobs)) if in_process else executor_for(executor, workers, ray_address).map(_compare_one, jobs)
         done: dict[int, dict] = {}
@@ -217,10 +217,23 @@ def cell_folder_problem(out: str | Path, tasks: Sequence[str], params: Sequence[
     return None
 
 
-def _begin_call(out: Path, function: str, record_run: bool) -> dict | None:
-    """`jtraj.provenance.begin_run` for a sweep called from Python (its command is the
-    process's, and ``"call"`` names the function), or None without ``record_run``."""
-    return begin_run(out, None, {"call": {"function": f"jtraj.experiments.{function}"}}) if record_run else None
+def _begin_call(out: Path, function: str, record_run: bool, settings: dict | None = None) -> dict | None:
+    """`jtraj.provenance.begin_run` for a sweep called from Python, or None without
+    ``record_run``. Its command is the process's (a script's name, or a notebook kernel's
+    launcher), so ``"call"`` names the function and gives ``settings``, the arguments that
+    decide what is solved (tasks by name and content hash, variables by name and content
+    hash): from the folder alone the seed, the replicates and the solver options were unknown."""
+    if not record_run:
+        return None
+    return begin_run(out, None, {"call": {"function": f"jtraj.experiments.{function}", **jio.to_jsonable(settings or {})}})
+
+
+def _call_settings(tasks: Sequence[Task], params: Sequence[str], variables, exact_hessian: bool, solver: str, **more: Any) -> dict:
+    """The arguments of a sweep that decide its runs, for its provenance (`_begin_call`)."""
+    return dict(
+        tasks=[{"name": t.name, "task_hash": t.content_hash()} for t in tasks], params=list(params),
+        variables=variables_label(variables), variables_hash=variables_hash(variables), exact_hessian=bool(exact_hessian), solver=solver, **more,
+    )
 
 
 class RepeatedValueError(ValueError):
@@ -874,7 +887,11 @@ def robustness(
         # at its checkpoints and its end (the figure at the end only, and with workers or Ray the
         # tables too), and an interrupt before them left the earlier ones in OUT as if this call's
         _clear_outputs("robustness", out, ROBUSTNESS_OUTPUTS)
-        run = _begin_call(out, "robustness", record_run)
+        run = _begin_call(
+            out, "robustness", record_run,
+            _call_settings(tasks, params, variables, exact_hessian, solver, sigmas=list(sigmas), replicates=replicates, seed=seed, ipopt_options=ipopt_options or {},
+                           noise_chart=noise_chart, resume=resume, executor=executor, workers=workers, ray_address=ray_address),
+        )
         # one group is solved here (the local executor would run it in this process, whose
         # stdout took its lines in place of the given stream)
         if executor == "local" and (workers <= 1 or len(args) <= 1):

@@ -50,14 +50,20 @@ def _this_calls_record(folder, function):
     """Called from Python, the sweeps wrote no provenance.json and left an earlier command's
     complete record beside their own tables; now it is this call's, the earlier one kept."""
     record = json.loads((folder / "provenance.json").read_text())
-    assert record["complete"] is True and record["call"] == {"function": f"jtraj.experiments.{function}"}
+    assert record["complete"] is True and record["call"]["function"] == f"jtraj.experiments.{function}"
     assert [r["command"] for r in record["earlier"]] == ["jtraj robustness --replicates 7"]
+    return record["call"]
 
 
 def test_robustness_study_writes_tables_and_figure(tmp_path):
     _an_earlier_commands_record(tmp_path)
     runs = robustness([HOP], ["se3"], sigmas=[1e-6, 1e-2], replicates=2, out=tmp_path, progress=None)
-    _this_calls_record(tmp_path, "robustness")
+    call = _this_calls_record(tmp_path, "robustness")
+    # what decides the runs: the command of a Python call is the process's (a script's name, a
+    # notebook kernel's launcher), and the folder kept neither the seed nor the replicates
+    assert call["tasks"] == [{"name": "test_hop", "task_hash": HOP.content_hash()}] and call["params"] == ["se3"]
+    assert (call["sigmas"], call["replicates"], call["seed"], call["solver"], call["variables"]) == ([1e-6, 1e-2], 2, 0, "ipopt", "paper")
+    assert call["ipopt_options"] == {} and call["variables_hash"] == runs[0]["variables_hash"]
     assert len(runs) == 4
     summary = json.loads((tmp_path / "table_iii.json").read_text())
     assert [(r["sigma"], r["runs"]) for r in summary] == [(1e-6, 2), (1e-2, 2)]
@@ -578,7 +584,8 @@ def test_robustness_with_worker_processes_matches_in_process(tmp_path):
 def test_compare_writes_table_iv_and_plots(tmp_path, capsys):
     _an_earlier_commands_record(tmp_path)
     rows = compare([HOP], ["se3"], out=tmp_path)
-    _this_calls_record(tmp_path, "compare")
+    call = _this_calls_record(tmp_path, "compare")
+    assert (call["tasks"], call["params"], call["solver"], call["variables"]) == ([{"name": "test_hop", "task_hash": HOP.content_hash()}], ["se3"], "ipopt", "paper")
     assert rows[0]["task"] == "test_hop" and rows[0]["converged"]
     # the default progress prints to the sys.stdout of the call (capsys's), not of the import
     assert "jtraj: test_hop on go2" in capsys.readouterr().out
