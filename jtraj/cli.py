@@ -919,6 +919,12 @@ def main(argv: list[str] | None = None) -> int:
     # one handler for every input error, wherever it is found: one line, exit status 2
     from jtraj.executors import WorkerLostError
 
+    if args.command in ("compare", "robustness") and (getattr(args, "workers", 1) > 1 or getattr(args, "executor", "local") == "ray"):
+        # before anything here uses a GPU (the inputs' checks, provenance.json's device): this
+        # process only starts the workers, which would each find three quarters of it taken
+        from jtraj.executors import share_the_accelerator
+
+        share_the_accelerator()
     terminated: list[int] = []
     restore = _sigterm_as_interrupt(terminated)
     try:

@@ -49,7 +49,7 @@ from typing import Any
 
 from jtraj.numbers import is_whole
 
-__all__ = ["AbstractExecutor", "LocalExecutor", "RayExecutor", "EXECUTORS", "ExecutorUnavailableError", "WorkerLostError", "GroupError", "check_executor_name", "check_executor", "executor_for"]
+__all__ = ["AbstractExecutor", "LocalExecutor", "RayExecutor", "EXECUTORS", "ExecutorUnavailableError", "WorkerLostError", "GroupError", "check_executor_name", "check_executor", "executor_for", "SHARED_ACCELERATOR_ENV", "share_the_accelerator"]
 
 #: Names accepted by `executor_for` and the command line's ``--executor``.
 EXECUTORS = ("local", "ray")
@@ -331,11 +331,28 @@ def _lost_as_worker_lost(ray):
         ) from e
 
 
+#: set (where not set already) in a sweep's worker processes, and by the command line in the
+#: process that starts them: JAX reserves 75 % of a GPU's memory in every process that uses it,
+#: and several processes on one GPU ran out of memory (its documentation's advice; the
+#: multi-worker GPU runs in results/ set it by hand). Only GPUs read it.
+SHARED_ACCELERATOR_ENV = {"XLA_PYTHON_CLIENT_PREALLOCATE": "false"}
+
+
+def share_the_accelerator() -> None:
+    """Set `SHARED_ACCELERATOR_ENV` in this process's environment where a variable is not set
+    already (a user's own value stays): before JAX first uses a GPU, so that the processes of a
+    sweep each take the memory they need instead of three quarters of it."""
+    for name, value in SHARED_ACCELERATOR_ENV.items():
+        os.environ.setdefault(name, value)
+
+
 def _start_worker() -> None:
-    """A local worker process's start: Ctrl-C is the caller's (`_ignore_interrupt`), and the
-    worker dies with the caller (`_die_with_parent`)."""
+    """A local worker process's start: Ctrl-C is the caller's (`_ignore_interrupt`), the
+    worker dies with the caller (`_die_with_parent`), and it shares the GPU with the others
+    (`share_the_accelerator`)."""
     _ignore_interrupt()
     _die_with_parent()
+    share_the_accelerator()
 
 
 def _die_with_parent() -> None:

@@ -658,3 +658,44 @@ def test_a_second_sweep_asking_for_another_cluster_is_refused(monkeypatch):
     with pytest.raises(ExecutorUnavailableError, match=r"^Ray is connected to a local instance in this process, and this sweep asks for the cluster at 'ray://head:10001': call ray\.shutdown\(\) first"):
         RayExecutor(address="ray://head:10001").connect()
     assert "address" not in calls
+
+
+def _environment(name: str) -> str | None:
+    return os.environ.get(name)
+
+
+def test_local_workers_share_the_gpu(monkeypatch):
+    """JAX reserves 75 % of a GPU's memory in each process that uses it: a sweep's worker
+    processes, and the command that starts them, asked for it one after another. Workers
+    preallocate nothing unless the user said otherwise; so does the command line's process
+    with --workers > 1 (a CPU ignores the variable)."""
+    name = "XLA_PYTHON_CLIENT_PREALLOCATE"
+    monkeypatch.setenv(name, "set")  # recorded, so that the test's end puts back the caller's
+    monkeypatch.delenv(name)
+    assert dict(LocalExecutor(workers=2).map(_environment, [(name,), (name,)])) == {0: "false", 1: "false"}
+    assert name not in os.environ  # the caller's own environment is left alone
+    monkeypatch.setenv(name, "true")  # a user's choice stays
+    assert dict(LocalExecutor(workers=2).map(_environment, [(name,), (name,)])) == {0: "true", 1: "true"}
+
+
+@pytest.mark.parametrize("argv, shared", [(["robustness", "--workers", "2"], True), (["compare", "--executor", "ray"], True), (["robustness"], False), (["solve", "big_jump"], False)])
+def test_the_command_that_starts_workers_shares_the_gpu(monkeypatch, argv, shared):
+    from jtraj import cli
+
+    name = "XLA_PYTHON_CLIENT_PREALLOCATE"
+    monkeypatch.setenv(name, "set")  # recorded, so that the test's end puts back the caller's
+    monkeypatch.delenv(name)
+    seen = []
+
+    class Stop(Exception):
+        pass
+
+    def check(args):  # the first thing that could use a GPU: what it finds, then stop
+        seen.append(os.environ.get(name))
+        raise Stop
+
+    monkeypatch.setattr(cli, "_check_inputs", check)
+    monkeypatch.setattr(cli, "_loads_mujoco", lambda args: False)
+    with pytest.raises(Stop):
+        cli.main(argv)
+    assert seen == (["false"] if shared else [None])
