@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 import sys
 from pathlib import Path
 from typing import Any
@@ -997,6 +998,12 @@ def _sigterm_as_interrupt(terminated: list[int]):
     return lambda: signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
 
 
+def _moved_aside(path: Path, why: str) -> Path | None:
+    """The last ``path.why-N`` (`jtraj.experiments`' name for a file moved aside), or None."""
+    numbered = [(int(m.group(1)), f) for f in path.parent.glob(f"{path.name}.{why}-*") if (m := re.fullmatch(rf"{re.escape(path.name)}\.{why}-(\d+)", f.name))]
+    return max(numbered)[1] if numbered else None
+
+
 def _kept(args: argparse.Namespace, interrupt: KeyboardInterrupt) -> str:
     """What an interrupted command leaves, for its message (compare says it in ``interrupt``:
     how many cells its table holds, or none, where an earlier run's table may still lie;
@@ -1005,7 +1012,10 @@ def _kept(args: argparse.Namespace, interrupt: KeyboardInterrupt) -> str:
         if not getattr(args, "robustness_began", False):  # still checking its inputs
             return f"; nothing was written to {Path(args.out)}"
         if not (Path(args.out) / "runs.jsonl").is_file():  # (its first group still compiling)
-            return f"; no run was solved; {Path(args.out) / 'provenance.json'} records the run as unfinished"
+            moved = ""
+            if args.no_resume and (earlier := _moved_aside(Path(args.out) / "runs.jsonl", "previous")) is not None:
+                moved = f"; the earlier runs were moved to {earlier}"
+            return f"; no run was solved{moved}; {Path(args.out) / 'provenance.json'} records the run as unfinished"
         # with --no-resume the same command would move them aside again and solve every run
         again = "the same command without --no-resume resumes" if args.no_resume else "the same command again resumes"
         return f"; the runs finished are kept in {Path(args.out) / 'runs.jsonl'}, and {again} from them"

@@ -637,6 +637,25 @@ def test_ctrl_c_after_no_resume_says_to_run_without_it(monkeypatch, tmp_path, ca
     assert err == f"jtraj robustness: interrupted; the runs finished are kept in {out}/runs.jsonl, and the same command without --no-resume resumes from them\n"
 
 
+def test_ctrl_c_before_the_first_run_of_no_resume_says_where_the_earlier_runs_went(monkeypatch, tmp_path, capsys):
+    """--no-resume moves runs.jsonl to runs.jsonl.previous-N, then the study begins: stopped
+    before its first run, it said that no run was solved, and not where the earlier runs were."""
+    import jtraj.experiments
+
+    out = tmp_path / "out"
+    out.mkdir()
+    for n in (1, 2, 10):
+        (out / f"runs.jsonl.previous-{n}").write_text("{}\n")  # earlier studies' runs moved aside
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(jtraj.experiments, "robustness", interrupted)
+    code, err = _run(["robustness", "--tasks", "big_jump", "--params", "se3", "--no-resume", "--out", str(out)], capsys)
+    assert code == cli.EXIT_INTERRUPTED
+    assert err == f"jtraj robustness: interrupted; no run was solved; the earlier runs were moved to {out}/runs.jsonl.previous-10; {out}/provenance.json records the run as unfinished\n"
+
+
 def test_sigterm_stops_a_command_as_ctrl_c_does(monkeypatch, tmp_path, capsys):
     """SIGTERM (a job scheduler's, ``kill``) ended the process at once, without the cleanup of
     Ctrl-C: --workers processes went on solving, then waited forever. It takes Ctrl-C's way
