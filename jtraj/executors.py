@@ -194,8 +194,10 @@ class RayExecutor(AbstractExecutor):
         writing anything."""
         ray = _import_ray()
         global _RAY_CONNECTED
-        if ray.is_initialized() and _RAY_CONNECTED and _RAY_CONNECTED[0] is not ray:
-            _RAY_CONNECTED = None  # another ray module (a test's): not the connection recorded
+        if not ray.is_initialized() or (_RAY_CONNECTED and _RAY_CONNECTED[0] is not ray):
+            # shut down since (ray.shutdown()), or another ray module (a test's): the record is
+            # not of the connection there is now
+            _RAY_CONNECTED = None
         if ray.is_initialized() and _RAY_CONNECTED and _RAY_CONNECTED[1] != self.address:
             # the second sweep of a notebook ran on the first one's instance, the cluster it
             # named neither reached nor refused

@@ -143,6 +143,8 @@ def compare(
     out = Path(out)
     solver = _solver_name("compare", solver)  # an unknown name fails here, before the first solve
     check_executor(executor, workers, ray_address, "compare")  # before anything is written
+    if executor == "ray":  # connected, or refused (ExecutorUnavailableError), before OUT is touched
+        executor_for("ray", 1, ray_address).connect()  # type: ignore[attr-defined]
     params = _parameterization_names("compare", params)
     # the tasks loaded here are the ones solved: a Ray worker runs in another folder (or on
     # another machine), where a relative .toml path names another file or none
@@ -843,6 +845,8 @@ def robustness(
     _refuse_repeats("robustness: params", params, params, "parameterization")
     _refuse_repeats("robustness: sigmas", sigmas, sigmas, "noise level")
     check_executor(executor, workers, ray_address, "robustness")  # before anything is written
+    if executor == "ray":  # connected, or refused (ExecutorUnavailableError), before OUT is touched
+        executor_for("ray", 1, ray_address).connect()  # type: ignore[attr-defined]
     progress = _progress_stream(progress)
     out = Path(out)
     check_runs_file(out, resume)

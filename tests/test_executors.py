@@ -658,6 +658,31 @@ def test_a_second_sweep_asking_for_another_cluster_is_refused(monkeypatch):
     with pytest.raises(ExecutorUnavailableError, match=r"^Ray is connected to a local instance in this process, and this sweep asks for the cluster at 'ray://head:10001': call ray\.shutdown\(\) first"):
         RayExecutor(address="ray://head:10001").connect()
     assert "address" not in calls
+    sys.modules["ray"].is_initialized = lambda: False  # ray.shutdown(): the record is void
+    RayExecutor(address="ray://head:10001").connect()
+    assert calls["address"] == "ray://head:10001"
+    sys.modules["ray"].is_initialized = lambda: True
+    with pytest.raises(ExecutorUnavailableError, match=r"^Ray is connected to the cluster at 'ray://head:10001' in this process, and this sweep asks for a local instance"):
+        RayExecutor().connect()
+
+
+def test_a_python_sweep_refused_its_cluster_leaves_its_folder_alone(monkeypatch, tmp_path):
+    """From Python the cluster was first connected inside the executor's map, after the sweep
+    had cleared its earlier tables and marked its provenance unfinished: a refused address
+    left the folder without its table. It is connected (or refused) before OUT is touched."""
+    from jtraj.experiments import compare, robustness
+
+    calls: dict = {}
+    monkeypatch.setitem(sys.modules, "ray", _fake_ray(calls))
+    monkeypatch.setattr("jtraj.executors._reachable", lambda address, timeout=5.0: None)
+    RayExecutor().connect()  # an earlier sweep's local instance
+    (tmp_path / "table_iv.md").write_text("earlier table\n")
+    (tmp_path / "runs.jsonl").write_text("")
+    for sweep in (compare, robustness):
+        with pytest.raises(ExecutorUnavailableError, match="Ray is connected to a local instance"):
+            sweep(["big_jump"], ["se3"], out=tmp_path, executor="ray", ray_address="ray://head:10001", progress=None)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["runs.jsonl", "table_iv.md"]
+    assert (tmp_path / "table_iv.md").read_text() == "earlier table\n"
 
 
 def _environment(name: str) -> str | None:
