@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import re
 import sys
 from pathlib import Path
 from typing import Any
@@ -183,6 +182,11 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
     sigmas = args.sigmas_checked
     with recording(args.out, ["jtraj", *args.argv]) as run:  # OUT held until the end (jtraj.provenance)
         args.robustness_began = True  # what an interrupt says (_kept)
+        runs = Path(args.out) / "runs.jsonl"
+        if args.no_resume and runs.is_file():  # the name robustness() moves it to (_kept says it)
+            from jtraj.experiments import _aside_name
+
+            args.runs_moved_to = _aside_name(runs, "previous")
         robustness(args.tasks_checked, _split(args.params), sigmas, replicates=args.replicates, seed=args.seed, out=args.out, variables=args.variables, workers=args.workers, resume=not args.no_resume, ipopt_options=args.ipopt_checked or None, executor=args.executor, ray_address=args.ray_address, solver=args.solver, noise_chart=args.noise_chart, record_run=False)
         end_run(args.out, run)
     print((__import__("pathlib").Path(args.out) / "table_iii.md").read_text())
@@ -895,7 +899,7 @@ def _mujoco_gl_refused() -> str | None:
             raise
         return (
             f"MUJOCO_GL={setting!r}: MuJoCo could not load that OpenGL backend ({type(e).__name__}: {e}); install its library "
-            "(egl: apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri libopengl0, as the README says; osmesa: apt-get install libosmesa6) or leave MUJOCO_GL unset "
+            "(egl: apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri libopengl0; osmesa: apt-get install libosmesa6) or leave MUJOCO_GL unset "
             "(jtraj then takes a backend whose library loads, or none: everything but drawing works)"
         )
     return None
@@ -998,12 +1002,6 @@ def _sigterm_as_interrupt(terminated: list[int]):
     return lambda: signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
 
 
-def _moved_aside(path: Path, why: str) -> Path | None:
-    """The last ``path.why-N`` (`jtraj.experiments`' name for a file moved aside), or None."""
-    numbered = [(int(m.group(1)), f) for f in path.parent.glob(f"{path.name}.{why}-*") if (m := re.fullmatch(rf"{re.escape(path.name)}\.{why}-(\d+)", f.name))]
-    return max(numbered)[1] if numbered else None
-
-
 def _kept(args: argparse.Namespace, interrupt: KeyboardInterrupt) -> str:
     """What an interrupted command leaves, for its message (compare says it in ``interrupt``:
     how many cells its table holds, or none, where an earlier run's table may still lie;
@@ -1013,7 +1011,7 @@ def _kept(args: argparse.Namespace, interrupt: KeyboardInterrupt) -> str:
             return f"; nothing was written to {Path(args.out)}"
         if not (Path(args.out) / "runs.jsonl").is_file():  # (its first group still compiling)
             moved = ""
-            if args.no_resume and (earlier := _moved_aside(Path(args.out) / "runs.jsonl", "previous")) is not None:
+            if (earlier := getattr(args, "runs_moved_to", None)) is not None and earlier.is_file():
                 moved = f"; the earlier runs were moved to {earlier}"
             return f"; no run was solved{moved}; {Path(args.out) / 'provenance.json'} records the run as unfinished"
         # with --no-resume the same command would move them aside again and solve every run

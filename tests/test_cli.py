@@ -644,16 +644,22 @@ def test_ctrl_c_before_the_first_run_of_no_resume_says_where_the_earlier_runs_we
 
     out = tmp_path / "out"
     out.mkdir()
-    for n in (1, 2, 10):
+    (out / "runs.jsonl").write_text("{}\n")
+    for n in (1, 3):
         (out / f"runs.jsonl.previous-{n}").write_text("{}\n")  # earlier studies' runs moved aside
 
     def interrupted(*args, **kwargs):
+        jtraj.experiments._move_aside(out / "runs.jsonl", "previous")  # as robustness() does first
         raise KeyboardInterrupt
 
     monkeypatch.setattr(jtraj.experiments, "robustness", interrupted)
     code, err = _run(["robustness", "--tasks", "big_jump", "--params", "se3", "--no-resume", "--out", str(out)], capsys)
     assert code == cli.EXIT_INTERRUPTED
-    assert err == f"jtraj robustness: interrupted; no run was solved; the earlier runs were moved to {out}/runs.jsonl.previous-10; {out}/provenance.json records the run as unfinished\n"
+    assert err == f"jtraj robustness: interrupted; no run was solved; the earlier runs were moved to {out}/runs.jsonl.previous-2; {out}/provenance.json records the run as unfinished\n"
+    # nothing to move: not said (an older study's previous-N is not this run's)
+    monkeypatch.setattr(jtraj.experiments, "robustness", lambda *a, **k: (_ for _ in ()).throw(KeyboardInterrupt))
+    code, err = _run(["robustness", "--tasks", "big_jump", "--params", "se3", "--no-resume", "--out", str(out)], capsys)
+    assert err == f"jtraj robustness: interrupted; no run was solved; {out}/provenance.json records the run as unfinished\n"
 
 
 def test_sigterm_stops_a_command_as_ctrl_c_does(monkeypatch, tmp_path, capsys):
