@@ -52,6 +52,7 @@ import numpy as np
 
 from jtraj import solvers
 from jtraj.cli import InputError, _check_out
+from jtraj.config import cpu_count
 from jtraj.experiments import noisy_warm_starts
 from jtraj.numbers import is_seed
 from jtraj.provenance import provenance, write_results
@@ -118,10 +119,10 @@ def main(argv: list[str] | None = None) -> None:
     starts = noisy_warm_starts(tr.warm_start(), [args.sigma], largest, args.seed)[0]
     report: dict = {
         "task": args.task, "parameterization": args.param, "sigma": args.sigma, "replicates": args.replicates,
-        "jax": jax.__version__, "device": f"{device.platform} {device.device_kind}", "devices": jax.local_device_count(device.platform), "cpus": os.cpu_count(), "batches": [],
+        "jax": jax.__version__, "device": f"{device.platform} {device.device_kind}", "devices": jax.local_device_count(device.platform), "cpus": cpu_count(), "batches": [],
     }
 
-    label = {"vmap": "vmapped", "threads": f"threads ({min(args.replicates, os.cpu_count() or 1)} at a time)", "vectorized": "vmapped (vectorized)"}
+    label = {"vmap": "vmapped", "threads": f"threads ({min(args.replicates, cpu_count())} at a time)", "vectorized": "vmapped (vectorized)"}
     timed: dict[str, float] = {}
     for strategy in strategies:
         for k, size in enumerate([args.replicates, *batches]):

@@ -49,7 +49,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 import sys
 import time
 import warnings
@@ -223,8 +222,10 @@ class DifferentiableTask:
                 if _side_by_side(backend) and len(prepared) > 1:
                     from concurrent.futures import ThreadPoolExecutor
 
+                    from jtraj.config import cpu_count
+
                     # the first to need the program compiles it; the others wait for it
-                    with ThreadPoolExecutor(min(len(prepared), os.cpu_count() or 1)) as pool:
+                    with ThreadPoolExecutor(min(len(prepared), cpu_count())) as pool:  # the process's cores
                         return list(pool.map(solve, prepared))
                 return [solve(job) for job in prepared]
 

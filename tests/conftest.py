@@ -27,6 +27,20 @@ import pytest  # noqa: E402
 import jtraj  # noqa: E402, F401  (float64, the CPU devices)
 
 
+@pytest.fixture(autouse=True)
+def _accelerator_setting_put_back():
+    """`jtraj.cli.main` with --workers > 1 or --executor ray sets XLA_PYTHON_CLIENT_PREALLOCATE in
+    the process (`jtraj.executors.share_the_accelerator`): put back as it was after each test,
+    so that no test sees another's setting."""
+    name = "XLA_PYTHON_CLIENT_PREALLOCATE"
+    before = os.environ.get(name)
+    yield
+    if before is None:
+        os.environ.pop(name, None)
+    else:
+        os.environ[name] = before
+
+
 @pytest.fixture
 def rng():
     return np.random.default_rng(1234)
