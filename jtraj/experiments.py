@@ -527,13 +527,35 @@ def _hessian_label(exact_hessian: bool, options) -> str:
     return "limited-memory"
 
 
+def _numbers_as_taken(solver: str, options: dict | None) -> dict | None:
+    """``options`` with a whole number given for a real option written as the real the solver
+    takes (``mu_init=1`` as ``1.0``), so that the two spellings of one setting key the same
+    runs: a study resumed with ``--ipopt mu_init=1.0`` solved again every run of ``=1``. Real
+    options are those whose default is a float (`jtraj.solvers.IpmOptions`) or that Ipopt's
+    catalog calls real."""
+    if not options:
+        return options
+    if solver == "jtraj":
+        from jtraj.solvers.ipm import IpmOptions
+
+        real = {f.name for f in dataclasses.fields(IpmOptions) if isinstance(f.default, float)}
+    elif solver == "ipopt":
+        from jtraj.solvers.ipopt_catalog import catalog
+
+        real = {name for name, spec in catalog().items() if spec.kind == "real"}
+    else:
+        return options
+    whole = lambda v: isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))  # noqa: E731
+    return {k: float(v) if k in real and whole(v) else v for k, v in options.items()}
+
+
 def _group_key(task: Task, p: str, variables: str | TranscriptionOptions, exact_hessian: bool, options, seed: int, solver: str, noise_chart: str | None = None) -> dict:
     """The `RUN_KEY` fields that every run of one (task, parameterization) group shares; a
     group's noise drawn in its own chart has ``noise_chart`` None, as before it was recorded."""
     return dict(
         robot_hash=_robot_hash(task.robot),
         task_hash=task.content_hash(), parameterization=p, layout=variables_label(variables), variables_hash=variables_hash(variables),
-        hessian=_hessian_label(exact_hessian, options), options_hash=_options_hash(options), seed=seed, solver=solver,
+        hessian=_hessian_label(exact_hessian, options), options_hash=_options_hash(_numbers_as_taken(solver, options)), seed=seed, solver=solver,
         noise_chart=None if noise_chart == p else noise_chart,
     )
 

@@ -1406,3 +1406,19 @@ def test_a_noise_chart_check_that_passed_is_not_built_again(monkeypatch):
     assert calls == ["quat1", "euler", "quat2"]  # only the pair not checked before
     check_noise_chart([HOP], ["quat1"], "compact", "se3")  # other variables: another check
     assert calls[-1] == "quat1" and len(calls) == 4
+
+
+@pytest.mark.parametrize("solver", ["jtraj", "ipopt"])
+def test_one_setting_spelled_two_ways_keys_the_same_runs(solver):
+    """``--ipopt mu_init=1`` and ``=1.0`` are one setting: a real option's whole number keyed
+    the runs apart, and a study resumed with the other spelling solved every run again. An
+    integer option's value, and a different value, still key apart."""
+    from jtraj.experiments import _group_key
+
+    def key(options):
+        return _group_key(HOP, "se3", "paper", False, options, 0, solver)["options_hash"]
+
+    assert key({"mu_init": 1}) == key({"mu_init": 1.0}) == key({"mu_init": np.int64(1)})
+    assert key({"mu_init": 1}) != key({"mu_init": 2.0}) and key({"mu_init": 1}) != key(None)
+    assert key({"max_iter": 50}) != key({"max_iter": 60})
+    assert key({"tol": 1e-3, "max_iter": 50}) == key({"max_iter": 50, "tol": 0.001})  # order and spelling of a real
