@@ -139,3 +139,21 @@ def test_dtau_dq_is_checked_against_pinocchio_with_world_forces():
     assert np.abs(mapped - fd).max() / np.abs(fd).max() < bench.DQ_TOL
     joint_fixed = pin.computeRNEADerivatives(model, data, qp, vp, ap, bench.joint_forces(model, data, frames, qp, f))[0]
     assert np.abs(joint_fixed[np.ix_(perm, perm)] - fd).max() / np.abs(fd).max() > 1e3 * bench.DQ_TOL
+
+
+def test_main_checks_dtau_dq_before_it_reports(capsys, monkeypatch):
+    """main() runs the dtau/dq check on the knot it cross-checks, and a disagreement in dtau/dq
+    alone stops it before any timing (the helpers above are checked on their own)."""
+    import pytest
+
+    bench = bench_module("dynamics")
+    argv = ["--robot", "go2", "--knots", "2", "--repeats", "1", "--skip-mjx"]
+    bench.main(argv)
+    out = capsys.readouterr().out
+    err = float(out.split("dtau/dq against central differences of Pinocchio's tau (step 1e-06), max relative error: ")[1].split()[0])
+    assert err < bench.DQ_TOL and "tau at all knots" in out
+    differences = bench.tau_dq_differences
+    monkeypatch.setattr(bench, "tau_dq_differences", lambda *a, **k: differences(*a, **k) * 1.001)
+    with pytest.raises(SystemExit, match=r"dtau/dq differ by 1\.0e-03"):
+        bench.main(argv)
+    assert "tau at all knots" not in capsys.readouterr().out
