@@ -166,8 +166,18 @@ def _collect(fn: Callable[..., Iterator[Any]], *args) -> list:
     return list(fn(*args))
 
 
-#: (the ray module, the address) of the connection `RayExecutor.connect` made in this process
-_RAY_CONNECTED: tuple[Any, str | None] | None = None
+#: (the ray module, the address, its job id) of the connection `RayExecutor.connect` made in
+#: this process
+_RAY_CONNECTED: tuple[Any, str | None, Any] | None = None
+
+
+def _job_id(ray) -> Any:
+    """The job id of this process's Ray connection (new for each ``ray.init``), or None where
+    Ray cannot say."""
+    try:
+        return ray.get_runtime_context().get_job_id()
+    except Exception:  # an older Ray, or no runtime context
+        return None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -194,9 +204,9 @@ class RayExecutor(AbstractExecutor):
         writing anything."""
         ray = _import_ray()
         global _RAY_CONNECTED
-        if not ray.is_initialized() or (_RAY_CONNECTED and _RAY_CONNECTED[0] is not ray):
-            # shut down since (ray.shutdown()), or another ray module (a test's): the record is
-            # not of the connection there is now
+        if not ray.is_initialized() or (_RAY_CONNECTED and (_RAY_CONNECTED[0] is not ray or _RAY_CONNECTED[2] != _job_id(ray))):
+            # shut down since (ray.shutdown()), connected again by the caller (another job), or
+            # another ray module (a test's): the record is not of the connection there is now
             _RAY_CONNECTED = None
         if ray.is_initialized() and _RAY_CONNECTED and _RAY_CONNECTED[1] != self.address:
             # the second sweep of a notebook ran on the first one's instance, the cluster it
@@ -225,7 +235,7 @@ class RayExecutor(AbstractExecutor):
                     # None: a fresh instance. ray.init(address=None) joined a cluster running on this
                     # machine (or RAY_ADDRESS's), which refuses _system_config: "could not connect at None"
                     ray.init(address="local" if self.address is None else self.address, **kwargs)
-                _RAY_CONNECTED = (ray, self.address)
+                _RAY_CONNECTED = (ray, self.address, _job_id(ray))
             except (ConnectionError, ValueError) as e:  # no cluster there, or a malformed address
                 if self.address is None:
                     raise ExecutorUnavailableError(f"Ray could not start a local instance: {e} (give the address of a running cluster with --ray-address, or use --executor local)") from None

@@ -143,8 +143,6 @@ def compare(
     out = Path(out)
     solver = _solver_name("compare", solver)  # an unknown name fails here, before the first solve
     check_executor(executor, workers, ray_address, "compare")  # before anything is written
-    if executor == "ray":  # connected, or refused (ExecutorUnavailableError), before OUT is touched
-        executor_for("ray", 1, ray_address).connect()  # type: ignore[attr-defined]
     params = _parameterization_names("compare", params)
     # the tasks loaded here are the ones solved: a Ray worker runs in another folder (or on
     # another machine), where a relative .toml path names another file or none
@@ -165,6 +163,8 @@ def compare(
     # an earlier call's table, and `jtraj plot OUT`'s figure of it: this call writes its own
     # table as its cells finish (an interrupt before the first left the earlier one in OUT,
     # which then read as this call's)
+    if executor == "ray":  # connected, or refused (ExecutorUnavailableError), before OUT is touched
+        executor_for("ray", 1, ray_address).connect()  # type: ignore[attr-defined]
     # held from here (`jtraj.provenance.holding`): another process's run in OUT is refused before
     # this one clears its tables
     with holding(out):
@@ -531,14 +531,17 @@ def _numbers_as_taken(solver: str, options: dict | None) -> dict | None:
     """``options`` with a whole number given for a real option written as the real the solver
     takes (``mu_init=1`` as ``1.0``), so that the two spellings of one setting key the same
     runs: a study resumed with ``--ipopt mu_init=1.0`` solved again every run of ``=1``. Real
-    options are those whose default is a float (`jtraj.solvers.IpmOptions`) or that Ipopt's
+    options are those typed float (`jtraj.solvers.IpmOptions`, None allowed) or that Ipopt's
     catalog calls real."""
     if not options:
         return options
     if solver == "jtraj":
+        import typing
+
         from jtraj.solvers.ipm import IpmOptions
 
-        real = {f.name for f in dataclasses.fields(IpmOptions) if isinstance(f.default, float)}
+        hints = typing.get_type_hints(IpmOptions)  # float, or float | None (mu_max's None: unset)
+        real = {f.name for f in dataclasses.fields(IpmOptions) if hints.get(f.name) is float or float in typing.get_args(hints.get(f.name))}
     elif solver == "ipopt":
         from jtraj.solvers.ipopt_catalog import catalog
 

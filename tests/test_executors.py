@@ -664,6 +664,12 @@ def test_a_second_sweep_asking_for_another_cluster_is_refused(monkeypatch):
     sys.modules["ray"].is_initialized = lambda: True
     with pytest.raises(ExecutorUnavailableError, match=r"^Ray is connected to the cluster at 'ray://head:10001' in this process, and this sweep asks for a local instance"):
         RayExecutor().connect()
+    # the caller shut Ray down and connected again itself, between two calls (a new job): the
+    # record is not of that connection, and the sweep takes it as it is
+    sys.modules["ray"].get_runtime_context = lambda: types.SimpleNamespace(get_job_id=lambda: "02000000")
+    calls.clear()
+    RayExecutor().connect()
+    assert "address" not in calls
 
 
 def test_a_python_sweep_refused_its_cluster_leaves_its_folder_alone(monkeypatch, tmp_path):
