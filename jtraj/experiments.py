@@ -163,8 +163,8 @@ def compare(
     # an earlier call's table, and `jtraj plot OUT`'s figure of it: this call writes its own
     # table as its cells finish (an interrupt before the first left the earlier one in OUT,
     # which then read as this call's)
-    if executor == "ray":  # connected, or refused (ExecutorUnavailableError), before OUT is touched
-        executor_for("ray", 1, ray_address).connect()  # type: ignore[attr-defined]
+    if executor == "ray" and callable(connect := getattr(executor_for("ray", 1, ray_address), "connect", None)):
+        connect()  # connected, or refused (ExecutorUnavailableError), before OUT is touched
     # held from here (`jtraj.provenance.holding`): another process's run in OUT is refused before
     # this one clears its tables
     with holding(out):
@@ -870,8 +870,8 @@ def robustness(
     _refuse_repeats("robustness: params", params, params, "parameterization")
     _refuse_repeats("robustness: sigmas", sigmas, sigmas, "noise level")
     check_executor(executor, workers, ray_address, "robustness")  # before anything is written
-    if executor == "ray":  # connected, or refused (ExecutorUnavailableError), before OUT is touched
-        executor_for("ray", 1, ray_address).connect()  # type: ignore[attr-defined]
+    if executor == "ray" and callable(connect := getattr(executor_for("ray", 1, ray_address), "connect", None)):
+        connect()  # connected, or refused (ExecutorUnavailableError), before OUT is touched
     progress = _progress_stream(progress)
     out = Path(out)
     check_runs_file(out, resume)
