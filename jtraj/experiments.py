@@ -163,8 +163,7 @@ def compare(
     # an earlier call's table, and `jtraj plot OUT`'s figure of it: this call writes its own
     # table as its cells finish (an interrupt before the first left the earlier one in OUT,
     # which then read as this call's)
-    if executor == "ray" and callable(connect := getattr(executor_for("ray", 1, ray_address), "connect", None)):
-        connect()  # connected, or refused (ExecutorUnavailableError), before OUT is touched
+    _connect_first(executor, ray_address)
     # held from here (`jtraj.provenance.holding`): another process's run in OUT is refused before
     # this one clears its tables
     with holding(out):
@@ -217,6 +216,14 @@ def cell_folder_problem(out: str | Path, tasks: Sequence[str], params: Sequence[
             if (busy := in_use(cell)) is not None:  # another process's solve in it: refused at that cell
                 return busy
     return None
+
+
+def _connect_first(executor: str, ray_address: str | None) -> None:
+    """A sweep's Ray cluster connected, or refused (`jtraj.executors.ExecutorUnavailableError`),
+    before the sweep touches its folder: inside the executor's map the refusal came after the
+    earlier tables were cleared. (Only an executor that connects: tests stand others in.)"""
+    if executor == "ray" and callable(connect := getattr(executor_for("ray", 1, ray_address), "connect", None)):
+        connect()
 
 
 def _begin_call(out: Path, function: str, record_run: bool, settings: dict | None = None) -> dict | None:
@@ -548,8 +555,7 @@ def _numbers_as_taken(solver: str, options: dict | None) -> dict | None:
         real = {name for name, spec in catalog().items() if spec.kind == "real"}
     else:
         return options
-    whole = lambda v: isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))  # noqa: E731
-    return {k: float(v) if k in real and whole(v) else v for k, v in options.items()}
+    return {k: float(v) if k in real and is_whole(v) else v for k, v in options.items()}
 
 
 def _group_key(task: Task, p: str, variables: str | TranscriptionOptions, exact_hessian: bool, options, seed: int, solver: str, noise_chart: str | None = None) -> dict:
@@ -870,8 +876,7 @@ def robustness(
     _refuse_repeats("robustness: params", params, params, "parameterization")
     _refuse_repeats("robustness: sigmas", sigmas, sigmas, "noise level")
     check_executor(executor, workers, ray_address, "robustness")  # before anything is written
-    if executor == "ray" and callable(connect := getattr(executor_for("ray", 1, ray_address), "connect", None)):
-        connect()  # connected, or refused (ExecutorUnavailableError), before OUT is touched
+    _connect_first(executor, ray_address)
     progress = _progress_stream(progress)
     out = Path(out)
     check_runs_file(out, resume)
