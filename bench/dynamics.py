@@ -108,6 +108,21 @@ def pinocchio_jacobians(model, data, frames, qs, vs, as_, fexts) -> list:
     return out
 
 
+def pinocchio_state(model, q_index, perm, param, q, v, a) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pinocchio's (q, v, a) of one knot of jtraj's (``q`` in the chart ``param``, then the
+    joints; ``v``, ``a`` in jtraj's order): the free flyer's (xyz, quaternion xyzw), the joints
+    at ``q_index``, the velocities put at ``perm`` (jtraj's index to Pinocchio's)."""
+    T = param.to_pose(jnp.asarray(q[: param.nq]))
+    qp = np.zeros(model.nq)
+    qp[:3] = np.asarray(T.translation())
+    w, x, y, z = np.asarray(T.rotation().wxyz)
+    qp[3:7] = [x, y, z, w]
+    qp[q_index] = np.asarray(q[param.nq :])
+    vp, ap = np.zeros(model.nv), np.zeros(model.nv)
+    vp[perm], ap[perm] = np.asarray(v), np.asarray(a)
+    return qp, vp, ap
+
+
 def joint_forces(model, data, frames, qp, f_world) -> list:
     """Pinocchio's external forces, one per joint in its frame, of the world-frame forces
     ``f_world`` (one row of 3 per contact frame) applied at the contact frames' origins at
@@ -203,14 +218,7 @@ def main(argv: list[str] | None = None) -> None:
     perm = np.concatenate([np.arange(6), v_index])
     qs, vs, as_, fexts = [], [], [], []
     for k in range(K):
-        T = param.to_pose(Q[k, : param.nq])
-        qp = np.zeros(model.nq)
-        qp[:3] = np.asarray(T.translation())
-        w, x, y, z = np.asarray(T.rotation().wxyz)
-        qp[3:7] = [x, y, z, w]
-        qp[q_index] = np.asarray(Q[k, param.nq :])
-        vp, ap = np.zeros(nv), np.zeros(nv)
-        vp[perm], ap[perm] = np.asarray(V[k]), np.asarray(A[k])
+        qp, vp, ap = pinocchio_state(model, q_index, perm, param, Q[k], V[k], A[k])
         qs.append(qp), vs.append(vp), as_.append(ap), fexts.append(joint_forces(model, data, frames, qp, np.asarray(F[k])))
 
     def pin_tau():

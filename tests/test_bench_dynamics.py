@@ -126,13 +126,7 @@ def test_dtau_dq_is_checked_against_pinocchio_with_world_forces():
     f = rng.normal(scale=50.0, size=(robot.ncontact, 3))
     ours = dynamics.batched_inverse_dynamics_derivatives(robot, param, *(jnp.asarray(x)[None] for x in (q, v, a, f)))
 
-    qp = np.zeros(model.nq)
-    qp[:3] = np.asarray(T.translation())
-    w, x, y, z = np.asarray(T.rotation().wxyz)
-    qp[3:7] = [x, y, z, w]
-    qp[q_index] = q[param.nq :]
-    vp, ap = np.zeros(model.nv), np.zeros(model.nv)
-    vp[perm], ap[perm] = v, a
+    qp, vp, ap = bench.pinocchio_state(model, q_index, perm, param, q, v, a)
     data = model.createData()
     fd = bench.tau_dq_differences(model, data, frames, qp, vp, ap, f, perm)
     mapped = np.asarray(ours.dq[0]) @ bench.chart_tangent(param, q[: param.nq], robot.nj)
