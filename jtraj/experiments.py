@@ -44,7 +44,7 @@ from jtraj.task import Task
 from jtraj.task import load as load_task
 from jtraj.transcription import TranscriptionOptions
 
-__all__ = ["compare", "robustness", "table_iii", "noisy_warm_starts", "chart_noisy_warm_starts", "check_noise_chart", "check_runs_file", "poses_in_chart", "NoiseChartError", "noise_key", "run_key", "variables_hash", "read_runs", "summarize_robustness", "select_runs", "setting_label", "TABLE_IV_PAPER_SE3", "RepeatedValueError", "plot_iterations"]
+__all__ = ["compare", "robustness", "table_iii", "noisy_warm_starts", "chart_noisy_warm_starts", "check_noise_chart", "check_runs_file", "poses_in_chart", "NoiseChartError", "noise_key", "run_key", "variables_hash", "read_runs", "summarize_robustness", "select_runs", "setting_label", "TABLE_IV_PAPER_SE3", "RepeatedValueError", "KeyMismatchError", "plot_iterations"]
 
 #: Iterations of the SE(3) tangent parameterization in the paper's Table IV.
 TABLE_IV_PAPER_SE3 = {"walk": 14, "hopscotch": 10, "big_jump": 11, "handstand": 88, "backflip": 28, "sideflip": 29}
@@ -703,27 +703,45 @@ def read_runs(path: str | Path, progress: TextIO | None = None, *, repair: bool 
     return list(seen.values())
 
 
-def _robustness_group(task, p, sigmas, replicates, seed, variables, exact_hessian, options, solver, noise_chart, done, runs_path, progress=None) -> int:
+def _robustness_group(task, p, sigmas, replicates, seed, variables, exact_hessian, options, solver, noise_chart, done, runs_path, progress=None, expected=None) -> int:
     """One (task, parameterization) of the study (`_robustness_rows`), each run appended to
     ``runs_path`` as soon as it is solved (also from a worker process: a kill loses only the
     solves in flight). Returns the number solved."""
     solved = 0
-    for row in _robustness_rows(task, p, sigmas, replicates, seed, variables, exact_hessian, options, solver, noise_chart, done, progress):
+    for row in _robustness_rows(task, p, sigmas, replicates, seed, variables, exact_hessian, options, solver, noise_chart, done, progress, expected):
         jio.append_jsonl(runs_path, row)
         solved += 1
     return solved
 
 
-def _robustness_rows(task, p, sigmas, replicates, seed, variables, exact_hessian, options, solver, noise_chart, done, progress=None) -> Iterator[dict]:
+class KeyMismatchError(RuntimeError):
+    """A worker of a sweep computed another key for its group's runs than the calling process
+    (`_robustness_rows`' ``expected``): its jtraj, MuJoCo or robot and task files differ."""
+
+
+def _robustness_rows(task, p, sigmas, replicates, seed, variables, exact_hessian, options, solver, noise_chart, done, progress=None, expected=None) -> Iterator[dict]:
     """One (task, parameterization) of the study: one compile, then every noisy replicate whose
     key is not in ``done``, each run's row yielded as soon as it is solved (a progress line
     comes after its rows are taken). A backend with ``solve_batch`` (jtraj's interior point)
     solves each sigma's missing replicates in one batched call (one vmapped program on an
     accelerator, the one-problem program on every core of a CPU), with one compile per group;
-    Ipopt solves them one by one. ``noise_chart`` as in `robustness`."""
+    Ipopt solves them one by one. ``noise_chart`` as in `robustness`.
+
+    ``expected``: the group's key (`_group_key`) as the calling process computed it, where this
+    runs in another (a worker, a Ray node): `KeyMismatchError`, before any solve, where this
+    process computes another. A Ray node with another MuJoCo compiles the robot to another model
+    (`Robot.content_hash` hashes it), whose rows the calling process did not select: they were
+    written to the runs file under the node's keys and left out of the table without a word,
+    and every resume solved them again."""
     _code_source()  # read before the solves, as this process's code is (an edit during them is not)
     task = load_task(task)
     base = _group_key(task, p, variables, exact_hessian, options, seed, solver, noise_chart)
+    if expected is not None and base != expected:
+        differ = ", ".join(f"{k} {base.get(k)!r} here, {expected.get(k)!r} there" for k in sorted(set(base) | set(expected)) if base.get(k) != expected.get(k))
+        raise KeyMismatchError(
+            f"{task.name} {p}: this worker keys the group's runs otherwise than the process that called the sweep ({differ}): "
+            "its jtraj, MuJoCo, or robot or task files differ from the caller's (a cluster's nodes need the caller's versions)"
+        )
     todo = [(s, r) for s in sigmas for r in range(replicates) if run_key(base | {"sigma": float(s), "replicate": r}) not in done]
     if not todo:
         return
@@ -787,8 +805,8 @@ def _robustness_group_in_worker(*args) -> int:
     """`_robustness_group` in a local worker process, appending to the shared runs file; the
     last argument says whether to print (a stream does not cross processes: a worker prints to
     its own stdout)."""
-    *args, verbose = args
-    return _robustness_group(*args, progress=sys.stdout if verbose else None)
+    *args, expected, verbose = args
+    return _robustness_group(*args, progress=sys.stdout if verbose else None, expected=expected)
 
 
 def robustness(
@@ -895,8 +913,9 @@ def robustness(
             _move_aside(runs_path, "previous")
         done = {run_key(r) for r in before}
         args = [(t, p, tuple(sigmas), replicates, seed, variables, exact_hessian, ipopt_options, solver, noise_chart, done, runs_path) for t in tasks for p in params]
+        # each group's key as this process computes it: a worker refuses to key its runs otherwise
+        bases = [_group_key(*a[:2], variables, exact_hessian, ipopt_options, seed, solver, noise_chart) for a in args]
         if progress is not None and before:
-            bases = [_group_key(*a[:2], variables, exact_hessian, ipopt_options, seed, solver, noise_chart) for a in args]
             wanted = {run_key(base | {"sigma": s, "replicate": r}) for base in bases for s in sigmas for r in range(replicates)}
             known = [r for r in before if all(k in r for k in _UNKNOWN_KEYS)]
             unknown = len(before) - len(known)
@@ -937,7 +956,7 @@ def robustness(
         else:
             try:
                 if executor == "local":
-                    groups = executor_for("local", workers).map(_robustness_group_in_worker, [(*a, progress is not None) for a in args])
+                    groups = executor_for("local", workers).map(_robustness_group_in_worker, [(*a, base, progress is not None) for a, base in zip(args, bases)])
                     with contextlib.closing(groups):
                         for _ in groups:
                             pass
@@ -946,7 +965,7 @@ def robustness(
                     # may not see the study's folder; it prints nothing, this process does): an
                     # interrupt or a failing group keeps the runs that came back (they came only at
                     # a group's end, and were lost with it)
-                    rows = executor_for(executor, workers, ray_address).stream(_robustness_rows, [a[:-1] for a in args])
+                    rows = executor_for(executor, workers, ray_address).stream(_robustness_rows, [(*a[:-1], None, base) for a, base in zip(args, bases)])
                     with contextlib.closing(rows):
                         for _, row in rows:
                             jio.append_jsonl(runs_path, row)

@@ -2,6 +2,7 @@
 the Table IV writer, and the plots."""
 
 import dataclasses
+import inspect
 import io
 import json
 import os
@@ -874,6 +875,40 @@ def test_robustness_says_where_the_runs_are_when_a_worker_is_lost(tmp_path, monk
     with pytest.raises(WorkerLostError, match=r"ended without finishing its group; the runs finished before it are kept in .*runs.jsonl, and " + re.escape(again) + "$"):
         robustness(["walk"], ["se3", "euler"], sigmas=[0.1], replicates=2, out=tmp_path, progress=None, resume=resume, executor=executor, workers=2 if executor == "local" else 1)
     assert len(read_runs(tmp_path / RUNS_FILE)) == 2 and stopping.closed
+
+
+class _OtherMujocoExecutor(_StoppingExecutor):
+    """Runs every group in this process as a worker whose MuJoCo compiles the robot to another
+    model would: its `Robot.content_hash` (the runs' ``robot_hash``) differs from the caller's."""
+
+    def __init__(self, monkeypatch):
+        super().__init__(finished=0, lost=False)
+        self.monkeypatch = monkeypatch
+
+    def _as_worker(self, fn, args):
+        with self.monkeypatch.context() as m:
+            m.setattr(experiments, "_robot_hash", lambda name: "0123456789abcdef")
+            return list(fn(*args)) if inspect.isgeneratorfunction(fn) else fn(*args)
+
+    def map(self, fn, arg_list):
+        for i, args in enumerate(arg_list):
+            yield i, self._as_worker(fn, args)
+
+    def stream(self, fn, arg_list):
+        for i, args in enumerate(arg_list):
+            for item in self._as_worker(fn, args):
+                yield i, item
+
+
+@pytest.mark.parametrize("executor", ["local", "ray"])
+def test_robustness_refuses_a_worker_that_keys_runs_otherwise(tmp_path, monkeypatch, fake_solves, executor):
+    """A worker (a Ray node with another MuJoCo) that keys its group's runs otherwise than the
+    calling process is refused before it solves, naming the field: its rows were written under
+    its keys, left out of the table without a word, and solved again by every resume."""
+    monkeypatch.setattr(experiments, "executor_for", lambda *args: _OtherMujocoExecutor(monkeypatch))
+    with pytest.raises(experiments.KeyMismatchError, match=r"^walk se3: this worker keys the group's runs otherwise than the process that called the sweep \(robot_hash '0123456789abcdef' here, '[0-9a-f]{16}' there\)"):
+        robustness(["walk"], ["se3", "euler"], sigmas=[0.1], replicates=2, out=tmp_path, progress=None, executor=executor, workers=2 if executor == "local" else 1)
+    assert fake_solves == [] and read_runs(tmp_path / RUNS_FILE) == []
 
 
 @pytest.mark.parametrize("stop", [RuntimeError("boom"), KeyboardInterrupt()])
