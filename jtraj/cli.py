@@ -130,6 +130,10 @@ def _solve_out(args: argparse.Namespace) -> str:
 def _executor_arguments(p: argparse.ArgumentParser, workers: bool = True) -> None:
     p.add_argument("--executor", default="local", choices=["local", "ray"], help="local worker processes (default) or one Ray task per (task, parameterization) group (pip install 'jtraj[ray]')")
     p.add_argument("--ray-address", default=None, help="cluster for --executor ray, passed to ray.init (default: start a local Ray instance; 'auto': this node's cluster)")
+    p.add_argument(
+        "--ray-gpus", type=float, default=None, metavar="G",
+        help="with --executor ray: GPUs each group's task reserves (default 0: Ray hides the GPUs from it and it computes on the CPU); a fraction such as 0.25 lets groups share one",
+    )
     if workers:
         p.add_argument("--workers", type=int, default=1, help="with --executor local: solve in this many processes (default 1)")
 
@@ -168,7 +172,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
 
     with recording(args.out, ["jtraj", *args.argv]) as run:  # OUT held until the end (jtraj.provenance)
         args.compare_rows = None  # OUT/provenance.json is written: what an interrupt says (_kept)
-        rows = compare(args.tasks_checked, _split(args.params), out=args.out, variables=args.variables, exact_hessian=args.exact_hessian, save_trajectories=not args.no_trajectories, executor=args.executor, workers=args.workers, ray_address=args.ray_address, solver=args.solver, record_run=False)
+        rows = compare(args.tasks_checked, _split(args.params), out=args.out, variables=args.variables, exact_hessian=args.exact_hessian, save_trajectories=not args.no_trajectories, executor=args.executor, workers=args.workers, ray_address=args.ray_address, solver=args.solver, record_run=False, ray_gpus=args.ray_gpus)
         args.compare_rows = rows
         end_run(args.out, run)
     print((__import__("pathlib").Path(args.out) / "table_iv.md").read_text())
@@ -187,7 +191,7 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
             from jtraj.experiments import _aside_name
 
             args.runs_moved_to = _aside_name(runs, "previous")
-        robustness(args.tasks_checked, _split(args.params), sigmas, replicates=args.replicates, seed=args.seed, out=args.out, variables=args.variables, workers=args.workers, resume=not args.no_resume, ipopt_options=args.ipopt_checked or None, executor=args.executor, ray_address=args.ray_address, solver=args.solver, noise_chart=args.noise_chart, record_run=False)
+        robustness(args.tasks_checked, _split(args.params), sigmas, replicates=args.replicates, seed=args.seed, out=args.out, variables=args.variables, workers=args.workers, resume=not args.no_resume, ipopt_options=args.ipopt_checked or None, executor=args.executor, ray_address=args.ray_address, solver=args.solver, noise_chart=args.noise_chart, record_run=False, ray_gpus=args.ray_gpus)
         end_run(args.out, run)
     print((__import__("pathlib").Path(args.out) / "table_iii.md").read_text())
     return 0
@@ -750,6 +754,10 @@ def _check_inputs(args: argparse.Namespace) -> None:
         # options of the other executor would be ignored without a word
         if args.ray_address is not None and args.executor != "ray":
             raise InputError("--ray-address", args.ray_address, "needs --executor ray (the local executor does not use a cluster)")
+        if args.ray_gpus is not None and not (math.isfinite(args.ray_gpus) and args.ray_gpus >= 0):
+            raise InputError("--ray-gpus", args.ray_gpus, "expected a number >= 0 (the GPUs each group's Ray task reserves; a fraction shares one)")
+        if args.ray_gpus is not None and args.executor != "ray":
+            raise InputError("--ray-gpus", args.ray_gpus, "needs --executor ray (the local executor's processes see the machine's GPUs)")
         if args.workers > 1 and args.executor != "local":
             raise InputError("--workers", args.workers, "is for --executor local; with --executor ray each group is a Ray task and the cluster runs as many at once as it has CPUs")
         _check_out(args.out)
@@ -765,7 +773,7 @@ def _check_inputs(args: argparse.Namespace) -> None:
         if args.executor == "ray":  # Ray installed and its cluster reached, before OUT is written
             from jtraj.executors import RayExecutor
 
-            RayExecutor(args.ray_address).connect()
+            RayExecutor(args.ray_address, num_gpus=args.ray_gpus or 0.0).connect()
     if cmd == "robustness":
         from jtraj.experiments import _refuse_repeats
 

@@ -42,6 +42,7 @@ from __future__ import annotations
 import abc
 import contextlib
 import dataclasses
+import math
 import os
 import sys
 from collections.abc import Callable, Generator, Iterator, Sequence
@@ -191,10 +192,24 @@ class RayExecutor(AbstractExecutor):
             running cluster, or ``"ray://host:10001"`` connects a client to a remote cluster.
         num_cpus: CPUs each group reserves on the cluster (its JAX evaluation and Ipopt run
             mostly on one core).
+        num_gpus: GPUs each group reserves (default 0). Ray hides every GPU from a task that
+            reserves none (its ``CUDA_VISIBLE_DEVICES`` is empty), so a group's JAX computes
+            on the CPU of a GPU node unless this is given; a fraction lets that many groups
+            share one GPU, and then their processes take GPU memory as they need it
+            (`SHARED_ACCELERATOR_ENV`, through the task's ``runtime_env``): each reserved
+            three quarters of it.
     """
 
     address: str | None = None
     num_cpus: float = 1.0
+    num_gpus: float = 0.0
+
+    def _options(self) -> dict:
+        """The resources (and environment) of each group's ``ray.remote``."""
+        options: dict = dict(num_cpus=self.num_cpus, num_gpus=self.num_gpus, max_retries=0)
+        if 0.0 < self.num_gpus < 1.0:
+            options["runtime_env"] = {"env_vars": dict(SHARED_ACCELERATOR_ENV)}
+        return options
 
     def connect(self):
         """Import Ray and connect to (or start) the cluster, once per process; returns the ``ray``
@@ -243,11 +258,18 @@ class RayExecutor(AbstractExecutor):
                     f"Ray could not connect to a cluster at {self.address!r}: {e} (give the address of a running cluster, "
                     "e.g. --ray-address auto on one of its nodes or ray://HOST:10001, or leave it out to start a local instance)"
                 ) from None
+        if self.num_gpus > 0 and (gpus := float(ray.cluster_resources().get("GPU", 0.0))) < self.num_gpus:
+            # Ray queues a task no node can take, and the sweep waited without end
+            where = "the local instance" if self.address is None else f"the cluster at {self.address!r}"
+            raise ExecutorUnavailableError(
+                f"each group's Ray task reserves {self.num_gpus:g} GPUs (--ray-gpus), and {where} has {gpus:g}: Ray would never start one "
+                "(give fewer, or none to compute on the CPUs)"
+            )
         return ray
 
     def map(self, fn, arg_list):
         ray = self.connect()
-        remote = ray.remote(num_cpus=self.num_cpus, max_retries=0)(fn)
+        remote = ray.remote(**self._options())(fn)
         pending = {remote.remote(*args): i for i, args in enumerate(arg_list)}
         try:
             while pending:
@@ -264,7 +286,7 @@ class RayExecutor(AbstractExecutor):
     def stream(self, fn, arg_list):
         """One streaming generator task per group: each item comes back as the task yields it."""
         ray = self.connect()
-        remote = ray.remote(num_cpus=self.num_cpus, max_retries=0, num_returns="streaming")(fn)
+        remote = ray.remote(**self._options(), num_returns="streaming")(fn)
         pending = {remote.remote(*args): i for i, args in enumerate(arg_list)}
         try:
             while pending:
@@ -448,21 +470,28 @@ def check_executor_name(name: str, where: str = "executor_for") -> None:
         raise ValueError(f"{where}: executor={name!r}: expected one of {', '.join(EXECUTORS)}")
 
 
-def check_executor(name: str, workers: int = 1, ray_address: str | None = None, where: str = "executor_for") -> None:
+def check_executor(name: str, workers: int = 1, ray_address: str | None = None, where: str = "executor_for", ray_gpus: float | None = None) -> None:
     """A ValueError (its message begun by ``where``) for an unknown executor, a worker count that
-    is not an integer >= 1, or an option of the other executor (``ray_address`` without
-    ``"ray"``, ``workers`` > 1 with it), which would be ignored without a word."""
+    is not an integer >= 1, GPUs per Ray task (``ray_gpus``) that are not a number >= 0, or an
+    option of the other executor (``ray_address`` or ``ray_gpus`` without ``"ray"``,
+    ``workers`` > 1 with it), which would be ignored without a word."""
     check_executor_name(name, where)
     if not is_whole(workers) or workers < 1:
         raise ValueError(f"{where}: workers={workers!r}: expected an integer >= 1")
     if ray_address is not None and name != "ray":
         raise ValueError(f"{where}: ray_address={ray_address!r}: needs executor='ray' (the local executor does not use a cluster)")
+    if ray_gpus is not None:
+        if isinstance(ray_gpus, bool) or not isinstance(ray_gpus, (int, float)) or not (math.isfinite(ray_gpus) and ray_gpus >= 0):
+            raise ValueError(f"{where}: ray_gpus={ray_gpus!r}: expected a number >= 0 (the GPUs each group's Ray task reserves; a fraction shares one)")
+        if name != "ray":
+            raise ValueError(f"{where}: ray_gpus={ray_gpus!r}: needs executor='ray' (the local executor's processes see the machine's GPUs)")
     if workers > 1 and name != "local":
         raise ValueError(f"{where}: workers={workers!r}: is for executor='local'; with executor={name!r} each group is a Ray task and the cluster runs as many at once as it has CPUs")
 
 
-def executor_for(name: str = "local", workers: int = 1, ray_address: str | None = None) -> AbstractExecutor:
+def executor_for(name: str = "local", workers: int = 1, ray_address: str | None = None, ray_gpus: float | None = None) -> AbstractExecutor:
     """The executor called ``name`` (one of `EXECUTORS`), checked by `check_executor`
-    (``executor_for("ray", workers=4)`` ran one task at a time per CPU without a word)."""
-    check_executor(name, workers, ray_address)
-    return LocalExecutor(int(workers)) if name == "local" else RayExecutor(ray_address)
+    (``executor_for("ray", workers=4)`` ran one task at a time per CPU without a word);
+    ``ray_gpus``: `RayExecutor.num_gpus` (None: 0)."""
+    check_executor(name, workers, ray_address, ray_gpus=ray_gpus)
+    return LocalExecutor(int(workers)) if name == "local" else RayExecutor(ray_address, num_gpus=float(ray_gpus or 0.0))

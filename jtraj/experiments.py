@@ -111,6 +111,7 @@ def compare(
     layout: str | None = None,
     solver: str = "ipopt",
     record_run: bool = True,
+    ray_gpus: float | None = None,
 ) -> list[dict]:
     """Table IV: solve every task with every parameterization; write table_iv.{json,md}.
 
@@ -125,7 +126,9 @@ def compare(
     ``executor`` (`jtraj.executors`): ``"local"`` solves in this process (``workers`` > 1: in
     that many worker processes), ``"ray"`` one Ray task per solve on the cluster at
     ``ray_address`` (``ray_address`` is for ``"ray"`` only, ``workers`` > 1 for ``"local"``
-    only: each is refused with the other). Rows keep the order of ``tasks`` x ``params``
+    only: each is refused with the other; ``ray_gpus``, for ``"ray"`` too, the GPUs each task
+    reserves, `jtraj.executors.RayExecutor.num_gpus`: without them Ray hides a node's GPUs
+    from the task). Rows keep the order of ``tasks`` x ``params``
     whatever the executor. Each cell is given its task as loaded here and its folder as an
     absolute path, so a worker in another folder (a Ray cluster's) solves the same task into
     ``out``; on a cluster of several machines the cell folders are written on the machine
@@ -142,7 +145,7 @@ def compare(
     progress = _progress_stream(progress)
     out = Path(out)
     solver = _solver_name("compare", solver)  # an unknown name fails here, before the first solve
-    check_executor(executor, workers, ray_address, "compare")  # before anything is written
+    check_executor(executor, workers, ray_address, "compare", ray_gpus=ray_gpus)  # before anything is written
     params = _parameterization_names("compare", params)
     # the tasks loaded here are the ones solved: a Ray worker runs in another folder (or on
     # another machine), where a relative .toml path names another file or none
@@ -163,15 +166,15 @@ def compare(
     # an earlier call's table, and `jtraj plot OUT`'s figure of it: this call writes its own
     # table as its cells finish (an interrupt before the first left the earlier one in OUT,
     # which then read as this call's)
-    _connect_first(executor, ray_address)
+    _connect_first(executor, ray_address, ray_gpus)
     # held from here (`jtraj.provenance.holding`): another process's run in OUT is refused before
     # this one clears its tables
     with holding(out):
         _clear_outputs("compare", out, COMPARE_OUTPUTS)
         # called from Python, an earlier command's complete record stayed beside this call's tables
-        run = _begin_call(out, "compare", record_run, _call_settings(loaded, params, variables, exact_hessian, solver, executor=executor, workers=workers, ray_address=ray_address))
+        run = _begin_call(out, "compare", record_run, _call_settings(loaded, params, variables, exact_hessian, solver, executor=executor, workers=workers, ray_address=ray_address, ray_gpus=ray_gpus))
         in_process = executor == "local" and workers <= 1
-        cells = ((i, _compare_one(*job, progress=progress)) for i, job in enumerate(jobs)) if in_process else executor_for(executor, workers, ray_address).map(_compare_one, jobs)
+        cells = ((i, _compare_one(*job, progress=progress)) for i, job in enumerate(jobs)) if in_process else executor_for(executor, workers, ray_address, ray_gpus).map(_compare_one, jobs)
         done: dict[int, dict] = {}
         try:
             with contextlib.closing(cells):  # stops the executor's other cells on the way out
@@ -218,11 +221,11 @@ def cell_folder_problem(out: str | Path, tasks: Sequence[str], params: Sequence[
     return None
 
 
-def _connect_first(executor: str, ray_address: str | None) -> None:
+def _connect_first(executor: str, ray_address: str | None, ray_gpus: float | None = None) -> None:
     """A sweep's Ray cluster connected, or refused (`jtraj.executors.ExecutorUnavailableError`),
     before the sweep touches its folder: inside the executor's map the refusal came after the
     earlier tables were cleared. (Only an executor that connects: tests stand others in.)"""
-    if executor == "ray" and callable(connect := getattr(executor_for("ray", 1, ray_address), "connect", None)):
+    if executor == "ray" and callable(connect := getattr(executor_for("ray", 1, ray_address, ray_gpus), "connect", None)):
         connect()
 
 
@@ -828,6 +831,7 @@ def robustness(
     solver: str = "ipopt",
     noise_chart: str | None = None,
     record_run: bool = True,
+    ray_gpus: float | None = None,
 ) -> list[dict]:
     """Table III and Fig. 2: converged and task-success rates and iterations under warm-start noise.
 
@@ -843,8 +847,9 @@ def robustness(
     appending to the same file and printing its progress lines to its own standard output (a
     stream does not cross processes: ``progress`` there only says whether they print); with one
     group it is solved here, printing to ``progress``. ``executor="ray"`` makes each group a Ray task on the cluster
-    at ``ray_address`` (`jtraj.executors`; ``ray_address`` is for it only, ``workers`` > 1 for
-    the local executor only: each is refused with the other); each run's row comes back as it
+    at ``ray_address`` (`jtraj.executors`; ``ray_address`` and ``ray_gpus``, the GPUs each
+    task reserves, are for it only, ``workers`` > 1 for the local executor only: each is
+    refused with the other; without ``ray_gpus`` a task sees no GPU); each run's row comes back as it
     is solved (a streaming task) and is appended here, under the same keys and resume rules,
     and its progress line printed here. A group that raises, or an interrupt, stops the groups
     running and queued (`jtraj.executors`); the runs they finished stay in the file (of a Ray
@@ -893,8 +898,8 @@ def robustness(
     tasks = loaded
     _refuse_repeats("robustness: params", params, params, "parameterization")
     _refuse_repeats("robustness: sigmas", sigmas, sigmas, "noise level")
-    check_executor(executor, workers, ray_address, "robustness")  # before anything is written
-    _connect_first(executor, ray_address)
+    check_executor(executor, workers, ray_address, "robustness", ray_gpus=ray_gpus)  # before anything is written
+    _connect_first(executor, ray_address, ray_gpus)
     progress = _progress_stream(progress)
     out = Path(out)
     check_runs_file(out, resume)
@@ -943,7 +948,7 @@ def robustness(
         run = _begin_call(
             out, "robustness", record_run,
             _call_settings(tasks, params, variables, exact_hessian, solver, sigmas=list(sigmas), replicates=replicates, seed=seed, ipopt_options=ipopt_options or {},
-                           noise_chart=noise_chart, resume=resume, executor=executor, workers=workers, ray_address=ray_address),
+                           noise_chart=noise_chart, resume=resume, executor=executor, workers=workers, ray_address=ray_address, ray_gpus=ray_gpus),
         )
         # one group is solved here (the local executor would run it in this process, whose
         # stdout took its lines in place of the given stream)
@@ -965,7 +970,7 @@ def robustness(
                     # may not see the study's folder; it prints nothing, this process does): an
                     # interrupt or a failing group keeps the runs that came back (they came only at
                     # a group's end, and were lost with it)
-                    rows = executor_for(executor, workers, ray_address).stream(_robustness_rows, [(*a[:-1], None, base) for a, base in zip(args, bases)])
+                    rows = executor_for(executor, workers, ray_address, ray_gpus).stream(_robustness_rows, [(*a[:-1], None, base) for a, base in zip(args, bases)])
                     with contextlib.closing(rows):
                         for _, row in rows:
                             jio.append_jsonl(runs_path, row)

@@ -84,6 +84,9 @@ def _run(argv, capsys):
         (["robustness", "--tasks", "big_jump", "--executor", "local", "--ray-address", "auto"], "jtraj robustness: --ray-address: 'auto': needs --executor ray (the local executor does not use a cluster)\n"),
         (["compare", "--tasks", "big_jump", "--executor", "ray", "--workers", "4"], "jtraj compare: --workers: 4: is for --executor local; with --executor ray each group is a Ray task"),
         (["robustness", "--tasks", "big_jump", "--executor", "ray", "--workers", "2"], "jtraj robustness: --workers: 2: is for --executor local"),
+        (["compare", "--tasks", "big_jump", "--ray-gpus", "0.5"], "jtraj compare: --ray-gpus: 0.5: needs --executor ray (the local executor's processes see the machine's GPUs)\n"),
+        (["robustness", "--tasks", "big_jump", "--executor", "ray", "--ray-gpus", "-1"], "jtraj robustness: --ray-gpus: -1.0: expected a number >= 0 (the GPUs each group's Ray task reserves; a fraction shares one)\n"),
+        (["robustness", "--tasks", "big_jump", "--executor", "ray", "--ray-gpus", "nan"], "jtraj robustness: --ray-gpus: nan: expected a number >= 0"),
         # a sweep's repeats would be solved and counted twice
         (["robustness", "--tasks", "big_jump", "--sigmas", "0.1,1e-1"], "jtraj robustness: --sigmas: '0.1' and '1e-1' are the same noise level (0.1); expected each noise level once\n"),
         (["robustness", "--tasks", "big_jump", "--sigmas", "0.1,0.1"], "jtraj robustness: --sigmas: '0.1' given 2 times; expected each noise level once\n"),

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from jtraj.executors import EXECUTORS, ExecutorUnavailableError, GroupError, LocalExecutor, RayExecutor, WorkerLostError, executor_for
+from jtraj.executors import EXECUTORS, ExecutorUnavailableError, GroupError, LocalExecutor, RayExecutor, WorkerLostError, check_executor, executor_for
 
 
 def test_local_in_process_keeps_order():
@@ -289,6 +289,53 @@ def _fake_ray(calls: dict) -> types.ModuleType:
     ray.exceptions = types.SimpleNamespace(**{name: type(name, (_RayCrash,), {}) for name in ("WorkerCrashedError", "OutOfMemoryError", "NodeDiedError", "ObjectLostError")})
     ray.exceptions.RayTaskError = RayTaskError
     return ray
+
+
+@pytest.mark.parametrize("how", ["map", "stream"])
+@pytest.mark.parametrize("gpus, env", [(None, None), (0.25, {"XLA_PYTHON_CLIENT_PREALLOCATE": "false"}), (1, None)])
+def test_ray_tasks_reserve_the_gpus_asked_for(monkeypatch, how, gpus, env):
+    """Each group's Ray task reserves ``ray_gpus`` GPUs (none by default). Ray hides the GPUs
+    from a task that reserves none, and jtraj's did: on a GPU cluster every group computed on
+    the CPU. Groups that share a GPU (a fraction) take its memory as they need it."""
+    calls: dict = {}
+    ray = _fake_ray(calls)
+    ray.cluster_resources = lambda: {"CPU": 8.0, "GPU": 2.0}
+    monkeypatch.setitem(sys.modules, "ray", ray)
+    executor = executor_for("ray", ray_gpus=gpus)
+    if how == "map":
+        assert sorted(executor.map(operator.neg, [(1,), (2,)])) == [(0, -1), (1, -2)]
+    else:
+        assert sorted(executor.stream(lambda i: iter([i]), [(1,), (2,)])) == [(0, 1), (1, 2)]
+    assert calls["options"]["num_gpus"] == (gpus or 0) and calls["options"]["num_cpus"] == 1.0
+    assert calls["options"].get("runtime_env") == (None if env is None else {"env_vars": env})
+
+
+def test_ray_gpus_the_cluster_lacks_are_refused_when_connecting(monkeypatch):
+    """Ray queues a task that no node can take without end: GPUs per task above the cluster's
+    are refused as it connects, before a sweep writes anything."""
+    calls: dict = {}
+    ray = _fake_ray(calls)
+    ray.cluster_resources = lambda: {"CPU": 8.0}
+    monkeypatch.setitem(sys.modules, "ray", ray)
+    with pytest.raises(ExecutorUnavailableError, match=r"^each group's Ray task reserves 0.5 GPUs \(--ray-gpus\), and the local instance has 0: Ray would never start one"):
+        RayExecutor(num_gpus=0.5).connect()
+    ray.cluster_resources = lambda: {"CPU": 8.0, "GPU": 1.0}
+    assert RayExecutor(num_gpus=0.5).connect() is ray
+
+
+@pytest.mark.parametrize(
+    "name, gpus, message",
+    [
+        ("local", 1, r"^f: ray_gpus=1: needs executor='ray'"),
+        ("ray", -0.5, r"^f: ray_gpus=-0.5: expected a number >= 0"),
+        ("ray", float("nan"), r"^f: ray_gpus=nan: expected a number >= 0"),
+        ("ray", True, r"^f: ray_gpus=True: expected a number >= 0"),
+        ("ray", "1", r"^f: ray_gpus='1': expected a number >= 0"),
+    ],
+)
+def test_check_executor_refuses_ray_gpus_it_cannot_use(name, gpus, message):
+    with pytest.raises(ValueError, match=message):
+        check_executor(name, ray_gpus=gpus, where="f")
 
 
 def _lost_worker(ray, name: str, message: str):

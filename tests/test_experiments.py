@@ -877,6 +877,25 @@ def test_robustness_says_where_the_runs_are_when_a_worker_is_lost(tmp_path, monk
     assert len(read_runs(tmp_path / RUNS_FILE)) == 2 and stopping.closed
 
 
+@pytest.mark.parametrize("sweep", ["compare", "robustness"])
+def test_sweeps_hand_the_ray_gpus_to_the_executor_and_record_them(tmp_path, monkeypatch, fake_solves, sweep):
+    """``ray_gpus`` reaches the Ray executor (Ray hides the GPUs from a task that reserves none)
+    and the call's provenance."""
+    made = []
+
+    def executor_for(*args):
+        made.append(args)
+        return _StoppingExecutor(1, lost=False)
+
+    monkeypatch.setattr(experiments, "executor_for", executor_for)
+    if sweep == "compare":
+        compare(["walk"], ["se3"], out=tmp_path, progress=None, save_trajectories=False, executor="ray", ray_gpus=0.5)
+    else:
+        robustness(["walk"], ["se3"], sigmas=[0.1], replicates=1, out=tmp_path, progress=None, executor="ray", ray_gpus=0.5)
+    assert made and all(args[0] == "ray" and args[3] == 0.5 for args in made)
+    assert json.loads((tmp_path / "provenance.json").read_text())["call"]["ray_gpus"] == 0.5
+
+
 class _OtherMujocoExecutor(_StoppingExecutor):
     """Runs every group in this process as a worker whose MuJoCo compiles the robot to another
     model would: its `Robot.content_hash` (the runs' ``robot_hash``) differs from the caller's."""
