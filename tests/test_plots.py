@@ -131,7 +131,9 @@ def test_weight_line_is_the_weight_of_the_masses_solved_at(result):
         return line.get_ydata()[0]
 
     assert weight_line(result) == pytest.approx(go2.total_mass * go2.gravity)
-    heavier = dataclasses.replace(result, options={"theta": {"friction": 0.9, "body_masses": (1.5 * model_masses(go2)).tolist()}})
+    masses = 1.5 * model_masses(go2)
+    masses[0] = 100.0  # the world body's entry: not the robot's weight
+    heavier = dataclasses.replace(result, options={"theta": {"friction": 0.9, "body_masses": masses.tolist()}})
     assert weight_line(heavier) == pytest.approx(1.5 * go2.total_mass * go2.gravity)
 
 
