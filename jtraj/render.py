@@ -155,7 +155,7 @@ def _mujoco():
         why = "; jtraj found neither libEGL with libOpenGL or libGL nor libOSMesa to load" if _gl.chosen == "disable" and os.environ.get("MUJOCO_GL") == "disable" else ""
         raise RenderError(
             f"MuJoCo has no OpenGL backend ({_gl_setting()}{why}); on a machine without "
-            "display set MUJOCO_GL=egl (Mesa's libEGL: apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri) or "
+            "display set MUJOCO_GL=egl (Mesa's libEGL: apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri libopengl0) or "
             "MUJOCO_GL=osmesa (apt-get install libosmesa6) before importing mujoco"
         )
     return mujoco
@@ -190,7 +190,7 @@ def _sized_renderer(model, width: int, height: int):
             ) from err
         raise RenderError(
             f"MuJoCo could not open an offscreen OpenGL context with {_gl_setting()}: {err}. "
-            "Without display or GPU use MUJOCO_GL=egl with Mesa (apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri) or "
+            "Without display or GPU use MUJOCO_GL=egl with Mesa (apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri libopengl0) or "
             "MUJOCO_GL=osmesa (apt-get install libosmesa6)"
         ) from err
     finally:

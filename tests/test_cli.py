@@ -777,6 +777,22 @@ def test_a_mujoco_gl_whose_library_is_missing_is_one_line():
     assert "apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri libopengl0" in done.stderr  # the README's packages
 
 
+def test_the_egl_packages_are_the_same_everywhere():
+    """The README, .ci/run and the render errors name the same packages, libOpenGL among them
+    (jtraj takes EGL only where libOpenGL or libGL loads beside libEGL: the README and the render
+    errors named three packages, none of which brings it)."""
+    import pathlib
+
+    from jtraj import render
+
+    root = pathlib.Path(__file__).resolve().parents[1]
+    packages = "libegl1 libegl-mesa0 libgl1-mesa-dri libopengl0"
+    assert packages in " ".join((root / "README.md").read_text().split())
+    assert f"install -y -qq {packages}" in (root / ".ci" / "run").read_text()
+    source = pathlib.Path(render.__file__).read_text()
+    assert source.count("apt-get install libegl1") == source.count(f"apt-get install {packages}") >= 2
+
+
 def test_the_headless_backend_is_one_whose_libraries_load():
     from jtraj._gl import headless_backend
 
