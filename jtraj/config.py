@@ -65,11 +65,12 @@ def split_cpu(count: int | None = None) -> int | None:
 
 def _runs_the_command_line() -> bool:
     """Whether this process is jtraj's command line: the ``jtraj`` console script (its
-    ``__main__`` imports jtraj.cli) or ``python -m jtraj.cli`` (``sys.argv[0]`` is ``-m``
-    while the package is imported)."""
+    ``__main__`` imports jtraj.cli), ``python -m jtraj`` or ``python -m jtraj.cli``
+    (``sys.argv[0]`` is ``-m`` while the package is imported; ``-m jtraj`` was missed, and a
+    bad JTRAJ_CPU_DEVICES ended in a traceback there)."""
     if sys.argv[:1] == ["-m"]:
         argv = getattr(sys, "orig_argv", [])
-        return any(a == "-m" and b == "jtraj.cli" for a, b in zip(argv, argv[1:]))
+        return any(a == "-m" and b in ("jtraj", "jtraj.cli") for a, b in zip(argv, argv[1:]))
     path = getattr(sys.modules.get("__main__"), "__file__", None)
     return path is not None and Path(path).name in ("jtraj", "jtraj-script.py", "jtraj.exe")
 

@@ -27,9 +27,9 @@ def _devices_after_import(env: dict[str, str], before: str = "") -> subprocess.C
 
 def _command_lines() -> list[list[str]]:
     """The ways to run jtraj's command line: the console script where it is installed beside
-    this interpreter, and ``python -m jtraj.cli``."""
+    this interpreter, ``python -m jtraj`` and ``python -m jtraj.cli``."""
     script = Path(sys.executable).with_name("jtraj")
-    return ([[str(script)]] if script.is_file() else []) + [[sys.executable, "-m", "jtraj.cli"]]
+    return ([[str(script)]] if script.is_file() else []) + [[sys.executable, "-m", "jtraj"], [sys.executable, "-m", "jtraj.cli"]]
 
 
 def test_import_gives_one_cpu_device_per_core():
