@@ -144,7 +144,7 @@ def _variables_argument(p: argparse.ArgumentParser, default: str, help: str) -> 
     p.add_argument("--variables", "--layout", dest="variables", default=default, choices=["compact", "paper", "lean"], action=_FormerName, help=help + " (--layout: its former name)")
     p.add_argument(
         "--set", dest="variable_changes", action="append", metavar="FIELD=VALUE",
-        help="change a field of the variables' TranscriptionOptions, repeatable (e.g. --set force_limits=rows --set contact_height=row: the study's code's rows)",
+        help="change a field of the variables' TranscriptionOptions, repeatable (e.g. --set force_limits=rows --set contact_height=row: the study's code's rows; contact_height=row needs --variables paper, the sweeps' default)",
     )
 
 

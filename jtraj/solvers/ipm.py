@@ -177,9 +177,10 @@ class IpmOptions(AbstractOptions):
         tol: scaled optimality error for convergence (the study's Ipopt setting, 1e-3).
         max_iter: iteration limit.
         constr_viol_tol, dual_inf_tol, compl_inf_tol: unscaled limits at convergence.
-        hessian: ``"lbfgs"`` (default: Ipopt's limited-memory BFGS, a scaled identity plus a
-            low-rank term, solved by Sherman-Morrison-Woodbury around the block factorization),
-            ``"exact"`` (the Lagrangian's Hessian from JAX, per element) or ``"bfgs"``
+        hessian: Ipopt's ``hessian_approximation``: ``"lbfgs"`` (default: Ipopt's
+            ``limited-memory`` BFGS, a scaled identity plus a low-rank term, solved by
+            Sherman-Morrison-Woodbury around the block factorization), ``"exact"`` (the
+            Lagrangian's Hessian from JAX, per element) or ``"bfgs"``
             (partitioned damped BFGS; does not converge on the whole-body tasks).
         mu_strategy: ``"adaptive"`` (default, as Ipopt's default with a quasi-Newton Hessian)
             or ``"monotone"`` (Fiacco-McCormick).
