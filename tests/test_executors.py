@@ -421,7 +421,7 @@ def test_ray_stream_hands_back_each_item_as_it_comes(monkeypatch):
     monkeypatch.setitem(sys.modules, "ray", _fake_ray(calls))
     items = RayExecutor().stream(_items, [(0, 2), (1, 3, 2)])
     assert [next(items), next(items)] == [(1, (1, 0)), (1, (1, 1))]  # before the group's error
-    assert calls["options"] == {"num_cpus": 1.0, "max_retries": 0, "num_returns": "streaming"}
+    assert calls["options"] == {"num_cpus": 1.0, "num_gpus": 0.0, "max_retries": 0, "num_returns": "streaming"}
     with pytest.raises(RuntimeError, match="group 1 failed at item 2"):
         next(items)
     assert sorted(calls["cancelled"]) == [((0, 2), True), ((1, 3, 2), True)]  # group 0 not started (group 1's ended: harmless, as in Ray)
