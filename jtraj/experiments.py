@@ -915,7 +915,9 @@ def robustness(
         check_noise_chart(tasks, params, variables, noise_chart)
         before = read_runs(runs_path, progress, repair=True) if resume else []
         if not resume and runs_path.exists():
-            _move_aside(runs_path, "previous")
+            aside = _move_aside(runs_path, "previous")
+            if progress is not None:
+                print(f"not resuming: the earlier runs of {runs_path} are kept in {aside}", file=progress, flush=True)
         done = {run_key(r) for r in before}
         args = [(t, p, tuple(sigmas), replicates, seed, variables, exact_hessian, ipopt_options, solver, noise_chart, done, runs_path) for t in tasks for p in params]
         # each group's key as this process computes it: a worker refuses to key its runs otherwise

@@ -1360,7 +1360,10 @@ def test_no_resume_keeps_every_earlier_runs_file(tmp_path, fake_solves):
     first = (tmp_path / RUNS_FILE).read_text()
     robustness(["big_jump"], ["se3"], seed=2, **kw)
     second = (tmp_path / RUNS_FILE).read_text()
-    robustness(["big_jump"], ["se3"], seed=3, **kw)
+    stream = io.StringIO()
+    robustness(["big_jump"], ["se3"], seed=3, **(kw | {"progress": stream}))
+    # the progress says where the earlier runs went
+    assert f"not resuming: the earlier runs of {tmp_path / RUNS_FILE} are kept in {tmp_path / RUNS_FILE}.previous-2\n" in stream.getvalue()
     assert (tmp_path / f"{RUNS_FILE}.previous-1").read_text() == first
     assert (tmp_path / f"{RUNS_FILE}.previous-2").read_text() == second
     assert [json.loads(line)["seed"] for line in (tmp_path / RUNS_FILE).read_text().splitlines()] == [3]
