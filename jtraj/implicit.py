@@ -34,6 +34,7 @@ from jtraj.numbers import is_whole
 from jtraj.sensitivity import (
     KKT_TOL,
     ActiveArrays,
+    ActiveSet,
     KKTSystem,
     NotDifferentiableWarning,
     ParametricNLP,
@@ -123,17 +124,37 @@ class ImplicitSolution:
 
 
 class _SystemCache:
-    """Factorized sensitivity systems by token (most recent few)."""
+    """Factorized sensitivity systems by token (most recent few), and of every token the few
+    entries of its active set that the solution's arrays do not hold (`active_set`)."""
 
     def __init__(self, size: int):
         self.size = size
         self.systems: collections.OrderedDict[int, KKTSystem] = collections.OrderedDict()
         self.counter = itertools.count(1)
+        #: token -> indices of (weak_rows, weak_bounds, dropped_rows): a few per solution, kept
+        #: for all (a system built again needs the active set it was first built for)
+        self.sparse: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
     def put(self, system: KKTSystem) -> int:
         token = next(self.counter)
+        a = system.active
+        self.sparse[token] = (np.flatnonzero(a.weak_rows), np.flatnonzero(a.weak_bounds), np.flatnonzero(a.dropped_rows))
         self.restore(token, system)
         return token
+
+    def active_set(self, token: int, at_bound, at_upper, row_active, row_upper) -> ActiveSet:
+        """The `ActiveSet` token's system was built for, from a solution's `ActiveArrays` (the
+        arrays it returned) and the entries kept here."""
+        n, m = np.shape(at_bound)[0], np.shape(row_active)[0]
+
+        def mask(size, where):
+            out = np.zeros(size, bool)
+            out[where] = True
+            return out
+
+        weak_rows, weak_bounds, dropped = self.sparse[token]
+        as_bool = lambda a: np.asarray(a, bool)  # noqa: E731
+        return ActiveSet(as_bool(at_bound), as_bool(at_upper), as_bool(row_active), as_bool(row_upper), mask(m, weak_rows), mask(n, weak_bounds), mask(m, dropped))
 
     def restore(self, token: int, system: KKTSystem) -> None:
         """Keep ``system`` under ``token`` (a new one, or one rebuilt after it was evicted),
@@ -180,7 +201,9 @@ def implicit_solution(
             `jtraj.sensitivity.NotAKKTPointError`, since its derivatives would be of no
             solution. None: not checked.
         cache_size: how many factorized systems to keep for backward passes (an integer >= 0;
-            a pass whose system is no longer kept rebuilds it from the solution).
+            a pass whose system is no longer kept builds it again at the solution, for the
+            active set the solution holds: found again from the multipliers the solution
+            returns, zeroed off that set, it could be another, and the derivative wrong).
         forward_many: optional host function ``forward_many([theta, ...]) -> [(x, lam), ...]``
             solving several parameter sets in one call (e.g. side by side). Given, ``jax.vmap``
             over theta hands the whole batch to it; otherwise the batch's members go to
@@ -265,7 +288,7 @@ def implicit_solution(
         return ImplicitSolution(x, lam, deg, ActiveArrays(ab, au, ra, ru), token)
 
     @_in_main_thread_device
-    def host_solve(transpose, token, x, lam, theta, b):
+    def host_solve(transpose, token, x, lam, active, theta, b):
         # broadcast_all: every argument carries the batch axes of b (if any)
         token = np.asarray(token)
         b = np.asarray(b, float)
@@ -274,17 +297,28 @@ def implicit_solution(
         bb = b.reshape(-1, b.shape[-1])
         xs = np.asarray(x).reshape(len(tokens), n)  # (-1, 0) is no shape for an NLP without rows
         lams = np.asarray(lam).reshape(len(tokens), m)
+        acts = [np.asarray(a).reshape(len(tokens), size) for a, size in ((active.at_bound, n), (active.at_upper, n), (active.row_active, m), (active.row_upper, m))]
         thetas = [np.asarray(leaf) for leaf in jax.tree_util.tree_leaves(theta)]
         treedef = jax.tree_util.tree_structure(theta)
         out = np.empty_like(bb)
-        for t in np.unique(tokens):
+        # every system of this call first: one built again and put back in the cache evicted the
+        # oldest, which a batch larger than the cache still needed, and so built all again
+        unique = [int(t) for t in np.unique(tokens)]
+        systems = {t: cache.get(t) for t in unique}
+        for t in unique:
+            if systems[t] is None:  # evicted: built again at its solution, for the active set it was built for
+                i = int(np.flatnonzero(tokens == t)[0])
+                th = jax.tree_util.tree_unflatten(treedef, [leaf.reshape((-1,) + leaf.shape[len(batch):])[i] for leaf in thetas])
+                held = cache.active_set(t, *(a[i] for a in acts))
+                systems[t] = kkt_system(nlp, xs[i], lams[i], th, weak_tol=weak_tol, kkt_tol=None, active=held)  # checked by the forward pass
+        for t in unique:
+            if cache.get(t) is None:
+                cache.restore(t, systems[t])
+        for t in unique:
             rows = np.flatnonzero(tokens == t)
-            system = cache.get(int(t))
+            system = systems[t]
             i = rows[0]
             th = jax.tree_util.tree_unflatten(treedef, [leaf.reshape((-1,) + leaf.shape[len(batch):])[i] for leaf in thetas])
-            if system is None:  # evicted: rebuild from the solution it was made for
-                system = kkt_system(nlp, xs[i], lams[i], th, weak_tol=weak_tol, kkt_tol=None)  # checked by the forward pass
-                cache.restore(int(t), system)
             try:
                 out[rows] = system.solve(bb[rows], transpose=transpose)
             except SingularKKTError as e:
@@ -307,15 +341,15 @@ def implicit_solution(
 
     def linear_solve(sol: ImplicitSolution, theta, b, transpose: bool):
         @_first_order_only
-        def callback(token, x, lam, theta, b):
+        def callback(token, x, lam, active, theta, b):
             return jax.pure_callback(
                 lambda *args: host_solve(transpose, *args),
                 jax.ShapeDtypeStruct(b.shape, b.dtype),
-                token, x, lam, theta, b,
+                token, x, lam, active, theta, b,
                 vmap_method="broadcast_all",
             )
 
-        return callback(sol.token, sol.x, sol.lam, theta, b)
+        return callback(sol.token, sol.x, sol.lam, sol.active, theta, b)
 
     # The tangent (dx, dlam) is one compiled program, made once here. `jax.grad` of the
     # solution called eagerly (outside `jax.jit`) used to differentiate the rule's body op by

@@ -549,7 +549,9 @@ def _refuse_above(errors: dict[str, float], kkt_tol: float) -> None:
         )
 
 
-def kkt_system(nlp: ParametricNLP, x: np.ndarray, lam: np.ndarray, theta: Any, *, weak_tol: float = 1e-6, kkt_tol: float | None = KKT_TOL) -> KKTSystem:
+def kkt_system(
+    nlp: ParametricNLP, x: np.ndarray, lam: np.ndarray, theta: Any, *, weak_tol: float = 1e-6, kkt_tol: float | None = KKT_TOL, active: ActiveSet | None = None
+) -> KKTSystem:
     """Active set and sensitivity matrix K at a solution ``(x, lam)`` of ``nlp`` at ``theta``.
 
     K is built from the sparse Jacobian and Lagrangian Hessian values of ``nlp`` (the
@@ -557,6 +559,11 @@ def kkt_system(nlp: ParametricNLP, x: np.ndarray, lam: np.ndarray, theta: Any, *
     Jacobian of. The LU factorization happens on the first `KKTSystem.solve`. A point farther
     from a KKT point than ``kkt_tol`` (`kkt_errors`; None: not checked) is refused with
     `NotAKKTPointError`.
+
+    ``active``: the active set to hold instead of the one found at ``(x, lam)`` (a system
+    built again for a solution whose multipliers were since zeroed off it: found again, it
+    could differ, `jtraj.implicit`); K reads only its ``at_bound``, ``row_active`` and the
+    active rows' multipliers.
     """
     n, m = nlp.n, nlp.m
     x, lam = _solution_point(nlp, x, lam, weak_tol)
@@ -565,7 +572,7 @@ def kkt_system(nlp: ParametricNLP, x: np.ndarray, lam: np.ndarray, theta: Any, *
     point = _rows_and_multipliers(nlp, x, lam, theta, None)  # (once for both uses)
     if kkt_tol is not None:
         _refuse_above(_kkt_errors_at(nlp, x, lam, theta, point), kkt_tol)
-    act = _active_set_at(nlp, x, lam, theta, weak_tol, point)
+    act = _active_set_at(nlp, x, lam, theta, weak_tol, point) if active is None else active
     J = point[1]
     lam_a = np.where(act.row_active, np.asarray(lam, float), 0.0)
     Hv = np.asarray(nlp.hessian(xj, jnp.asarray(lam_a), 1.0, theta))

@@ -281,6 +281,43 @@ def test_bad_options_are_refused_when_built():
     np.testing.assert_allclose(J0, J, rtol=1e-12, atol=1e-14)
 
 
+def test_a_system_built_again_holds_the_active_set_of_its_solution(monkeypatch):
+    """A system no longer cached was built again from the solution's multipliers, which are
+    zeroed off its active set: found again from them the active set was another (here x1's
+    bound, multiplier 7e-4, read as weakly active beside x0's bound multiplier, 1000 once the
+    dropped duplicate row's -500 was zeroed, 500 before), and the derivative wrong without a
+    word (2/3 for 1). A batch one larger than the cache built every
+    member's system again. min 1000 x0 + (x1 - th0)^2/2 + (x2 - x1)^2/2 + x2^2/2, x0 >= 0 as a
+    bound and as a row, x1 <= 1 + th1 active: dx1/dth1 = 1, dx2/dth1 = 1/2."""
+    import jtraj.implicit as implicit
+
+    nlp = DenseNLP(
+        lambda x, th: 1000.0 * x[0] + 0.5 * (x[1] - th[0]) ** 2 + 0.5 * (x[2] - x[1]) ** 2 + 0.5 * x[2] ** 2,
+        lambda x, th: x[:1],
+        lambda th: (jnp.array([0.0, -jnp.inf, -jnp.inf]), jnp.array([jnp.inf, 1.0 + th[1], jnp.inf]), jnp.zeros(1), jnp.full(1, jnp.inf)),
+        3, 1,
+    )
+    forward = ipopt_forward(nlp, np.array([1.0, 0.0, 0.0]), tol=1e-10, mu_strategy="adaptive")
+    theta = jnp.array([1.5007, 0.0])
+    x, lam = forward(np.asarray(theta))
+    held = kkt_system(nlp, x, lam, np.asarray(theta)).active
+    assert held.dropped_rows[0] and held.at_bound[1]  # the case: a dropped row whose multiplier is large, x1 held
+    # found again from the zeroed multipliers: x1's bound weakly active, not held
+    again = kkt_system(nlp, x, np.where(held.row_active, lam, 0.0), np.asarray(theta)).active
+    assert not again.at_bound[1] and again.weak_bounds[1]
+    for size in (16, 0):
+        J = np.asarray(jax.jacobian(lambda th: implicit_solution(nlp, forward, cache_size=size)(th).x)(theta))
+        np.testing.assert_allclose(J[1:, 1], [1.0, 0.5], atol=1e-6)
+    built = []
+    real = implicit.kkt_system
+    monkeypatch.setattr(implicit, "kkt_system", lambda *a, **k: built.append(k.get("active")) or real(*a, **k))
+    solve = implicit_solution(nlp, forward, cache_size=4, forward_many=lambda thetas: [forward(t) for t in thetas])
+    J = np.asarray(jax.vmap(jax.jacobian(lambda th: solve(th).x))(jnp.tile(theta, (5, 1))))
+    np.testing.assert_allclose(J[:, 1, 1], 1.0, atol=1e-6)
+    # 5 in the forward pass; the backward pass builds again only the one the cache no longer held
+    assert len(built) == 6 and built[:5] == [None] * 5 and built[5] is not None
+
+
 def test_a_forward_returning_garbage_is_refused_in_words():
     """A forward that returns wrong shapes or NaN is named (regression: a broadcast error deep
     in the active set; NaN came back as the solution, and under a gradient as "not
