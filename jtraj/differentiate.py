@@ -31,9 +31,11 @@ What is differentiated and what is not:
   must stay on the terrain (`jtraj.solve` refuses a theta that lifts them, and so does
   ``f``). A direction of theta that moves such a point (one standing joint alone, a target
   height) leaves the problem infeasible on both sides, so it has no derivative: ``jax.jvp``
-  along it raises `jtraj.sensitivity.SingularKKTError` naming the entries of theta without
-  one, and a gradient's entries along them are arbitrary numbers, which ``jax.grad`` says
-  with a `jtraj.sensitivity.NotDifferentiableWarning` naming them (on the Go2 hop of the
+  along it fails with a `jtraj.sensitivity.SingularKKTError` naming the entries of theta
+  without one (it comes as JAX's runtime error, ``jax.errors.JaxRuntimeError``, whose message
+  ends with it: the sensitivity solve is a host callback of a compiled program, eager
+  ``jax.jvp`` too), and a gradient's entries along them are arbitrary numbers, which
+  ``jax.grad`` says with a `jtraj.sensitivity.NotDifferentiableWarning` naming them (on the Go2 hop of the
   README: the target's height, roll and pitch, the standing base's tilt and the standing
   joint angles); its other entries are exact. Directions that keep the points on the
   terrain (a target in the ground's plane, a yaw) are differentiable;
@@ -274,8 +276,10 @@ class DifferentiableTask:
         last knots on the terrain, `Transcription.check_boundaries`, as the forward solve
         starts, also under ``jax.jit``), and the cost weights must stay > 0 (`differentiable`;
         a ValueError). Raises `SolveError`
-        when the forward solve does not converge (inside ``jax.jit`` that comes as JAX's
-        runtime error, whose message ends with the SolveError's), and warns (RuntimeWarning)
+        when the forward solve does not converge (inside ``jax.jit`` or ``jax.vmap``, where the
+        solve is a host callback, that comes as JAX's runtime error,
+        ``jax.errors.JaxRuntimeError``, whose message ends with the SolveError's; so does a
+        `jtraj.sensitivity.NotAKKTPointError`), and warns (RuntimeWarning)
         when it converged only to the acceptable level (`jtraj.solvers.Status.ACCEPTABLE`)."""
         theta = self.transcription.resolve_theta(self.theta if theta is None else theta, base=self.theta)
         sol = self._solution(theta)

@@ -333,7 +333,7 @@ def implicit_solution(
                 warnings.warn(
                     f"jtraj: {_listed(names)} of theta have no derivative at this solution (each alone leaves the "
                     "linearized active constraints inconsistent): where a gradient's entries there are used, they are "
-                    "arbitrary, not derivatives (jax.jvp along them raises SingularKKTError); the others are exact",
+                    "arbitrary, not derivatives (jax.jvp along them fails with a SingularKKTError); the others are exact",
                     NotDifferentiableWarning,
                     stacklevel=1,
                 )

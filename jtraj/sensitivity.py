@@ -99,8 +99,11 @@ class NotDifferentiableWarning(RuntimeWarning):
     are not derivatives: the solution has none along them at this theta (moving one of them
     alone leaves the linearized active constraints inconsistent), and the sensitivity system's
     transposed solve, which always has solutions then, gave those components an arbitrary
-    value. Forward mode along them raises `SingularKKTError`. The warning names the entries
-    (`undifferentiable_parameters`); a ``warnings`` filter "error" makes it an exception."""
+    value. Forward mode along them fails with a `SingularKKTError`. The warning names the
+    entries (`undifferentiable_parameters`); a ``warnings`` filter "error" makes it an
+    exception. Both are raised in a host callback of a compiled program (`jtraj.implicit`), so
+    they reach the caller as JAX's runtime error (``jax.errors.JaxRuntimeError``), whose
+    message ends with theirs."""
 
 
 class ParametricNLP(Protocol):
