@@ -7,7 +7,15 @@ NLP of the first variant's variables (``compile_variables``), once per task.
 
     python bench/solve.py big_jump [sideflip ...] [--param se3] [--variants paper,compact,lean]
         [--ipopt NAME=VALUE ...] [--jtraj NAME=VALUE ...] [--peer PATH | --no-peer] [--repeat N]
-        [--out DIR]
+        [--robot talos=talos_full] [--code-costs] [--out DIR]
+
+The public code solves its own problem: Talos is its ``talos_full_v2`` (3 kg heavier than the
+built-in tasks' ``talos``, example-robot-data's ``talos_reduced``, with stronger arms and
+torso), and its walk and back-flip scripts weigh the costs otherwise than the paper's Table II.
+``--robot talos=talos_full`` solves jtraj's side on the code's Talos (`robots/talos_full.toml`)
+and ``--code-costs`` with the code's weights (``bench/side_by_side.py``'s ``CODE_COSTS``), so
+that both sides solve the same problem; the task cell names them, and the JSON records them.
+The Go2 and G1 are the same robots on both sides.
 
 Variants (Ipopt with the study's settings: L-BFGS Hessian, tol 1e-3, MUMPS; or jtraj's solver):
     paper    the study's variables per knot (q, v, a, f, c)
@@ -57,9 +65,10 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 from jtraj import io as jio
-from jtraj.cli import _check_ipopt  # the command line's NAME=VALUE parsing and checks
+from jtraj.cli import InputError, _check_ipopt, _check_robots  # the command line's parsing and checks
 from jtraj.provenance import write_results
 from jtraj.solver import prepare, solve
 
@@ -103,7 +112,27 @@ def run_peer(peer: str, task: str) -> dict:
     return rec
 
 
-def run_variant(task: str, param: str, variant: str, extra: dict, extra_jtraj: dict) -> dict:
+def problem(task: str, robots: dict[str, str], code_costs: bool) -> Any:
+    """The task jtraj solves: the built-in ``task``, or with ``robots`` or ``code_costs`` the
+    Task object `side_by_side.jtraj_task` makes (on the mapped robot, with the code's costs)."""
+    if not robots and not code_costs:
+        return task
+    from side_by_side import jtraj_task
+
+    return jtraj_task(task, robots, code_costs)
+
+
+def problem_label(task: str, robots: dict[str, str], code_costs: bool) -> str:
+    """The table's task cell: the name, and the robot model and costs where not the built-in's."""
+    from jtraj.task import load
+
+    robot = load(task).robot
+    notes = [robots[robot]] if robot in robots else []
+    notes += ["code's costs"] if code_costs else []
+    return task + (f" ({', '.join(notes)})" if notes else "")
+
+
+def run_variant(task: Any, param: str, variant: str, extra: dict, extra_jtraj: dict) -> dict:
     v = VARIANTS[variant]
     if v.get("solver") == "jtraj":
         return run_jtraj(task, param, variant, v, extra_jtraj)
@@ -140,13 +169,13 @@ def _record(variant: str, r, time_linear_solver: float | None) -> dict:
     )
 
 
-def run_jtraj(task: str, param: str, variant: str, v: dict, options: dict) -> dict:
+def run_jtraj(task: Any, param: str, variant: str, v: dict, options: dict) -> dict:
     """jtraj's own interior point (compiled before its clock starts; no Ipopt timing table),
     with ``options`` over its defaults."""
     t0 = time.perf_counter()
     r = solve(task, param, variables=v["variables"], solver="jtraj", options=dict(options), progress=io.StringIO())
     total = time.perf_counter() - t0
-    print(f"{task} [{variant}]: solver program compiled and run in {total:.1f} s", flush=True)
+    print(f"{getattr(task, 'name', task)} [{variant}]: solver program compiled and run in {total:.1f} s", flush=True)
     return _record(variant, r, None) | {"options": dict(options)}
 
 
@@ -189,7 +218,7 @@ def markdown(records: list[dict]) -> str:
         peer = rec.get("peer")
         for v in rec["variants"]:
             row = (
-                f"| {rec['task']} | {_label(v)} | {v['status']} | {_iterations_cell(v)} | {v['cost']:.4g} | {v['constraint_violation']:.1e} "
+                f"| {rec.get('label', rec['task'])} | {_label(v)} | {v['status']} | {_iterations_cell(v)} | {v['cost']:.4g} | {v['constraint_violation']:.1e} "
                 f"| {_time_cell(v)} | {v['time_s'] / max(v['iterations'], 1):.3f} "
                 f"| {v['time_derivatives']:.2f} | {v['time_ipopt']:.2f} |"
             )
@@ -241,6 +270,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--peer", default=str(DEFAULT_PEER) if DEFAULT_PEER.exists() else None, help=f"path of the runner of the public code, run as PEER TASK (default {DEFAULT_PEER} when it exists)")
     ap.add_argument("--no-peer", action="store_true", help="do not run the public code")
     ap.add_argument("--repeat", type=int, default=1, metavar="N", help="measure each side N times (N odd), alternating, and report medians (default 1)")
+    ap.add_argument("--robot", action="append", default=[], metavar="ROBOT=OTHER", help="jtraj solves the tasks on ROBOT with the model OTHER (talos=talos_full: the public code's Talos)")
+    ap.add_argument("--code-costs", action="store_true", help="jtraj uses the cost weights of the public code's task scripts where they differ from the paper's Table II")
     # checked as it is parsed: a file there failed in write_results after every solve
     add_out(ap, "speed")
     ap.add_argument("--table-only", action="store_true", help="rewrite DIR/speed.md from DIR/speed.json, solve nothing")
@@ -283,6 +314,10 @@ def main(argv: list[str] | None = None) -> None:
         ap.error(f"--ipopt print_timing_statistics={extra['print_timing_statistics']}: expected yes (the default here): the linear solver's time is read from Ipopt's timing statistics")
     if extra.get("print_level", 3) < 3:
         ap.error(f"--ipopt print_level={extra['print_level']}: expected 3 or more (the default here is 3): Ipopt prints its timing statistics from level 3")
+    try:
+        robots = _check_robots(args.robot)
+    except InputError as err:
+        ap.error(str(err))
     peer = None if args.no_peer else args.peer
     if peer is not None and args.param != "se3":  # its ratio would be of two parameterizations
         ap.error(f"--param {args.param}: the public code solves with the SE(3) tangent only; pass --param se3, or --no-peer for jtraj's rows alone")
@@ -292,7 +327,11 @@ def main(argv: list[str] | None = None) -> None:
         print(f"bench/solve.py: no peer: the paper's public code is not at {DEFAULT_PEER}; the table has jtraj's rows only (pass --peer PATH to compare, --no-peer to silence this)", file=sys.stderr, flush=True)
     records = []
     for t, task in enumerate(args.tasks):
-        rec = dict(task=task, param=args.param, machine=dict(cpus=os.cpu_count(), load_1min=os.getloadavg()[0], platform=platform.platform()), peer=None, variants=[])
+        solved = problem(task, robots, args.code_costs)
+        rec = dict(
+            task=task, label=problem_label(task, robots, args.code_costs), robots=robots, code_costs=args.code_costs, param=args.param,
+            machine=dict(cpus=os.cpu_count(), load_1min=os.getloadavg()[0], platform=platform.platform()), peer=None, variants=[],
+        )
         peer_runs: list[dict] = []
         runs: dict[str, list[dict]] = {name: [] for name in variants}
         for i in range(args.repeat):
@@ -304,11 +343,11 @@ def main(argv: list[str] | None = None) -> None:
                 # variants, for nothing with --variants paper, and recorded as the compile)
                 first = VARIANTS[variants[0]]["variables"]
                 t0 = time.perf_counter()
-                prep = prepare(task, args.param, first)
+                prep = prepare(solved, args.param, first)
                 rec["compile_s"], rec["compile_variables"] = time.perf_counter() - t0, first
                 print(f"{task} [{args.param}, {first} variables]: {prep.nlp.n} variables, {prep.nlp.m} constraints; compile {rec['compile_s']:.1f} s", flush=True)
             for name in variants:
-                runs[name].append(run_variant(task, args.param, name, extra, extra_jtraj))
+                runs[name].append(run_variant(solved, args.param, name, extra, extra_jtraj))
                 if args.repeat > 1:
                     print(f"{task} [{name}]: run {i + 1} of {args.repeat}: {runs[name][-1]['iterations']} iterations, {runs[name][-1]['time_s']:.2f} s", flush=True)
         if peer_runs:

@@ -38,3 +38,34 @@ def test_the_linear_solvers_time_is_read_from_ipopts_timing_table():
     )
     assert bench.linear_solver_time(table) == 0.003
     assert bench.linear_solver_time("EXIT: Optimal Solution Found.\n") is None
+
+
+def test_robot_and_code_costs_reach_the_solved_problem_and_the_table(monkeypatch, tmp_path):
+    """The public code solves Talos as its talos_full_v2 with its own walk and back-flip costs:
+    ``--robot talos=talos_full --code-costs`` gives jtraj's side that problem (the table's task
+    cell and the JSON say so); bench/solve.py had neither, and compared big_jump on another Talos."""
+    import json
+
+    bench = bench_module("solve")
+    solved: list = []
+
+    def fake_prepare(task, param, variables="compact"):
+        solved.append(task)
+        return type("Prep", (), {"nlp": type("NLP", (), {"n": 10, "m": 5})})()
+
+    def fake_variant(task, param, name, extra, extra_jtraj):
+        solved.append(task)
+        return dict(variant=name, status="solved", success=True, iterations=3, time_s=1.0, time_derivatives=0.0, time_ipopt=1.0, time_linear_solver=None, cost=0.0, constraint_violation=0.0)
+
+    monkeypatch.setattr(bench, "prepare", fake_prepare)
+    monkeypatch.setattr(bench, "run_variant", fake_variant)
+    bench.main(["walk", "sideflip", "--variants", "jtraj", "--no-peer", "--robot", "talos=talos_full", "--code-costs", "--out", str(tmp_path)])
+    walk, _, sideflip, _ = solved
+    assert walk.robot == "talos_full" and walk.configuration_weight == 1e-6  # the code's walk.py weight
+    assert sideflip.robot == "go2"  # not on Talos: its own robot
+    records = json.loads((tmp_path / "speed.json").read_text())
+    assert [r["label"] for r in records] == ["walk (talos_full, code's costs)", "sideflip (code's costs)"]
+    assert records[0]["robots"] == {"talos": "talos_full"} and records[0]["code_costs"] is True
+    assert "| walk (talos_full, code's costs) | jtraj |" in (tmp_path / "speed.md").read_text()
+    bench.main(["big_jump", "--variants", "jtraj", "--no-peer"])
+    assert solved[-1] == "big_jump"  # without them: the built-in task, by name
