@@ -303,7 +303,13 @@ def _load_named(name: str) -> Robot:
     if not resource.is_file():
         raise RobotLoadError(f"unknown robot {name!r}; expected one of: {', '.join(available())}")
     with importlib.resources.as_file(resource) as path:
-        return load_file(path)
+        robot = load_file(path)
+    if robot.name != name:
+        # found by its file's name, as tasks and --robot name it, and a run records the robot's
+        # name to draw it again: a copy of go2.toml saved as my_go2.toml was solved as my_go2
+        # and recorded, plotted and rendered as go2
+        raise RobotLoadError(f"{name}.toml: name = {robot.name!r}, but the robot is found as {name!r} (its file's name): leave 'name' out, or write name = {name!r}")
+    return robot
 
 
 def load_file(path: str | pathlib.Path) -> Robot:
@@ -319,7 +325,10 @@ def load_file(path: str | pathlib.Path) -> Robot:
     which may extend another in turn) and applies this file on top: tables (``[standing]``,
     ``[standing.joints]``, ``[groups]``) are merged key by key at every depth, and any other
     value (a string, number or array, the ``[[contact]]`` list included) replaces the
-    parent's whole. ``name`` is not inherited: it defaults to this file's stem.
+    parent's whole. ``name`` is not inherited: it defaults to this file's stem, and a file in
+    jtraj's ``robots`` folder, found by its stem (`load`), must not give another (a run records
+    the name to draw the robot again). A ``[[contact]]`` without ``offset`` is at its link's
+    origin.
     ``robots/talos_full.toml`` is an example.
     """
     path = pathlib.Path(path)

@@ -544,3 +544,19 @@ def test_urdf_defects_raise_naming_the_files(tmp_path, monkeypatch, old, new, fr
         robot_lib.load_file(path)
     message = str(err.value)
     assert "tiny.toml" in message and "tiny.urdf" in message and fragment in message, message
+
+
+def test_a_robot_file_in_the_robots_folder_is_named_by_its_file(tmp_path, monkeypatch):
+    """A copy of go2.toml saved as my_go2.toml (its ``name = "go2"`` left in) was solved as the
+    robot my_go2 but named go2: runs recorded go2, and plots and renders drew go2. Found by its
+    file's name, a robot file must not give another (a path's file may: load_file)."""
+    folder = importlib.resources.files("jtraj.robots")
+    text = (folder / "go2.toml").read_text()
+    (tmp_path / "my_go2.toml").write_text(text)
+    (tmp_path / "my_go2b.toml").write_text(text.replace('name = "go2"', 'name = "my_go2b"'))
+    files = importlib.resources.files
+    monkeypatch.setattr(importlib.resources, "files", lambda package: tmp_path if package == "jtraj.robots" else files(package))
+    with pytest.raises(robot_lib.RobotLoadError, match=r"^my_go2.toml: name = 'go2', but the robot is found as 'my_go2' \(its file's name\): leave 'name' out, or write name = 'my_go2'$"):
+        robot_lib.load("my_go2")
+    assert robot_lib.load("my_go2b").name == "my_go2b"
+    assert robot_lib.load_file(tmp_path / "my_go2.toml").name == "go2"  # a path's file keeps its name
