@@ -7,9 +7,9 @@ compiles; `Task.validate(robot)` adds the checks that need the robot model (cont
 names, joint limits). Both raise `TaskError` naming the field, the offending value and what
 was expected.
 
-TOML form (see ``tasks/big_jump.toml``)::
+TOML form (see ``tasks/*.toml``; this example loads as it is, a back-flip of Talos)::
 
-    name = "big_jump"                # names the run folders (runs/big_jump_se3): no '/', not '.'-first
+    name = "my_flip"                 # names the run folders (runs/my_flip_se3): no '/', not '.'-first
     robot = "talos"
     timestep = 0.05
     friction = 0.9
@@ -23,20 +23,26 @@ TOML form (see ``tasks/big_jump.toml``)::
     [target]
     translation = [1.0, 0.0, 0.0]    # base displacement from the standing pose, world frame (m)
     rotation_rpy = [0.0, 0.0, 0.0]   # base rotation from the standing pose (rad, each in [-pi, pi])
-    joints = [0.0, ...]              # optional: the final joint angles, one per joint (rad)
+    # joints = [...]                 # optional: the final joint angles, one per joint (rad)
     [costs]
     configuration = 0.0              # 1/2 w |q_joints - q_joints_standing|^2 per knot
     acceleration = 0.0               # 1/2 w |a_joints|^2 per knot
-    [[phases]]
+    [[phases]]                       # phase 0: stance
     contacts = ["left_foot", "right_foot"]
-    duration = 1.0
+    duration = 0.5
+    [[phases]]                       # phase 1: flight
+    contacts = []
+    duration = 0.6
+    [[phases]]                       # phase 2: landing
+    contacts = ["left_foot", "right_foot"]
+    duration = 0.5
     [[warm_start_rules]]             # optional base-rotation rules on top of the stance
     profile = "ramp"                 # "ramp" (0 -> angle over the phases) or "hold"
     axis = [0.0, 1.0, 0.0]
     angle = -6.283185307179586
     phases = [1]
     [[warm_start_joints]]            # optional joint overrides during phases
-    phases = [2]
+    phases = [1]
     joints = { arm_left_2_joint = 2.8 }
     place_on_terrain = true          # shift the base so the touching points rest on the ground
 

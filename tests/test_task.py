@@ -461,3 +461,18 @@ def test_half_a_turn_as_typed_is_accepted():
     with pytest.raises(TaskError, match=r"expected angles \(rad\) within \[-pi, pi\]"):
         small_task(target_rotation_rpy=(0.0, 0.0, 3.15))
 
+
+
+def test_the_module_docstrings_toml_example_loads(tmp_path):
+    """The README calls jtraj.task's docstring the whole format; its example named phases 1 and
+    2 of a one-phase task and held a placeholder that is no TOML (a review)."""
+    import jtraj.task as task_lib
+    from jtraj import robot as robot_lib
+
+    doc = task_lib.__doc__
+    block = doc[doc.index("TOML form") :].split("::\n\n", 1)[1].split("\n\n", 1)[0]
+    text = "\n".join(line[4:] for line in block.splitlines())
+    (tmp_path / "example.toml").write_text(text)
+    loaded = task_lib.from_file(tmp_path / "example.toml")
+    loaded.validate(robot_lib.load(loaded.robot))
+    assert (loaded.name, len(loaded.phases), loaded.flip_turns) == ("my_flip", 3, -1)
