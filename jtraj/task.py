@@ -743,9 +743,10 @@ def load(name: str | Path | Task) -> Task:
     """A built-in task by name (``big_jump``), or a task file path."""
     if isinstance(name, Task):
         return name
-    if isinstance(name, Path) or str(name).endswith(".toml"):
+    if isinstance(name, Path) or str(name).lower().endswith(".toml"):  # (TINY.TOML was "unknown task")
         return from_file(name)
     if name not in available():
-        raise TaskError("task", name, f"unknown task; expected one of {available()} or a path to a .toml file")
+        hint = " (a file of that name exists: give its path with the .toml extension)" if isinstance(name, str) and Path(name).is_file() else ""
+        raise TaskError("task", name, f"unknown task; expected one of {available()} or a path to a .toml file{hint}")
     with importlib.resources.files("jtraj.tasks").joinpath(f"{name}.toml").open("rb") as f:
         return from_dict(tomllib.load(f), source=f"tasks/{name}.toml")

@@ -476,3 +476,17 @@ def test_the_module_docstrings_toml_example_loads(tmp_path):
     loaded = task_lib.from_file(tmp_path / "example.toml")
     loaded.validate(robot_lib.load(loaded.robot))
     assert (loaded.name, len(loaded.phases), loaded.flip_turns) == ("my_flip", 3, -1)
+
+
+def test_a_task_file_with_an_upper_case_extension_is_a_file(tmp_path):
+    """TINY.TOML was refused as an unknown built-in task, though it is a task file."""
+    import importlib.resources
+
+    from jtraj import task as task_lib
+
+    text = (importlib.resources.files("jtraj.tasks") / "big_jump.toml").read_text()
+    (tmp_path / "JUMP.TOML").write_text(text)
+    assert task_lib.load(str(tmp_path / "JUMP.TOML")).name == "big_jump"
+    (tmp_path / "jump").write_text(text)
+    with pytest.raises(task_lib.TaskError, match=r"a file of that name exists: give its path with the \.toml extension"):
+        task_lib.load(str(tmp_path / "jump"))
