@@ -29,7 +29,10 @@ On a GPU, jtraj's programs run on the GPU and Ipopt's NLP functions on the same 
 (``jax.default_device``), where a solver that calls them one point at a time belongs.
 
 Prints the JAX device, one line per replicate (status, iterations, violation, task success) and,
-last, ``replicates: vmapped X s, sequential Y s, speedup Z``; ``--out DIR/F.json`` writes every
+last, ``replicates: vmapped X s, sequential Y s, speedup Z (sequential: Ipopt)`` (``jtraj one
+at a time`` with ``--no-ipopt``; one such line per ``--strategies`` entry, the first one's last;
+``speedup none (jtraj K/N converged, Ipopt J/N)`` where a replicate failed on either side:
+the times are then of different work); ``--out DIR/F.json`` writes every
 figure as JSON (atomically, strict JSON), with the run's provenance (command, date, machine,
 versions) under ``provenance``, and, as `jtraj.provenance.write_results` writes the other
 benchmarks' results, beside it ``DIR/F.md`` (the batches' table and the last lines) and
@@ -124,6 +127,7 @@ def main(argv: list[str] | None = None) -> None:
 
     label = {"vmap": "vmapped", "threads": f"threads ({min(args.replicates, cpu_count())} at a time)", "vectorized": "vmapped (vectorized)"}
     timed: dict[str, float] = {}
+    solved: dict[str, int] = {}  # each strategy's converged members of the compared batch
     for strategy in strategies:
         for k, size in enumerate([args.replicates, *batches]):
             how = dict(strategy="vmap", options=dataclasses.replace(opts, cpu_batch="vectorized")) if strategy == "vectorized" else dict(strategy=strategy, options=opts)
@@ -138,6 +142,7 @@ def main(argv: list[str] | None = None) -> None:
             report["batches"].append({"strategy": strategy, "size": size, "compile_s": compile_time, "solve_s": total, "converged": converged, "iterations_max": max(its), "iterations_mean": float(np.mean(its))})
             if k == 0:  # the replicates compared with Ipopt
                 timed[strategy] = total
+                solved[strategy] = converged
                 if strategy == strategies[0]:
                     batch = sols
 
@@ -156,6 +161,7 @@ def main(argv: list[str] | None = None) -> None:
         with on_cpu:
             compile_callbacks(tr, nlp)
     t_ipopt = 0.0
+    ipopt_solved = 0
     rows = []
     for i, sol in enumerate(batch):
         traj = tr.decode(sol.x, theta)
@@ -169,6 +175,7 @@ def main(argv: list[str] | None = None) -> None:
             with on_cpu:
                 res = solve(args.task, args.param, warm_start=starts[i], progress=None, keep_trajectory=False)
             t_ipopt += res.time_s
+            ipopt_solved += bool(res.success)
             line += f" | ipopt {res.status.value:26s} {res.iterations:4d} it viol {res.constraint_violation:.1e} {res.time_s:6.2f} s success {res.success}"
             row["ipopt"] = {"status": res.status.value, "iterations": res.iterations, "violation": res.constraint_violation, "time_s": res.time_s, "success": bool(res.success)}
         rows.append(row)
@@ -185,10 +192,22 @@ def main(argv: list[str] | None = None) -> None:
     sequential = t_jtraj_seq if args.no_ipopt else t_ipopt
     if not args.no_ipopt:
         report["ipopt_sequential_s"] = t_ipopt
-    report["speedup"] = {s: sequential / t for s, t in timed.items()}
     against = "jtraj one at a time" if args.no_ipopt else "Ipopt"
+    n = args.replicates
+    # the sequential side's solved replicates: Ipopt's successes, or jtraj's one at a time
+    sequential_solved = sum(bool(r is not None and r.converged) for r in seq) if args.no_ipopt else ipopt_solved
+    report["solved"] = {**solved, "sequential": sequential_solved}
+
+    def speedup(s: str) -> str:
+        # a replicate that failed on either side (stopped at the iteration limit, say) makes the
+        # two times those of different work: no ratio, the counts instead
+        if solved[s] == n and sequential_solved == n:
+            return f"{sequential / timed[s]:.2f}"
+        return f"none (jtraj {solved[s]}/{n} converged, {against} {sequential_solved}/{n})"
+
+    report["speedup"] = {s: sequential / t for s, t in timed.items() if solved[s] == n and sequential_solved == n}
     # the first strategy's line last (vmap's, by default: the line)
-    last = [f"replicates: {label[s]} {timed[s]:.2f} s, sequential {sequential:.2f} s, speedup {sequential / timed[s]:.2f} (sequential: {against})" for s in reversed(strategies)]
+    last = [f"replicates: {label[s]} {timed[s]:.2f} s, sequential {sequential:.2f} s, speedup {speedup(s)} (sequential: {against})" for s in reversed(strategies)]
     if args.out:
         # one provenance record, held by F.json and written as provenance.json
         out = Path(args.out)

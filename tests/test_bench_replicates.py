@@ -80,3 +80,22 @@ def test_the_provenance_record_is_built_once(monkeypatch, tmp_path):
     assert len(built) == 1
     assert json.loads(out.read_text())["provenance"] == json.loads((out.parent / "provenance.json").read_text()) == {"command": f"python bench/replicates.py --replicates 2 --strategies vmap --out {out}", "record": 1}
     assert sorted(p.name for p in out.parent.iterdir()) == ["provenance.json", "replicates.json", "replicates.md"]
+
+
+@pytest.mark.parametrize("failed", ["jtraj", "ipopt"])
+def test_no_speedup_where_a_replicate_failed(monkeypatch, capsys, tmp_path, failed):
+    """A replicate that failed on either side (a solve stopped at its iteration limit) made the
+    speedup one of different work, printed all the same: the line gives the counts instead."""
+    mod = bench_module("replicates")
+    _fake_run(monkeypatch, mod)
+    if failed == "jtraj":
+        sols = [SimpleNamespace(converged=ok, x=None, status=SimpleNamespace(value="solved" if ok else "not_converged"), stats=SimpleNamespace(iterations=7, time_total=3.0)) for ok in (True, False)]
+        monkeypatch.setattr(mod.solvers, "get", lambda name: SimpleNamespace(name="jtraj", options=lambda merged: merged, solve_batch=lambda nlp, starts, theta, strategy, options: (sols[: len(starts)], 1.0, 5.0)))
+    else:
+        runs = iter([True, False])
+        monkeypatch.setattr(mod, "solve", lambda *a, **k: SimpleNamespace(time_s=10.0, iterations=11, constraint_violation=1e-9, success=next(runs), status=SimpleNamespace(value="solved")))
+    out = tmp_path / "replicates.json"
+    mod.main(["--replicates", "2", "--strategies", "vmap", "--out", str(out)])
+    counts = "jtraj 1/2 converged, Ipopt 2/2" if failed == "jtraj" else "jtraj 2/2 converged, Ipopt 1/2"
+    assert capsys.readouterr().out.splitlines()[-1] == f"replicates: vmapped 1.00 s, sequential 20.00 s, speedup none ({counts}) (sequential: Ipopt)"
+    assert json.loads(out.read_text())["speedup"] == {}
