@@ -60,10 +60,10 @@ building the ``casadi.DM``), ``FATROP own`` the difference.
 ``DIR/provenance.json``, again after each task, with ``"complete": false`` until the last.
 
 State (measured on the 2-core CPU, ``python bench/fatrop.py sideflip big_jump --jtraj --out
-results/fatrop``, 2026-12-06): on the Go2 sideflip FATROP converges in 25 iterations (Ipopt 41,
-jtraj's solver 33) with 1.8 s of its own time, plus 11.1 s in the callbacks (JAX's exact
-Hessians, per knot, are slow); on Talos' big_jump it does not converge (return code 1 after 160
-iterations, violation 0.6; Ipopt 11 iterations, jtraj 11). There, from the first iteration, its inertia
+results/fatrop``, 2026-12-07, the run `results/fatrop/` holds): on the Go2 sideflip FATROP
+converges in 19 iterations (Ipopt 41, jtraj's solver 39) with 0.87 s of its own time, plus
+10.3 s in the callbacks (JAX's exact Hessians, per knot, are slow); on Talos' big_jump it does
+not converge (return code 1 after 160 iterations, violation 0.6; Ipopt 11 iterations, jtraj 11). There, from the first iteration, its inertia
 correction adds delta_w of 1e2 to 1e3 each iteration, with the exact Hessian and with its stage
 blocks made positive definite (``--hessian clip``) alike, and also with the nearly dependent
 rows left out (``--rtol 1e-5``, 494 rows); a small Go2 hop behaved so until the exactly

@@ -9,7 +9,8 @@ Each (task, Hessian) is solved once from the task's warm start by ``jtraj.solve(
 solver="jtraj", options={"hessian": ...})`` with the study's other settings (tol 1e-3, the
 task's iteration limit), one after the other in this process; the time is the solve alone
 (its program is compiled before the clock starts, and that compile is printed and kept as
-``time_compile_s``). Prints one row per solve; ``--out`` writes ``DIR/hessians.json``,
+``time_compile_s``; a task's first solve in the process also carries the build of its NLP,
+`jtraj.solve`'s ``time_compile``, so the first Hessian's is the larger). Prints one row per solve; ``--out`` writes ``DIR/hessians.json``,
 ``DIR/hessians.md`` and ``DIR/provenance.json``, again after each task (``"complete": false``
 until the last). Default tasks: the six of the study.
 """

@@ -9,7 +9,8 @@ separate runs cannot tell a 20 % change from the machine's drift).
 Each ``--variant`` names a set of `jtraj.solvers.IpmOptions` fields (``--variant
 loose=residual_ratio_max:1e-6``; a bare ``--variant default`` has none, and is the baseline
 when given first). The first variant is the baseline of the ratio column. Per task, every
-variant is first solved once to compile its program (kept as ``time_compile_s``), then each is
+variant is first solved once to compile its program (kept as ``time_compile_s``; the first
+variant's also carries the build of the task's NLP, `jtraj.solve`'s ``time_compile``), then each is
 timed ``--rounds`` times in ABBA order (a round's order reversed every other round, so neither
 side always runs first). Each solve starts from the task's warm start, so a variant's repeats
 take the same iterations; a record keeps each repeat's iterations, and the table shows them

@@ -11,7 +11,9 @@ variables) with all five parameterizations (``test_converges_on_small_go2_hop`` 
 ``test_converges_on_small_go2_hop_with_the_other_parameterizations``); this benchmark's rows
 are measured only here. Prints one row per
 (parameterization, solver): status, iterations, cost, largest constraint violation, solve time
-(compile excluded); ``--out`` writes ``DIR/params_hop.json``, ``DIR/params_hop.md`` and
+(compile excluded; the JSON's ``time_compile_s`` is `jtraj.solve`'s ``time_compile``, which
+for a parameterization's first solve also holds the build of its NLP); ``--out`` writes
+``DIR/params_hop.json``, ``DIR/params_hop.md`` and
 ``DIR/provenance.json``.
 """
 
