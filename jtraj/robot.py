@@ -349,6 +349,13 @@ def _read_config(path: pathlib.Path, chain: tuple[pathlib.Path, ...] = ()) -> di
     ``chain`` holds the files that extend this one, child first, to report cycles.
     """
     config = _read_toml(path)
+    # each file's own keys, against its own path: checked after the merge, a parent's unknown
+    # key was reported as the child file's
+    _check_keys(config, "", path)
+    if isinstance(config.get("standing"), Mapping):
+        _check_keys(config["standing"], "standing.", path)
+    for entry in config.get("contact", []) if isinstance(config.get("contact"), list) else []:
+        _check_keys(entry, "contact[].", path)
     if "extends" not in config:
         return config
     parent = config.pop("extends")

@@ -560,3 +560,12 @@ def test_a_robot_file_in_the_robots_folder_is_named_by_its_file(tmp_path, monkey
         robot_lib.load("my_go2")
     assert robot_lib.load("my_go2b").name == "my_go2b"
     assert robot_lib.load_file(tmp_path / "my_go2.toml").name == "go2"  # a path's file keeps its name
+
+
+def test_an_unknown_key_of_a_parent_file_is_the_parents(tmp_path):
+    """With ``extends``, a key the parent file got wrong was reported as the child's."""
+    talos = (importlib.resources.files("jtraj.robots") / "talos.toml").read_text()
+    (tmp_path / "parent.toml").write_text(talos.replace('name = "talos"', 'name = "parent"\nstandng = 1'))
+    (tmp_path / "child.toml").write_text('extends = "parent"\n')
+    with pytest.raises(robot_lib.RobotLoadError, match=r"parent\.toml: unknown key 'standng'; did you mean 'standing'\?"):
+        robot_lib.load_file(tmp_path / "child.toml")
