@@ -409,8 +409,10 @@ def _check_and_normalize(t: Task) -> None:
     def put(name: str, value: Any) -> None:
         object.__setattr__(t, name, value)
 
-    if not isinstance(t.name, str) or not t.name:
-        raise TaskError("name", t.name, "expected a non-empty string")
+    if not isinstance(t.name, str) or not t.name.strip():
+        raise TaskError("name", t.name, "expected a non-empty string")  # (" " named the folder runs/ _se3)
+    if t.name != t.name.strip():
+        raise TaskError("name", t.name, "expected a name without leading or trailing spaces (it names the run folders)")
     # the name is a folder's in runs/ (runs/NAME_PARAM, a sweep's OUT/NAME_PARAM): "../x" wrote outside it
     if t.name.startswith(".") or any(sep in t.name for sep in ("/", "\\")) or not t.name.isprintable():
         raise TaskError("name", t.name, "expected a plain name for the run folders (e.g. my_jump): no '/' or '\\', no control characters, not starting with '.'")
@@ -434,6 +436,9 @@ def _check_and_normalize(t: Task) -> None:
         contacts = phase.contacts
         if not _is_list(contacts) or not all(isinstance(c, str) for c in contacts):
             raise TaskError(f"phases[{i}].contacts", contacts, 'expected a list of contact names, e.g. ["FL_foot", "FR_foot"] ([] for flight)')
+        repeated = sorted({c for c in contacts if list(contacts).count(c) > 1})
+        if repeated:  # (accepted without a word; likely a slip for another contact)
+            raise TaskError(f"phases[{i}].contacts", contacts, f"{', '.join(map(repr, repeated))} given more than once; expected each contact once")
         duration = _real(phase.duration, f"phases[{i}].duration", "expected a positive number of seconds", positive=True)
         knots = duration / t.timestep
         if knots < 1 - 1e-6:

@@ -92,6 +92,10 @@ def test_warm_start_ramp_reaches_full_turn_over_flight():
         (dict(phases=(Phase(FEET, 0.1), Phase((), 0.01), Phase(FEET, 0.1))), r"^phases\[1\].duration: 0.01: shorter than one knot \(timestep 0.05 s\); expected at least 0.05 s$"),
         (dict(phases=(Phase(FEET, 0.1), Phase((), 0.03), Phase(FEET, 0.1))), r"^phases\[1\].duration: 0.03: shorter than one knot \(timestep 0.05 s\); expected at least 0.05 s$"),
         (dict(phases=(Phase("FL_foot", 0.1),)), r"^phases\[0\].contacts: 'FL_foot': expected a list of contact names"),
+        # accepted: a blank name named the folder runs/ _se3; a repeated contact, likely a slip for another
+        (dict(name=" "), r"^name: ' ': expected a non-empty string$"),
+        (dict(name="jump "), r"^name: 'jump ': expected a name without leading or trailing spaces"),
+        (dict(phases=(Phase(("FL_foot", "FL_foot"), 0.1),)), r"^phases\[0\].contacts: .*'FL_foot' given more than once; expected each contact once$"),
         # a duration between knots was rounded to the nearest knot (0.12 s flew 0.1 s)
         (dict(phases=(Phase(FEET, 0.1), Phase((), 0.12), Phase(FEET, 0.1))), r"^phases\[1\].duration: 0.12: not a whole number of timesteps \(0.05 s\); expected a multiple such as 0.1 or 0.15 s$"),
         (dict(friction=-0.5), r"^friction: -0.5: expected a positive"),
