@@ -123,12 +123,15 @@ def problem(task: str, robots: dict[str, str], code_costs: bool) -> Any:
 
 
 def problem_label(task: str, robots: dict[str, str], code_costs: bool) -> str:
-    """The table's task cell: the name, and the robot model and costs where not the built-in's."""
+    """The table's task cell: the name, and the robot model and costs where they are not the
+    built-in task's (the code's costs differ on the walk and the back-flip only)."""
+    from side_by_side import CODE_COSTS
+
     from jtraj.task import load
 
     robot = load(task).robot
     notes = [robots[robot]] if robot in robots else []
-    notes += ["code's costs"] if code_costs else []
+    notes += ["code's costs"] if code_costs and task in CODE_COSTS else []
     return task + (f" ({', '.join(notes)})" if notes else "")
 
 
@@ -218,7 +221,7 @@ def markdown(records: list[dict]) -> str:
         peer = rec.get("peer")
         for v in rec["variants"]:
             row = (
-                f"| {rec.get('label', rec['task'])} | {_label(v)} | {v['status']} | {_iterations_cell(v)} | {v['cost']:.4g} | {v['constraint_violation']:.1e} "
+                f"| {problem_label(rec['task'], rec.get('robots') or {}, bool(rec.get('code_costs')))} | {_label(v)} | {v['status']} | {_iterations_cell(v)} | {v['cost']:.4g} | {v['constraint_violation']:.1e} "
                 f"| {_time_cell(v)} | {v['time_s'] / max(v['iterations'], 1):.3f} "
                 f"| {v['time_derivatives']:.2f} | {v['time_ipopt']:.2f} |"
             )
@@ -329,7 +332,7 @@ def main(argv: list[str] | None = None) -> None:
     for t, task in enumerate(args.tasks):
         solved = problem(task, robots, args.code_costs)
         rec = dict(
-            task=task, label=problem_label(task, robots, args.code_costs), robots=robots, code_costs=args.code_costs, param=args.param,
+            task=task, robots=robots, code_costs=args.code_costs, param=args.param,
             machine=dict(cpus=os.cpu_count(), load_1min=os.getloadavg()[0], platform=platform.platform()), peer=None, variants=[],
         )
         peer_runs: list[dict] = []
