@@ -1122,7 +1122,17 @@ def _refuse_mixed_settings(runs: list[dict], task: str, p: str, sigma: float) ->
     """ValueError where the runs of one Table III cell come from different settings (another
     task file, robot, variables, Hessian, solver options or seed: a runs.jsonl keeps the runs of
     earlier settings beside a study's, `robustness`): counted together, the cell's rates had a
-    mixed denominator. A field an earlier file did not record (null) matches any value."""
+    mixed denominator. A field an earlier file did not record (null) matches any value, so a
+    replicate that appears twice in the cell is refused too: a study resumed in the folder of
+    runs written before jtraj recorded those fields solves them again beside them, and the
+    cell counted both."""
+    replicates = [r["replicate"] for r in runs if "replicate" in r]
+    if twice := sorted({k for k in replicates if replicates.count(k) > 1}):
+        raise ValueError(
+            f"Table III: the runs of {task} / {p} at sigma {sigma:g} hold replicate(s) {twice[:6]}{' ...' if len(twice) > 6 else ''} more than once "
+            "(runs of two settings, e.g. earlier ones written before jtraj recorded variables_hash and robot_hash); expected one setting's runs per cell: "
+            "select them first (e.g. select_runs(runs, variables_hash=...); jtraj robustness writes each call's own table)"
+        )
     for field in _CELL_SETTINGS:
         values = sorted({str(v) for r in runs if (v := _key_value(r, field)) is not None})
         if len(values) > 1:
@@ -1178,7 +1188,7 @@ def _table_iii_markdown(summary: list[dict], sigmas: Sequence[float], iterations
         rates = f"{_percent(r['converged_rate'])} / {_percent(r['task_success_rate'])}"
         if not iterations:
             return rates
-        return rates + (" (-)" if r["iterations_median"] is None else f" ({r['iterations_median']:.0f})")
+        return rates + (" (-)" if r["iterations_median"] is None else f" ({r['iterations_median']:g})")  # (:.0f made 16.5 "16" and 49.5 "50")
 
     rows = []
     for group in dict.fromkeys((r["task"], r["parameterization"], _setting(r)) for r in summary):

@@ -358,6 +358,10 @@ def test_table_iii_refuses_a_cell_whose_runs_come_from_different_settings():
         summarize_robustness([run(0, True, options_hash="a"), run(0, True, options_hash="b")])
     (row,) = summarize_robustness([run(0, True, robot_hash="r1"), run(0, False)])  # the second's robot not recorded
     assert row["runs"] == 2 and row["converged_rate"] == 0.5
+    # but one replicate twice is two settings' runs: a study resumed beside runs written before
+    # the hashes were recorded solved them again, and the cell counted both (20 runs of 10)
+    with pytest.raises(ValueError, match=r"^Table III: the runs of walk / se3 at sigma 0.1 hold replicate\(s\) \[0\] more than once"):
+        summarize_robustness([run(0, True, replicate=0, variables_hash="v1"), run(0, False, replicate=0), run(0, True, replicate=1, variables_hash="v1")])
     # and names the public way to select one setting's runs (the message said "select them
     # first", and the only selection was private)
     from jtraj.experiments import select_runs
@@ -1377,11 +1381,12 @@ def test_table_iii_of_runs_with_and_without_iterations():
     def run(sigma, replicate, converged, iterations, p="se3"):
         return dict(task="walk", parameterization=p, sigma=sigma, replicate=replicate, converged=converged, constraint_violation=1e-9, success=converged, iterations=iterations)
 
-    runs = [run(0.5, 0, False, 50), run(0.1, 0, True, 12), run(0.1, 1, True, 16), run(0.5, 1, False, 50), run(0.1, 0, True, 20, "euler")]
+    runs = [run(0.5, 0, False, 50), run(0.1, 0, True, 12), run(0.1, 1, True, 16), run(0.5, 1, False, 50), run(0.1, 0, True, 20, "euler"), run(0.1, 1, True, 21, "euler")]
     plain = [line for line in table_iii(runs).splitlines() if line.startswith("|")]
     assert plain == ["| task | parameterization | sigma=0.1 | sigma=0.5 |", "|---|---|---|---|", "| walk | se3 | 100% / 100% | 0% / 0% |", "| walk | euler | 100% / 100% |  |"]
     counted = table_iii(runs, iterations=True)
-    assert "| walk | se3 | 100% / 100% (14) | 0% / 0% (-) |" in counted and "| walk | euler | 100% / 100% (20) |  |" in counted
+    # a half median as it is (":.0f" rounded halves to even: 20.5 read "20", 49.5 "50")
+    assert "| walk | se3 | 100% / 100% (14) | 0% / 0% (-) |" in counted and "| walk | euler | 100% / 100% (20.5) |  |" in counted
     assert "median iterations of the converged runs" in counted and "median iterations" not in table_iii(runs)
 
 
