@@ -5,14 +5,17 @@ the convention of the paper, of MuJoCo and of jaxlie's ``SO3.wxyz``. Equation nu
 to that paper. Functions take one quaternion (shape (4,)) unless a
 docstring says otherwise; use `jax.vmap` for batches.
 
-Two printed equations of the paper carry sign slips that this module does not copy; the
+Three printed equations of the paper carry slips that this module does not copy; the
 functions here equal the autodiff expressions stated in their docstrings, and the tests
 check exactly those expressions:
 
 - eq. 15: the second-order term of the Cayley map is ``-|phi|^2 / 2 q``, so the Hessian
   correction is ``G^T (d2h/dq2) G - (dh/dq q) I3`` (printed with ``+``);
 - eq. 41: the gradient of ``1 - |q_g^T q|`` is ``-sign(q_g^T q) q_g^T G(q)`` (printed
-  without the minus). Eq. 42 as printed is right.
+  without the minus). Eq. 42 as printed is right;
+- eq. 38: the Cayley map's inverse has the Jacobian ``[-q_v / q_s^2, I3 / q_s]``; as printed,
+  ``-1/q_s^2 [q_v, -(1/q_s) I3]``, its vector block would be ``I3 / q_s^3``
+  (`cayley_inv_jacobian`; a review's check against ``jax.jacfwd``).
 """
 
 from __future__ import annotations
@@ -112,7 +115,8 @@ def cayley_inv(q: jax.Array) -> jax.Array:
 
 
 def cayley_inv_jacobian(q: jax.Array) -> jax.Array:
-    """``D(q) = d cayley_inv / dq`` (eq. 38) ``= [-q_v / q_s^2, I3 / q_s]``; (4,) -> (3, 4)."""
+    """``D(q) = d cayley_inv / dq = [-q_v / q_s^2, I3 / q_s]`` (eq. 38 as corrected in the
+    module docstring); (4,) -> (3, 4)."""
     q = shaped(q, (4,), "q (a quaternion)")
     s = q[0]
     return jnp.concatenate([-q[1:, None] / s**2, jnp.eye(3) / s], axis=1)
