@@ -478,3 +478,29 @@ def test_cholesky_in_halves_equals_lapack(rng, monkeypatch, n):
         C[bad, bad] = -1.0
         pivots = np.diagonal(np.asarray(kkt._cholesky(jnp.asarray(C))))
         assert not np.all(np.isfinite(pivots) & (pivots > 0.0))
+
+
+def test_the_slack_rows_block_is_perturbed_with_the_variables(rng):
+    """Ipopt's inertia correction perturbs the slacks' block, Sigma_s + delta_w I, with the
+    variables' (Wächter & Biegler 2006, eq. 13); eliminated, a slack row's (2, 2) entry is then
+    1 / (1/d0 + delta_w). Only the variables' block was: the step differed from Ipopt's wherever
+    delta_w > 0 (the exact Hessian's negative curvature). With ``slack`` rows the factorization
+    and the solve are those of the perturbed system: equal to its dense solve, with its inertia."""
+    system = random_system(rng, indefinite=True)
+    K, n = system.sigma.shape
+    m = system.A.shape[1]
+    slack = np.asarray(system.d0) > 0.0
+    slack[1, 0] = False  # the inactive row is no slack's
+    system = system._replace(slack=jnp.asarray(slack))
+    fac, delta_w, ok = kkt.factor_with_correction(system, jnp.asarray(1e-9), jnp.asarray(0.0))
+    assert bool(ok) and float(delta_w) > 0.0
+    d0w = np.where(slack, np.asarray(system.d0) / (1.0 + float(delta_w) * np.asarray(system.d0)), np.asarray(system.d0))
+    np.testing.assert_allclose(np.asarray(kkt.perturbed_d0(system, delta_w)), d0w)
+    M, keep = dense_kkt(system._replace(d0=jnp.asarray(d0w)), float(delta_w))
+    eig = np.linalg.eigvalsh(M)
+    assert np.sum(eig > 0) == keep.sum() and np.sum(eig < 0) == K * m
+    r_x, r_c = rng.normal(size=(K, n)), rng.normal(size=(K, m))
+    dx, dy = kkt.solve(system, fac, delta_w, jnp.asarray(1e-9), jnp.asarray(r_x), jnp.asarray(r_c))
+    ref = np.linalg.solve(M, np.concatenate([r_x.reshape(-1)[keep], r_c.reshape(-1)]))
+    np.testing.assert_allclose(np.asarray(dx).reshape(-1)[keep], ref[: keep.sum()], rtol=1e-8, atol=1e-8)
+    np.testing.assert_allclose(np.asarray(dy).reshape(-1), ref[keep.sum() :], rtol=1e-8, atol=1e-8)

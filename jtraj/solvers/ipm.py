@@ -17,7 +17,9 @@ multipliers are reported at the end as Ipopt's are (`IpmResult`).
 Differences from Ipopt, and why:
 - Newton step: the block-tridiagonal factorization of `jtraj.solvers.kkt` (linear in the knots,
   small dense blocks; inertia correction by ``delta_w`` when the condensed matrix is not
-  positive definite; a dual regularization ``delta_c mu^(1/4)`` on every row, which is Ipopt's
+  positive definite, on the variables' block and, as Ipopt's, the inequality slacks' (before
+  2026-12-07 on the variables' only: on a concave box with the exact Hessian 18 and 13
+  iterations where Ipopt takes 13 and 9); a dual regularization ``delta_c mu^(1/4)`` on every row, which is Ipopt's
   perturbation for a dependent Jacobian and is needed here: the corner-point contacts make the
   equality rows dependent, 12 per stance knot on Talos), instead of a general sparse LDL^T.
 - Hessian: by default Ipopt's limited-memory BFGS of the Lagrangian (``sigma I`` minus a
@@ -70,10 +72,7 @@ Differences from Ipopt, and why:
   study's tasks Ipopt's own runs do not change with ``recalc_y=no``: `jtraj solve` of the
   side-flip, big_jump and the back-flip took 41, 11 and 119 iterations to the same cost and
   violation either way, 2026-12-07: its augmented system there is singular, the corner-point
-  contacts' rows being dependent, or the violation never below the threshold), the
-  perturbation of the inequality slacks' block by ``delta_w`` in the inertia correction (only
-  the variables' is: it matters where ``delta_w`` > 0, the exact or ``bfgs`` Hessian; the
-  limited-memory matrix is positive definite), the relaxation of bounds
+  contacts' rows being dependent, or the violation never below the threshold), the relaxation of bounds
   (``bound_relax_factor`` 1e-8), the watchdog procedure, tiny-step detection, and
   ``obj_max_inc``. Smaller differences: a solved barrier problem lowers mu at
   most 4 times in one iteration (Ipopt's monotone loop has no bound, and its adaptive
@@ -1373,12 +1372,12 @@ class IPM:
         # step is not taken)
         fac, delta_w, ok = kkt.factor_with_correction(system, delta_c, st.delta_w_last, active=active)
         avg = jnp.maximum(self._complementarity(p, st)[0], 1e-300)
-        rx, rc = jax.tree.map(lambda a, b: jnp.stack([a, b]), right_hand_side(0.0, r_c), right_hand_side(avg, r_c))
+        rx, rc = jax.tree.map(lambda a, b: jnp.stack([a, b]), right_hand_side(0.0, r_c, delta_w), right_hand_side(avg, r_c, delta_w))
         # both right-hand sides at once: their first block solves share the sweeps with the
         # low-rank columns' (`kkt.solve`)
         dxs, dys = kkt.solve(system, fac, delta_w, delta_c, rx, rc, o.refine_steps, remove_delta_c=not o.delta_c_mu_scaled, low_rank=low_rank, residual_ratio_max=o.residual_ratio_max, min_refine_steps=o.min_refine_steps)
-        affine = full_step(0.0, dxs[0], dys[0])
-        centering = jax.tree.map(lambda a, b: a - b, full_step(avg, dxs[1], dys[1]), affine)  # per unit sigma
+        affine = full_step(0.0, dxs[0], dys[0], delta_w)
+        centering = jax.tree.map(lambda a, b: a - b, full_step(avg, dxs[1], dys[1], delta_w), affine)  # per unit sigma
         mu = st.mu
         if o.mu_strategy == "adaptive" and o.mu_oracle == "quality-function":
             with jax.named_scope("ipm_mu_oracle"):
@@ -1428,16 +1427,18 @@ class IPM:
             gs = jnp.where(p.ineq, -_safe(mu, dsl, p.has_sl) + _safe(mu, dsu, p.has_su), 0.0)
             return gx, gs
 
-        def right_hand_side(mu, r_c):
+        # with the inertia correction's delta_w the slacks' block is sigma_s + delta_w, as in
+        # Ipopt (`kkt.KKTSystem.slack`): the two maps take the delta_w of the factorization
+        def right_hand_side(mu, r_c, delta_w=0.0):
             gx, gs = barrier_gradients(mu)
             rhat_x = jnp.where(p.free, gx + kkt._apply_JT(st.J, None, st.y, self.view.pattern), 0.0)
             rhat_s = jnp.where(p.ineq, gs - st.y, 0.0)
-            # slacks eliminated: ds = (dy - rhat_s) / sigma_s on inequality rows
-            return -rhat_x, -jnp.where(p.ineq, r_c + rhat_s / sig_s, r_c)
+            # slacks eliminated: ds = (dy - rhat_s) / (sigma_s + delta_w) on inequality rows
+            return -rhat_x, -jnp.where(p.ineq, r_c + rhat_s / (sig_s + delta_w), r_c)
 
-        def full_step(mu, dx, dy):
+        def full_step(mu, dx, dy, delta_w=0.0):
             rhat_s = jnp.where(p.ineq, barrier_gradients(mu)[1] - st.y, 0.0)
-            ds = jnp.where(p.ineq, (dy - rhat_s) / sig_s, 0.0)
+            ds = jnp.where(p.ineq, (dy - rhat_s) / (sig_s + delta_w), 0.0)
             dzl = jnp.where(p.has_xl, (mu - st.zl * dxl - st.zl * dx) / dxl, 0.0)
             dzu = jnp.where(p.has_xu, (mu - st.zu * dxu + st.zu * dx) / dxu, 0.0)
             dvl = jnp.where(p.has_sl, (mu - st.vl * dsl - st.vl * ds) / dsl, 0.0)
@@ -1456,7 +1457,7 @@ class IPM:
         if self.options.hessian == "lbfgs":
             sigma_x = sigma_x + jnp.where(p.free, st.lsigma, 0.0)
             low_rank = self._lbfgs_low_rank(st)
-        system = kkt.KKTSystem(H=H, sigma=sigma_x, A=st.J, B=None, d0=d0, free=p.free, pattern=self.view.pattern)
+        system = kkt.KKTSystem(H=H, sigma=sigma_x, A=st.J, B=None, d0=d0, free=p.free, pattern=self.view.pattern, slack=p.ineq)
         return system, low_rank, r_c, right_hand_side, full_step, barrier_gradients
 
     def _factored(self, p: _Problem, st: _State):
@@ -1478,8 +1479,8 @@ class IPM:
         replaced by ``c_soc``. Returns (step, primal and dual fraction-to-the-boundary
         lengths)."""
         _, _, right_hand_side, full_step, solve = self._factored(p, st)
-        dx, dy = solve(*right_hand_side(st.mu, c_soc))
-        step = full_step(st.mu, dx, dy)
+        dx, dy = solve(*right_hand_side(st.mu, c_soc, st.delta_w))
+        step = full_step(st.mu, dx, dy, st.delta_w)
         a_p, a_d = self._step_bounds(p, st, step, st.tau)
         return step, a_p, a_d
 
@@ -1500,7 +1501,7 @@ class IPM:
         system, r_c, _, _, solve = self._factored(p, st)
         dx, dy = solve(jnp.zeros_like(st.x), -r_c)
         dx = jnp.where(p.free, dx, 0.0)
-        ds = jnp.where(p.ineq, system.d0 * dy, 0.0)
+        ds = jnp.where(p.ineq, kkt.perturbed_d0(system, st.delta_w) * dy, 0.0)
         keep = jax.tree.map(jnp.zeros_like, (st.dy, st.dzl, st.dzu, st.dvl, st.dvu))
         a_max, a_dual = self._step_bounds(p, st, (dx, ds, *keep), st.tau)
         return st._replace(dx=dx, ds=ds, dy=keep[0], dzl=keep[1], dzu=keep[2], dvl=keep[3], dvu=keep[4], alpha=a_max, alpha_dual=a_dual, slope=jnp.zeros_like(st.slope))

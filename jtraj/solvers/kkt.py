@@ -12,7 +12,8 @@ knots k and k+1 only)::
 - ``sigma`` (K, n) >= 0: the primal-dual barrier terms of the variable bounds;
 - ``J``: the constraint Jacobian, rows of knot k = ``[A_k, B_k]`` (m x n each) on (z_k, z_{k+1});
 - ``D0`` (K, m) >= 0: 0 on equality rows, ``1 / sigma_s`` on inequality rows whose slack was
-  eliminated (Ipopt's reduced system), anything positive on inactive rows (their J rows are 0).
+  eliminated (Ipopt's reduced system; with ``KKTSystem.slack`` a ``delta_w`` perturbs them
+  too, ``1 / (sigma_s + delta_w)``), anything positive on inactive rows (their J rows are 0).
 Fixed variables (``free == False``) are removed: their rows and columns are replaced by the
 identity and their step is 0.
 
@@ -94,6 +95,10 @@ class KKTSystem(NamedTuple):
         free: (K, n) bool, False for fixed variables.
         pattern: the static sparsity of A and B (entries outside it are taken as zero), or
             None for dense blocks.
+        slack: (K, m) bool, or None: the rows whose ``d0`` is ``1 / sigma_s`` of an eliminated
+            slack. A ``delta_w`` perturbs their slack's block too, as Ipopt's inertia correction
+            perturbs ``Sigma_s + delta_w I`` with the variables' (Wächter & Biegler 2006,
+            eq. 13): their (2, 2) entry is then ``1 / (1/d0 + delta_w)`` (`perturbed_d0`).
     """
 
     H: jax.Array | None
@@ -103,6 +108,15 @@ class KKTSystem(NamedTuple):
     d0: jax.Array
     free: jax.Array
     pattern: JacobianPattern | None = None
+    slack: jax.Array | None = None
+
+
+def perturbed_d0(system: KKTSystem, delta_w: jax.Array) -> jax.Array:
+    """The (2, 2) block's ``d0`` at the perturbation ``delta_w``: on the slack rows
+    (`KKTSystem.slack`) ``1 / (1/d0 + delta_w) = d0 / (1 + delta_w d0)``, elsewhere ``d0``."""
+    if system.slack is None:
+        return system.d0
+    return jnp.where(system.slack, system.d0 / (1.0 + delta_w * system.d0), system.d0)
 
 
 @jax.tree_util.register_static
@@ -555,8 +569,11 @@ def factor_with_correction(
     diag, upper = _product_blocks(system, d)
     keep = system.free.astype(diag.dtype)
 
-    def attempt(dw):
-        return factor(diag, upper, coupled=coupled, shift=system.sigma + dw, keep=keep)
+    def attempt(dw, first=False):
+        # with slack rows their block is perturbed too: their D, and so the products, change
+        # with delta_w (the first attempt, delta_w = 0, takes those made above)
+        blocks = (diag, upper) if first or system.slack is None else _product_blocks(system, perturbed_d0(system, dw) + delta_c)
+        return factor(*blocks, coupled=coupled, shift=system.sigma + dw, keep=keep)
 
     def following(dw, i):
         # the trial after ``dw``, the i-th (i >= 1): Ipopt's first nonzero value, then growth
@@ -581,7 +598,7 @@ def factor_with_correction(
     # for the loop's first state (about 1 % of a profiled big_jump solve), at the price of a
     # second factorization in the program
     zero = jnp.zeros((), system.sigma.dtype)
-    fac0, ok0 = attempt(zero)
+    fac0, ok0 = attempt(zero, first=True)
     fac, ok, dw, _ = lax.while_loop(cond, body, (fac0, ok0, zero, jnp.ones((), jnp.int32)))
     return fac, dw, ok
 
@@ -618,8 +635,8 @@ def _apply_H(H, x):
 def multiply(system: KKTSystem, delta_w: jax.Array, dx: jax.Array, dy: jax.Array, d: jax.Array | None = None, low_rank: LowRank | None = None) -> tuple[jax.Array, jax.Array]:
     """The KKT matrix (with (2,2) block ``-diag(d)``, default D0; the Hessian's low-rank term
     if given) times (dx, dy), fixed variables removed (their rows return dx itself)."""
-    H, sigma, A, B, d0, free, pattern = system
-    d = d0 if d is None else d
+    H, sigma, A, B, _, free, pattern, _ = system
+    d = perturbed_d0(system, delta_w) if d is None else d
     f = free.astype(dx.dtype)
     dxf = dx * f
     Hx = jnp.zeros_like(dxf) if H is None else _apply_H(H, dxf)
@@ -675,7 +692,7 @@ def solve(
     if not many:
         r_x, r_c = r_x[None], r_c[None]
     A, B = system.A, system.B
-    d = system.d0 + delta_c
+    d = perturbed_d0(system, delta_w) + delta_c
     f = system.free.astype(r_x.dtype)
     r_x = r_x * f
     coupled = coupled_columns(system.pattern, system.H is not None)
