@@ -129,8 +129,10 @@ def problem_label(task: str, robots: dict[str, str], code_costs: bool) -> str:
 
     from jtraj.task import load
 
-    robot = load(task).robot
-    notes = [robots[robot]] if robot in robots else []
+    notes = []
+    if robots:  # (a record of no mapping needs no task: the name alone)
+        robot = load(task).robot
+        notes += [robots[robot]] if robot in robots else []
     notes += ["code's costs"] if code_costs and task in CODE_COSTS else []
     return task + (f" ({', '.join(notes)})" if notes else "")
 
