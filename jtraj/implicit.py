@@ -304,21 +304,20 @@ def implicit_solution(
         # every system of this call first: one built again and put back in the cache evicted the
         # oldest, which a batch larger than the cache still needed, and so built all again
         unique = [int(t) for t in np.unique(tokens)]
+        rows_of = {t: np.flatnonzero(tokens == t) for t in unique}
+        theta_of = {t: jax.tree_util.tree_unflatten(treedef, [leaf.reshape((-1,) + leaf.shape[len(batch):])[rows_of[t][0]] for leaf in thetas]) for t in unique}
         systems = {t: cache.get(t) for t in unique}
         for t in unique:
             if systems[t] is None:  # evicted: built again at its solution, for the active set it was built for
-                i = int(np.flatnonzero(tokens == t)[0])
-                th = jax.tree_util.tree_unflatten(treedef, [leaf.reshape((-1,) + leaf.shape[len(batch):])[i] for leaf in thetas])
+                i = rows_of[t][0]
                 held = cache.active_set(t, *(a[i] for a in acts))
-                systems[t] = kkt_system(nlp, xs[i], lams[i], th, weak_tol=weak_tol, kkt_tol=None, active=held)  # checked by the forward pass
-        for t in unique:
-            if cache.get(t) is None:
+                systems[t] = kkt_system(nlp, xs[i], lams[i], theta_of[t], weak_tol=weak_tol, kkt_tol=None, active=held)  # checked by the forward pass
                 cache.restore(t, systems[t])
         for t in unique:
-            rows = np.flatnonzero(tokens == t)
+            rows = rows_of[t]
             system = systems[t]
             i = rows[0]
-            th = jax.tree_util.tree_unflatten(treedef, [leaf.reshape((-1,) + leaf.shape[len(batch):])[i] for leaf in thetas])
+            th = theta_of[t]
             try:
                 out[rows] = system.solve(bb[rows], transpose=transpose)
             except SingularKKTError as e:
