@@ -11,6 +11,7 @@ comparison's figure).
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import dataclasses
 import functools
@@ -1126,8 +1127,8 @@ def _refuse_mixed_settings(runs: list[dict], task: str, p: str, sigma: float) ->
     replicate that appears twice in the cell is refused too: a study resumed in the folder of
     runs written before jtraj recorded those fields solves them again beside them, and the
     cell counted both."""
-    replicates = [r["replicate"] for r in runs if "replicate" in r]
-    if twice := sorted({k for k in replicates if replicates.count(k) > 1}):
+    counts = collections.Counter(r["replicate"] for r in runs if "replicate" in r)
+    if twice := sorted(k for k, n in counts.items() if n > 1):
         raise ValueError(
             f"Table III: the runs of {task} / {p} at sigma {sigma:g} hold replicate(s) {twice[:6]}{' ...' if len(twice) > 6 else ''} more than once "
             "(runs of two settings, e.g. earlier ones written before jtraj recorded variables_hash and robot_hash); expected one setting's runs per cell: "
