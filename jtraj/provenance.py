@@ -74,6 +74,11 @@ def vector_extension(cpuinfo: str) -> str | None:
 #: and the built-in tasks and robots, which are any .toml there)
 LOADED_FOLDERS = ("jtraj", "tasks", "robots")
 
+#: the tracked paths whose changes make a run's code differ from its commit: the folders a run
+#: loads, the benchmarks (their runs record this too) and the package's metadata. A change
+#: elsewhere, such as the tracked files a sweep writes into ``results/`` itself, does not count.
+CODE_PATHS = (*LOADED_FOLDERS, "bench", "pyproject.toml")
+
 
 #: git's environment variables that choose the repository, index or objects it reads
 _REPOSITORY_VARIABLES = frozenset(
@@ -84,7 +89,7 @@ _REPOSITORY_VARIABLES = frozenset(
 def source(root: str | Path | None = None) -> dict | None:
     """The git commit jtraj runs from (or the checkout at ``root``) and whether the run's code
     differs from it (``dirty``):
-    a tracked file changed, or a file that git does not ignore and does not track in one of
+    a tracked file in `CODE_PATHS` changed, or a file that git does not ignore and does not track in one of
     `LOADED_FOLDERS` (a new ``tasks/*.toml`` is a built-in task the commit lacks; it is named in
     ``untracked``), when jtraj is imported from a git checkout (an editable install); None
     otherwise."""
@@ -100,7 +105,9 @@ def source(root: str | Path | None = None) -> dict | None:
         def git(*args: str) -> str:
             return subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True, timeout=20, check=True, env=env).stdout.strip()
 
-        changed = bool(git("status", "--porcelain", "--untracked-files=no"))
+        # only the code's paths: a sweep written into a tracked results folder rewrites its own
+        # provenance.json and tables, and the checkout then read dirty at its first solve
+        changed = bool(git("status", "--porcelain", "--untracked-files=no", "--", *CODE_PATHS))
         untracked = git("ls-files", "--others", "--exclude-standard", "--", *LOADED_FOLDERS).splitlines()
         record: dict = {"commit": git("rev-parse", "HEAD"), "dirty": changed or bool(untracked)}
         if untracked:

@@ -55,14 +55,15 @@ def test_source_is_none_outside_a_checkout(monkeypatch, tmp_path):
 
 
 def test_dirty_names_a_changed_file_and_an_untracked_one_the_run_loads(monkeypatch, tmp_path):
-    """A checkout is dirty when a tracked file changed or when a task, robot or module file the
-    run loads is not tracked (``git status --untracked-files=no`` called a tree with a new
-    tasks/*.toml clean, though the commit cannot give that task); files git ignores, and
-    untracked files elsewhere, do not count."""
+    """A checkout is dirty when a tracked file of the code changed or when a task, robot or
+    module file the run loads is not tracked (``git status --untracked-files=no`` called a tree
+    with a new tasks/*.toml clean, though the commit cannot give that task); files git ignores,
+    untracked files elsewhere, and tracked files outside the code (a sweep's own outputs in a
+    tracked results folder) do not count."""
     def git(*args):
         subprocess.run(["git", "-C", str(tmp_path), *args], capture_output=True, check=True)
 
-    for name, text in (("jtraj/provenance.py", ""), ("tasks/walk.toml", "a"), (".gitignore", "runs/\n")):
+    for name, text in (("jtraj/provenance.py", ""), ("tasks/walk.toml", "a"), (".gitignore", "runs/\n"), ("results/t/provenance.json", "{}"), ("bench/solve.py", "")):
         (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
         (tmp_path / name).write_text(text)
     git("init", "-q")
@@ -75,7 +76,12 @@ def test_dirty_names_a_changed_file_and_an_untracked_one_the_run_loads(monkeypat
     (tmp_path / "runs").mkdir()
     (tmp_path / "runs" / "result.json").write_text("{}")  # ignored
     (tmp_path / "notes.md").write_text("")  # not loaded by a run
+    # a sweep written into a tracked results folder rewrites its own files
+    (tmp_path / "results" / "t" / "provenance.json").write_text('{"a": 1}')
     assert prov.source()["dirty"] is False
+    (tmp_path / "bench" / "solve.py").write_text("changed")
+    assert prov.source() == {"commit": clean["commit"], "dirty": True}
+    git("checkout", "--", "bench/solve.py")
     (tmp_path / "tasks" / "my_jump.toml").write_text("b")
     assert prov.source() == {"commit": clean["commit"], "dirty": True, "untracked": ["tasks/my_jump.toml"]}
     (tmp_path / "tasks" / "my_jump.toml").unlink()
