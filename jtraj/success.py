@@ -20,9 +20,11 @@ unit flip axis and ``n`` its expected signed number of turns (``flip_turns``; a 
   plans, e.g. its target yaw; zero for most tasks), ``|a - r| / 2 pi < TURN_TOLERANCE``. A
   handstand that rotates forward onto the hands and back accumulates about zero; one that goes
   on over the top accumulates a full turn and fails; a task whose target turns the base by 90
-  degrees about the vertical passes when it turns that way. Where the other way round to the
-  last attitude (``r`` minus a full turn along its axis) is within `TURN_TOLERANCE` turns of
-  ``r`` as long (``|r|`` near pi, where ``Log`` picks the axis' sign by rounding), either counts.
+  degrees about the vertical passes when it turns that way. Where ``|r|`` is within
+  `LONG_WAY_WINDOW` of pi (a half turn, where ``Log`` picks the axis' sign by rounding, and a
+  target angle may reach `jtraj.task.RPY_LIMIT`), the other way round to the last attitude
+  (``r`` minus a full turn along its axis) counts too; elsewhere turning the long way round is
+  a spin (a target yaw of 144 degrees reached by turning -216 degrees fails).
 
 The step between two knots must stay below pi for ``Log`` to see its direction: `evaluate`
 reports a trajectory whose largest step is above `MAX_STEP` rad as failed instead of guessing.
@@ -43,7 +45,7 @@ import numpy as np
 from jtraj.lie import rotation_steps
 from jtraj.numbers import is_real, unit_and_length
 
-__all__ = ["TURN_TOLERANCE", "OFF_AXIS_SHARE", "MAX_STEP", "FEASIBILITY_TOL", "TaskCheck", "rotation_vector", "evaluate"]
+__all__ = ["TURN_TOLERANCE", "OFF_AXIS_SHARE", "MAX_STEP", "FEASIBILITY_TOL", "LONG_WAY_WINDOW", "TaskCheck", "rotation_vector", "evaluate"]
 
 #: Largest distance, in turns, between the measured and the expected number of turns.
 TURN_TOLERANCE = 0.25
@@ -53,6 +55,9 @@ OFF_AXIS_SHARE = 0.25
 MAX_STEP = 0.9 * math.pi
 #: Largest constraint violation of a solve that counts as feasible (constraint units).
 FEASIBILITY_TOL = 1e-2
+#: How close to pi (rad) the first-to-last rotation's angle must be for the long way round
+#: to count as the planned turn: twice `jtraj.task.RPY_LIMIT`'s margin past pi.
+LONG_WAY_WINDOW = 2e-3
 
 
 @dataclasses.dataclass(frozen=True)
@@ -98,7 +103,9 @@ def _turns_beyond_net_rotation(base_xyz_wxyz: np.ndarray, a: np.ndarray) -> floa
     net = np.asarray(rotation_steps(base_xyz_wxyz[[0, -1], 3:7]))[0]
     angle = float(np.linalg.norm(net))
     candidates = [net]
-    if angle > 0 and 2 * math.pi - 2 * angle <= 2 * math.pi * TURN_TOLERANCE:
+    # only near a half turn: the window was |r| >= 3 pi / 4, so turning -216 degrees to a
+    # target yaw of 144 degrees, a full turn more than planned, passed
+    if angle > 0 and math.pi - angle <= LONG_WAY_WINDOW:
         candidates.append(net - 2 * math.pi * net / angle)
     return min(float(np.linalg.norm(a - r)) for r in candidates) / (2 * math.pi)
 

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from jtraj import success
+from jtraj.task import RPY_LIMIT
 
 
 def _about(axis, angles, xyz=None):
@@ -101,17 +102,30 @@ def test_regression_non_finite_trajectory_fails(where):
         assert not check.ok and "NaN or infinite" in check.reason, (kwargs, check)
 
 
-@pytest.mark.parametrize("degrees", [90.0, 135.0, 180.0, -180.0, 180.0 + 1e-9, 181.0, -181.0, 200.0])
+@pytest.mark.parametrize("degrees", [90.0, 135.0, 180.0, -180.0, 180.0 + 1e-9, np.degrees(RPY_LIMIT), -np.degrees(RPY_LIMIT)])
 def test_regression_a_planned_turn_is_not_a_somersault(degrees):
     """Regression: tasks without a flip failed whenever the base turned a quarter turn in all,
     so a task whose target turns the base (``target.rotation_rpy``, here a yaw) failed as a
     somersault when it did that turn; the check now measures the rotation beyond the turn
     from the first to the last attitude, which a spin on top of the planned turn still fails.
-    Past half a turn ``Log`` of the first-to-last rotation is the short way round (181 deg is
-    -179 deg), so the check also takes the long way; the cases past 180 deg need it."""
+    Past half a turn ``Log`` of the first-to-last rotation is the short way round (a target yaw
+    of `RPY_LIMIT`, just past 180 deg, reads as just under -180 deg), so near a half turn the
+    check also takes the long way; the cases past 180 deg need it."""
     Z = [0.0, 0.0, 1.0]
     turn = np.radians(degrees)
     assert success.evaluate(_about(Z, _ramp(turn))).ok
     spin = success.evaluate(_about(Z, _ramp(turn + np.sign(turn) * 2 * np.pi, n=60)))
     assert not spin.ok and "somersault" in spin.reason
     assert spin.total_turns == pytest.approx(abs(degrees) / 360 + 1.0)
+
+
+@pytest.mark.parametrize("degrees", [144.0, -144.0, 179.0])
+def test_regression_the_long_way_round_to_a_planned_turn_is_a_spin(degrees):
+    """Regression: the long way round to the last attitude counted as the planned turn whenever
+    that turn was 135 degrees or more, so reaching a target yaw of 144 degrees by turning -216
+    degrees (a full turn more than planned) passed. It counts only near a half turn now."""
+    Z = [0.0, 0.0, 1.0]
+    turn = np.radians(degrees)
+    assert success.evaluate(_about(Z, _ramp(turn))).ok
+    long_way = success.evaluate(_about(Z, _ramp(turn - np.sign(turn) * 2 * np.pi, n=60)))
+    assert not long_way.ok and "somersault" in long_way.reason
