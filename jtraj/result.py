@@ -465,8 +465,8 @@ def _restore_non_finite(fields: dict[str, Any], entries: Any, names: tuple[str, 
             (name, *keys, last), text = entry
             assert name in names and text in values
             parent = fields[name]
-            for key in keys:
-                parent = parent[key]
+            for part in keys:  # not ``key``: the error below names the list by it
+                parent = parent[part]
             if parent[last] is not None and not (isinstance(parent[last], float) and math.isnan(parent[last])):
                 raise TypeError
             parent[last] = values[text]

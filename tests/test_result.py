@@ -214,6 +214,11 @@ def test_a_list_of_non_finite_values_naming_no_null_is_refused(tmp_path):
     (tmp_path / "result.json").write_text(json.dumps(data))
     with pytest.raises(FileFormatError, match=r"result\.json: non_finite_values: \[\['options', 'tol'\], 'inf'\] names no null of the result"):
         Result.load(tmp_path)
+    # a deeper path: the error named the path's last key walked ("theta") for the list
+    data["non_finite_values"] = [[["options", "theta", "max_delta_force", 5], "inf"]]
+    (tmp_path / "result.json").write_text(json.dumps(data))
+    with pytest.raises(FileFormatError, match=r"result\.json: non_finite_values: \[\['options', 'theta'"):
+        Result.load(tmp_path)
 
 
 def test_results_saved_before_the_list_of_non_finite_metrics_still_load(tmp_path):
