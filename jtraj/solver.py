@@ -428,7 +428,9 @@ def solve(
                     say(f"  {backend.name} stopped: {result.solver_status.value} ({result.solver_status.message})")
                     if result.solver_status is solvers.Status.INVALID_PROBLEM:  # the bound at fault is in the solver's own message
                         say(f"  {result.status_msg}")
-                worst = sorted(result.violation_by_group.items(), key=lambda kv: -kv[1])[:3]
+                # NaN first (a group with a NaN row is the worst), then largest; NaN keys left
+                # the sort's order to the dict's, and it could name a group at 0
+                worst = sorted(result.violation_by_group.items(), key=lambda kv: (not math.isnan(kv[1]), -kv[1]))[:3]
                 say("  largest violations: " + ", ".join(f"{k} {v:.2e}" for k, v in worst))
         if out is not None:
             from jtraj.provenance import end_run

@@ -28,3 +28,15 @@ def test_an_invalid_problem_prints_the_bound_at_fault():
     lines = stream.getvalue().splitlines()
     stopped = lines.index(f"  ipopt stopped: invalid_problem ({solvers.Status.INVALID_PROBLEM.message})")
     assert lines[stopped + 1] == f"  {WHY}"
+
+
+def test_the_largest_violations_put_a_nan_group_first_and_keep_the_order(monkeypatch):
+    """A group with a NaN row (``violation_by_group`` passes NaN through) left the sort's order to
+    the dict's: a group at 0 came first and a larger one was dropped."""
+    from jtraj.nlp import KnotNLP
+
+    groups = {"bounds": 0.0, "dynamics": float("nan"), "friction": 3.0, "contact": 7.0}
+    monkeypatch.setattr(KnotNLP, "violation_by_group", lambda self, x, theta=None: dict(groups))
+    stream = io.StringIO()
+    solve(HOP, solver=Refusing(), progress=stream, keep_trajectory=False)
+    assert "  largest violations: dynamics nan, contact 7.00e+00, friction 3.00e+00" in stream.getvalue().splitlines()
