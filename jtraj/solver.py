@@ -297,7 +297,8 @@ def solve(
         out: directory to write ``result.json`` and ``trajectory.npz`` into: a folder (or none
             yet) this user can write in, checked before the compile (as ``jtraj solve --out``).
             The result's ``options["warm_start"]`` records how the start was made: ``given``
-            (a ``warm_start`` array), ``noise``, ``seed``, ``replicate`` and ``noise_chart``.
+            (a ``warm_start`` array), ``noise``, ``seed`` (None where no noise was drawn:
+            ``noise=0`` without ``replicate``), ``replicate`` and ``noise_chart``.
             The folder's ``provenance.json`` (`jtraj.provenance.begin_run`: date, machine,
             versions, source commit) is written once the NLP is built, before the solve (and before
             the compile of jtraj's solver program), marked complete once the result is saved; it names this call (``"call"``) and ``command``.
@@ -352,7 +353,10 @@ def solve(
         raise ValueError(f"solve: noise_chart={noise_chart!r}: expected one of {', '.join(params.PARAMETERIZATIONS)} or None")
     _check_theta_form(theta)
     backend = solvers.get(solver)
-    solver_options(backend, options, ipopt_options, exact_hessian, 0)  # the task's limit comes below
+    # with the task's own iteration limit (a file's, read without building anything): jtraj's
+    # solver refuses a limit its 32-bit loop bound cannot hold, and with 0 here that came after
+    # the NLP's build and compile
+    solver_options(backend, options, ipopt_options, exact_hessian, tasks.load(task).max_iter)
     if not is_whole(progress_every) or progress_every < 1:  # (numpy's integers too; not True)
         raise ValueError(f"solve: progress_every={progress_every!r}: expected an integer >= 1")
     progress_every = int(progress_every)
@@ -412,7 +416,7 @@ def solve(
         compile_time += solution.time_compile  # the backend's own program (jtraj's solver)
         traj = tr.decode(solution.x, theta)
         # how the start was drawn (a seed that is not whole drew nothing: noise needs a whole one)
-        start = {"given": warm_start is not None, "noise": float(noise), "seed": int(seed) if is_whole(seed) else None, "replicate": None if replicate is None else int(replicate), "noise_chart": noise_chart}
+        start = {"given": warm_start is not None, "noise": float(noise), "seed": int(seed) if is_whole(seed) and (noise or replicate is not None) else None, "replicate": None if replicate is None else int(replicate), "noise_chart": noise_chart}
         settings = {"solver": backend.name, **opts.as_dict(), "layout": dataclasses.asdict(tr.options), "warm_start": start, "terrain_height": float(tr.task.terrain_height)}
         result = evaluate(tr, solution, traj, compile_time, settings, nlp.nnz_jac, nlp.violation_by_group(solution.x, theta), theta, backend.name)
         if not keep_trajectory:

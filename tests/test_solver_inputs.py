@@ -229,6 +229,25 @@ def test_solve_refuses_bad_seeds_and_replicates_before_building_anything(monkeyp
         jtraj.solver.solve("big_jump", noise=np.array([0.1, 0.2]))
 
 
+
+def test_solve_refuses_an_iteration_limit_of_the_task_that_its_solver_cannot_hold_before_building(monkeypatch):
+    """jtraj's solver refuses an iteration limit its 32-bit loop bound cannot hold; the early
+    check of the options used a limit of 0, so a task file's limit of 1e8 was refused only after
+    the NLP's build and compile."""
+    import dataclasses
+
+    from test_transcription import HOP
+
+    import jtraj.solver
+
+    def boom(*args, **kwargs):
+        raise AssertionError("the NLP was built despite a bad iteration limit")
+
+    monkeypatch.setattr(jtraj.solver, "prepare", boom)
+    with pytest.raises(solvers.InvalidOptionError, match=r"jtraj option max_iter=100000000: expected at most"):
+        jtraj.solver.solve(dataclasses.replace(HOP, max_iter=10**8), solver="jtraj")
+
+
 def test_a_nan_in_the_point_is_a_nan_violation():
     """`max_violation` took Python's max of the rows' and the bounds' violations, and max(0.0,
     nan) is 0.0: a solution whose x had a NaN was reported within the bounds when its rows
@@ -322,7 +341,10 @@ def test_the_result_records_how_its_warm_start_was_made(tmp_path):
     # and the ground its feet touch, where jtraj render draws it
     assert r.options["terrain_height"] == HOP.terrain_height == Result.load(tmp_path / "r").options["terrain_height"]
     given = jtraj.solver.solve(HOP, warm_start=jtraj.solver.prepare(HOP).transcription.warm_start(), **quick)
-    assert given.options["warm_start"] == {"given": True, "noise": 0.0, "seed": 0, "replicate": None, "noise_chart": None}
+    assert given.options["warm_start"] == {"given": True, "noise": 0.0, "seed": None, "replicate": None, "noise_chart": None}
+    # a seed without noise draws nothing, and recorded seed 3 for the task's own start
+    plain = jtraj.solver.solve(HOP, seed=3, **quick)
+    assert plain.options["warm_start"] == {"given": False, "noise": 0.0, "seed": None, "replicate": None, "noise_chart": None}
     # the folder is held while the solve runs and let go however it ends (here: its progress
     # stream fails): a solve that raised kept other processes' runs out of it
     from test_provenance import _flock_free
