@@ -33,7 +33,7 @@ import numpy as np
 from jtraj import io as jio
 from jtraj import solvers
 from jtraj.deprecation import renamed_argument
-from jtraj.executors import WorkerLostError, check_executor, executor_for
+from jtraj.executors import KeyMismatchError, WorkerLostError, check_executor, executor_for
 from jtraj.numbers import is_real, is_seed, is_whole
 from jtraj.parameterization import PARAMETERIZATIONS, AbstractParameterization
 from jtraj.provenance import FolderInUseError, begin_run, end_run, holding
@@ -718,11 +718,6 @@ def _robustness_group(task, p, sigmas, replicates, seed, variables, exact_hessia
     return solved
 
 
-class KeyMismatchError(RuntimeError):
-    """A worker of a sweep computed another key for its group's runs than the calling process
-    (`_robustness_rows`' ``expected``): its jtraj, MuJoCo or robot and task files differ."""
-
-
 def _robustness_rows(task, p, sigmas, replicates, seed, variables, exact_hessian, options, solver, noise_chart, done, progress=None, expected=None) -> Iterator[dict]:
     """One (task, parameterization) of the study: one compile, then every noisy replicate whose
     key is not in ``done``, each run's row yielded as soon as it is solved (a progress line
@@ -792,16 +787,18 @@ def _robustness_batch(prep, sigma: float, reps: list[int], starts: np.ndarray, r
     compile_time += prep.time_compile
     prep.time_compile = 0.0  # counted once per process, as `solve` does
     settings = {"solver": backend.name, **opts.as_dict(), "layout": dataclasses.asdict(tr.options)}
-    results = []
+    rows = []
     for r, sol in zip(reps, solutions):
         res = evaluate(tr, sol, tr.decode(sol.x, theta), compile_time, settings, nlp.nnz_jac, nlp.violation_by_group(sol.x, theta), theta, backend.name)
         compile_time = 0.0  # the first row carries the compile
         res.trajectory = None
-        results.append(res)
-        yield base | {"sigma": float(sigma), "replicate": r} | _row(res) | {"batch": len(reps)}
+        rows.append(base | {"sigma": float(sigma), "replicate": r} | _row(res) | {"batch": len(reps)})
+        yield rows[-1]
     if progress is not None:
-        converged = sum(res.converged for res in results)
-        iterations = np.mean([res.iterations for res in results])
+        # Table III's converged (`_converged`: feasible too), not the solver's own success,
+        # which counted a run converged to a violation over FEASIBILITY_TOL
+        converged = sum(_converged(row) for row in rows)
+        iterations = np.mean([row["iterations"] for row in rows])
         print(f"{tr.task.name:10s} {base['parameterization']:6s} sigma={sigma:<7g} {solver}: {converged}/{len(reps)} converged, {iterations:5.1f} it mean, {total:6.2f} s for the batch of {len(reps)}", file=progress, flush=True)
 
 
@@ -904,9 +901,10 @@ def robustness(
     progress = _progress_stream(progress)
     out = Path(out)
     check_runs_file(out, resume)
-    out.mkdir(parents=True, exist_ok=True)
-    # held from here (`jtraj.provenance.holding`): another process's run in OUT is refused before
-    # this one reads, moves aside or appends to its runs
+    # held from here (`jtraj.provenance.holding`): another process's run in OUT is refused
+    # before this one reads, moves aside or appends to its runs. `holding` makes the folder, and
+    # removes it again where the study fails before writing (an mkdir here left an empty OUT
+    # behind an error such as empty sigmas)
     with holding(out):
         runs_path = out / RUNS_FILE
         if not tasks or not params or not sigmas:

@@ -691,6 +691,26 @@ def test_jtraj_robustness_resumes_only_the_missing_replicates(jtraj_study, tmp_p
     assert resumed[0] == runs[0] and resumed[2] == runs[2]  # read back, not solved again
 
 
+def test_jtraj_robustness_progress_counts_the_tables_converged_runs(jtraj_study, tmp_path, monkeypatch):
+    """The batch's progress line counted the solver's own success, so a run converged to a
+    violation over FEASIBILITY_TOL read as converged there and as failed in Table III."""
+    original, seen = experiments.evaluate, []
+
+    def first_infeasible(*args, **kwargs):
+        res = original(*args, **kwargs)
+        if not seen:
+            res.constraint_violation = 10 * FEASIBILITY_TOL
+        seen.append(res)
+        return res
+
+    monkeypatch.setattr(experiments, "evaluate", first_infeasible)
+    stream = io.StringIO()
+    runs = robustness([HOP], ["se3"], out=tmp_path, **(JTRAJ_STUDY | {"progress": stream}))
+    assert all(r.converged for r in seen) and len(seen) == 3  # the solver's success, all three
+    assert [experiments._converged(r) for r in runs] == [False, True, True]
+    assert "jtraj: 2/3 converged" in stream.getvalue()
+
+
 def test_rows_without_a_solver_are_ipopt_runs(tmp_path):
     old = {"task_hash": "h", "parameterization": "se3", "layout": "paper", "hessian": "limited-memory", "options_hash": "o", "seed": 0, "sigma": 0.1, "replicate": 0, "task": "t"} | _RESULT
     (tmp_path / RUNS_FILE).write_text(json.dumps(old) + "\n" + json.dumps(old | {"solver": "jtraj"}) + "\n")
@@ -1485,3 +1505,12 @@ def test_one_setting_spelled_two_ways_keys_the_same_runs(solver):
     assert key({"mu_init": 1}) != key({"mu_init": 2.0}) and key({"mu_init": 1}) != key(None)
     assert key({"max_iter": 50}) != key({"max_iter": 60})
     assert key({"mu_max": 1}) == key({"mu_max": 1.0})  # jtraj's typed float | None, Ipopt's real
+
+
+def test_a_study_refused_in_its_folder_leaves_no_empty_folder_behind(tmp_path):
+    """`robustness` made OUT itself before `holding` held it, so `holding` did not count it as a
+    folder it made, and an error inside (here: no noise levels) left an empty OUT behind."""
+    out = tmp_path / "new" / "study"
+    with pytest.raises(ValueError, match=r"robustness: no runs \(empty tasks, parameterizations or sigmas\)"):
+        robustness([HOP], ["se3"], sigmas=[], out=out, progress=None)
+    assert not (tmp_path / "new").exists()
