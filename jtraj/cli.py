@@ -930,7 +930,7 @@ def main(argv: list[str] | None = None) -> int:
         _tell(f"jtraj {args.command}: {refused}")
         return EXIT_BAD_INPUT
     # one handler for every input error, wherever it is found: one line, exit status 2
-    from jtraj.executors import WorkerLostError
+    from jtraj.executors import GroupError, KeyMismatchError, WorkerLostError
 
     if args.command in ("compare", "robustness") and (getattr(args, "workers", 1) > 1 or getattr(args, "executor", "local") == "ray"):
         # before anything here uses a GPU (the inputs' checks, provenance.json's device): this
@@ -946,7 +946,10 @@ def main(argv: list[str] | None = None) -> int:
     except _input_errors() as e:
         _tell(f"jtraj {args.command}: {e}")
         return EXIT_BAD_INPUT
-    except WorkerLostError as e:  # its message says what was kept and how to go on
+    except (WorkerLostError, KeyMismatchError, GroupError) as e:
+        # their messages say what went wrong in a worker (a lost worker's also what was kept;
+        # a group's error that could not cross processes carries the worker's traceback as
+        # text): a Python traceback of this process's hid them
         _tell(f"jtraj {args.command}: {e}")
         return 1
     except KeyboardInterrupt as e:

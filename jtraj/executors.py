@@ -50,7 +50,7 @@ from typing import Any
 
 from jtraj.numbers import is_whole
 
-__all__ = ["AbstractExecutor", "LocalExecutor", "RayExecutor", "EXECUTORS", "ExecutorUnavailableError", "WorkerLostError", "GroupError", "check_executor_name", "check_executor", "executor_for", "SHARED_ACCELERATOR_ENV", "share_the_accelerator"]
+__all__ = ["AbstractExecutor", "LocalExecutor", "RayExecutor", "EXECUTORS", "ExecutorUnavailableError", "WorkerLostError", "GroupError", "KeyMismatchError", "check_executor_name", "check_executor", "executor_for", "SHARED_ACCELERATOR_ENV", "share_the_accelerator"]
 
 #: Names accepted by `executor_for` and the command line's ``--executor``.
 EXECUTORS = ("local", "ray")
@@ -130,6 +130,12 @@ class LocalExecutor(AbstractExecutor):
             for i, items in groups:
                 for item in items:
                     yield i, item
+
+
+class KeyMismatchError(RuntimeError):
+    """A worker of a sweep computed another key for its group's runs than the calling process
+    (`jtraj.experiments`' ``expected``): its jtraj, MuJoCo or robot and task files differ.
+    Here, beside the executors, so that the command line tells it without loading the sweeps."""
 
 
 class GroupError(RuntimeError):

@@ -569,19 +569,29 @@ def test_every_option_says_what_it_does():
 
 
 @pytest.mark.parametrize("command", ["compare", "robustness"])
-def test_a_lost_worker_is_one_line_and_exit_1(command, monkeypatch, tmp_path, capsys):
+@pytest.mark.parametrize(
+    "error, message",
+    [
+        ("WorkerLostError", "a worker process ended without finishing its group; the runs finished before it are kept"),
+        # (these two ended in a traceback around their message until they were caught too)
+        ("KeyMismatchError", "walk se3: this worker keys the group's runs otherwise than the process that called the sweep (robot_hash 'a' here, 'b' there)"),
+        ("GroupError", "ValueError: bad\nthe worker's traceback:\n  File ..."),
+    ],
+)
+def test_a_workers_error_is_its_message_and_exit_1(command, error, message, monkeypatch, tmp_path, capsys):
     """`WorkerLostError` (a worker process killed, e.g. out of memory) says what was kept and
-    how to go on; it ended in a traceback around that message."""
+    how to go on, `KeyMismatchError` that a worker's versions differ, `GroupError` a group's
+    error that could not cross processes; each ended in a traceback around its message."""
+    import jtraj.executors
     import jtraj.experiments
-    from jtraj.executors import WorkerLostError
 
     def lost(*args, **kwargs):
-        raise WorkerLostError("a worker process ended without finishing its group; the runs finished before it are kept")
+        raise getattr(jtraj.executors, error)(message)
 
     monkeypatch.setattr(jtraj.experiments, command, lost)
     code, err = _run([command, "--tasks", "big_jump", "--params", "se3", "--out", str(tmp_path / "out")], capsys)
     assert code == 1
-    assert err == f"jtraj {command}: a worker process ended without finishing its group; the runs finished before it are kept\n"
+    assert err == f"jtraj {command}: {message}\n"
 
 
 @pytest.mark.parametrize(
