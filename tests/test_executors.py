@@ -36,20 +36,31 @@ def test_local_workers_return_every_group():
 
 def _group(i: int, folder: str, action: str) -> int:
     """A group for worker processes: writes its process id to ``folder/started-i``, then
-    returns i at once ("quick"), after 60 s ("sleep"), raises ("raise") or kills its own
-    process ("die")."""
+    returns i at once ("quick"), after 60 s ("sleep"), raises once group 0 has started
+    ("raise") or kills its own process ("die")."""
     # written whole, then renamed: a worker stopped between creating the file and writing its
     # id left an empty started-i, which _workers_ended could not read
     partial = Path(folder, f".started-{i}.{os.getpid()}")
     partial.write_text(str(os.getpid()))
     partial.rename(Path(folder, f"started-{i}"))
     if action == "raise":
+        # after group 0 started: raised before it, no other worker was solving, and the test's
+        # check that the others are stopped had nothing to check
+        _wait_for(Path(folder, "started-0"))
         raise RuntimeError(f"group {i} failed")
     if action == "die":
         os.kill(os.getpid(), signal.SIGKILL)
     if action == "sleep":
         time.sleep(60)
     return i
+
+
+def _wait_for(path: Path, timeout: float = 30.0) -> None:
+    """Wait until ``path`` exists (a group's started file), at most ``timeout`` seconds."""
+    end = time.monotonic() + timeout
+    while not path.exists() and time.monotonic() < end:
+        time.sleep(0.02)
+    assert path.exists(), f"{path.name} was not written in {timeout:g} s"
 
 
 def _workers_ended(folder: Path) -> bool:
@@ -70,7 +81,7 @@ def test_local_workers_stop_when_a_group_raises(tmp_path):
     with pytest.raises(RuntimeError, match="group 1 failed"):
         list(LocalExecutor(workers=2).map(_group, [(0, str(tmp_path), "sleep"), (1, str(tmp_path), "raise"), (2, str(tmp_path), "sleep"), (3, str(tmp_path), "sleep")]))
     assert time.monotonic() - start < 40
-    assert (tmp_path / "started-1").exists() and _workers_ended(tmp_path)
+    assert (tmp_path / "started-0").exists() and (tmp_path / "started-1").exists() and _workers_ended(tmp_path)
 
 
 def test_local_workers_stop_when_the_caller_is_interrupted(tmp_path):
@@ -79,6 +90,9 @@ def test_local_workers_stop_when_the_caller_is_interrupted(tmp_path):
     groups = LocalExecutor(workers=2).map(_group, [(0, str(tmp_path), "quick"), (1, str(tmp_path), "sleep"), (2, str(tmp_path), "sleep")])
     start = time.monotonic()
     assert next(groups) == (0, 0)
+    # group 1 is being solved when the Ctrl-C comes (thrown before it started, the check below
+    # found no worker to check)
+    _wait_for(tmp_path / "started-1")
     with pytest.raises(KeyboardInterrupt):
         groups.throw(KeyboardInterrupt)
     assert time.monotonic() - start < 40
