@@ -233,7 +233,8 @@ def _cmd_attitude(args: argparse.Namespace) -> int:
 def _render_options(args: argparse.Namespace):
     from jtraj.render import RenderOptions
 
-    return RenderOptions(width=args.width, height=args.height, fps=args.fps, speed=args.speed, shadows=not args.no_shadows, forces=not args.no_forces)
+    camera = {k: getattr(args, k) for k in ("azimuth", "elevation", "distance") if getattr(args, k, None) is not None}
+    return RenderOptions(width=args.width, height=args.height, fps=args.fps, speed=args.speed, shadows=not args.no_shadows, forces=not args.no_forces, **camera)
 
 
 def _render_after_solve(command: str, draw, out: str) -> bool:
@@ -279,9 +280,12 @@ def _check_render_args(args: argparse.Namespace) -> None:
         raise InputError("--out", args.out, "expected a .mp4 or .gif file name")
     if args.strip is not None and Path(args.strip).suffix.lower() not in _IMAGE_FORMATS:
         raise InputError("--strip", args.strip, "expected a .png (or .jpg) file name")
-    for field, value in (("--speed", args.speed), ("--fps", args.fps)):
-        if not (math.isfinite(value) and value > 0):
+    for field, value in (("--speed", args.speed), ("--fps", args.fps), ("--distance", args.distance)):
+        if value is not None and not (math.isfinite(value) and value > 0):
             raise InputError(field, value, "expected a positive number")
+    for field, value in (("--azimuth", args.azimuth), ("--elevation", args.elevation)):
+        if value is not None and not math.isfinite(value):
+            raise InputError(field, value, "expected a finite number of degrees")
     for field, value in (("--width", args.width), ("--height", args.height)):
         if value < 16:
             raise InputError(field, value, "expected at least 16 pixels")
@@ -346,6 +350,9 @@ def _add_render_parsers(sub) -> None:
     p.add_argument("--height", type=int, default=480, help="image height in pixels (default 480; the strip's panels at most 480)")
     p.add_argument("--no-shadows", action="store_true", help="faster with software OpenGL")
     p.add_argument("--no-forces", action="store_true", help="no contact-force arrows (they are drawn by default)")
+    p.add_argument("--azimuth", type=float, help="camera azimuth in degrees (90 looks along +y, 180 along -x; default: along a flip's axis, else from the side of the base's travel)")
+    p.add_argument("--elevation", type=float, help="camera elevation in degrees (default -15: a little from above)")
+    p.add_argument("--distance", type=float, help="camera distance to the base in metres (default: from the robot's height and the motion)")
     p.set_defaults(func=_cmd_render)
 
     p = sub.add_parser(

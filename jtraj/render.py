@@ -45,6 +45,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "RenderOptions",
+    "auto_azimuth",
     "RenderError",
     "render",
     "keyframe_strip",
@@ -85,7 +86,9 @@ class RenderOptions:
         distance: camera distance to the base (m); None: from the robot's standing height and
             the motion's extent.
         azimuth, elevation: camera angles (degrees, MuJoCo's convention); azimuth 90 looks
-            along +y, so motions in the x-z plane (back-flips) are seen from the side.
+            along +y, so motions in the x-z plane (back-flips) are seen from the side, and 180
+            along -x (side-flips about x). None (the default azimuth): chosen from the motion
+            (`auto_azimuth`): along the axis of a flip, else from the side of the base's travel.
         forces: draw contact forces as arrows.
         force_length: arrow length (m) of a force equal to the robot's weight; None: twice
             the standing base height (so the share of the weight on one foot clears the leg).
@@ -98,7 +101,7 @@ class RenderOptions:
     fps: float = 30.0
     speed: float = 1.0
     distance: float | None = None
-    azimuth: float = 90.0
+    azimuth: float | None = None
     elevation: float = -15.0
     forces: bool = True
     force_length: float | None = None
@@ -120,6 +123,8 @@ class RenderOptions:
                 raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
         for name in ("azimuth", "elevation"):
             v = getattr(self, name)
+            if v is None and name == "azimuth":
+                continue
             if not is_real(v) or not math.isfinite(v):
                 raise ValueError(f"{name} must be a finite number of degrees, got {v!r}")
 
@@ -359,6 +364,8 @@ class _Painter:
         from jtraj import robot as robots
         from jtraj.plots import _weight
 
+        if options.azimuth is None:
+            options = dataclasses.replace(options, azimuth=auto_azimuth(result.trajectory.base_xyz_wxyz))
         robot_name = result.robot
         robot = robots.load(robot_name)
         ground = float(result.options.get("terrain_height", 0.0) or 0.0)
@@ -517,6 +524,36 @@ def _render_options(options: RenderOptions | Mapping[str, Any] | None, kwargs: d
     if not isinstance(options, RenderOptions):
         raise TypeError(f"options must be a RenderOptions or a mapping of its fields, got {type(options).__name__}")
     return dataclasses.replace(options, **kwargs)
+
+
+#: the base's net horizontal travel (m) from which `auto_azimuth` turns the camera to its side
+TRAVEL_FOR_CAMERA = 0.05
+
+
+def auto_azimuth(base_xyz_wxyz: np.ndarray, min_travel: float = TRAVEL_FOR_CAMERA) -> float:
+    """The camera azimuth (degrees) that shows a base motion (``(N, 7)`` poses, xyz and wxyz)
+    from its side:
+
+    - a flip (the accumulated rotation, `jtraj.success.rotation_vector`, a quarter turn or more,
+      mostly about a horizontal axis): along that axis, so the flip turns in the image's plane;
+      of the two views along it, the one with its azimuth in (0, 180] (a back-flip about y: 90;
+      a side-flip about x: 180, looking along -x, where +y is to the right);
+    - otherwise, where the base travels ``min_travel`` metres or more horizontally: from the side
+      of the travel, which goes to the right of the image (+x: 90, +y: 180);
+    - otherwise 90 (looking along +y)."""
+    from jtraj.success import rotation_vector
+
+    poses = np.asarray(base_xyz_wxyz, float)
+    a, _ = rotation_vector(poses)
+    horizontal = float(np.linalg.norm(a[:2]))
+    if np.all(np.isfinite(a)) and np.linalg.norm(a) >= math.pi / 2 and horizontal > abs(a[2]):
+        azimuth = math.degrees(math.atan2(a[1], a[0]))  # the camera looks along (cos az, sin az)
+        return azimuth + 180.0 if azimuth <= 0.0 else azimuth
+    travel = poses[-1, :2] - poses[0, :2]
+    if np.all(np.isfinite(travel)) and np.linalg.norm(travel) >= min_travel:
+        # the image's right is (sin az, -cos az) for MuJoCo's camera
+        return math.degrees(math.atan2(travel[0], -travel[1])) % 360.0
+    return 90.0
 
 
 def _follow(frames: Frames, robot) -> tuple[np.ndarray, float]:
@@ -716,10 +753,10 @@ def render_rigid_body(
     _refuse_zero_quaternions("the body's attitude", "", wxyz)
     extent = float(np.max(np.ptp(xyz, axis=0)))
     size = 1.0 if extent < 1e-6 else float(np.clip(0.2 * extent, 0.3, 2.0))
-    travel = xyz[-1, :2] - xyz[0, :2]
-    if np.linalg.norm(travel) > 1e-6 and options.azimuth == RenderOptions.azimuth:
-        # seen from the side of its travel (MuJoCo's camera looks along (cos az, sin az))
-        options = dataclasses.replace(options, azimuth=float(np.degrees(np.arctan2(travel[1], travel[0]))) + 90.0)
+    if options.azimuth is None:
+        # seen from the side of its travel (an explicit azimuth=90 was taken for the default
+        # and replaced by this too)
+        options = dataclasses.replace(options, azimuth=auto_azimuth(np.column_stack([xyz[[0, -1]], wxyz[[0, 0]]]), min_travel=1e-6))
     # the path as flown between knots (constant twist), not straight chords
     path = _interpolate_poses(t, xyz, wxyz, np.linspace(t[0], t[-1], min(2000, 8 * len(t))))[0][:, :3] if extent > 1e-6 else None
     painter = _Painter(rigid_body_model(shape, size), options, scale=size)  # (its GL context is closed below)

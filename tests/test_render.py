@@ -673,3 +673,82 @@ def test_renderers_made_in_threads_each_get_their_size(monkeypatch):
     for asked, first, later in seen:
         assert first == asked and later == asked
     assert (int(model.vis.global_.offwidth), int(model.vis.global_.offheight)) == size
+
+
+def _poses_about(axis, turns, travel=(0.0, 0.0), n=41):
+    """(n, 7) base poses turning ``turns`` about ``axis`` while moving by ``travel`` (x, y)."""
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    angle = np.linspace(0.0, 2 * np.pi * turns, n)
+    xyz = np.column_stack([np.linspace(0.0, travel[0], n), np.linspace(0.0, travel[1], n), np.full(n, 0.3)])
+    wxyz = np.column_stack([np.cos(angle / 2), np.sin(angle / 2)[:, None] * axis])
+    return np.concatenate([xyz, wxyz], axis=1)
+
+
+@pytest.mark.parametrize(
+    "axis, turns, travel, azimuth",
+    [
+        ([0, 1, 0], -1, (-0.5, 0.0), 90.0),  # the back-flip: along y, as the fixed default did
+        ([1, 0, 0], -1, (0.0, 0.3), 180.0),  # the side-flip: along x (90 saw it edge-on)
+        ([-1, 0, 0], 1, (0.0, 0.3), 180.0),  # the same flip, its axis written the other way
+        ([0, 0, 1], 0, (2.0, 0.0), 90.0),  # a walk along +x: from its side, going right
+        ([0, 0, 1], 0, (0.0, 1.0), 180.0),  # along +y
+        ([0, 0, 1], 0, (-1.0, 0.0), 270.0),  # along -x
+        ([0, 0, 1], 1, (0.0, 0.0), 90.0),  # a spin about the vertical, in place
+        ([0, 0, 1], 0, (0.01, 0.02), 90.0),  # a drift under TRAVEL_FOR_CAMERA
+    ],
+)
+def test_the_default_camera_looks_along_a_flips_axis_or_from_the_side_of_the_travel(axis, turns, travel, azimuth):
+    """The camera's azimuth was 90 (looking along +y) for every legged motion: the side-flip,
+    about x, turned towards and away from the viewer, and its keyframes overlaid on top of each
+    other."""
+    from jtraj.render import auto_azimuth
+
+    assert auto_azimuth(_poses_about(axis, turns, travel)) == pytest.approx(azimuth)
+
+
+def test_a_side_flip_is_drawn_along_its_axis_and_an_explicit_azimuth_is_kept(result, monkeypatch):
+    """`keyframe_strip` and `render` choose the azimuth from the motion unless one is given;
+    `render_rigid_body` took an explicit azimuth=90 for the default and replaced it."""
+    import jtraj.render as jrender
+
+    seen = []
+    original = jrender._Painter.camera
+    monkeypatch.setattr(jrender._Painter, "camera", lambda self, *a: seen.append(self.options.azimuth) or original(self, *a))
+    traj = result.trajectory
+    # the made-up half back-flip turned about x instead (a side-flip's axis): w, x, y, z -> w, y, ...
+    turned = traj.base_xyz_wxyz.copy()
+    turned[:, 4], turned[:, 5] = traj.base_xyz_wxyz[:, 5], traj.base_xyz_wxyz[:, 4]
+    side = dataclasses.replace(result, trajectory=dataclasses.replace(traj, base_xyz_wxyz=turned, q_base=turned))
+    keyframe_strip(side, 2, options=SMALL)
+    assert set(seen) == {180.0}
+    seen.clear()
+    keyframe_strip(result, 2, options=SMALL)  # the back-flip: 90, as before
+    assert set(seen) == {90.0}
+    seen.clear()
+    keyframe_strip(side, 2, options=dataclasses.replace(SMALL, azimuth=90.0))
+    assert set(seen) == {90.0}
+    seen.clear()
+    t = np.linspace(0.0, 1.0, 5)
+    xyz = np.column_stack([np.zeros(5), np.linspace(0.0, 2.0, 5), np.ones(5)])
+    wxyz = np.tile([1.0, 0.0, 0.0, 0.0], (5, 1))
+    jrender.render_rigid_body(t, xyz, wxyz, "quadrotor", strip=2, options=dataclasses.replace(SMALL, azimuth=90.0))
+    assert set(seen) == {90.0}
+    seen.clear()
+    jrender.render_rigid_body(t, xyz, wxyz, "quadrotor", strip=2, options=SMALL)  # from the side of its travel along +y
+    assert set(seen) == {180.0}
+
+
+def test_render_command_takes_the_camera(result, tmp_path):
+    """`jtraj render` had no camera options: a motion the default view showed edge-on could be
+    turned only from Python."""
+    from jtraj.cli import _render_options, build_parser
+
+    args = build_parser().parse_args(["render", str(tmp_path), "--strip", "k.png", "--azimuth", "0", "--elevation", "-30", "--distance", "4"])
+    options = _render_options(args)
+    assert (options.azimuth, options.elevation, options.distance) == (0.0, -30.0, 4.0)
+    default = _render_options(build_parser().parse_args(["render", str(tmp_path), "--strip", "k.png"]))
+    assert (default.azimuth, default.elevation, default.distance) == (None, RenderOptions.elevation, None)
+    result.save(tmp_path / "run")
+    for flag, value in (("--azimuth", "nan"), ("--distance", "0")):
+        assert main(["render", str(tmp_path / "run"), "--strip", str(tmp_path / "k.png"), flag, value]) == 2
+    assert not (tmp_path / "k.png").exists()
