@@ -242,11 +242,11 @@ def _render_after_solve(command: str, draw, out: str) -> bool:
     writes; where nothing can be drawn (no OpenGL here, `jtraj.render.RenderError`; NaN poses
     from a solve stopped by a numerical error, `jtraj.render.NotDrawable`), one line on stderr,
     and False (the command exits 1 unless the solve's own status is already a failure)."""
-    from jtraj.render import NotDrawable, RenderError
+    from jtraj.render import NotDrawable, RenderError, TooManyFrames
 
     try:
         paths = draw()
-    except (RenderError, NotDrawable) as e:
+    except (RenderError, NotDrawable, TooManyFrames) as e:
         print(f"jtraj {command}: --render: {e} (the solution is saved in {out})", file=sys.stderr)
         return False
     for path in paths:
@@ -304,13 +304,15 @@ def _check_render_args(args: argparse.Namespace) -> None:
 
 def _cmd_render(args: argparse.Namespace) -> int:
     from jtraj.io import FileFormatError
-    from jtraj.render import NotDrawable, RenderError, render_directory
+    from jtraj.render import NotDrawable, RenderError, TooManyFrames, render_directory
 
     try:
         _check_render_args(args)
         paths = render_directory(args.dir, args.out, args.strip, keyframes=args.keyframes, layout=args.layout, spacing=args.spacing, options=_render_options(args))
     except RenderError as e:  # no OpenGL or no .mp4 writer here: the message says what to install
         raise SystemExit(f"jtraj render: {e}") from None
+    except TooManyFrames as e:  # found before drawing, from the motion's duration
+        raise InputError("--speed, --fps", f"{args.speed:g}, {args.fps:g}", str(e).removeprefix("render: "), verbatim=True) from None
     except (NotDrawable, FileFormatError) as e:  # a folder that is not a whole-body solution
         raise InputError("DIR", args.dir, str(e)) from None
     for path in paths:

@@ -45,6 +45,8 @@ if TYPE_CHECKING:
 
 __all__ = [
     "RenderOptions",
+    "MAX_FRAMES",
+    "TooManyFrames",
     "auto_azimuth",
     "RenderError",
     "render",
@@ -66,6 +68,15 @@ __all__ = [
 
 class RenderError(RuntimeError):
     """Rendering is not possible here; the message says what to install or set."""
+
+
+#: the most video frames `render` draws: they are held in memory until written (at 640 x 480,
+#: 0.9 MB each, and as much again while stacked); two minutes at 30 frames per second
+MAX_FRAMES = 3600
+
+
+class TooManyFrames(ValueError):
+    """A video of more than `MAX_FRAMES` frames (a slow ``speed`` or a high ``fps``)."""
 
 
 class NotDrawable(ValueError):
@@ -582,6 +593,11 @@ def render(result: Result | str | Path, options: RenderOptions | Mapping[str, An
     traj = result.trajectory
     duration = float(traj.t[-1] - traj.t[0])
     n = max(2, int(round(duration / options.speed * options.fps)) + 1)
+    if n > MAX_FRAMES:  # refused before drawing: the frames of --speed 0.01 filled the memory
+        raise TooManyFrames(
+            f"render: {duration:g} s of motion at speed {options.speed:g} and {options.fps:g} fps is {n} frames; expected at most {MAX_FRAMES} (they are held in memory until written): "
+            "a larger speed or a lower fps"
+        )
     frames = interpolate(traj, np.linspace(traj.t[0], traj.t[-1], n))
     painter = _Painter.for_result(result, options)
     try:
@@ -851,11 +867,18 @@ def write_video(frames: np.ndarray, path: str | Path, fps: float = 30.0) -> Path
 
 
 def _imageio_ffmpeg() -> types.ModuleType:
-    """imageio-ffmpeg, which writes .mp4, or a RenderError that says how to install it."""
+    """imageio-ffmpeg, which writes .mp4, with its ffmpeg program found, or a RenderError that
+    says how to install them."""
     try:
         import imageio_ffmpeg
     except ImportError:
         raise RenderError("writing .mp4 needs imageio-ffmpeg: pip install 'jtraj[render]' (or write a .gif)") from None
+    # the program too: imageio-ffmpeg's wheel without a binary looks for one on the system, and
+    # its RuntimeError came as a traceback once every frame was drawn
+    try:
+        imageio_ffmpeg.get_ffmpeg_exe()
+    except RuntimeError as e:
+        raise RenderError(f"writing .mp4 needs the ffmpeg program, which imageio-ffmpeg did not find ({e}): install ffmpeg, or imageio-ffmpeg's wheel for this platform, which brings one (or write a .gif)") from None
     return imageio_ffmpeg
 
 

@@ -752,3 +752,38 @@ def test_render_command_takes_the_camera(result, tmp_path):
     for flag, value in (("--azimuth", "nan"), ("--distance", "0")):
         assert main(["render", str(tmp_path / "run"), "--strip", str(tmp_path / "k.png"), flag, value]) == 2
     assert not (tmp_path / "k.png").exists()
+
+
+def test_an_mp4_without_the_ffmpeg_program_is_refused_before_drawing(result, tmp_path, monkeypatch):
+    """imageio-ffmpeg without an ffmpeg program (its wheel without a binary, none on the system)
+    passed the check, and its RuntimeError came as a traceback once every frame was drawn."""
+    import imageio_ffmpeg
+
+    import jtraj.render as jrender
+
+    def missing():
+        raise RuntimeError("No ffmpeg exe could be found. Install ffmpeg on your system, or set the IMAGEIO_FFMPEG_EXE environment variable.")
+
+    monkeypatch.setattr(imageio_ffmpeg, "get_ffmpeg_exe", missing)
+    monkeypatch.setattr(jrender, "render", lambda *a, **k: pytest.fail("drew the video before checking its writer"))
+    result.save(tmp_path)
+    with pytest.raises(jrender.RenderError, match=r"writing \.mp4 needs the ffmpeg program, which imageio-ffmpeg did not find \(No ffmpeg exe"):
+        jrender.render_directory(tmp_path, tmp_path / "m.mp4")
+    assert not (tmp_path / "m.mp4").exists()
+
+
+def test_a_video_of_too_many_frames_is_refused_before_drawing(result, tmp_path, monkeypatch, capsys):
+    """The frames are held in memory until written: --speed 0.01 on a few seconds of motion was
+    gigabytes, and the process was killed after a long draw without a word."""
+    import jtraj.render as jrender
+
+    monkeypatch.setattr(jrender._Painter, "for_result", lambda *a, **k: pytest.fail("opened a renderer for too many frames"))
+    duration = float(result.trajectory.t[-1] - result.trajectory.t[0])
+    speed = duration * SMALL.fps / jrender.MAX_FRAMES  # one frame more than allowed
+    with pytest.raises(jrender.TooManyFrames, match=rf"is {jrender.MAX_FRAMES + 1} frames; expected at most {jrender.MAX_FRAMES}"):
+        render(result, SMALL, speed=speed)
+    result.save(tmp_path / "run")
+    assert main(["render", str(tmp_path / "run"), "--out", str(tmp_path / "m.gif"), "--speed", "1e-4"]) == 2
+    err = capsys.readouterr().err
+    assert "jtraj render: --speed, --fps: 0.0001, 30: 0.5 s of motion at speed 0.0001 and 30 fps is 150001 frames" in err
+    assert not (tmp_path / "m.gif").exists()
