@@ -401,7 +401,7 @@ def test_render_and_plot_commands(result, tmp_path, capsys):
     assert main(["plot", str(tmp_path / "empty")]) == 2
 
 
-def test_attitude_bodies_along_their_paths(tmp_path):
+def test_attitude_bodies_along_their_paths(tmp_path, monkeypatch):
     from types import SimpleNamespace
 
     from jtraj.render import render_benchmark, render_rigid_body
@@ -418,10 +418,19 @@ def test_attitude_bodies_along_their_paths(tmp_path):
     # the path is drawn: blue pixels (the line) only where a path is given
     blue = lambda im: np.sum((im[..., 2].astype(int) - im[..., 0] > 100) & (im[..., 1] < 150))
     assert blue(strip) > 20
-    # a satellite turns in place: one panel per keyframe, no ground
+    # a satellite turns in place: one panel per keyframe, no ground, and no path is drawn (the
+    # line's calls are counted: its blue solar panels made a colour count of the image unsure)
+    import jtraj.render as jrender
+
+    lines = []
+    original = jrender._Painter._line
+    monkeypatch.setattr(jrender._Painter, "_line", lambda self, scene, path: lines.append(len(path)) or original(self, scene, path))
     still = render_rigid_body(t, np.zeros((9, 3)), wxyz, "satellite", strip=3, options=SMALL)
     assert still.shape == (H, 3 * W + 4, 3)
-    assert blue(still) == 0  # it does not move, so no path is drawn
+    assert lines == []
+    render_rigid_body(t, xyz, wxyz, "quadrotor", strip=2, options=SMALL)
+    assert len(lines) == 1 and lines[0] > 2  # the quadrotor's path, as the spy sees it
+    monkeypatch.undo()
     trajectory = SimpleNamespace(t=t, X=np.concatenate([xyz, wxyz, np.zeros((9, 6))], axis=1))
     result = SimpleNamespace(problem="quadflip", variant="attitude", trajectory=trajectory)
     paths = render_benchmark(result, tmp_path, options=dataclasses.replace(SMALL, fps=4), keyframes=3)
