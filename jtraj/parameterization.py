@@ -2,9 +2,14 @@
 
 Every parameterization maps its base coordinates ``q`` (length `nq`) to a pose
 ``T_world_base`` in SE(3) and back, steps the pose with the body twist (semi-implicit Euler
-position step), and measures the difference of two configurations. Downstream code uses only
-the methods of `AbstractParameterization`; no code outside this module asks which row of
-Table I it holds.
+position step), and measures the difference of two configurations. Downstream code uses the
+methods of `AbstractParameterization`, with three exceptions that read a chart's ``name``
+(the study's warm starts, as the paper describes them per chart): with the study's variables
+the warm start of ``"euler"`` adds the task's rotation rules to its roll, pitch and yaw
+coordinates (`jtraj.transcription.TranscriptionOptions.warm_start_euler`), the charts named
+``"quat..."`` take ``warm_start_quaternions="matrix"``, and the noise study's poses converted
+into a ``"quat..."`` chart keep the sign of its warm start's quaternions. A chart of one's own
+under another name gets none of these.
 
 Generalized velocity (the same for all parameterizations): the body twist
 ``V_b = (v_body, omega_body)`` of the base, linear velocity of the base origin and angular
