@@ -64,7 +64,7 @@ import scipy.sparse.linalg as spla
 
 from jtraj.numbers import is_real
 
-__all__ = ["ParametricNLP", "DenseNLP", "ActiveSet", "ActiveArrays", "active_set", "active_arrays", "KKTSystem", "kkt_system", "residual", "check_weak_tol", "SingularKKTError", "NotDifferentiableWarning", "undifferentiable_parameters", "entry_names", "NotAKKTPointError", "kkt_errors", "check_kkt_point", "check_kkt_tol", "KKT_TOL"]
+__all__ = ["ParametricNLP", "DenseNLP", "ActiveSet", "ActiveArrays", "active_set", "active_arrays", "KKTSystem", "kkt_system", "residual", "check_weak_tol", "SingularKKTError", "SINGULAR_PREFIX", "NotDifferentiableWarning", "undifferentiable_parameters", "entry_names", "NotAKKTPointError", "kkt_errors", "check_kkt_point", "check_kkt_tol", "KKT_TOL"]
 
 
 class NotAKKTPointError(ValueError):
@@ -79,6 +79,12 @@ class NotAKKTPointError(ValueError):
 #: tol 1e-10 (`jtraj.differentiate`'s forward) ends near 1e-10; the study's tol 1e-3 ends with
 #: violations near 1e-6 or below.
 KKT_TOL = 1e-4
+
+
+#: the words each `SingularKKTError`'s message starts with: a caller that gets it through a
+#: jitted derivative (as JAX's ``JaxRuntimeError``, whose message ends with this one's) tells it
+#: by ``SINGULAR_PREFIX in str(error)`` (the design notebook does)
+SINGULAR_PREFIX = "the sensitivity system"
 
 
 class SingularKKTError(RuntimeError):

@@ -3,6 +3,8 @@ every code cell ran, the files each one writes are there (under the repository's
 which git ignores, and none beside the notebook), and its figures and key lines are in the
 outputs."""
 
+import contextlib
+import io
 import json
 from pathlib import Path
 
@@ -151,10 +153,38 @@ def test_design_notebook_reports_a_first_solution_that_is_not_differentiable():
     nb = nbformat.read(next(p for p in NOTEBOOKS if p.stem == "design"), as_version=4)
     cell = next(c.source for c in nb.cells if c.cell_type == "code" and "value_and_grad" in c.source)
 
+    from jtraj.sensitivity import SINGULAR_PREFIX, SingularKKTError
+
+    # the message as a jitted derivative passes it on: JAX's error, ending with the
+    # sensitivity's own (the cell looked for "not differentiable here", words of an earlier
+    # message that no error has now, and so re-raised where it was to stop)
+    message = f"INTERNAL: CpuCallback error: {SingularKKTError.__name__}: {SINGULAR_PREFIX} is singular (Factor is exactly singular) at this solution"
+
     def singular(log_h):
-        raise RuntimeError("the solution is not differentiable here: the sensitivity system is singular")
+        raise RuntimeError(message)
 
     fake_jax = types.SimpleNamespace(jit=lambda f: singular, value_and_grad=lambda f: f)
     theta0 = types.SimpleNamespace(timestep=0.05, replace=lambda **changes: theta0)
-    with pytest.raises(RuntimeError, match="not differentiable here"):
-        exec(cell, {"jax": fake_jax, "jnp": jnp, "optax": optax, "hop": None, "theta0": theta0, "SMALL": True})
+    names = {"jax": fake_jax, "jnp": jnp, "optax": optax, "hop": None, "theta0": theta0, "SMALL": True, "SINGULAR_PREFIX": SINGULAR_PREFIX}
+    with pytest.raises(RuntimeError, match="is singular"):
+        exec(cell, dict(names))
+    # singular after one good timestep: the design stops there, back at that timestep
+    calls = []
+
+    def once(log_h):
+        calls.append(float(log_h))
+        if len(calls) > 1:
+            raise RuntimeError(message)
+        return jnp.asarray(3.0), jnp.asarray(1.0)
+
+    stopped = dict(names, jax=types.SimpleNamespace(jit=lambda f: once, value_and_grad=lambda f: f))
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        exec(cell, stopped)
+    assert "the solution is not differentiable here; stopping" in printed.getvalue()
+    assert [h for _, h, _ in stopped["history"]] == [pytest.approx(0.05)]
+    assert float(jnp.exp(stopped["log_h"])) == pytest.approx(0.05)
+    # any other error is raised as it is
+    other = dict(names, jax=types.SimpleNamespace(jit=lambda f: lambda log_h: (_ for _ in ()).throw(ValueError("bad input")), value_and_grad=lambda f: f))
+    with pytest.raises(ValueError, match="bad input"):
+        exec(cell, other)
