@@ -65,7 +65,18 @@ def _row(result) -> dict:
     # the code that solved it (not part of the run's key): a study resumed after a change of
     # code mixed two commits' runs in one table, and nothing said which run was whose
     row["source"] = _code_source()
+    # and where: the process's JAX backend and device (a Ray worker's, not the caller's that
+    # provenance.json describes; a resumed study can mix CPU and GPU runs, whose rounding differs)
+    row["device"] = _device()
     return row
+
+
+@functools.lru_cache(maxsize=1)
+def _device() -> dict:
+    """This process's JAX backend, device kind and count (`jtraj.provenance`'s ``"jax"`` record)."""
+    from jtraj.provenance import _jax_devices
+
+    return _jax_devices()
 
 
 @functools.lru_cache(maxsize=1)

@@ -83,6 +83,10 @@ def test_a_resumed_study_says_which_runs_other_code_solved(tmp_path, monkeypatch
     monkeypatch.setattr(experiments, "_code_source", lambda: first)
     runs = robustness([HOP], ["se3"], sigmas=[1e-3], replicates=1, seed=5, out=tmp_path, progress=None)
     assert runs[0]["source"] == first
+    # and the device that solved it (a Ray worker's can differ from the caller's)
+    import jax
+
+    assert runs[0]["device"] == {"backend": jax.default_backend(), "devices": len(jax.devices()), "device_kind": jax.devices()[0].device_kind}
     said = stdio.StringIO()
     robustness([HOP], ["se3"], sigmas=[1e-3], replicates=1, seed=5, out=tmp_path, progress=said)
     assert "resuming: 1 of this call's 1 runs" in said.getvalue() and "note:" not in said.getvalue()  # the same commit
