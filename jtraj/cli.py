@@ -406,7 +406,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=None, help="seed of the noise (default 0; needs --noise)")
     p.add_argument("--replicate", type=int, default=None, metavar="R", help="draw the noise as `jtraj robustness` draws replicate R (same --seed and sigma --noise), to solve one run of a study again with its trajectory")
     p.add_argument("--noise-chart", default=None, choices=["se3", "quat1", "quat2", "quat3", "euler"], help="with --replicate: that run of `jtraj robustness --noise-chart`")
-    p.add_argument("--every", type=int, default=1, help="print the solver's progress every N iterations (default 1)")
+    p.add_argument("--every", type=int, default=1, help="print the solver's progress every N iterations (default 1; jtraj's solver, one compiled program, prints them when it returns)")
     p.add_argument("--render", action="store_true", help="also write DIR/motion.mp4 and DIR/keyframes.png")
     _robot_argument(p)
     p.set_defaults(func=_cmd_solve)

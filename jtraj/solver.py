@@ -97,6 +97,17 @@ _CACHE_LOCK = threading.Lock()
 _BUILDING: dict[tuple, threading.Lock] = {}
 
 
+def _is_prepared(task: tasks.Task | str, parameterization: str | params.AbstractParameterization, variables) -> bool:
+    """Whether `prepare` holds the NLP of this key already (False for a task that does not load:
+    `prepare` raises its error)."""
+    try:
+        key = (tasks.load(task), params.get(parameterization), transcription_options(variables))
+    except Exception:
+        return False
+    with _CACHE_LOCK:
+        return key in _CACHE
+
+
 def release_compiled() -> None:
     """Forget every NLP that `prepare` keeps (with each, the solver programs compiled for it) and
     JAX's in-memory caches of compiled functions, so that their memory is freed; the next solve
@@ -289,8 +300,11 @@ def solve(
             coordinates and start from its noisy poses (`jtraj.experiments.chart_noisy_warm_starts`,
             the study's ``noise_chart``); None: the solved chart's own.
         progress: True (default) prints a line per ``progress_every`` iterations to the
-            ``sys.stdout`` of the moment; a text stream prints there; False or None is quiet;
-            a `jtraj.solvers.AbstractCallback` receives the iterations instead.
+            ``sys.stdout`` of the moment (and a line before building a task's NLP the first
+            time); a text stream prints there; False or None is quiet; a
+            `jtraj.solvers.AbstractCallback` receives the iterations instead. Ipopt's lines come
+            as it iterates; jtraj's solver runs as one compiled program, and its lines come
+            when it returns.
         progress_every: print every this many iterations (default 1: each); printed progress
             only (a callback given as ``progress`` receives every iteration, and is refused
             with another value).
@@ -381,6 +395,10 @@ def solve(
             # their values and shape, on the transcription alone (seconds at most), before the NLP
             # is built and compiled (tens of seconds on a whole-body task)
             _check_before_the_build(task, parameterization, variables, theta, warm_start)
+        if isinstance(callback, solvers.PrintProgress) and not _is_prepared(task, parameterization, variables):
+            # tens of seconds on a whole-body task, which printed nothing until the NLP was built
+            name = task if isinstance(task, str) else getattr(task, "name", "the task")
+            callback.write(f"jtraj: building {name}'s NLP ({params.get(parameterization).label}, {variables_label(variables)} variables) and compiling its functions ...")
         prep = prepare(task, parameterization, variables)
         tr, nlp = prep.transcription, prep.nlp
         theta_given = theta is not None

@@ -4,6 +4,7 @@ hop; a backend object stands in for a solver where the test needs a given outcom
 import io
 
 import numpy as np
+import pytest
 from test_transcription import HOP
 
 from jtraj import solve, solvers
@@ -40,3 +41,34 @@ def test_the_largest_violations_put_a_nan_group_first_and_keep_the_order(monkeyp
     stream = io.StringIO()
     solve(HOP, solver=Refusing(), progress=stream, keep_trajectory=False)
     assert "  largest violations: dynamics nan, contact 7.00e+00, friction 3.00e+00" in stream.getvalue().splitlines()
+
+
+def test_printed_progress_says_when_it_builds_a_tasks_nlp(monkeypatch):
+    """A task's first solve built and compiled its NLP (tens of seconds on a whole-body task)
+    before its first line; a line says so now, and only where the NLP is not built yet."""
+    import dataclasses
+
+    import jtraj.solver
+
+    class Built(Exception):
+        pass
+
+    stream = io.StringIO()
+
+    def stop(*args, **kwargs):
+        raise Built
+
+    monkeypatch.setattr(jtraj.solver, "prepare", stop)
+    fresh = dataclasses.replace(HOP, name="hop_not_built_yet")
+    with pytest.raises(Built):
+        solve(fresh, progress=stream)
+    assert stream.getvalue() == "jtraj: building hop_not_built_yet's NLP (SE(3) tangent, compact variables) and compiling its functions ...\n"
+    monkeypatch.setattr(jtraj.solver, "_is_prepared", lambda *a: True)
+    stream = io.StringIO()
+    with pytest.raises(Built):
+        solve(fresh, progress=stream)
+    assert stream.getvalue() == ""
+    monkeypatch.undo()
+    # a task solved before is built: no line (HOP, solved by the tests above in this process)
+    jtraj.solver.prepare(HOP)
+    assert jtraj.solver._is_prepared(HOP, "se3", "compact")
