@@ -526,7 +526,7 @@ def _collada_geoms(geom: ET.Element, mesh: ET.Element, path: pathlib.Path) -> li
 def mesh_cache_dir() -> pathlib.Path:
     """Where converted meshes are kept: ``$JTRAJ_MESH_CACHE`` or ``~/.cache/jtraj/meshes``."""
     if os.environ.get("JTRAJ_MESH_CACHE"):
-        return pathlib.Path(os.environ["JTRAJ_MESH_CACHE"])
+        return pathlib.Path(os.environ["JTRAJ_MESH_CACHE"]).expanduser()  # as JTRAJ_CACHE_DIR: "~/x" made a folder named "~"
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     return pathlib.Path(base) / "jtraj" / "meshes"
 

@@ -569,3 +569,11 @@ def test_an_unknown_key_of_a_parent_file_is_the_parents(tmp_path):
     (tmp_path / "child.toml").write_text('extends = "parent"\n')
     with pytest.raises(robot_lib.RobotLoadError, match=r"parent\.toml: unknown key 'standng'; did you mean 'standing'\?"):
         robot_lib.load_file(tmp_path / "child.toml")
+
+
+def test_the_mesh_cache_variable_expands_the_home_folder(monkeypatch, tmp_path):
+    """``JTRAJ_MESH_CACHE="~/meshes"`` (quoted in a shell, or from a .env file) made a folder
+    named "~" in the working directory, where JTRAJ_CACHE_DIR and JTRAJ_ROBOT_DATA expand it."""
+    monkeypatch.setenv("HOME", str(tmp_path))
+    monkeypatch.setenv("JTRAJ_MESH_CACHE", "~/meshes")
+    assert robot_lib.mesh_cache_dir() == tmp_path / "meshes"
