@@ -273,7 +273,7 @@ def _check_render_args(args: argparse.Namespace) -> None:
     if args.out is None and args.strip is None:
         raise InputError("--out, --strip", "neither given", "expected --out FILE.mp4|FILE.gif and/or --strip FILE.png", verbatim=True)
     if not (Path(args.dir) / "trajectory.npz").is_file():
-        raise InputError("DIR", args.dir, "expected a folder written by `jtraj solve` (with trajectory.npz)")
+        raise InputError("DIR", args.dir, "expected a folder written by `jtraj solve` or `jtraj attitude` (with trajectory.npz)")
     from jtraj.render import _IMAGE_FORMATS, _VIDEO_SUFFIXES
 
     if args.out is not None and Path(args.out).suffix.lower() not in _VIDEO_SUFFIXES:
@@ -340,7 +340,7 @@ def _cmd_plot(args: argparse.Namespace) -> int:
 
 def _add_render_parsers(sub) -> None:
     p = sub.add_parser("render", help="video and/or keyframe strip of a solution folder (DIR/trajectory.npz)")
-    p.add_argument("dir", help="a folder written by `jtraj solve`")
+    p.add_argument("dir", help="a folder written by `jtraj solve` (a robot's motion) or `jtraj attitude` (a rigid body's)")
     p.add_argument("--out", help="video file, .mp4 or .gif")
     p.add_argument("--strip", help="keyframe strip image, .png (or .jpg)")
     p.add_argument("--keyframes", type=int, default=6, help="keyframes in the strip (default 6)")

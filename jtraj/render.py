@@ -489,7 +489,7 @@ def _as_result(result) -> Result:
     if result.trajectory is None:
         raise NotDrawable("the result has no trajectory to draw (solve with keep_trajectory=True or load a folder with trajectory.npz)")
     if not hasattr(result.trajectory, "base_xyz_wxyz"):
-        raise NotDrawable(f"{result.problem!r} is not a legged robot's motion (its trajectory is a {type(result.trajectory).__name__}); draw a rigid-body benchmark with jtraj.render.render_benchmark")
+        raise NotDrawable(f"{result.problem!r} is not a legged robot's motion (its trajectory is a {type(result.trajectory).__name__}); draw a rigid-body benchmark with jtraj.render.render_benchmark, or its folder with jtraj render")
     status = f" (the solver's status: {result.solver_status.value})"
     _refuse_non_finite("the base pose is", status, result.trajectory.base_xyz_wxyz)
     _refuse_zero_quaternions("the base orientation", status, np.asarray(result.trajectory.base_xyz_wxyz)[:, 3:7])
@@ -567,6 +567,19 @@ def auto_azimuth(base_xyz_wxyz: np.ndarray, min_travel: float = TRAVEL_FOR_CAMER
     return 90.0
 
 
+def _check_frames(duration: float, options: RenderOptions) -> int:
+    """The frame count of ``duration`` seconds of motion at ``options``' speed and rate; a
+    `TooManyFrames` above `MAX_FRAMES`, before anything is drawn (the frames of --speed 0.01
+    filled the memory)."""
+    n = max(2, int(round(duration / options.speed * options.fps)) + 1)
+    if n > MAX_FRAMES:
+        raise TooManyFrames(
+            f"render: {duration:g} s of motion at speed {options.speed:g} and {options.fps:g} fps is {n} frames; expected at most {MAX_FRAMES} (they are held in memory until written): "
+            "a larger speed or a lower fps"
+        )
+    return n
+
+
 def _follow(frames: Frames, robot) -> tuple[np.ndarray, float]:
     """Camera targets (T, 3) that follow the base in x and y at a steady height, and a
     distance that keeps the robot and its vertical excursion in view."""
@@ -592,12 +605,7 @@ def render(result: Result | str | Path, options: RenderOptions | Mapping[str, An
     _check_forces(result, options)
     traj = result.trajectory
     duration = float(traj.t[-1] - traj.t[0])
-    n = max(2, int(round(duration / options.speed * options.fps)) + 1)
-    if n > MAX_FRAMES:  # refused before drawing: the frames of --speed 0.01 filled the memory
-        raise TooManyFrames(
-            f"render: {duration:g} s of motion at speed {options.speed:g} and {options.fps:g} fps is {n} frames; expected at most {MAX_FRAMES} (they are held in memory until written): "
-            "a larger speed or a lower fps"
-        )
+    n = _check_frames(duration, options)
     frames = interpolate(traj, np.linspace(traj.t[0], traj.t[-1], n))
     painter = _Painter.for_result(result, options)
     try:
@@ -774,6 +782,8 @@ def render_rigid_body(
         # and replaced by this too)
         options = dataclasses.replace(options, azimuth=auto_azimuth(np.column_stack([xyz[[0, -1]], wxyz[[0, 0]]]), min_travel=1e-6))
     # the path as flown between knots (constant twist), not straight chords
+    if strip is None:
+        _check_frames(float(t[-1] - t[0]), options)
     path = _interpolate_poses(t, xyz, wxyz, np.linspace(t[0], t[-1], min(2000, 8 * len(t))))[0][:, :3] if extent > 1e-6 else None
     painter = _Painter(rigid_body_model(shape, size), options, scale=size)  # (its GL context is closed below)
     try:
@@ -811,13 +821,29 @@ def render_benchmark(result, out_dir: str | Path, *, options: RenderOptions | No
         raise ValueError(f"no body to draw for benchmark {result.problem!r}; expected one of: {', '.join(BENCHMARK_SHAPES)}")
     _check_video_writer(Path(out_dir) / "motion.mp4")  # before the frames are drawn
     options = options or RenderOptions()
+    return _draw_benchmark(result, Path(out_dir) / "motion.mp4", Path(out_dir) / "keyframes.png", keyframes, options)
+
+
+def _is_benchmark(result: Result) -> bool:
+    """Whether ``result`` is an attitude benchmark's that `_draw_benchmark` can draw."""
+    return result.problem in BENCHMARK_SHAPES and result.trajectory is not None and hasattr(result.trajectory, "X")
+
+
+def _draw_benchmark(result: Result, out: Path | None, strip: Path | None, keyframes: int, options: RenderOptions) -> list[Path]:
+    """The video ``out`` and/or the keyframe strip ``strip`` of an attitude benchmark's result
+    (`render_benchmark`, and `render_directory` for its folder)."""
+    shape = BENCHMARK_SHAPES[result.problem]
     t, X = np.asarray(result.trajectory.t), np.asarray(result.trajectory.X)
-    # the satellite slews for minutes: show it faster than real time
-    speed = options.speed * (10.0 if t[-1] - t[0] > 30 else 1.0)
-    video = render_rigid_body(t, X[:, :3], X[:, 3:7], shape, options=dataclasses.replace(options, speed=speed))
-    strip_options = dataclasses.replace(options, width=min(options.width, 320) if shape == "satellite" else options.width)
-    strip = render_rigid_body(t, X[:, :3], X[:, 3:7], shape, strip=keyframes, options=strip_options)
-    return [write_video(video, Path(out_dir) / "motion.mp4", fps=options.fps), write_image(strip, Path(out_dir) / "keyframes.png")]
+    written = []
+    if out is not None:
+        # the satellite slews for minutes: show it faster than real time
+        speed = options.speed * (10.0 if t[-1] - t[0] > 30 else 1.0)
+        video = render_rigid_body(t, X[:, :3], X[:, 3:7], shape, options=dataclasses.replace(options, speed=speed))
+        written.append(write_video(video, out, fps=options.fps))
+    if strip is not None:
+        strip_options = dataclasses.replace(options, width=min(options.width, 320) if shape == "satellite" else options.width)
+        written.append(write_image(render_rigid_body(t, X[:, :3], X[:, 3:7], shape, strip=keyframes, options=strip_options), strip))
+    return written
 
 
 # ----------------------------------------------------------------------------------------
@@ -969,7 +995,8 @@ def render_directory(
     options: RenderOptions | None = None,
 ) -> list[Path]:
     """``jtraj render``: the video (``out``) and/or the keyframe strip (``strip``) of the
-    solution in ``directory`` (its ``result.json`` and ``trajectory.npz``); returns the paths.
+    solution in ``directory`` (its ``result.json`` and ``trajectory.npz``), a robot's or an
+    attitude benchmark's (`render_benchmark`'s drawing); returns the paths.
     The strip's panels are ``options``' size capped at 480 x 480 pixels each (a 640 x 480
     video gets 480 x 480 panels). A path that is a folder, and an .mp4 without its writer
     (imageio-ffmpeg: a RenderError), are refused before anything is drawn."""
@@ -990,8 +1017,14 @@ def render_directory(
     directory = Path(directory)
     if not (directory / "trajectory.npz").is_file():
         raise FileNotFoundError(f"{directory}: no trajectory.npz (expected a folder written by `jtraj solve`)")
-    result = _as_result(directory)
     options = options or RenderOptions()
+    from jtraj.result import Result, result_folder
+
+    if _is_benchmark(benchmark := Result.load(result_folder(directory))):
+        # a folder of `jtraj attitude` (it was refused, pointing to render_benchmark): its body
+        # along its path; the strip's layout and spacing are the robots'
+        return _draw_benchmark(benchmark, None if out is None else Path(out), None if strip is None else Path(strip), keyframes, options)
+    result = _as_result(directory)
     written = []
     if out is not None:
         written.append(write_video(render(result, options), out, fps=options.fps))

@@ -184,16 +184,33 @@ def test_plot_and_render_check_their_folders_before_drawing(tmp_path, monkeypatc
         assert code == 2 and err == f"jtraj render: {flag}: {str(tmp_path / name)!r}: is a folder; expected a file name, e.g. {tmp_path / name / example}\n"
 
 
+def jtraj_render_of(folder):
+    import jtraj.render
+
+    return jtraj.render.render(folder)
+
+
 def test_plot_and_render_of_an_attitude_folder(tmp_path, capsys, monkeypatch):
     """`jtraj plot` draws a rigid-body benchmark's folder with its own figure; `jtraj render`
-    refuses it in one line, pointing to the benchmark renderer."""
+    draws its body along its path (it refused the folder, pointing to a Python function: a saved
+    benchmark could not be drawn from the command line without solving it again)."""
     from test_result import make_result, state_trajectory
 
     run = tmp_path / "att"
     make_result(state_trajectory()).save(run)
-    code, err = _run(["render", str(run), "--out", str(tmp_path / "v.gif")], capsys)
-    assert code == 2 and err.startswith(f"jtraj render: DIR: {str(run)!r}: 'quadflip' is not a legged robot's motion") and "render_benchmark" in err
-    assert err.count("\n") == 1
+    code = cli.main(["render", str(run), "--out", str(tmp_path / "v.gif"), "--strip", str(tmp_path / "k.png"), "--keyframes", "3", "--width", "64", "--height", "48", "--fps", "4", "--no-shadows"])
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert f"wrote {tmp_path / 'v.gif'}" in printed and f"wrote {tmp_path / 'k.png'}" in printed
+    from PIL import Image
+
+    with Image.open(tmp_path / "v.gif") as video:
+        assert video.size == (64, 48) and video.n_frames == 5  # 1 s at 4 fps
+    with Image.open(tmp_path / "k.png") as keyframes:
+        assert keyframes.size[1] == 48
+    # a rigid body's trajectory still is not a robot's: the Python function for robots says so
+    with pytest.raises(ValueError, match="or its folder with jtraj render"):
+        jtraj_render_of(run)
     assert cli.main(["plot", str(run), "--out", str(tmp_path / "p")]) == 0
     # only the folder's faults are worded as DIR's: a ValueError from drawing itself is not
     import jtraj.render

@@ -791,6 +791,12 @@ def test_a_video_of_too_many_frames_is_refused_before_drawing(result, tmp_path, 
     speed = duration * SMALL.fps / jrender.MAX_FRAMES  # one frame more than allowed
     with pytest.raises(jrender.TooManyFrames, match=rf"is {jrender.MAX_FRAMES + 1} frames; expected at most {jrender.MAX_FRAMES}"):
         render(result, SMALL, speed=speed)
+    # a rigid body's video too (`jtraj render` of an attitude folder, `jtraj attitude --render`)
+    monkeypatch.setattr(jrender, "_Painter", lambda *a, **k: pytest.fail("opened a renderer for too many frames"))
+    t = np.linspace(0.0, 1.0, 5)
+    with pytest.raises(jrender.TooManyFrames, match=r"1 s of motion at speed 1e-06"):
+        jrender.render_rigid_body(t, np.zeros((5, 3)), np.tile([1.0, 0.0, 0.0, 0.0], (5, 1)), "quadrotor", options=SMALL, speed=1e-6)
+    monkeypatch.undo()
     result.save(tmp_path / "run")
     assert main(["render", str(tmp_path / "run"), "--out", str(tmp_path / "m.gif"), "--speed", "1e-4"]) == 2
     err = capsys.readouterr().err
