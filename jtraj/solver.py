@@ -397,7 +397,7 @@ def solve(
             _check_before_the_build(task, parameterization, variables, theta, warm_start)
         if isinstance(callback, solvers.PrintProgress) and not _is_prepared(task, parameterization, variables):
             # tens of seconds on a whole-body task, which printed nothing until the NLP was built
-            name = task if isinstance(task, str) else getattr(task, "name", "the task")
+            name = tasks.load(task).name  # (a file's path reads as its task's name)
             callback.write(f"jtraj: building {name}'s NLP ({params.get(parameterization).label}, {variables_label(variables)} variables) and compiling its functions ...")
         prep = prepare(task, parameterization, variables)
         tr, nlp = prep.transcription, prep.nlp
