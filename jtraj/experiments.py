@@ -1209,8 +1209,11 @@ def _table_iii_markdown(summary: list[dict], sigmas: Sequence[float], iterations
 
 
 def plot_iterations(runs: list[dict], path: str | Path) -> None:
-    """Fig. 2: iterations to convergence against noise (median, 25-75th percentiles), a panel
-    per task. A setting's line and band break at a noise level where none of its runs converged
+    """Fig. 2: iterations to convergence against noise (median, 25-75th percentiles of the
+    converged runs, Table III's: the paper's caption says "median over 10 replicates" of the
+    iterations to convergence), a panel per task. Where fewer than all of a point's runs
+    converged, the point is labelled with how many did ("3/10"): a median of few runs is not
+    one of ten. A setting's line and band break at a noise level where none of its runs converged
     (drawn across, they would show data there); a setting with no converged run in a panel is
     named in it ("Quaternion #1: no converged run", in its colour), and the figure's one legend
     lists every setting, so that a failure is seen rather than left out."""
@@ -1248,8 +1251,13 @@ def plot_iterations(runs: list[dict], path: str | Path) -> None:
                 failed.append(key)
                 continue
             s = np.array([r["sigma"] for r in rows], dtype=float)
-            ax.plot(s, column(rows, "iterations_median"), label=labels[key], **style[key])
+            medians = column(rows, "iterations_median")
+            ax.plot(s, medians, label=labels[key], **style[key])
             ax.fill_between(s, column(rows, "iterations_p25"), column(rows, "iterations_p75"), alpha=0.2, color=style[key]["color"])
+            for r, x, y in zip(rows, s, medians):
+                converged = round(r["converged_rate"] * r["runs"])
+                if converged < r["runs"] and np.isfinite(y):  # the point is a median of fewer runs
+                    ax.annotate(f"{converged}/{r['runs']}", (x, y), textcoords="offset points", xytext=(4, 4), fontsize=7, color=style[key]["color"])
         if len(positive) < len(summary):  # sigma 0 (no noise) has no place on a log axis
             ax.set_xscale("symlog", linthresh=min(positive, default=1.0))
         else:
@@ -1264,7 +1272,7 @@ def plot_iterations(runs: list[dict], path: str | Path) -> None:
             ax.set_ylim(0.0, 1.0)
         ax.set_title(task)
         ax.set_xlabel("warm-start noise sigma")
-        ax.set_ylabel("iterations to convergence")
+        ax.set_ylabel("iterations to convergence\n(converged runs)")
         for i, key in enumerate(failed):
             ax.text(0.03, 0.97 - 0.08 * i, f"{labels[key]}: no converged run", transform=ax.transAxes, ha="left", va="top", fontsize=8, color=style[key]["color"])
     handles = [Line2D([], [], label=labels[key], **style[key]) for key in settings]
