@@ -370,7 +370,8 @@ def solve(
     # with the task's own iteration limit (a file's, read without building anything): jtraj's
     # solver refuses a limit its 32-bit loop bound cannot hold, and with 0 here that came after
     # the NLP's build and compile
-    solver_options(backend, options, ipopt_options, exact_hessian, tasks.load(task).max_iter)
+    loaded = tasks.load(task)  # (read once here: the checks below and the build message use it)
+    solver_options(backend, options, ipopt_options, exact_hessian, loaded.max_iter)
     if not is_whole(progress_every) or progress_every < 1:  # (numpy's integers too; not True)
         raise ValueError(f"solve: progress_every={progress_every!r}: expected an integer >= 1")
     progress_every = int(progress_every)
@@ -395,10 +396,10 @@ def solve(
             # their values and shape, on the transcription alone (seconds at most), before the NLP
             # is built and compiled (tens of seconds on a whole-body task)
             _check_before_the_build(task, parameterization, variables, theta, warm_start)
-        if isinstance(callback, solvers.PrintProgress) and not _is_prepared(task, parameterization, variables):
+        if isinstance(callback, solvers.PrintProgress) and not _is_prepared(loaded, parameterization, variables):
             # tens of seconds on a whole-body task, which printed nothing until the NLP was built
-            name = tasks.load(task).name  # (a file's path reads as its task's name)
-            callback.write(f"jtraj: building {name}'s NLP ({params.get(parameterization).label}, {variables_label(variables)} variables) and compiling its functions ...")
+            # (named by the task's name, also where a file's path was given)
+            callback.write(f"jtraj: building {loaded.name}'s NLP ({params.get(parameterization).label}, {variables_label(variables)} variables) and compiling its functions ...")
         prep = prepare(task, parameterization, variables)
         tr, nlp = prep.transcription, prep.nlp
         theta_given = theta is not None
