@@ -782,8 +782,7 @@ def render_rigid_body(
         # and replaced by this too)
         options = dataclasses.replace(options, azimuth=auto_azimuth(np.column_stack([xyz[[0, -1]], wxyz[[0, 0]]]), min_travel=1e-6))
     # the path as flown between knots (constant twist), not straight chords
-    if strip is None:
-        _check_frames(float(t[-1] - t[0]), options)
+    n = _check_frames(float(t[-1] - t[0]), options) if strip is None else 0  # the video's frames
     path = _interpolate_poses(t, xyz, wxyz, np.linspace(t[0], t[-1], min(2000, 8 * len(t))))[0][:, :3] if extent > 1e-6 else None
     painter = _Painter(rigid_body_model(shape, size), options, scale=size)  # (its GL context is closed below)
     try:
@@ -799,7 +798,6 @@ def render_rigid_body(
             center = 0.5 * (xyz.min(axis=0) + xyz.max(axis=0))
             cam = painter.camera(center, options.distance or 1.1 * extent + 2 * size)
             return painter.draw(qpos[-1], None, None, None, cam, extra_poses=list(qpos[:-1]), path=path)
-        n = max(2, int(round((t[-1] - t[0]) / options.speed * options.fps)) + 1)
         times = np.linspace(t[0], t[-1], n)
         qpos = _interpolate_poses(t, xyz, wxyz, times)[0]
         images = []
