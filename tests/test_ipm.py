@@ -1018,3 +1018,40 @@ def test_loqo_oracle_takes_ipopts_fraction_to_the_boundary():
     assert ours.stats.iterations == ref.stats.iterations, ([h.mu for h in ours.history], [h.mu for h in ref.history])
     # (Ipopt's row k shows the mu of iteration k's step, this solver's the mu chosen after it)
     np.testing.assert_allclose([h.mu for h in ours.history[:-1]], [h.mu for h in ref.history[1:]], rtol=1e-3)
+
+
+def test_a_nan_derivative_of_a_fixed_variable_is_removed_and_a_free_ones_is_a_numerical_error():
+    """A row |u| <= U_MAX written with a norm, whose derivative is NaN at u = 0. With u fixed
+    to 0 at both ends, the NaN lies only in fixed variables' columns, which Ipopt removes
+    (make_parameter) and solves in 11 iterations; jtraj's solver masked them by multiplying by 0
+    (NaN * 0 = NaN), failed every delta_w and stopped at iteration 0 as a failed step
+    computation. From u = 0 everywhere the NaN is in free columns: an invalid number in a
+    derivative (NUMERICAL_ERROR, as for a NaN Hessian), not a failed inertia correction."""
+    layout = Layout((("p", 1), ("v", 1), ("u", 1)))
+
+    def step(theta, data, p, v, u, p1, v1):
+        return jnp.concatenate([p1 - p - H_STEP * v1, v1 - v - H_STEP * u])
+
+    groups = [
+        ConstraintGroup("dynamics", (Dep("p"), Dep("v"), Dep("u"), Dep("p", 1), Dep("v", 1)), step, np.arange(K - 1),
+                        np.zeros((K - 1, 2)), np.zeros((K - 1, 2)), np.ones((K - 1, 2), bool)),
+        ConstraintGroup("unorm", (Dep("u"),), lambda theta, data, u: jnp.linalg.norm(u)[None], np.arange(K),
+                        np.full((K, 1), -np.inf), np.full((K, 1), U_MAX), np.ones((K, 1), bool)),
+    ]
+    costs = [CostGroup("effort", (Dep("u"),), lambda theta, data, u: 0.5 * jnp.sum(u**2), np.arange(K))]
+    lower, upper = np.full((K, 3), -np.inf), np.full((K, 3), np.inf)
+    lower[0] = upper[0] = 0.0
+    lower[-1] = upper[-1] = [1.0, 0.0, 0.0]
+    nlp = KnotNLP(layout, K, costs, groups, lower, upper)
+    x0 = np.tile([0.5, 0.1, 0.1], (K, 1))
+    x0[0], x0[-1] = lower[0], lower[-1]
+    J = np.asarray(nlp.jacobian(x0.reshape(-1), None))
+    assert not np.isfinite(J).all()  # the fixed u's entries
+    jt = solvers.get("jtraj")
+    sol = jt.solve(nlp, x0.reshape(-1), None, {"tol": 1e-8, "max_iter": 50})
+    ref = solvers.get("ipopt").solve(nlp, x0.reshape(-1), None, {"tol": 1e-8, "max_iter": 50})
+    assert ref.converged and sol.status is solvers.Status.SOLVED, (sol.status, sol.message)
+    np.testing.assert_allclose(sol.objective, ref.objective, rtol=1e-6)
+    x0[:, 2] = 0.0
+    bad = jt.solve(nlp, x0.reshape(-1), None, {"tol": 1e-8, "max_iter": 50})
+    assert bad.status is solvers.Status.NUMERICAL_ERROR and bad.stats.iterations == 0, (bad.status, bad.message)

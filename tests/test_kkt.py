@@ -504,3 +504,74 @@ def test_the_slack_rows_block_is_perturbed_with_the_variables(rng):
     ref = np.linalg.solve(M, np.concatenate([r_x.reshape(-1)[keep], r_c.reshape(-1)]))
     np.testing.assert_allclose(np.asarray(dx).reshape(-1)[keep], ref[: keep.sum()], rtol=1e-8, atol=1e-8)
     np.testing.assert_allclose(np.asarray(dy).reshape(-1), ref[keep.sum() :], rtol=1e-8, atol=1e-8)
+
+
+def test_free_columns_select_the_nonzeros_of_free_variables(rng):
+    """`JacobianPattern.free_columns`: the nonzeros kept are exactly those in columns of free
+    variables, of knot k in A[k] and of knot k + 1 in B[k] (what `jtraj.solvers.ipm` removes
+    with ``jnp.where``, so that a NaN in a fixed variable's column cannot reach the step)."""
+    system, args = sparse_system(rng)
+    pattern = kkt.JacobianPattern(*args)
+    K = args[0]
+    free = rng.uniform(size=system.sigma.shape) < 0.6
+    free_next = np.concatenate([free[1:], np.zeros_like(free[:1])])
+    v = pattern.values(system.A, system.B)
+    A, B = pattern.dense(jnp.where(pattern.free_columns(jnp.asarray(free)), v, 0.0))
+    np.testing.assert_array_equal(A, np.asarray(system.A) * free[:, None, :])
+    np.testing.assert_array_equal(B, np.asarray(system.B) * free_next[:, None, :])
+    assert K > 1 and 0 < int(pattern.free_columns(jnp.asarray(free)).sum()) < pattern.nnz
+
+
+def test_a_nan_in_the_last_knots_b_block_is_ignored(rng):
+    """B[K-1] is documented as ignored, but it was masked by a product with 0: a NaN there made
+    the step NaN while the factorization reported success."""
+    system = random_system(rng)
+    K, n = system.sigma.shape
+    m = system.A.shape[1]
+    r_x, r_c = jnp.asarray(rng.normal(size=(K, n))), jnp.asarray(rng.normal(size=(K, m)))
+    solved = []
+    for B in (system.B, system.B.at[-1].set(jnp.nan)):
+        s = system._replace(B=B)
+        fac, delta_w, ok = kkt.factor_with_correction(s, jnp.asarray(1e-9), jnp.asarray(0.0))
+        assert bool(ok)
+        solved.append(kkt.solve(s, fac, delta_w, jnp.asarray(1e-9), r_x, r_c))
+    for a, b in zip(*solved):
+        assert np.all(np.isfinite(b))
+        np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize(("indefinite", "with_low_rank"), [(False, False), (True, False), (False, True), (True, True)])
+def test_solve_keeping_delta_c_equals_the_regularized_dense_solve(rng, indefinite, with_low_rank):
+    """``remove_delta_c=False`` (the interior point's default, Ipopt's treatment of a dependent
+    Jacobian) solves the system with ``-(D0 + delta_c)`` in its (2, 2) block, with slack rows,
+    a ``delta_w`` and a low-rank Hessian term."""
+    system = random_system(rng, indefinite=indefinite)
+    K, n = system.sigma.shape
+    m = system.A.shape[1]
+    slack = np.asarray(system.d0) > 0
+    slack[1, 0] = False  # the inactive row
+    system = system._replace(slack=jnp.asarray(slack))
+    delta_c = 1e-2  # large enough that keeping or removing it shows
+    fac, delta_w, ok = kkt.factor_with_correction(system, jnp.asarray(delta_c), jnp.asarray(0.0))
+    assert bool(ok) and (float(delta_w) > 0.0) == indefinite
+    low_rank = None
+    if with_low_rank:
+        W = rng.normal(size=(2, K, n)) * 0.3 * np.asarray(system.free)
+        low_rank = kkt.LowRank(W=jnp.asarray(W), M=jnp.asarray(np.diag([5.0, 7.0])))
+    r_x, r_c = rng.normal(size=(K, n)), rng.normal(size=(K, m))
+    dx, dy = kkt.solve(system, fac, delta_w, jnp.asarray(delta_c), jnp.asarray(r_x), jnp.asarray(r_c), remove_delta_c=False, low_rank=low_rank)
+    d = np.asarray(kkt.perturbed_d0(system, delta_w)) + delta_c
+    M, keep = dense_kkt(system._replace(d0=jnp.asarray(d)), float(delta_w))
+    nf = int(keep.sum())
+    if with_low_rank:
+        Wd = W.reshape(2, -1)
+        M[:nf, :nf] -= (Wd.T @ np.linalg.solve(np.diag([5.0, 7.0]), Wd))[np.ix_(keep, keep)]
+    ref = np.linalg.solve(M, np.concatenate([r_x.reshape(-1)[keep], r_c.reshape(-1)]))
+    np.testing.assert_allclose(np.asarray(dx).reshape(-1)[keep], ref[:nf], rtol=1e-8, atol=1e-8)
+    np.testing.assert_allclose(np.asarray(dy).reshape(-1), ref[nf:], rtol=1e-8, atol=1e-8)
+    # the system without delta_c has another solution: the test can tell them apart
+    M0, _ = dense_kkt(system._replace(d0=jnp.asarray(d - delta_c)), float(delta_w))
+    if with_low_rank:
+        M0[:nf, :nf] -= (Wd.T @ np.linalg.solve(np.diag([5.0, 7.0]), Wd))[np.ix_(keep, keep)]
+    other = np.linalg.solve(M0, np.concatenate([r_x.reshape(-1)[keep], r_c.reshape(-1)]))
+    assert np.max(np.abs(other - ref)) > 1e-4

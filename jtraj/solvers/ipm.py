@@ -1146,6 +1146,10 @@ class IPM:
         vl, vu = st.vl + a_dual * st.dvl, st.vu + a_dual * st.dvu
         pattern = self.view.pattern
         Jt = jnp.where((p.eq | p.ineq).reshape(-1)[pattern.rows], Jt, 0.0)
+        # the derivatives must be finite in the free variables only: a fixed variable leaves the
+        # step (as with Ipopt's make_parameter), and a NaN or Inf in its column or gradient entry
+        # (a norm's derivative at 0 on a fixed knot) is kept from the Newton system (`_newton_system`)
+        derivs_finite = jnp.all(jnp.isfinite(jnp.where(p.free, gt, 0.0))) & jnp.all(jnp.isfinite(jnp.where(pattern.free_columns(p.free), Jt, 0.0)))
         H = st.H
         if o.hessian == "bfgs":
             # partitioned BFGS: element gradient differences at the new multipliers
@@ -1234,7 +1238,7 @@ class IPM:
         # the objective too: the optimality error never reads f, so a NaN f (a log of a negative
         # number with a finite gradient) went on into the barrier function, or, at a stationary
         # start, was reported converged with objective NaN (Ipopt: an invalid number)
-        finite = jnp.isfinite(err) & jnp.all(jnp.isfinite(xt)) & jnp.isfinite(ft)
+        finite = jnp.isfinite(err) & jnp.all(jnp.isfinite(xt)) & jnp.isfinite(ft) & derivs_finite
         converged = (err <= t.tol) & (viol <= t.constr_viol_tol) & (dual_inf <= t.dual_inf_tol) & (compl <= t.compl_inf_tol) & finite
         status = jnp.where(
             converged, int(IpmStatus.CONVERGED),
@@ -1361,6 +1365,10 @@ class IPM:
         x = st.x
         # with L-BFGS the Hessian is sigma I plus the low-rank term: no block part
         H = None if o.hessian == "lbfgs" else view.hessian(x, st.y, 1.0, theta) if o.hessian == "exact" else st.H
+        if o.hessian == "exact":
+            # a fixed variable's rows and columns removed (with where: a NaN there must not count)
+            free2 = jnp.concatenate([p.free, jnp.concatenate([p.free[1:], jnp.zeros_like(p.free[:1])], axis=0)], axis=1)
+            H = jnp.where(free2[:, :, None] & free2[:, None, :], H, 0.0)
         system, low_rank, r_c, right_hand_side, full_step, barrier_gradients = self._newton_system(p, st, H)
         # Ipopt's dual regularization, shrinking with mu (its kappa_c = 1/4)
         delta_c = o.delta_c * st.mu ** 0.25 if o.delta_c_mu_scaled else jnp.asarray(o.delta_c, jnp.float64)
@@ -1457,7 +1465,9 @@ class IPM:
         if self.options.hessian == "lbfgs":
             sigma_x = sigma_x + jnp.where(p.free, st.lsigma, 0.0)
             low_rank = self._lbfgs_low_rank(st)
-        system = kkt.KKTSystem(H=H, sigma=sigma_x, A=st.J, B=None, d0=d0, free=p.free, pattern=self.view.pattern, slack=p.ineq)
+        # a fixed variable's column removed with where: the KKT solve masks by products with 0
+        J = jnp.where(self.view.pattern.free_columns(p.free), st.J, 0.0)
+        system = kkt.KKTSystem(H=H, sigma=sigma_x, A=J, B=None, d0=d0, free=p.free, pattern=self.view.pattern, slack=p.ineq)
         return system, low_rank, r_c, right_hand_side, full_step, barrier_gradients
 
     def _factored(self, p: _Problem, st: _State):

@@ -15,7 +15,9 @@ knots k and k+1 only)::
   eliminated (Ipopt's reduced system; with ``KKTSystem.slack`` a ``delta_w`` perturbs them
   too, ``1 / (sigma_s + delta_w)``), anything positive on inactive rows (their J rows are 0).
 Fixed variables (``free == False``) are removed: their rows and columns are replaced by the
-identity and their step is 0.
+identity and their step is 0. Their entries of H, J and r_x are masked by products with 0, so
+they must be finite: a caller whose derivatives may be NaN or Inf there removes them first with
+``jnp.where`` (`jtraj.solvers.ipm` does, with `JacobianPattern.free_columns`).
 
 Solve: with a dual regularization ``delta_c > 0`` added to D0 on every row (``D = D0 +
 delta_c``), the multipliers are eliminated, ``dy = (J dx - r_c) / D``, leaving the condensed
@@ -228,6 +230,13 @@ class JacobianPattern:
         """The vector of nonzeros (nnz,) of dense blocks A, B (K, m, n)."""
         return jnp.concatenate([A.reshape(-1)[self._a[0]], B.reshape(-1)[self._b[0]]])
 
+    def free_columns(self, free: jax.Array) -> jax.Array:
+        """(nnz,) bool: which nonzeros lie in the column of a free variable, for ``free`` (K, n)
+        (a fixed variable's entries are to be removed with ``jnp.where``, not multiplied by 0,
+        so that a NaN or Inf there cannot reach the step)."""
+        padded = jnp.concatenate([free.reshape(-1), jnp.zeros(self.n, bool)])
+        return jnp.concatenate([padded[self._a[2]], padded[self._b[2]]])
+
     def dense(self, v: jax.Array) -> tuple[jax.Array, jax.Array]:
         """Dense blocks (A, B), each (K, m, n), of the vector of nonzeros ``v``."""
         size = self.K * self.m * self.n
@@ -355,7 +364,7 @@ def _product_blocks(system: KKTSystem, d: jax.Array) -> tuple[jax.Array, jax.Arr
             upper = jnp.zeros((K, n, n), upper.dtype).at[:, :, pattern.coupled].set(upper)
     else:
         assert B is not None, "dense blocks need B"
-        Bm = B * has_next[:, None, None]
+        Bm = jnp.where(has_next[:, None, None] > 0, B, 0.0)  # B[K-1] ignored, even a NaN there
         AtW = jnp.swapaxes(A * w[:, :, None], 1, 2)
         BtW = jnp.swapaxes(Bm * w[:, :, None], 1, 2)
         diag = (AtW @ A).at[1:].add((BtW @ Bm)[:-1])  # B_k's products land on knot k+1
@@ -609,7 +618,7 @@ def _apply_J(A, B, x, pattern: JacobianPattern | None = None):
         return pattern.apply_J(A, x)
     K = x.shape[0]
     x_next = jnp.concatenate([x[1:], jnp.zeros_like(x[:1])], axis=0)
-    return jnp.einsum("kmn,kn->km", A, x) + jnp.einsum("kmn,kn->km", B * _split_last(K, B.dtype)[:, None, None], x_next)
+    return jnp.einsum("kmn,kn->km", A, x) + jnp.einsum("kmn,kn->km", jnp.where(_split_last(K, B.dtype)[:, None, None] > 0, B, 0.0), x_next)
 
 
 def _apply_JT(A, B, y, pattern: JacobianPattern | None = None):
@@ -618,7 +627,7 @@ def _apply_JT(A, B, y, pattern: JacobianPattern | None = None):
         return pattern.apply_JT(A, y)
     K = y.shape[0]
     out = jnp.einsum("kmn,km->kn", A, y)
-    from_prev = jnp.einsum("kmn,km->kn", B * _split_last(K, B.dtype)[:, None, None], y)
+    from_prev = jnp.einsum("kmn,km->kn", jnp.where(_split_last(K, B.dtype)[:, None, None] > 0, B, 0.0), y)
     return out.at[1:].add(from_prev[:-1])
 
 
