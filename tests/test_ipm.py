@@ -472,11 +472,14 @@ def test_converges_on_small_go2_hop_with_the_other_parameterizations(param):
     """The same hop with each other floating-base chart (SE(3) is the test above): the
     interior point converges at the study's settings and does the hop, and it reaches the
     minimum Ipopt reaches. The hop's optimal cost is about 0, so at the study's tol 1e-3 each
-    solver stops at a cost below 1e-3 set by where it stops, which moves with the CPU's
+    solver stops at a small cost (up to a few 1e-3) set by where it stops, which moves with the CPU's
     rounding (measured 2026-12-07 on an AMD EPYC with AVX-512, Quaternion #1, #2, #3, Euler:
     jtraj 4.1e-7, 5.3e-5, 8.7e-4, 1.7e-4, Ipopt 2.6e-3, 1.6e-4, 9.2e-6, 7.1e-4; an earlier
     session's CPU gave jtraj 1.3e-5 on Quaternion #3, and a bound of Ipopt's cost plus 1e-4
-    failed here). The minima are compared at tol 1e-8 (jtraj with the floor
+    failed here; on an AMD EPYC without AVX-512 on the same day, XLA's AVX2 code, jtraj ended
+    Quaternion #3 at 3.7e-3, identically before and after 2026-12-07's fixed-column change,
+    where a bound of 1e-3 failed; Ipopt 9.1e-6). At tol 1e-3 the cost is bounded by 1e-2 only;
+    the minima are compared at tol 1e-8 (jtraj with the floor
     ``delta_c_min=1e-9`` such tolerances want): both reach 1e-11 to 1e-13 (measured: jtraj
     1.7e-11, 1.1e-11, 7.6e-13, 1.4e-11; Ipopt 2.2e-12, 8.7e-12, 3.4e-13, 1.3e-12). Each chart
     is a program of its own (a compile per case)."""
@@ -488,7 +491,7 @@ def test_converges_on_small_go2_hop_with_the_other_parameterizations(param):
     ipopt = solve(HOP, param, variables="paper", progress=None, keep_trajectory=False)
     assert ours.solver_status is solvers.Status.SOLVED and ours.success, ours.status_msg
     assert ipopt.success, ipopt.status_msg
-    assert ours.constraint_violation < 1e-4 and ours.cost < 1e-3, (ours.constraint_violation, ours.cost)
+    assert ours.constraint_violation < 1e-4 and ours.cost < 1e-2, (ours.constraint_violation, ours.cost)
     tight = solve(HOP, param, variables="paper", solver="jtraj", options={"tol": 1e-8, "delta_c_min": 1e-9}, progress=None, keep_trajectory=False)
     ipopt_tight = solve(HOP, param, variables="paper", options={"tol": 1e-8}, progress=None, keep_trajectory=False)
     assert tight.solver_status is solvers.Status.SOLVED and tight.success and ipopt_tight.solver_status is solvers.Status.SOLVED
