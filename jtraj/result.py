@@ -289,8 +289,10 @@ class Result:
         ``provenance.json`` (the record of the run that wrote it) are removed before either
         file is written; without a trajectory, an older ``trajectory.npz`` is removed."""
         d = Path(directory)
-        if (problem := folder_in_the_way(d)) is not None:  # before anything there is removed
-            raise ValueError(f"Result.save: {problem}")
+        # before anything there is removed: "" (an unset variable) was the current folder, whose
+        # figures and provenance.json went; a file or an unwritable place raised the OS's error
+        if (problem := io.output_folder_problem(directory) or folder_in_the_way(d)) is not None:
+            raise ValueError(f"Result.save: directory={str(directory)!r}: {problem}")
         d.mkdir(parents=True, exist_ok=True)
         arrays = None if self.trajectory is None else _trajectory_arrays(self.trajectory)
         data = self.to_json()

@@ -432,3 +432,21 @@ def test_save_refuses_a_folder_where_its_files_go_before_removing_anything(tmp_p
     with pytest.raises(ValueError, match=r"Result.save: .*keyframes.png is a folder; expected room for the file keyframes.png"):
         r.save(tmp_path / "r")
     assert sorted(p.name for p in (tmp_path / "r").iterdir()) == ["keyframes.png", "result.json", "trajectory.npz", "trajectory.png"]
+
+
+def test_save_refuses_an_empty_name_a_file_and_an_unwritable_place_before_removing_anything(tmp_path, monkeypatch):
+    """``save("")`` (an unset variable) wrote into the current folder and removed its figures
+    and provenance.json; a file's path or /proc raised the OS's FileExistsError or
+    FileNotFoundError. Each is refused as `jtraj.solve`'s ``out`` is, before anything is touched."""
+    r = make_result(state_trajectory())
+    monkeypatch.chdir(tmp_path)
+    for name in ("plot.png", "provenance.json", "notes.txt"):
+        (tmp_path / name).write_text("the user's")
+    with pytest.raises(ValueError, match=r"Result.save: directory='': expected a folder name"):
+        r.save("")
+    (tmp_path / "afile").write_text("x")
+    with pytest.raises(ValueError, match=r"Result.save: directory='afile': is a file; expected a folder"):
+        r.save("afile")
+    with pytest.raises(ValueError, match=r"Result.save: directory='/proc/jtraj-x': cannot create a file in /proc"):
+        r.save("/proc/jtraj-x")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile", "notes.txt", "plot.png", "provenance.json"]
