@@ -149,10 +149,9 @@ def plot_solution(result: Result, path: str | Path | None = None, *, friction: f
     task name (0.9, said in the panel's title, for another task). Returns the figure, or writes
     it to ``path`` and returns the path.
     """
-    from jtraj import robot as robots
 
     t = _trajectory(result)
-    robot = robots.load(result.robot)
+    robot = result_robot(result)
     if friction is None:
         friction = (result.options.get("theta") or {}).get("friction")
     mu = friction if friction is not None else _task_friction(result.task)
@@ -217,6 +216,26 @@ def _trajectory(result: Result):
     if result.trajectory is None:
         raise ValueError("the result has no trajectory (solve(..., keep_trajectory=True))")
     return result.trajectory
+
+
+def result_robot(result: Result):
+    """The robot ``result`` names (`jtraj.robot.load`), checked against its trajectory's
+    widths: a result.json whose model was edited to another robot passes the files' checksum
+    (which covers the trajectory only), and drawing or plotting it failed deep inside with a
+    broadcast or index error. `jtraj.io.FileFormatError` (a ValueError) says which array and
+    what the robot wants."""
+    from jtraj import robot as robots
+
+    robot = robots.load(result.robot)
+    t = _trajectory(result)
+    for name, width in (("q_joints", robot.nj), ("v", robot.nv)):
+        shape = np.asarray(getattr(t, name, None)).shape
+        if len(shape) != 2 or shape[1] != width:
+            raise jio.FileFormatError(
+                f"{result.problem!r}'s trajectory does not fit the robot {result.robot!r} its result names: {name} has shape {shape}, "
+                f"the robot wants (knots, {width}) (a result.json whose model names another robot than the one solved?)"
+            )
+    return robot
 
 
 def _finish(fig, path):

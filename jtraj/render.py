@@ -372,13 +372,12 @@ class _Painter:
         result's options; 0 for results saved before it was recorded), its arrows scaled by
         the weight of the body masses solved at (`jtraj.plots._weight`), which the forces
         carried, not the model's."""
-        from jtraj import robot as robots
-        from jtraj.plots import _weight
+        from jtraj.plots import _weight, result_robot
 
         if options.azimuth is None:
             options = dataclasses.replace(options, azimuth=auto_azimuth(result.trajectory.base_xyz_wxyz))
         robot_name = result.robot
-        robot = robots.load(robot_name)
+        robot = result_robot(result)
         ground = float(result.options.get("terrain_height", 0.0) or 0.0)
         painter = cls(scene_model(robot_name, ground), options, weight=_weight(result, robot), scale=float(robot.base_xyz_wxyz_standing[2]))
         painter.robot = robot

@@ -170,3 +170,24 @@ def test_comparison_cells_without_a_trajectory_or_of_another_solver(result, tmp_
     (se3_top, euler_top), _ = np.reshape(fig.axes, (2, 2))
     assert result.solver != "jtraj" and se3_top.get_title() == "made_up_flip [se3]: saved run is not the table's"
     assert euler_top.get_title() == "made_up_flip [euler]: no trajectory"
+
+
+def test_a_result_naming_another_robot_is_refused_in_one_line(result, tmp_path, capsys):
+    """A result.json whose model was edited to another robot passes the files' checksum (it
+    covers the trajectory); `jtraj plot` ended in an IndexError and `jtraj render` in a
+    broadcast error, each a traceback. Both now name the array and what the robot wants."""
+    from jtraj.cli import main
+    from jtraj.io import FileFormatError
+
+    other = dataclasses.replace(result, model="g1")
+    knots, joints = np.shape(result.trajectory.q_joints)
+    g1 = robots.load("g1")
+    assert g1.nj != joints
+    with pytest.raises(FileFormatError, match=rf"does not fit the robot 'g1' its result names: q_joints has shape \({knots}, {joints}\), the robot wants \(knots, {g1.nj}\)"):
+        plot_solution(other)
+    other.save(tmp_path / "run")
+    for argv in (["plot", str(tmp_path / "run"), "--out", str(tmp_path / "p")], ["render", str(tmp_path / "run"), "--strip", str(tmp_path / "k.png"), "--keyframes", "2"]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"jtraj {argv[0]}: DIR:") and "does not fit the robot 'g1'" in err and err.count("\n") == 1, err
+    assert not (tmp_path / "k.png").exists() and not (tmp_path / "p" / "solution.png").exists()
