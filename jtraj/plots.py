@@ -256,7 +256,8 @@ def plot_comparison(directory: str | Path, path: str | Path | None = None):
     parameterization, two rows per task (base position; accumulated base rotation), titled
     with each run's outcome and iterations. Runs without a saved trajectory, with an unreadable
     one, or with one that is not the table's run (a folder left by an earlier run: other outcome
-    or iterations) are left blank, their title saying which. Returns the figure, or writes it to
+    or iterations) are left blank, their title saying which; where no cell has a trajectory
+    (``jtraj compare --no-trajectories``) it raises `jtraj.io.FileFormatError`. Returns the figure, or writes it to
     ``path`` and returns the path. A table_iv.json that is not a list of rows with ``task`` and
     ``parameterization`` raises `jtraj.io.FileFormatError` naming it."""
     directory = Path(directory)
@@ -272,6 +273,7 @@ def plot_comparison(directory: str | Path, path: str | Path | None = None):
     fig = _figure(figsize=(3.2 * len(params), 2.3 * 2 * len(tasks)))
     axes = fig.subplots(2 * len(tasks), len(params), squeeze=False, sharex="row")
     legend = True  # on the first cell drawn, which a blank first column does not hold
+    missing = 0  # cells without a trajectory
     for i, task in enumerate(tasks):
         for j, param in enumerate(params):
             top, bottom = axes[2 * i, j], axes[2 * i + 1, j]
@@ -282,6 +284,7 @@ def plot_comparison(directory: str | Path, path: str | Path | None = None):
             row = by_cell.get((task, param))
             if row is None or not (run / "trajectory.npz").is_file():
                 top.set_title(f"{task} [{param}]: no trajectory", fontsize=8)
+                missing += 1
                 continue
             try:
                 result = Result.load(run)
@@ -295,6 +298,7 @@ def plot_comparison(directory: str | Path, path: str | Path | None = None):
             t = result.trajectory
             if t is None:  # result.json saved without one beside an older trajectory.npz (load drops it)
                 top.set_title(f"{task} [{param}]: no trajectory", fontsize=8)
+                missing += 1
                 continue
             touching = t.in_contact.any(axis=1)
             for ax in (top, bottom):
@@ -310,6 +314,11 @@ def plot_comparison(directory: str | Path, path: str | Path | None = None):
                 top.legend(fontsize=6)
                 bottom.legend(fontsize=6)
                 legend = False
+    if missing == len(tasks) * len(params):  # a figure of blank panels only, written as if it were one
+        raise jio.FileFormatError(
+            f"{table}: none of its {len(rows)} runs has a saved trajectory to draw "
+            "(each cell's folder TASK_PARAM beside it; `jtraj compare --no-trajectories` writes only the tables)"
+        )
     fig.suptitle("one column per parameterization (grey: flight)")
     fig.tight_layout()
     return _finish(fig, path)

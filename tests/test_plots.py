@@ -191,3 +191,22 @@ def test_a_result_naming_another_robot_is_refused_in_one_line(result, tmp_path, 
         err = capsys.readouterr().err
         assert err.startswith(f"jtraj {argv[0]}: DIR:") and "does not fit the robot 'g1'" in err and err.count("\n") == 1, err
     assert not (tmp_path / "k.png").exists() and not (tmp_path / "p" / "solution.png").exists()
+
+
+def test_a_compare_folder_without_trajectories_is_refused(result, tmp_path, capsys):
+    """`jtraj plot` of a folder written by `jtraj compare --no-trajectories` (results/table_iv)
+    wrote comparison.png with every panel blank and exited 0; with one cell saved it draws."""
+    from jtraj.cli import main
+    from jtraj.io import FileFormatError
+
+    rows = [{"task": "made_up_flip", "parameterization": p, "status": result.status.value, "iterations": result.iterations, "solver": result.solver} for p in ("se3", "euler")]
+    (tmp_path / "table_iv.json").write_text(json.dumps(rows))
+    with pytest.raises(FileFormatError, match=r"table_iv.json: none of its 2 runs has a saved trajectory to draw"):
+        plot_comparison(tmp_path)
+    assert main(["plot", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("jtraj plot: DIR:") and "none of its 2 runs" in err and err.count("\n") == 1, err
+    assert not (tmp_path / "comparison.png").exists()
+    result.save(tmp_path / "made_up_flip_se3")
+    fig = plot_comparison(tmp_path)
+    assert fig.axes[0].get_title().startswith("made_up_flip [se3]: ") and fig.axes[1].get_title() == "made_up_flip [euler]: no trajectory"
