@@ -274,6 +274,13 @@ def _check_render_args(args: argparse.Namespace) -> None:
         raise InputError("--out, --strip", "neither given", "expected --out FILE.mp4|FILE.gif and/or --strip FILE.png", verbatim=True)
     if not (Path(args.dir) / "trajectory.npz").is_file():
         raise InputError("DIR", args.dir, "expected a folder written by `jtraj solve` or `jtraj attitude` (with trajectory.npz)")
+    # the strip's options without a strip did nothing, without a word
+    given = [f"--{name}" for name in ("keyframes", "layout", "spacing") if getattr(args, name) is not None]
+    if args.strip is None and given:
+        raise InputError(", ".join(given), ", ".join(str(getattr(args, g[2:])) for g in given), "the keyframe strip's options; they need --strip FILE.png", verbatim=True)
+    args.keyframes = 6 if args.keyframes is None else args.keyframes
+    args.layout = "side" if args.layout is None else args.layout
+    args.spacing = "motion" if args.spacing is None else args.spacing
     from jtraj.render import _IMAGE_FORMATS, _VIDEO_SUFFIXES
 
     if args.out is not None and Path(args.out).suffix.lower() not in _VIDEO_SUFFIXES:
@@ -343,9 +350,10 @@ def _add_render_parsers(sub) -> None:
     p.add_argument("dir", help="a folder written by `jtraj solve` (a robot's motion) or `jtraj attitude` (a rigid body's)")
     p.add_argument("--out", help="video file, .mp4 or .gif")
     p.add_argument("--strip", help="keyframe strip image, .png (or .jpg)")
-    p.add_argument("--keyframes", type=int, default=6, help="keyframes in the strip (default 6)")
-    p.add_argument("--layout", default="side", choices=["side", "overlay"], help="strip: panels side by side (default) or overlaid in one scene")
-    p.add_argument("--spacing", default="motion", choices=["motion", "time"], help="strip: keyframes evenly along the base's motion (default) or in time")
+    # the strip's options default to None so that one given without --strip is refused
+    p.add_argument("--keyframes", type=int, help="keyframes in the strip (default 6)")
+    p.add_argument("--layout", choices=["side", "overlay"], help="strip: panels side by side (default) or overlaid in one scene")
+    p.add_argument("--spacing", choices=["motion", "time"], help="strip: keyframes evenly along the base's motion (default) or in time")
     p.add_argument("--speed", type=float, default=1.0, help="playback speed, 1 = real time (default)")
     p.add_argument("--fps", type=float, default=30.0, help="video frames per second (default 30)")
     p.add_argument("--width", type=int, default=640, help="image width in pixels (default 640; the strip's panels at most 480)")

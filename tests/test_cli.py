@@ -182,6 +182,9 @@ def test_plot_and_render_check_their_folders_before_drawing(tmp_path, monkeypatc
         (tmp_path / name).mkdir()
         code, err = _run(["render", str(run), flag, str(tmp_path / name)], capsys)
         assert code == 2 and err == f"jtraj render: {flag}: {str(tmp_path / name)!r}: is a folder; expected a file name, e.g. {tmp_path / name / example}\n"
+    # the strip's options without --strip did nothing, without a word (exit 0 with the video)
+    code, err = _run(["render", str(run), "--out", str(tmp_path / "v.gif"), "--keyframes", "10", "--layout", "overlay"], capsys)
+    assert code == 2 and err == "jtraj render: --keyframes, --layout: 10, overlay: the keyframe strip's options; they need --strip FILE.png\n", err
 
 
 def jtraj_render_of(folder):
