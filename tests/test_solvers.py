@@ -512,6 +512,14 @@ def test_an_option_of_the_other_solver_says_which_solver_takes_it():
         IpmOptions.from_dict({"linear_solver": "ma57"})
     with pytest.raises(InvalidOptionError, match=r"\['bogus_name', 'linear_solver'\] \('linear_solver' is an option of Ipopt"):
         IpmOptions.from_dict({"linear_solver": "ma57", "bogus_name": 1})
+    # an Ipopt option this solver has under another name: that name, not only "use Ipopt"
+    with pytest.raises(InvalidOptionError, match=r"\('limited_memory_max_history' is this solver's 'lbfgs_memory'; 'linear_solver' is an option of Ipopt: solver='ipopt', --solver ipopt\)"):
+        IpmOptions.from_dict({"linear_solver": "ma57", "limited_memory_max_history": 5})
+    from jtraj.solvers.ipm import IPOPT_NAMES
+    from jtraj.solvers.ipopt_catalog import catalog
+
+    fields = {f.name for f in dataclasses.fields(IpmOptions)}
+    assert all(name in catalog() and ours in fields and name not in fields for name, ours in IPOPT_NAMES.items())
     with pytest.raises(IpoptOptionError, match=r"^--ipopt delta_c_min: 1e-09: unknown Ipopt option; an option of jtraj's solver \(solver='jtraj', --solver jtraj\)$"):
         check("delta_c_min", 1e-9)
     with pytest.raises(IpoptOptionError, match=r"did you mean max_iter"):  # a typo still gets Ipopt's nearest names

@@ -180,6 +180,21 @@ class _Tolerances(NamedTuple):
     feasibility_polish_iter: Any
 
 
+
+#: Ipopt's options that `IpmOptions` has under another name (the fields' docstrings)
+IPOPT_NAMES = {
+    "hessian_approximation": "hessian",
+    "limited_memory_max_history": "lbfgs_memory",
+    "limited_memory_init_val": "lbfgs_init_val",
+    "limited_memory_init_val_min": "lbfgs_init_min",
+    "limited_memory_init_val_max": "lbfgs_init_max",
+    "limited_memory_max_skipping": "lbfgs_max_skipping",
+    "max_refinement_steps": "refine_steps",
+    "min_refinement_steps": "min_refine_steps",
+    "eta_phi": "armijo",
+}
+
+
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class IpmOptions(AbstractOptions):
     """Options of the interior-point method (names and defaults follow Ipopt's options).
@@ -395,7 +410,12 @@ class IpmOptions(AbstractOptions):
         from jtraj.solvers.ipopt_catalog import catalog
 
         ipopt = [name for name in unknown if isinstance(name, str) and name in catalog()]
-        return f" ({', '.join(map(repr, ipopt))} {'is an option' if len(ipopt) == 1 else 'are options'} of Ipopt: solver='ipopt', --solver ipopt)" if ipopt else ""
+        # Ipopt's options that this solver takes under another name (the fields' docstrings):
+        # the hint names the field rather than only sending the user to Ipopt
+        ours = [f"{name!r} is this solver's {IPOPT_NAMES[name]!r}" for name in ipopt if name in IPOPT_NAMES]
+        others = [name for name in ipopt if name not in IPOPT_NAMES]
+        hints = ours + ([f"{', '.join(map(repr, others))} {'is an option' if len(others) == 1 else 'are options'} of Ipopt: solver='ipopt', --solver ipopt"] if others else [])
+        return f" ({'; '.join(hints)})" if hints else ""
 
     def __check__(self) -> None:
         if self.hessian not in ("lbfgs", "exact", "bfgs"):
