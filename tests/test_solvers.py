@@ -578,3 +578,25 @@ def test_ipopt_options_this_build_cannot_use_are_refused_before_a_solve():
     # refuses raised its TypeError out of the check
     assert set(ipopt_catalog._LIBRARY_OPTIONS) == {"nlp_scaling_method", "linear_system_scaling"}
     assert not ipopt_catalog.value_usable("linear_system_scaling", "no-such-value")
+
+
+def test_an_interrupt_during_ipopts_derivative_check_stops_the_evaluations(walk_nlp, monkeypatch):
+    """A Ctrl-C, or the command line's SIGTERM (raised once), in a callback during Ipopt's
+    derivative check: cyipopt keeps the exception and reports a failed evaluation, and the
+    checker went on perturbing every variable, each a full evaluation (on big_jump, a SIGTERM
+    was still unanswered after 100 s). After the exception no callback evaluates again, Ipopt
+    stops, and the solve raises it."""
+    real = walk_nlp.constraints
+    calls = []
+
+    def interrupted(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 3:
+            raise KeyboardInterrupt("stop here")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(walk_nlp, "constraints", interrupted)
+    with pytest.raises(KeyboardInterrupt, match="stop here"):
+        IpoptSolver().solve(walk_nlp, np.full(walk_nlp.n, 0.1), options={"derivative_test": "first-order", "print_level": 0})
+    assert len(calls) == 3
+    assert walk_nlp.n > 10  # the checker would have called the constraints once per variable

@@ -275,22 +275,37 @@ class _Problem:
         self.callback = callback
         self.history: list[Iteration] = []
         self.problem: Any = None  # the cyipopt.Problem, for its current iterate
-        self.failure: BaseException | None = None  # an exception of the Hessian, see _hessian
+        self.failure: BaseException | None = None  # an exception of a callback, see _evaluate and _hessian
         if exact_hessian:
             self.hessianstructure = lambda: (nlp.hess_rows, nlp.hess_cols)
             self.hessian = self._hessian
 
+    def _evaluate(self, key: str, fn, size: int, x):
+        """``fn(x)``, timed; an exception is kept in ``failure`` (and raised to cyipopt, which
+        keeps it too), and every later call returns NaN at once without evaluating. A Ctrl-C
+        or the command line's SIGTERM raises only once: Ipopt's derivative checker took the
+        failed evaluation in its stride and went on perturbing every variable, each a full
+        evaluation (minutes on big_jump), so the command did not stop. `intermediate` stops
+        Ipopt at its next iteration and `solve` raises the exception."""
+        if self.failure is not None:
+            return np.full(size, np.nan)
+        try:
+            return self.timer.call(key, fn, jnp.asarray(x))
+        except BaseException as e:
+            self.failure = e
+            raise
+
     def objective(self, x):
-        return float(self.timer.call("obj", self.f.objective, jnp.asarray(x)))
+        return float(self._evaluate("obj", self.f.objective, 1, x).reshape(-1)[0])
 
     def gradient(self, x):
-        return self.timer.call("grad", self.f.gradient, jnp.asarray(x))
+        return self._evaluate("grad", self.f.gradient, self.nlp.n, x)
 
     def constraints(self, x):
-        return self.timer.call("con", self.f.constraints, jnp.asarray(x))
+        return self._evaluate("con", self.f.constraints, self.nlp.m, x)
 
     def jacobian(self, x):
-        return self.timer.call("jac", self.f.jacobian, jnp.asarray(x))
+        return self._evaluate("jac", self.f.jacobian, len(self.nlp.jac_rows), x)
 
     def jacobianstructure(self):
         return self.nlp.jac_rows, self.nlp.jac_cols
@@ -303,6 +318,8 @@ class _Problem:
         # (the solve "solved" in 52 or 75 iterations where it takes 35). Kept here instead:
         # the iteration ends with a zero Hessian, `intermediate` stops Ipopt, and `solve`
         # raises it.
+        if self.failure is not None:
+            return np.zeros(len(self.nlp.hess_rows))
         try:
             return self.timer.call("hess", self.f.hessian, jnp.asarray(x), jnp.asarray(lagrange), float(obj_factor))
         except BaseException as e:
