@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import math
+import re
 import threading
 import time
 import types
@@ -69,7 +70,15 @@ def with_changes(variables: str | TranscriptionOptions, changes: dict[str, str] 
     if unknown:
         raise ValueError(f"{unknown}: not a field of the variables that can be set; expected some of {sorted(settable)}")
     fields: dict[str, Any] = dict(changes)
-    return dataclasses.replace(options, **fields)
+    try:
+        return dataclasses.replace(options, **fields)
+    except ValueError as e:
+        # "it needs contact_variables=True": a field no change can set; which variables have it
+        needed = re.search(r"it needs (\w+)=True", str(e))
+        having = [name for name, o in VARIABLES.items() if needed and getattr(o, needed.group(1), False)]
+        if not having:
+            raise
+        raise ValueError(f"{e} (as the variables {' and '.join(map(repr, having))} have: variables={having[0]!r}, --variables {having[0]})") from None
 
 
 def __getattr__(name: str) -> Any:

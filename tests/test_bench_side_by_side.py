@@ -98,7 +98,7 @@ def test_unparsable_peer_output_stops_with_one_line(sbs, tmp_path, body, printed
         (["--robot", "talos=nobody"], "unknown robot 'nobody'"),
         (["--set", "force_limits"], "--set: 'force_limits': expected FIELD=VALUE"),
         # checked against every variables name, not only the first
-        (["--variables", "paper,lean", "--set", "contact_height=row"], "it needs contact_variables=True (with --variables lean)"),
+        (["--variables", "paper,lean", "--set", "contact_height=row"], "it needs contact_variables=True (as the variables 'paper' have: variables='paper', --variables paper) (with --variables lean)"),
         (["--sigma", "0.5", "--seeds", "a,b"], "argument --seeds: 'a,b': expected comma-separated seeds >= 0"),
         (["--sigma", "0.5", "--seeds", "-1"], "argument --seeds: '-1': expected comma-separated seeds >= 0"),
         (["--sigma", "-1"], "argument --sigma: '-1': expected a noise level (standard deviation) >= 0"),

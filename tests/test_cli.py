@@ -506,7 +506,9 @@ def test_set_changes_the_variables_options(monkeypatch, tmp_path, capsys):
         (["--set", "liftoff_force_rate=False"], "not a field of the variables that can be set"),
         (["--set", "force_limits=ball"], "expected 'bounds' or 'rows'"),
         (["--set", "force_limits"], "expected FIELD=VALUE"),
-        (["--variables", "compact", "--set", "contact_height=row"], "needs contact_variables"),
+        # the field cannot be set: the message names the variables that have it
+        (["--variables", "compact", "--set", "contact_height=row"], "it needs contact_variables=True (as the variables 'paper' have: variables='paper', --variables paper)"),
+        (["--variables", "lean", "--set", "position_step=stepped"], "it needs acceleration_variables=True (as the variables 'paper' and 'compact' have: variables='paper', --variables paper)"),
     ]:
         seen.clear()
         assert cli.main([*argv, *bad]) == cli.EXIT_BAD_INPUT
