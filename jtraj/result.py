@@ -535,7 +535,9 @@ def _load_trajectory(path: Path) -> tuple[Any, str]:
         with np.load(path) as z:
             arrays = {k: z[k] for k in z.files}
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
-        raise io.FileFormatError(f"{path}: not a readable NPZ file ({e})") from None
+        # numpy takes a file that is no archive for a pickle, and advises loading it unsafely
+        reason = "not a zip archive" if isinstance(e, ValueError) and "pickle" in str(e) else str(e)
+        raise io.FileFormatError(f"{path}: not a readable NPZ file ({reason})") from None
     digest = _digest(arrays)
     kind = arrays.pop(_KIND_KEY, None)
     if kind is None:

@@ -384,6 +384,17 @@ def test_bad_folders_name_the_file(tmp_path, damage):
         Result.load(d)
 
 
+def test_a_trajectory_file_that_is_no_archive_is_not_called_a_pickle(tmp_path):
+    """numpy takes a file that is no zip archive for a pickle: the message advised loading it
+    unsafely (allow_pickle) for a file of text."""
+    d = tmp_path / "r"
+    make_result(state_trajectory()).save(d)
+    (d / "trajectory.npz").write_text("junk")
+    with pytest.raises(FileFormatError) as info:
+        Result.load(d)
+    assert str(info.value) == f"{d / 'trajectory.npz'}: not a readable NPZ file (not a zip archive)"
+
+
 def test_summary_does_not_split_a_time_the_solver_did_not_split():
     """jtraj's solver runs as one compiled program and reports time_evaluations 0: the summary
     read "derivatives 0.00 s, jtraj 0.29 s", a split that was never measured."""
