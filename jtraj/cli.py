@@ -388,8 +388,12 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from jtraj import __version__
+
     parser = _Parser(prog="jtraj", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--version", action="version", version=f"jtraj {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
+    parser.set_defaults(subcommands=sub.choices)  # for `main`'s errors of a subcommand's arguments
 
     p = sub.add_parser("params", help="list the floating-base parameterizations and check them on a random pose")
     p.add_argument("--seed", type=int, default=0, help="seed of the random pose and twist (default 0)")
@@ -941,7 +945,10 @@ def _raised_in_opengl(error: BaseException) -> bool:
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:  # said by the subcommand's parser: "jtraj solve: unrecognized ...", not "jtraj: ..."
+        args.subcommands[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
+    del args.subcommands
     args.argv = sys.argv[1:] if argv is None else list(argv)  # provenance.json's command
     if _loads_mujoco(args) and (refused := _mujoco_gl_refused()):
         _tell(f"jtraj {args.command}: {refused}")

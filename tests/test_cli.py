@@ -581,6 +581,24 @@ def test_render_help_says_the_strip_is_at_most_480_pixels(capsys):
     assert "image height in pixels (default 480; the strip's panels at most 480)" in text
 
 
+def test_version_and_a_subcommands_unrecognized_arguments(capsys):
+    """``jtraj --version`` said "the following arguments are required: command"; an argument
+    a subcommand does not take was reported by the top-level parser ("jtraj: unrecognized
+    arguments"), where every other error of a subcommand's arguments names it."""
+    from jtraj import __version__
+
+    with pytest.raises(SystemExit) as info:
+        cli.main(["--version"])
+    assert info.value.code == 0 and capsys.readouterr().out == f"jtraj {__version__}\n"
+    for argv, line in (
+        (["solve", "big_jump", "extra_arg"], "jtraj solve: unrecognized arguments: extra_arg\n"),
+        (["compare", "--ipopt", "max_iter=5"], "jtraj compare: unrecognized arguments: --ipopt max_iter=5\n"),
+    ):
+        with pytest.raises(SystemExit) as info:
+            cli.main(argv)
+        assert info.value.code == cli.EXIT_BAD_INPUT and capsys.readouterr().err == line
+
+
 def test_every_option_says_what_it_does():
     """`jtraj CMD --help` describes every argument (the README's summary points there)."""
     import argparse
