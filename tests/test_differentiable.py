@@ -355,6 +355,7 @@ def test_forward_options_of_jtraj_keep_its_tight_defaults():
     assert forward_options(jt, given) == given
 
 
+@pytest.mark.heavy  # 107 s on a 2-core AVX2 machine; vmap of the gradient: the jtraj solver's test below
 def test_vmap_over_theta_gives_each_members_solution_and_gradient(hop):
     """``jax.vmap`` of the optimal motion and of its gradient over a batch of parameters: each
     member is the one solved alone (the forward solves run one after another in the callback;

@@ -54,6 +54,7 @@ def test_stage_form_has_the_original_rows_where_the_dynamics_hold(hop, rng):
 
 
 @pytest.mark.slow
+@pytest.mark.heavy  # 97 s on a 2-core AVX2 machine; FATROP's solve of the hop (last test) rests on this structure
 def test_stage_structure_is_what_fatrop_needs(hop, rng):
     F, prep, form = hop
     stage, theta = form.nlp, prep.nlp.theta
